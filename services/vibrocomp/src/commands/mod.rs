@@ -1,0 +1,6 @@
+//! One module per command.
+
+pub mod estimate;
+pub mod identify;
+pub mod model;
+pub mod require;

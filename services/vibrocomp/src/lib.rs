@@ -1,0 +1,70 @@
+//! The `vibrocomp` command line: parses arguments, validates them into ready-to-use
+//! inputs, calls the libraries in `shared/`, and prints a table or `--json`.
+//!
+//! Each command lives in its own module under [`commands`]; `main.rs` only turns the
+//! result into an exit code.
+
+pub mod commands;
+pub mod output;
+
+use clap::{Parser, Subcommand};
+use std::ffi::OsString;
+use std::process::ExitCode;
+
+/// Removes the vibration error of navigation accelerometers, and helps find what the
+/// error model is missing.
+#[derive(Debug, Parser)]
+#[command(name = "vibrocomp", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// The vibration-error model: VE components, compensation, model check.
+    #[command(subcommand)]
+    Model(commands::model::ModelCommand),
+    /// Identify the VE components from shake-table test positions (MODEL.md section 9).
+    #[command(subcommand)]
+    Identify(commands::identify::IdentifyCommand),
+    /// Allowed moduli of the passport coefficients for a VE budget (MODEL.md section 10).
+    Require(commands::require::RequireArgs),
+    /// Estimate vibration parameters (tones, band RMS, covariance) from a recorded stream.
+    Estimate(commands::estimate::EstimateArgs),
+}
+
+/// Runs the command line with the given arguments and returns the process exit code:
+/// 0 on success, 1 on a failed command (the error chain is printed on stderr),
+/// 2 on bad usage (clap's own convention).
+pub fn main_with_args<I, T>(args: I) -> ExitCode
+where
+    I: IntoIterator<Item = T>,
+    T: Into<OsString> + Clone,
+{
+    let cli = match Cli::try_parse_from(args) {
+        Ok(cli) => cli,
+        Err(e) => {
+            // clap prints help/version on stdout with exit 0, usage errors on stderr with 2.
+            let _ = e.print();
+            return ExitCode::from(e.exit_code().clamp(0, 255) as u8);
+        }
+    };
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Dispatches a parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Model(cmd) => commands::model::run(cmd),
+        Command::Identify(cmd) => commands::identify::run(cmd),
+        Command::Require(args) => commands::require::run(args),
+        Command::Estimate(args) => commands::estimate::run(args),
+    }
+}

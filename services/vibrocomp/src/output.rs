@@ -1,0 +1,25 @@
+//! Printing results: a readable table for people, JSON (`--json`) for scripts.
+
+use serde::Serialize;
+
+/// Prints `value` as pretty JSON on stdout.
+pub fn print_json<T: Serialize>(value: &T) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(value)?;
+    println!("{text}");
+    Ok(())
+}
+
+/// Formats an acceleration in g with an engineering prefix chosen for readability
+/// (g, mg, ug), keeping four significant digits.
+pub fn fmt_g(value_g: f64) -> String {
+    let abs = value_g.abs();
+    if abs == 0.0 {
+        "0 g".to_string()
+    } else if abs >= 0.1 {
+        format!("{value_g:.4} g")
+    } else if abs >= 1e-4 {
+        format!("{:.4} mg", value_g * 1e3)
+    } else {
+        format!("{:.4} ug", value_g * 1e6)
+    }
+}

@@ -1,0 +1,1 @@
+//! Vibration estimation (being built).

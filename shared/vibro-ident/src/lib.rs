@@ -1,0 +1,1 @@
+//! Shake-table measurement and identification (being built).

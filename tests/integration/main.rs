@@ -1,0 +1,1 @@
+//! Integration tests of vibrocomp: one binary, a module per topic.
