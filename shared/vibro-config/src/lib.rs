@@ -1,1 +1,51 @@
-//! Configuration loading (being built).
+//! # vibro-config
+//!
+//! Loads vibrocomp's configuration files and turns them into the validated types of
+//! the physics core: accelerometer passports (`config/accelerometers/*.toml`), triad
+//! geometries (`config/triads/*.toml`) and vibration band tables
+//! (`config/vibration/*.csv`). Every error names the file, the key (or row and
+//! column), the offending value and the rule, and all problems of a file are reported
+//! at once.
+//!
+//! The passports and the triad shipped in `config/` are also embedded in the binary,
+//! so `--passport AL-15` works from any directory.
+//!
+//! ```
+//! let p = vibro_config::resolve_passport("AL-15").unwrap();
+//! assert_eq!(p.k1_v_per_g, -1.6698);
+//! ```
+
+mod passport;
+mod psd;
+mod triad;
+
+pub use passport::{load_passport, parse_passport, resolve_passport, EMBEDDED_PASSPORTS};
+pub use psd::{load_psd_table, parse_psd_table};
+pub use triad::{default_triad, load_triad, parse_triad, resolve_triad, TriadConfig};
+
+/// Errors of configuration loading. Each carries the file (or embedded name) it is about.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{file}: cannot read: {source}")]
+    Io { file: String, source: std::io::Error },
+    #[error("{file}: {message}")]
+    Parse { file: String, message: String },
+    #[error("{file}: {}", problems.join("; "))]
+    Invalid { file: String, problems: Vec<String> },
+    #[error("{arg:?} is neither a readable file nor a known {kind} id (known: {known})")]
+    Unknown { arg: String, kind: &'static str, known: String },
+}
+
+/// Result of configuration loading.
+pub type Result<T> = std::result::Result<T, ConfigError>;
+
+fn read(path: &std::path::Path) -> Result<String> {
+    std::fs::read_to_string(path)
+        .map_err(|source| ConfigError::Io { file: path.display().to_string(), source })
+}
+
+fn toml_error(file: &str, e: toml::de::Error) -> ConfigError {
+    // toml's message already names the line, column and key; keep it on one line.
+    let message = e.to_string().replace('\n', " ").split_whitespace().collect::<Vec<_>>().join(" ");
+    ConfigError::Parse { file: file.to_string(), message }
+}
