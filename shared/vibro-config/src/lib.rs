@@ -27,25 +27,42 @@ pub use triad::{default_triad, load_triad, parse_triad, resolve_triad, TriadConf
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     #[error("{file}: cannot read: {source}")]
-    Io { file: String, source: std::io::Error },
+    Io {
+        file: String,
+        source: std::io::Error,
+    },
     #[error("{file}: {message}")]
     Parse { file: String, message: String },
     #[error("{file}: {}", problems.join("; "))]
     Invalid { file: String, problems: Vec<String> },
     #[error("{arg:?} is neither a readable file nor a known {kind} id (known: {known})")]
-    Unknown { arg: String, kind: &'static str, known: String },
+    Unknown {
+        arg: String,
+        kind: &'static str,
+        known: String,
+    },
 }
 
 /// Result of configuration loading.
 pub type Result<T> = std::result::Result<T, ConfigError>;
 
 fn read(path: &std::path::Path) -> Result<String> {
-    std::fs::read_to_string(path)
-        .map_err(|source| ConfigError::Io { file: path.display().to_string(), source })
+    std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+        file: path.display().to_string(),
+        source,
+    })
 }
 
 fn toml_error(file: &str, e: toml::de::Error) -> ConfigError {
     // toml's message already names the line, column and key; keep it on one line.
-    let message = e.to_string().replace('\n', " ").split_whitespace().collect::<Vec<_>>().join(" ");
-    ConfigError::Parse { file: file.to_string(), message }
+    let message = e
+        .to_string()
+        .replace('\n', " ")
+        .split_whitespace()
+        .collect::<Vec<_>>()
+        .join(" ");
+    ConfigError::Parse {
+        file: file.to_string(),
+        message,
+    }
 }

@@ -6,19 +6,35 @@ use vibro_physics::passport::{Passport, PassportSpec};
 
 /// The passports shipped in `config/accelerometers/`: (id, file name, text).
 pub const EMBEDDED_PASSPORTS: [(&str, &str, &str); 3] = [
-    ("AL-15", "config/accelerometers/al-15.toml", include_str!("../../../config/accelerometers/al-15.toml")),
-    ("AL-1M", "config/accelerometers/al-1m.toml", include_str!("../../../config/accelerometers/al-1m.toml")),
-    ("AKS-05", "config/accelerometers/aks-05.toml", include_str!("../../../config/accelerometers/aks-05.toml")),
+    (
+        "AL-15",
+        "config/accelerometers/al-15.toml",
+        include_str!("../../../config/accelerometers/al-15.toml"),
+    ),
+    (
+        "AL-1M",
+        "config/accelerometers/al-1m.toml",
+        include_str!("../../../config/accelerometers/al-1m.toml"),
+    ),
+    (
+        "AKS-05",
+        "config/accelerometers/aks-05.toml",
+        include_str!("../../../config/accelerometers/aks-05.toml"),
+    ),
 ];
 
 /// Parses and validates a passport from TOML text; `file` names it in errors.
 pub fn parse_passport(text: &str, file: &str) -> Result<Passport> {
     let spec: PassportSpec = toml::from_str(text).map_err(|e| toml_error(file, e))?;
     Passport::try_from_spec(&spec).map_err(|e| match e {
-        vibro_physics::Error::InvalidPassport { problems } => {
-            ConfigError::Invalid { file: file.to_string(), problems }
-        }
-        other => ConfigError::Invalid { file: file.to_string(), problems: vec![other.to_string()] },
+        vibro_physics::Error::InvalidPassport { problems } => ConfigError::Invalid {
+            file: file.to_string(),
+            problems,
+        },
+        other => ConfigError::Invalid {
+            file: file.to_string(),
+            problems: vec![other.to_string()],
+        },
     })
 }
 
@@ -34,15 +50,20 @@ pub fn resolve_passport(arg: &str) -> Result<Passport> {
     if path.is_file() {
         return load_passport(path);
     }
-    if let Some((_, file, text)) =
-        EMBEDDED_PASSPORTS.iter().find(|(id, _, _)| id.eq_ignore_ascii_case(arg))
+    if let Some((_, file, text)) = EMBEDDED_PASSPORTS
+        .iter()
+        .find(|(id, _, _)| id.eq_ignore_ascii_case(arg))
     {
         return parse_passport(text, &format!("{file} (embedded)"));
     }
     Err(ConfigError::Unknown {
         arg: arg.to_string(),
         kind: "passport",
-        known: EMBEDDED_PASSPORTS.iter().map(|(id, _, _)| *id).collect::<Vec<_>>().join(", "),
+        known: EMBEDDED_PASSPORTS
+            .iter()
+            .map(|(id, _, _)| *id)
+            .collect::<Vec<_>>()
+            .join(", "),
     })
 }
 
@@ -73,12 +94,20 @@ mod tests {
 
     #[test]
     fn errors_name_file_key_value_and_rule() {
-        let text = EMBEDDED_PASSPORTS[0].2.replace("k2_ppm_per_g = 105.0", "k2_ppm_per_g = -1e9");
+        let text = EMBEDDED_PASSPORTS[0]
+            .2
+            .replace("k2_ppm_per_g = 105.0", "k2_ppm_per_g = -1e9");
         let e = parse_passport(&text, "x.toml").unwrap_err().to_string();
-        assert_eq!(e, "x.toml: k2_ppm_per_g = -1000000000: must be finite and |k2| <= 1e4 ppm/g");
+        assert_eq!(
+            e,
+            "x.toml: k2_ppm_per_g = -1000000000: must be finite and |k2| <= 1e4 ppm/g"
+        );
         let text = format!("{}\nk6_ppm_per_g5 = 1.0\n", EMBEDDED_PASSPORTS[0].2);
         let e = parse_passport(&text, "y.toml").unwrap_err().to_string();
-        assert!(e.starts_with("y.toml: ") && e.contains("unknown field `k6_ppm_per_g5`"), "{e}");
+        assert!(
+            e.starts_with("y.toml: ") && e.contains("unknown field `k6_ppm_per_g5`"),
+            "{e}"
+        );
         let e = resolve_passport("AL-99").unwrap_err().to_string();
         assert!(e.contains("AL-15, AL-1M, AKS-05"), "{e}");
     }

@@ -6,8 +6,10 @@ use std::path::Path;
 use vibro_physics::passport::Passport;
 use vibro_physics::triad::{SignedAxis, TriadAxes, UnitAxes};
 
-const EMBEDDED_DEFAULT: (&str, &str) =
-    ("config/triads/default.toml", include_str!("../../../config/triads/default.toml"));
+const EMBEDDED_DEFAULT: (&str, &str) = (
+    "config/triads/default.toml",
+    include_str!("../../../config/triads/default.toml"),
+);
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -41,7 +43,10 @@ pub fn parse_triad(text: &str, file: &str) -> Result<TriadConfig> {
     let raw: RawTriad = toml::from_str(text).map_err(|e| toml_error(file, e))?;
     let mut problems = Vec::new();
     if raw.unit.len() != 3 {
-        problems.push(format!("unit: {} entries: a triad has exactly 3 units", raw.unit.len()));
+        problems.push(format!(
+            "unit: {} entries: a triad has exactly 3 units",
+            raw.unit.len()
+        ));
     }
     let mut units = Vec::new();
     let mut passports = Vec::new();
@@ -74,12 +79,22 @@ pub fn parse_triad(text: &str, file: &str) -> Result<TriadConfig> {
             <[String; 3]>::try_from(raw.unit.iter().map(|u| u.name.clone()).collect::<Vec<_>>()),
         ) {
             match TriadAxes::new(units) {
-                Ok(axes) => return Ok(TriadConfig { id: raw.id, names, axes, passports }),
+                Ok(axes) => {
+                    return Ok(TriadConfig {
+                        id: raw.id,
+                        names,
+                        axes,
+                        passports,
+                    })
+                }
                 Err(e) => problems.push(e.to_string()),
             }
         }
     }
-    Err(ConfigError::Invalid { file: file.to_string(), problems })
+    Err(ConfigError::Invalid {
+        file: file.to_string(),
+        problems,
+    })
 }
 
 /// Loads a triad file.
@@ -89,7 +104,10 @@ pub fn load_triad(path: &Path) -> Result<TriadConfig> {
 
 /// The shipped default triad (RIG.md's accelerometer block).
 pub fn default_triad() -> Result<TriadConfig> {
-    parse_triad(EMBEDDED_DEFAULT.1, &format!("{} (embedded)", EMBEDDED_DEFAULT.0))
+    parse_triad(
+        EMBEDDED_DEFAULT.1,
+        &format!("{} (embedded)", EMBEDDED_DEFAULT.0),
+    )
 }
 
 /// A triad from a path, or `default` for the shipped one.
@@ -100,7 +118,11 @@ pub fn resolve_triad(arg: &str) -> Result<TriadConfig> {
     } else if arg.eq_ignore_ascii_case("default") {
         default_triad()
     } else {
-        Err(ConfigError::Unknown { arg: arg.to_string(), kind: "triad", known: "default".into() })
+        Err(ConfigError::Unknown {
+            arg: arg.to_string(),
+            kind: "triad",
+            known: "default".into(),
+        })
     }
 }
 
@@ -118,13 +140,15 @@ mod tests {
 
     #[test]
     fn bad_triad_reports_all_problems() {
-        let text = EMBEDDED_DEFAULT.1.replacen("ia = \"+x\"", "ia = \"+w\"", 1).replacen(
-            "passport = \"AL-15\"",
-            "passport = \"nope\"",
-            1,
-        );
+        let text = EMBEDDED_DEFAULT
+            .1
+            .replacen("ia = \"+x\"", "ia = \"+w\"", 1)
+            .replacen("passport = \"AL-15\"", "passport = \"nope\"", 1);
         let e = parse_triad(&text, "t.toml").unwrap_err().to_string();
-        assert!(e.starts_with("t.toml: unit[0].ia = \"+w\": must be a signed body axis"), "{e}");
+        assert!(
+            e.starts_with("t.toml: unit[0].ia = \"+w\": must be a signed body axis"),
+            "{e}"
+        );
         assert!(e.contains("unit[0].passport = \"nope\""), "{e}");
     }
 }

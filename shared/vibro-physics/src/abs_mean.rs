@@ -1,1 +1,413 @@
-//! (being built)
+//! The exact mean `E|m + v|` of the asymmetry term (MODEL.md section 6), where `v` is
+//! the vibration along the input axis: independent tones (uniform random phases) plus
+//! broadband random vibration.
+//!
+//! - One tone alone: the closed form `E|m + A sin| = (2/pi)(m asin(m/A) + sqrt(A^2 - m^2))`
+//!   for `|m| < A`, `|m|` otherwise (MODEL.md section 6).
+//! - Random alone: the folded-normal mean
+//!   `E|mu + x| = sigma sqrt(2/pi) exp(-mu^2/(2 sigma^2)) + mu (1 - 2 Phi(-mu/sigma))`,
+//!   or a mixture of two such terms for non-Gaussian vibration ([`ScaleMixture`]).
+//! - Anything else: the distribution of `v` is built on a grid of 4096 points by
+//!   convolving the exact bin probabilities of each component (FFT, allocated once),
+//!   and `E|m + v| = sum_i p_i |m + u_i|` is read in O(1) from prefix sums. The result
+//!   is exact for the binned distribution and piecewise linear in `m`; its error from
+//!   binning is below `p_bin * h / 2` (about 1e-5 of the vibration amplitude), far
+//!   below what the `d1A` term can show (MODEL.md's `d1A` is 15..25 ppm).
+//!
+//! [`AbsMean::eval`] also returns the slope `dE|m + v|/dm = P(v > -m) - P(v < -m)`,
+//! which the exact compensation uses for its Newton steps.
+
+use crate::{Error, Result};
+use realfft::num_complex::Complex;
+use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
+use std::f64::consts::{FRAC_2_PI, PI, SQRT_2};
+use std::sync::Arc;
+
+/// Grid size of the convolution table.
+const TABLE_POINTS: usize = 4096;
+/// Index of `u = 0` on the grid.
+const CENTRE: usize = TABLE_POINTS / 2;
+/// Half-width of the support in bins, leaving a margin below `CENTRE`.
+const HALF_WIDTH_BINS: f64 = 2040.0;
+/// Gaussian components are cut at this many standard deviations (tail mass ~1e-17).
+const GAUSS_CUT_SIGMAS: f64 = 8.5;
+
+/// Standard normal CDF `Phi(x)`.
+#[inline]
+pub fn normal_cdf(x: f64) -> f64 {
+    0.5 * libm::erfc(-x / SQRT_2)
+}
+
+/// `E|m + A sin(theta)|` for theta uniform (MODEL.md section 6), and its slope in `m`.
+#[inline]
+pub fn sine_abs_mean(m: f64, a: f64) -> (f64, f64) {
+    let a = a.abs();
+    if m.abs() >= a {
+        return (m.abs(), m.signum());
+    }
+    let r = m / a;
+    let asin = r.asin();
+    (
+        FRAC_2_PI * (m * asin + (a * a - m * m).sqrt()),
+        FRAC_2_PI * asin,
+    )
+}
+
+/// Folded-normal mean `E|mu + x|`, `x ~ N(0, sigma^2)` (MODEL.md section 6), and its
+/// slope `1 - 2 Phi(-mu/sigma)`.
+#[inline]
+pub fn folded_normal_mean(mu: f64, sigma: f64) -> (f64, f64) {
+    if sigma <= 0.0 {
+        return (mu.abs(), mu.signum());
+    }
+    let z = mu / sigma;
+    let slope = 1.0 - 2.0 * normal_cdf(-z);
+    let value = sigma * (2.0 / PI).sqrt() * (-0.5 * z * z).exp() + mu * slope;
+    (value, slope)
+}
+
+/// The non-Gaussian random vibration of the project: a Gaussian scale mixture
+/// `x = sqrt(w) * sigma * z`, `w` taking two values, which has the requested kurtosis
+/// `E[x^4]/sigma^4 = 3 E[w^2]` and the same variance (`E[w] = 1`). The larger scale is
+/// taken with probability [`ScaleMixture::P_HIGH`]: bursts of stronger vibration, as in
+/// a flight with transients. The simulator draws from the same family, so its mean
+/// output and the exact model agree. Kurtosis below 3 (sub-Gaussian) has no scale
+/// mixture: the family is then Gaussian, and only the fourth-moment terms of the
+/// model see the kurtosis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScaleMixture {
+    /// The two variance scales `w`.
+    pub scale: [f64; 2],
+    /// Their probabilities.
+    pub prob: [f64; 2],
+}
+
+impl ScaleMixture {
+    /// Probability of the high-variance state.
+    pub const P_HIGH: f64 = 0.1;
+    /// Largest kurtosis the family reaches with `w >= 0`: `3 (1 + (1-p)/p) = 30`.
+    pub const MAX_KURTOSIS: f64 = 30.0;
+
+    /// The mixture with kurtosis `k` (clamped into `[3, 30]`).
+    pub fn for_kurtosis(k: f64) -> Self {
+        let p = Self::P_HIGH;
+        let excess = (k.clamp(3.0, Self::MAX_KURTOSIS) / 3.0 - 1.0).max(0.0);
+        // E[w] = (1-p) w_lo + p w_hi = 1, E[w^2] = 1 + a^2 p/(1-p) = k/3.
+        let a = (excess * (1.0 - p) / p).sqrt();
+        let w_hi = 1.0 + a;
+        let w_lo = (1.0 - a * p / (1.0 - p)).max(0.0);
+        Self {
+            scale: [w_lo, w_hi],
+            prob: [1.0 - p, p],
+        }
+    }
+
+    /// Whether this is the plain Gaussian (both scales 1).
+    pub fn is_gaussian(&self) -> bool {
+        self.scale == [1.0, 1.0]
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Kind {
+    Zero,
+    Sine { amplitude_g: f64 },
+    Random { sigma_g: [f64; 2], prob: [f64; 2] },
+    Table,
+}
+
+/// `E|m + v|` for a vibration `v` set with [`AbsMean::set`]; buffers are allocated in
+/// [`AbsMean::new`] only, so `set` and `eval` never allocate.
+#[derive(Clone)]
+pub struct AbsMean {
+    kind: Kind,
+    step_g: f64,
+    /// `prefix_p[j] = sum_{i<j} p_i`, length `TABLE_POINTS + 1`.
+    prefix_p: Vec<f64>,
+    /// `prefix_pu[j] = sum_{i<j} p_i u_i`, g.
+    prefix_pu: Vec<f64>,
+    fft: FftBuffers,
+}
+
+#[derive(Clone)]
+struct FftBuffers {
+    forward: Arc<dyn RealToComplex<f64>>,
+    inverse: Arc<dyn ComplexToReal<f64>>,
+    real: Vec<f64>,
+    spectrum: Vec<Complex<f64>>,
+    product: Vec<Complex<f64>>,
+    scratch: Vec<Complex<f64>>,
+}
+
+impl std::fmt::Debug for AbsMean {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AbsMean")
+            .field("kind", &self.kind)
+            .field("step_g", &self.step_g)
+            .finish()
+    }
+}
+
+impl Default for AbsMean {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl AbsMean {
+    /// Allocates the table (about 200 kB); starts with no vibration.
+    pub fn new() -> Self {
+        let mut planner = RealFftPlanner::<f64>::new();
+        let forward = planner.plan_fft_forward(TABLE_POINTS);
+        let inverse = planner.plan_fft_inverse(TABLE_POINTS);
+        let scratch_len = forward.get_scratch_len().max(inverse.get_scratch_len());
+        let spectrum = forward.make_output_vec();
+        Self {
+            kind: Kind::Zero,
+            step_g: 0.0,
+            prefix_p: vec![0.0; TABLE_POINTS + 1],
+            prefix_pu: vec![0.0; TABLE_POINTS + 1],
+            fft: FftBuffers {
+                real: forward.make_input_vec(),
+                product: spectrum.clone(),
+                spectrum,
+                scratch: vec![Complex::default(); scratch_len],
+                forward,
+                inverse,
+            },
+        }
+    }
+
+    /// Sets the vibration: tones of the given amplitudes (independent phases) plus
+    /// random vibration of RMS `sigma_g` and kurtosis `kurtosis` ([`ScaleMixture`]).
+    pub fn set(&mut self, tone_amplitudes_g: &[f64], sigma_g: f64, kurtosis: f64) -> Result<()> {
+        let mixture = ScaleMixture::for_kurtosis(kurtosis);
+        let sigmas = mixture.scale.map(|w| sigma_g * w.sqrt());
+        let n_tones = tone_amplitudes_g.iter().filter(|a| **a > 0.0).count();
+        let has_random = sigma_g > 0.0;
+        self.kind = match (n_tones, has_random) {
+            (0, false) => Kind::Zero,
+            (0, true) => Kind::Random {
+                sigma_g: sigmas,
+                prob: mixture.prob,
+            },
+            (1, false) => Kind::Sine {
+                amplitude_g: tone_amplitudes_g.iter().copied().fold(0.0, f64::max),
+            },
+            _ => {
+                self.build_table(tone_amplitudes_g, sigmas, mixture.prob)?;
+                Kind::Table
+            }
+        };
+        Ok(())
+    }
+
+    /// `(E|m + v|, dE|m + v|/dm)`.
+    #[inline]
+    pub fn eval(&self, m: f64) -> (f64, f64) {
+        match self.kind {
+            Kind::Zero => (m.abs(), m.signum()),
+            Kind::Sine { amplitude_g } => sine_abs_mean(m, amplitude_g),
+            Kind::Random { sigma_g, prob } => {
+                let (v0, s0) = folded_normal_mean(m, sigma_g[0]);
+                let (v1, s1) = folded_normal_mean(m, sigma_g[1]);
+                (prob[0] * v0 + prob[1] * v1, prob[0] * s0 + prob[1] * s1)
+            }
+            Kind::Table => {
+                // u_i = (i - CENTRE) h < -m  <=>  i < CENTRE - m/h.
+                let x = CENTRE as f64 - m / self.step_g;
+                let j = if x <= 0.0 {
+                    0
+                } else if x >= TABLE_POINTS as f64 {
+                    TABLE_POINTS
+                } else {
+                    x.ceil() as usize
+                };
+                let p_tot = self.prefix_p[TABLE_POINTS];
+                let pu_tot = self.prefix_pu[TABLE_POINTS];
+                let slope = p_tot - 2.0 * self.prefix_p[j];
+                (m * slope + pu_tot - 2.0 * self.prefix_pu[j], slope)
+            }
+        }
+    }
+
+    fn build_table(&mut self, tones_g: &[f64], sigmas_g: [f64; 2], prob: [f64; 2]) -> Result<()> {
+        let sigma_max = sigmas_g[0].max(sigmas_g[1]);
+        let reach_g: f64 =
+            tones_g.iter().map(|a| a.max(0.0)).sum::<f64>() + GAUSS_CUT_SIGMAS * sigma_max;
+        let h = reach_g / HALF_WIDTH_BINS;
+        self.step_g = h;
+        let fft = &mut self.fft;
+        let mut first = true;
+        let fold_in = |fft: &mut FftBuffers, first: &mut bool| -> Result<()> {
+            fft.forward
+                .process_with_scratch(&mut fft.real, &mut fft.spectrum, &mut fft.scratch)
+                .map_err(|e| {
+                    Error::InvalidVibration(format!("FFT of the vibration distribution: {e}"))
+                })?;
+            if *first {
+                fft.product.copy_from_slice(&fft.spectrum);
+                *first = false;
+            } else {
+                for (acc, s) in fft.product.iter_mut().zip(&fft.spectrum) {
+                    *acc *= *s;
+                }
+            }
+            Ok(())
+        };
+        // Each component's bin probabilities, wrapped so that u = 0 is index 0.
+        for &a in tones_g.iter().filter(|a| **a > 0.0) {
+            fft.real.fill(0.0);
+            let cdf = |u: f64| 0.5 + (u / a).clamp(-1.0, 1.0).asin() / PI;
+            let half = (a / h).ceil() as isize + 1;
+            for j in -half..=half {
+                let u = j as f64 * h;
+                fft.real[j.rem_euclid(TABLE_POINTS as isize) as usize] =
+                    cdf(u + 0.5 * h) - cdf(u - 0.5 * h);
+            }
+            fold_in(fft, &mut first)?;
+        }
+        if sigma_max > 0.0 {
+            fft.real.fill(0.0);
+            let half = (GAUSS_CUT_SIGMAS * sigma_max / h).ceil() as isize + 1;
+            for j in -half..=half {
+                let u = j as f64 * h;
+                let mut p = 0.0;
+                for (s, w) in sigmas_g.iter().zip(prob) {
+                    if *s > 0.0 {
+                        p += w * (normal_cdf((u + 0.5 * h) / s) - normal_cdf((u - 0.5 * h) / s));
+                    } else if j == 0 {
+                        p += w;
+                    }
+                }
+                fft.real[j.rem_euclid(TABLE_POINTS as isize) as usize] = p;
+            }
+            fold_in(fft, &mut first)?;
+        }
+        // The product of real spectra is real at DC and Nyquist; clear round-off.
+        fft.product[0].im = 0.0;
+        if let Some(last) = fft.product.last_mut() {
+            last.im = 0.0;
+        }
+        fft.inverse
+            .process_with_scratch(&mut fft.product, &mut fft.real, &mut fft.scratch)
+            .map_err(|e| {
+                Error::InvalidVibration(format!("inverse FFT of the vibration distribution: {e}"))
+            })?;
+        let norm = 1.0 / TABLE_POINTS as f64;
+        let (mut acc_p, mut acc_pu) = (0.0, 0.0);
+        self.prefix_p[0] = 0.0;
+        self.prefix_pu[0] = 0.0;
+        for i in 0..TABLE_POINTS {
+            let wrapped = (i + TABLE_POINTS - CENTRE) % TABLE_POINTS;
+            let p = fft.real[wrapped] * norm;
+            let u = (i as f64 - CENTRE as f64) * h;
+            acc_p += p;
+            acc_pu += p * u;
+            self.prefix_p[i + 1] = acc_p;
+            self.prefix_pu[i + 1] = acc_pu;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Midpoint rule over one period of a phase, `n` points (spectrally accurate for
+    /// smooth periodic integrands, O(1/n^2) at a kink).
+    fn phase_mean(n: usize, f: impl Fn(f64) -> f64) -> f64 {
+        (0..n)
+            .map(|i| f((i as f64 + 0.5) / n as f64 * 2.0 * PI))
+            .sum::<f64>()
+            / n as f64
+    }
+
+    #[test]
+    fn closed_forms_match_quadrature() {
+        for &(m, a) in &[(0.0, 2.0), (1.0, 2.0), (-1.5, 2.0), (3.0, 2.0)] {
+            let want = phase_mean(200_000, |t| (m + a * t.sin()).abs());
+            assert!((sine_abs_mean(m, a).0 - want).abs() < 1e-9, "m={m} a={a}");
+        }
+        for &(mu, s) in &[(0.0, 1.0), (10.0, 6.1968), (-0.3, 0.5)] {
+            // Midpoint rule over z in [-10, 10] with a node at the kink's neighbourhood fine enough.
+            let n = 400_001;
+            let (mut num, mut den) = (0.0, 0.0);
+            for k in 0..n {
+                let z = -10.0 + 20.0 * (k as f64 + 0.5) / n as f64;
+                let w = (-0.5 * z * z).exp();
+                num += w * (mu + s * z).abs();
+                den += w;
+            }
+            assert!(
+                (folded_normal_mean(mu, s).0 - num / den).abs() < 1e-8 * s,
+                "mu={mu} s={s}"
+            );
+        }
+        // A pure sine with aB < |aL| has no asymmetry VE (MODEL.md section 6).
+        assert_eq!(sine_abs_mean(1.0, 0.42).0, 1.0);
+    }
+
+    /// The table against phase averages of the closed forms verified above.
+    #[test]
+    fn table_matches_phase_averages_of_closed_forms() {
+        let mut t = AbsMean::new();
+        let ms = [-2.5, -1.0, 0.0, 0.4, 1.3, 2.9];
+        t.set(&[2.0, 0.7], 0.0, 3.0).unwrap();
+        for m in ms {
+            let want = phase_mean(20_000, |th| sine_abs_mean(m + 0.7 * th.sin(), 2.0).0);
+            assert!((t.eval(m).0 - want).abs() < 1e-4, "two tones, m={m}");
+        }
+        t.set(&[2.0], 0.5, 3.0).unwrap();
+        for m in ms {
+            let want = phase_mean(20_000, |th| folded_normal_mean(m + 2.0 * th.sin(), 0.5).0);
+            assert!((t.eval(m).0 - want).abs() < 1e-4, "tone and noise, m={m}");
+        }
+        t.set(&[1.0, 0.5], 0.3, 3.0).unwrap();
+        for m in ms {
+            let want = phase_mean(1000, |t1| {
+                phase_mean(1000, |t2| {
+                    folded_normal_mean(m + t1.sin() + 0.5 * t2.sin(), 0.3).0
+                })
+            });
+            assert!(
+                (t.eval(m).0 - want).abs() < 1e-4,
+                "two tones and noise, m={m}"
+            );
+        }
+        // Non-Gaussian random alone: the mixture of two folded normals.
+        t.set(&[], 1.0, 9.0).unwrap();
+        let mix = ScaleMixture::for_kurtosis(9.0);
+        let want = mix.prob[0] * folded_normal_mean(0.5, mix.scale[0].sqrt()).0
+            + mix.prob[1] * folded_normal_mean(0.5, mix.scale[1].sqrt()).0;
+        assert!((t.eval(0.5).0 - want).abs() < 1e-15);
+    }
+
+    #[test]
+    fn slope_is_the_derivative() {
+        let mut t = AbsMean::new();
+        t.set(&[1.2, 0.4], 0.2, 3.0).unwrap();
+        for m in [-1.0, 0.1, 0.9] {
+            let d = 1e-3;
+            let numeric = (t.eval(m + d).0 - t.eval(m - d).0) / (2.0 * d);
+            assert!((numeric - t.eval(m).1).abs() < 2e-3);
+        }
+        let (_, s) = sine_abs_mean(0.5, 1.0);
+        let numeric = (sine_abs_mean(0.5 + 1e-6, 1.0).0 - sine_abs_mean(0.5 - 1e-6, 1.0).0) / 2e-6;
+        assert!((s - numeric).abs() < 1e-8);
+    }
+
+    #[test]
+    fn scale_mixture_has_unit_mean_and_the_kurtosis() {
+        for k in [3.0, 4.5, 9.0, 30.0] {
+            let m = ScaleMixture::for_kurtosis(k);
+            let e_w = m.prob[0] * m.scale[0] + m.prob[1] * m.scale[1];
+            let e_w2 = m.prob[0] * m.scale[0].powi(2) + m.prob[1] * m.scale[1].powi(2);
+            assert!(
+                (e_w - 1.0).abs() < 1e-14 && (3.0 * e_w2 - k).abs() < 1e-12,
+                "k={k}"
+            );
+        }
+    }
+}

@@ -17,8 +17,6 @@
 //! let p = Passport::try_from_spec(&spec).unwrap();
 //! // [P1 Table 4]: aB3 = 0.42 g, aB1 = aB2 = 0.8 g, aL3 = 10 g.
 
-
-
 //! ```
 //!
 //! References: MODEL.md (equation numbers `[P1 (n)]`, `[P2 (n)]` are the papers').
@@ -34,6 +32,9 @@ pub mod triad;
 pub mod ve;
 pub mod vibration;
 
+#[cfg(test)]
+pub(crate) mod testutil;
+
 /// Errors of the physics core. Messages carry the offending values.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum Error {
@@ -44,7 +45,11 @@ pub enum Error {
     #[error("invalid vibration: {0}")]
     InvalidVibration(String),
     #[error("invalid argument {name} = {value}: {rule}")]
-    InvalidArgument { name: &'static str, value: f64, rule: &'static str },
+    InvalidArgument {
+        name: &'static str,
+        value: f64,
+        rule: &'static str,
+    },
 }
 
 /// Result of the physics core.

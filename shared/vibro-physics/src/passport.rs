@@ -119,15 +119,60 @@ impl Passport {
                     && spec.k1_v_per_g.abs() <= 1e9,
                 rule: "must be finite and 1e-9 <= |K1| <= 1e9 V/g",
             },
-            finite_abs("d1a_ppm", spec.d1a_ppm, 1e5, "must be finite and |d1A| <= 1e5 ppm"),
-            finite_abs("k2_ppm_per_g", spec.k2_ppm_per_g, 1e4, "must be finite and |k2| <= 1e4 ppm/g"),
-            finite_abs("k3_ppm_per_g2", spec.k3_ppm_per_g2, 1e4, "must be finite and |k3| <= 1e4 ppm/g^2"),
-            finite_abs("k4_ppm_per_g3", spec.k4_ppm_per_g3, 1e4, "must be finite and |k4| <= 1e4 ppm/g^3"),
-            finite_abs("k5_ppm_per_g4", spec.k5_ppm_per_g4, 1e4, "must be finite and |k5| <= 1e4 ppm/g^4"),
-            finite_abs("m1_ppm", spec.m1_ppm, 1e5, "must be finite and |m1| <= 1e5 ppm"),
-            finite_abs("m2_ppm", spec.m2_ppm, 1e5, "must be finite and |m2| <= 1e5 ppm"),
-            finite_abs("m31_ppm_per_g", spec.m31_ppm_per_g, 1e4, "must be finite and |m31| <= 1e4 ppm/g"),
-            finite_abs("m32_ppm_per_g", spec.m32_ppm_per_g, 1e4, "must be finite and |m32| <= 1e4 ppm/g"),
+            finite_abs(
+                "d1a_ppm",
+                spec.d1a_ppm,
+                1e5,
+                "must be finite and |d1A| <= 1e5 ppm",
+            ),
+            finite_abs(
+                "k2_ppm_per_g",
+                spec.k2_ppm_per_g,
+                1e4,
+                "must be finite and |k2| <= 1e4 ppm/g",
+            ),
+            finite_abs(
+                "k3_ppm_per_g2",
+                spec.k3_ppm_per_g2,
+                1e4,
+                "must be finite and |k3| <= 1e4 ppm/g^2",
+            ),
+            finite_abs(
+                "k4_ppm_per_g3",
+                spec.k4_ppm_per_g3,
+                1e4,
+                "must be finite and |k4| <= 1e4 ppm/g^3",
+            ),
+            finite_abs(
+                "k5_ppm_per_g4",
+                spec.k5_ppm_per_g4,
+                1e4,
+                "must be finite and |k5| <= 1e4 ppm/g^4",
+            ),
+            finite_abs(
+                "m1_ppm",
+                spec.m1_ppm,
+                1e5,
+                "must be finite and |m1| <= 1e5 ppm",
+            ),
+            finite_abs(
+                "m2_ppm",
+                spec.m2_ppm,
+                1e5,
+                "must be finite and |m2| <= 1e5 ppm",
+            ),
+            finite_abs(
+                "m31_ppm_per_g",
+                spec.m31_ppm_per_g,
+                1e4,
+                "must be finite and |m31| <= 1e4 ppm/g",
+            ),
+            finite_abs(
+                "m32_ppm_per_g",
+                spec.m32_ppm_per_g,
+                1e4,
+                "must be finite and |m32| <= 1e4 ppm/g",
+            ),
         ];
         let mut problems: Vec<String> = rules
             .iter()
@@ -166,7 +211,10 @@ impl Passport {
         }
         let mut id = [0u8; 32];
         id[..spec.id.len()].copy_from_slice(spec.id.as_bytes());
-        let mut lambda = [LambdaPoint { freq_hz: 0.0, lambda: 1.0 }; MAX_LAMBDA_POINTS];
+        let mut lambda = [LambdaPoint {
+            freq_hz: 0.0,
+            lambda: 1.0,
+        }; MAX_LAMBDA_POINTS];
         lambda[..spec.lambda.len()].copy_from_slice(&spec.lambda);
         Ok(Self {
             id,
@@ -253,25 +301,7 @@ impl Passport {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    pub(crate) fn al15_spec() -> PassportSpec {
-        PassportSpec {
-            id: "AL-15".into(),
-            a0_g: 3.324e-3,
-            k1: 1.0,
-            k1_v_per_g: -1.6698,
-            d1a_ppm: 15.0,
-            k2_ppm_per_g: 105.0,
-            k3_ppm_per_g2: 87.0,
-            k4_ppm_per_g3: 10.0,
-            k5_ppm_per_g4: 0.9,
-            m1_ppm: 1150.0,
-            m2_ppm: 1150.0,
-            m31_ppm_per_g: 11.6,
-            m32_ppm_per_g: 11.6,
-            lambda: vec![],
-        }
-    }
+    use crate::testutil::al15_spec;
 
     #[test]
     fn quoted_units_convert_to_acceleration_units() {
@@ -287,7 +317,16 @@ mod tests {
         let mut s = al15_spec();
         s.k2_ppm_per_g = -1e9;
         s.k1 = f64::NAN;
-        s.lambda = vec![LambdaPoint { freq_hz: 100.0, lambda: 1.1 }, LambdaPoint { freq_hz: 50.0, lambda: 1.0 }];
+        s.lambda = vec![
+            LambdaPoint {
+                freq_hz: 100.0,
+                lambda: 1.1,
+            },
+            LambdaPoint {
+                freq_hz: 50.0,
+                lambda: 1.0,
+            },
+        ];
         let Err(Error::InvalidPassport { problems }) = Passport::try_from_spec(&s) else {
             panic!("expected an invalid passport");
         };
@@ -300,7 +339,16 @@ mod tests {
     #[test]
     fn lambda_interpolates_through_one_at_dc() {
         let mut s = al15_spec();
-        s.lambda = vec![LambdaPoint { freq_hz: 100.0, lambda: 1.2 }, LambdaPoint { freq_hz: 300.0, lambda: 1.0 }];
+        s.lambda = vec![
+            LambdaPoint {
+                freq_hz: 100.0,
+                lambda: 1.2,
+            },
+            LambdaPoint {
+                freq_hz: 300.0,
+                lambda: 1.0,
+            },
+        ];
         let p = Passport::try_from_spec(&s).unwrap();
         assert_eq!(p.lambda_at(0.0), 1.0);
         assert!((p.lambda_at(50.0) - 1.1).abs() < 1e-15);

@@ -68,7 +68,11 @@ impl UnitAxes {
     /// `[a1 (OA), a2 (PA), a3 (IA)]`.
     #[inline]
     pub fn to_unit(&self, body: &[f64; 3]) -> [f64; 3] {
-        [self.oa.project(body), self.pa.project(body), self.ia.project(body)]
+        [
+            self.oa.project(body),
+            self.pa.project(body),
+            self.ia.project(body),
+        ]
     }
 }
 
@@ -98,9 +102,18 @@ impl TriadAxes {
     /// The standard triad: unit i has its IA along body axis i, OA and PA along the next
     /// two (cyclic), all positive.
     pub fn standard() -> Self {
-        let ax = |i: usize| SignedAxis { body_index: i % 3, sign: 1 };
-        let unit = |i: usize| UnitAxes { ia: ax(i), oa: ax(i + 1), pa: ax(i + 2) };
-        Self { units: [unit(0), unit(1), unit(2)] }
+        let ax = |i: usize| SignedAxis {
+            body_index: i % 3,
+            sign: 1,
+        };
+        let unit = |i: usize| UnitAxes {
+            ia: ax(i),
+            oa: ax(i + 1),
+            pa: ax(i + 2),
+        };
+        Self {
+            units: [unit(0), unit(1), unit(2)],
+        }
     }
 
     /// The body-frame acceleration seen by the triad, from the three units' input-axis

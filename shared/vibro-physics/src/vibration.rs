@@ -56,7 +56,11 @@ impl Vibration {
     /// No vibration.
     pub const fn none() -> Self {
         Self {
-            tones: [Tone { freq_hz: 0.0, amplitude_g: [0.0; 3], phase_rad: [0.0; 3] }; MAX_TONES],
+            tones: [Tone {
+                freq_hz: 0.0,
+                amplitude_g: [0.0; 3],
+                phase_rad: [0.0; 3],
+            }; MAX_TONES],
             n_tones: 0,
             covariance_g2: [[0.0; 3]; 3],
             kurtosis: [3.0; 3],
@@ -66,7 +70,11 @@ impl Vibration {
     /// One tone, in phase on all axes (the papers' assumption, `phi_i = 0`).
     pub fn single_tone(freq_hz: f64, amplitude_g: [f64; 3]) -> Self {
         let mut v = Self::none();
-        v.tones[0] = Tone { freq_hz, amplitude_g, phase_rad: [0.0; 3] };
+        v.tones[0] = Tone {
+            freq_hz,
+            amplitude_g,
+            phase_rad: [0.0; 3],
+        };
         v.n_tones = 1;
         v
     }
@@ -104,12 +112,19 @@ impl Vibration {
 
     /// The deterministic part alone.
     pub fn deterministic_part(&self) -> Self {
-        Self { covariance_g2: [[0.0; 3]; 3], kurtosis: [3.0; 3], ..*self }
+        Self {
+            covariance_g2: [[0.0; 3]; 3],
+            kurtosis: [3.0; 3],
+            ..*self
+        }
     }
 
     /// The random part alone.
     pub fn random_part(&self) -> Self {
-        Self { n_tones: 0, ..*self }
+        Self {
+            n_tones: 0,
+            ..*self
+        }
     }
 
     /// Sets the random part from a band PSD table: `sigma_i^2 = sum S_i * df`
@@ -152,7 +167,10 @@ impl Vibration {
         let mut problems = Vec::new();
         for (k, t) in self.tones().iter().enumerate() {
             if !(t.freq_hz.is_finite() && t.freq_hz >= 0.0) {
-                problems.push(format!("tone[{k}].freq_hz = {}: must be finite and >= 0", t.freq_hz));
+                problems.push(format!(
+                    "tone[{k}].freq_hz = {}: must be finite and >= 0",
+                    t.freq_hz
+                ));
             }
             for i in 0..3 {
                 let a = t.amplitude_g[i];
@@ -163,7 +181,11 @@ impl Vibration {
                     ));
                 }
                 if !t.phase_rad[i].is_finite() {
-                    problems.push(format!("tone[{k}].phase{}_rad = {}: must be finite", i + 1, t.phase_rad[i]));
+                    problems.push(format!(
+                        "tone[{k}].phase{}_rad = {}: must be finite",
+                        i + 1,
+                        t.phase_rad[i]
+                    ));
                 }
             }
         }
@@ -178,7 +200,10 @@ impl Vibration {
             }
             let k = self.kurtosis[i];
             if !(k.is_finite() && (1.0..=30.0).contains(&k)) {
-                problems.push(format!("kurtosis{} = {k}: must be finite and 1 <= kurtosis <= 30", i + 1));
+                problems.push(format!(
+                    "kurtosis{} = {k}: must be finite and 1 <= kurtosis <= 30",
+                    i + 1
+                ));
             }
             for j in 0..3 {
                 if i == j {
@@ -222,7 +247,11 @@ mod tests {
     fn psd_table_integrates_to_variance() {
         let mut v = Vibration::none();
         // RIG.md's 320..640 Hz band at 0.12 g^2/Hz: sigma^2 = 38.4 g^2 (MODEL.md section 6).
-        v.set_random_from_psd(&[PsdBand { f_lo_hz: 320.0, f_hi_hz: 640.0, psd_g2_per_hz: [0.0, 0.0, 0.12] }]);
+        v.set_random_from_psd(&[PsdBand {
+            f_lo_hz: 320.0,
+            f_hi_hz: 640.0,
+            psd_g2_per_hz: [0.0, 0.0, 0.12],
+        }]);
         assert!((v.covariance_g2[2][2] - 38.4).abs() < 1e-12);
     }
 
