@@ -122,6 +122,7 @@ enum Kind {
 pub struct AbsMean {
     kind: Kind,
     step_g: f64,
+    inv_step_per_g: f64,
     /// `prefix_p[j] = sum_{i<j} p_i`, length `TABLE_POINTS + 1`.
     prefix_p: Vec<f64>,
     /// `prefix_pu[j] = sum_{i<j} p_i u_i`, g.
@@ -165,6 +166,7 @@ impl AbsMean {
         Self {
             kind: Kind::Zero,
             step_g: 0.0,
+            inv_step_per_g: 0.0,
             prefix_p: vec![0.0; TABLE_POINTS + 1],
             prefix_pu: vec![0.0; TABLE_POINTS + 1],
             fft: FftBuffers {
@@ -203,7 +205,7 @@ impl AbsMean {
     }
 
     /// `(E|m + v|, dE|m + v|/dm)`.
-    #[inline]
+    #[inline(always)]
     pub fn eval(&self, m: f64) -> (f64, f64) {
         match self.kind {
             Kind::Zero => (m.abs(), m.signum()),
@@ -215,13 +217,16 @@ impl AbsMean {
             }
             Kind::Table => {
                 // u_i = (i - CENTRE) h < -m  <=>  i < CENTRE - m/h.
-                let x = CENTRE as f64 - m / self.step_g;
+                let x = CENTRE as f64 - m * self.inv_step_per_g;
+                // ceil(x), clamped; written with a truncation because `f64::ceil` is
+                // a library call on baseline x86-64 (no SSE4.1), the slowest step here.
                 let j = if x <= 0.0 {
                     0
                 } else if x >= TABLE_POINTS as f64 {
                     TABLE_POINTS
                 } else {
-                    x.ceil() as usize
+                    let t = x as usize;
+                    t + usize::from((t as f64) < x)
                 };
                 let p_tot = self.prefix_p[TABLE_POINTS];
                 let pu_tot = self.prefix_pu[TABLE_POINTS];
@@ -237,6 +242,7 @@ impl AbsMean {
             tones_g.iter().map(|a| a.max(0.0)).sum::<f64>() + GAUSS_CUT_SIGMAS * sigma_max;
         let h = reach_g / HALF_WIDTH_BINS;
         self.step_g = h;
+        self.inv_step_per_g = 1.0 / h;
         let fft = &mut self.fft;
         let mut first = true;
         let fold_in = |fft: &mut FftBuffers, first: &mut bool| -> Result<()> {

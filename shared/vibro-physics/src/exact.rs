@@ -134,12 +134,30 @@ impl MeanModel {
     /// `dE[aF]/daL3`, both exact (MODEL.md section 6).
     #[inline]
     pub fn mean_output_g(&self, a_l_g: [f64; 3]) -> (f64, f64) {
+        let (value, gradient) = self.mean_output_with_gradient_g(a_l_g);
+        (value, gradient[2])
+    }
+
+    /// `E[aF]` at `a_l_g` and its gradient `[d/daL1, d/daL2, d/daL3]`.
+    #[inline]
+    pub fn mean_output_with_gradient_g(&self, a_l_g: [f64; 3]) -> (f64, [f64; 3]) {
+        let (value, gradient, _) = self.mean_output_with_derivatives_g(a_l_g);
+        (value, gradient)
+    }
+
+    /// `E[aF]`, its gradient, and a bound on its second derivatives: `|d2/daL3^2|` of
+    /// the polynomial part plus `|m31| + |m32|` (the mixed terms). The piecewise-linear
+    /// asymmetry table adds slope jumps of at most `d1A` per bin, which the compensation
+    /// tolerates (see [`crate::compensation`]).
+    #[inline(always)]
+    pub fn mean_output_with_derivatives_g(&self, a_l_g: [f64; 3]) -> (f64, [f64; 3], f64) {
         let p = &self.passport;
         let [a1, a2, a] = a_l_g;
         let c = &self.poly;
         let poly = c[0] + a * (c[1] + a * (c[2] + a * (c[3] + a * (c[4] + a * c[5]))));
         let poly_slope =
             c[1] + a * (2.0 * c[2] + a * (3.0 * c[3] + a * (4.0 * c[4] + a * 5.0 * c[5])));
+        let poly_curv = 2.0 * c[2] + a * (6.0 * c[3] + a * (12.0 * c[4] + a * 20.0 * c[5]));
         let (abs, abs_slope) = self.abs.eval(a);
         let half_asym = 0.5 * p.k1 * p.d1a;
         let cross_slope = p.m31_per_g * a1 + p.m32_per_g * a2;
@@ -152,9 +170,15 @@ impl MeanModel {
             + a * cross_slope
             + p.m31_per_g * self.cross_g2[0]
             + p.m32_per_g * self.cross_g2[1];
+        let gradient = [
+            p.m1 + p.m31_per_g * a,
+            p.m2 + p.m32_per_g * a,
+            p.k1 + half_asym * abs_slope + poly_slope + cross_slope,
+        ];
         (
             value,
-            p.k1 + half_asym * abs_slope + poly_slope + cross_slope,
+            gradient,
+            poly_curv.abs() + p.m31_per_g.abs() + p.m32_per_g.abs(),
         )
     }
 

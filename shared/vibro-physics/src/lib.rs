@@ -21,6 +21,9 @@
 //!
 //! References: MODEL.md (equation numbers `[P1 (n)]`, `[P2 (n)]` are the papers').
 
+// Index loops mirror the formulas' subscripts (a_ij, K_3j) and read better here.
+#![allow(clippy::needless_range_loop)]
+
 pub mod abs_mean;
 pub mod compensation;
 pub mod exact;

@@ -174,7 +174,7 @@ impl Vibration {
             }
             for i in 0..3 {
                 let a = t.amplitude_g[i];
-                if !(a.is_finite() && a >= 0.0 && a <= 1e3) {
+                if !(a.is_finite() && (0.0..=1e3).contains(&a)) {
                     problems.push(format!(
                         "tone[{k}].aB{}_g = {a}: must be finite and 0 <= aB <= 1000 g",
                         i + 1
