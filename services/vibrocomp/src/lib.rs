@@ -22,6 +22,8 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// The main job: the embedded Cyclone-4 flight compensated in every mode.
+    Demo(commands::demo::DemoArgs),
     /// The vibration-error model: VE components, compensation, model check.
     #[command(subcommand)]
     Model(commands::model::ModelCommand),
@@ -62,6 +64,7 @@ where
 /// Dispatches a parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
+        Command::Demo(args) => commands::demo::run(args),
         Command::Model(cmd) => commands::model::run(cmd),
         Command::Identify(cmd) => commands::identify::run(cmd),
         Command::Require(args) => commands::require::run(args),

@@ -19,7 +19,18 @@ pub fn fmt_g(value_g: f64) -> String {
         format!("{value_g:.4} g")
     } else if abs >= 1e-4 {
         format!("{:.4} mg", value_g * 1e3)
-    } else {
+    } else if abs >= 1e-8 {
         format!("{:.4} ug", value_g * 1e6)
+    } else {
+        format!("{value_g:.1e} g")
+    }
+}
+
+/// Formats a ratio such as an error reduction: `34.5x`, or `>1e6x` beyond a million.
+pub fn fmt_ratio(ratio: f64) -> String {
+    if ratio > 1e6 {
+        ">1e6x".to_string()
+    } else {
+        format!("{ratio:.1}x")
     }
 }

@@ -219,13 +219,14 @@ impl Vibration {
                         i + 1,
                         c[j][i]
                     ));
-                } else if i < j && cij.abs() > (c[i][i] * c[j][j]).max(0.0).sqrt() * (1.0 + 1e-9) {
+                } else if i > j && cij.abs() > (c[i][i] * c[j][j]).max(0.0).sqrt() * (1.0 + 1e-9) {
+                    // Named as MODEL.md's K_31, K_32: the higher axis first.
                     problems.push(format!(
                         "cov{}{} = {cij} g^2: |cov| must not exceed sigma{} * sigma{} = {}",
                         i + 1,
                         j + 1,
-                        i + 1,
                         j + 1,
+                        i + 1,
                         (c[i][i] * c[j][j]).max(0.0).sqrt()
                     ));
                 }
@@ -263,6 +264,6 @@ mod tests {
         let e = v.validate().unwrap_err().to_string();
         assert!(e.contains("tone[0].freq_hz = -1"), "{e}");
         assert!(e.contains("tone[0].aB2_g = NaN"), "{e}");
-        assert!(e.contains("cov13 = 5 g^2: |cov| must not exceed"), "{e}");
+        assert!(e.contains("cov31 = 5 g^2: |cov| must not exceed sigma1 * sigma3"), "{e}");
     }
 }

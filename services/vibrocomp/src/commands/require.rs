@@ -1,6 +1,72 @@
-use clap::Args;
+//! `vibrocomp require`: allowed moduli of the passport coefficients for a VE budget
+//! (MODEL.md section 10).
+
+use crate::output::print_json;
+use clap::{Args, ValueEnum};
+use serde::Serialize;
+use vibro_physics::requirements::{exact, paper, Environment, Requirement};
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum RequireMode {
+    /// The paper's formulas [P2 (13), (15)].
+    Paper,
+    /// The same budget shares with the exact means (MODEL.md section 6).
+    Exact,
+}
+
 #[derive(Debug, Args)]
-pub struct RequireArgs {}
-pub fn run(_args: RequireArgs) -> anyhow::Result<()> {
-    anyhow::bail!("being built")
+pub struct RequireArgs {
+    /// Allowed vibration error D*, g.
+    #[arg(long = "dstar-g", allow_negative_numbers = true)]
+    pub dstar_g: f64,
+    /// Mean flight acceleration along IA, g.
+    #[arg(long = "aL3-g", allow_negative_numbers = true)]
+    pub al3_g: f64,
+    /// Deterministic vibration amplitude along IA, g.
+    #[arg(long = "aB3-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    pub ab3_g: f64,
+    /// Deterministic vibration amplitude along OA, g.
+    #[arg(long = "aB1-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    pub ab1_g: f64,
+    /// Deterministic vibration amplitude along PA, g.
+    #[arg(long = "aB2-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    pub ab2_g: f64,
+    /// RMS random vibration along IA seen by the unit, g.
+    #[arg(long = "sigma3-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    pub sigma3_g: f64,
+    /// Which model derives the limits.
+    #[arg(long, value_enum, default_value = "paper")]
+    pub mode: RequireMode,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Serialize)]
+struct Report {
+    mode: &'static str,
+    dstar_g: f64,
+    requirements: Vec<Requirement>,
+}
+
+pub fn run(args: RequireArgs) -> anyhow::Result<()> {
+    let env = Environment {
+        d_star_g: args.dstar_g,
+        a_l3_g: args.al3_g,
+        ab_g: [args.ab1_g, args.ab2_g, args.ab3_g],
+        sigma3_g: args.sigma3_g,
+    };
+    let (mode, requirements) = match args.mode {
+        RequireMode::Paper => ("paper", paper(&env)?),
+        RequireMode::Exact => ("exact", exact(&env)?),
+    };
+    if args.json {
+        return print_json(&Report { mode, dstar_g: args.dstar_g, requirements });
+    }
+    println!("Allowed coefficient moduli for D* = {} g ({mode} model)", args.dstar_g);
+    println!("  {:<16}{:>8}{:>14}  unit", "coefficient", "share", "allowed");
+    for r in &requirements {
+        println!("  {:<16}{:>7.2}D*{:>12.4}  {}", r.coefficient, r.share, r.allowed, r.unit);
+    }
+    Ok(())
 }

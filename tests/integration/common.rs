@@ -1,0 +1,35 @@
+//! Helpers shared by the integration tests: running the real `vibrocomp` binary.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+/// The `vibrocomp` binary built for these tests.
+pub fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_vibrocomp"))
+}
+
+/// A path under the workspace root.
+pub fn repo_path(rel: &str) -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../..")).join(rel)
+}
+
+/// Runs `vibrocomp ARGS`, asserts success, and parses stdout as JSON.
+pub fn run_json(args: &[&str]) -> serde_json::Value {
+    let out = bin().args(args).output().expect("vibrocomp runs");
+    assert!(out.status.success(), "vibrocomp {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!("vibrocomp {args:?}: stdout is not JSON ({e}):\n{}", String::from_utf8_lossy(&out.stdout))
+    })
+}
+
+/// Runs `vibrocomp ARGS` expecting failure; returns the output.
+pub fn run_failing(args: &[&str]) -> Output {
+    let out = bin().args(args).output().expect("vibrocomp runs");
+    assert!(!out.status.success(), "vibrocomp {args:?} unexpectedly succeeded");
+    out
+}
+
+/// A number from a JSON object.
+pub fn num(v: &serde_json::Value, key: &str) -> f64 {
+    v[key].as_f64().unwrap_or_else(|| panic!("key {key:?} is not a number in {v}"))
+}
