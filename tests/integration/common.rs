@@ -16,20 +16,32 @@ pub fn repo_path(rel: &str) -> PathBuf {
 /// Runs `vibrocomp ARGS`, asserts success, and parses stdout as JSON.
 pub fn run_json(args: &[&str]) -> serde_json::Value {
     let out = bin().args(args).output().expect("vibrocomp runs");
-    assert!(out.status.success(), "vibrocomp {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "vibrocomp {args:?} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
-        panic!("vibrocomp {args:?}: stdout is not JSON ({e}):\n{}", String::from_utf8_lossy(&out.stdout))
+        panic!(
+            "vibrocomp {args:?}: stdout is not JSON ({e}):\n{}",
+            String::from_utf8_lossy(&out.stdout)
+        )
     })
 }
 
 /// Runs `vibrocomp ARGS` expecting failure; returns the output.
 pub fn run_failing(args: &[&str]) -> Output {
     let out = bin().args(args).output().expect("vibrocomp runs");
-    assert!(!out.status.success(), "vibrocomp {args:?} unexpectedly succeeded");
+    assert!(
+        !out.status.success(),
+        "vibrocomp {args:?} unexpectedly succeeded"
+    );
     out
 }
 
 /// A number from a JSON object.
 pub fn num(v: &serde_json::Value, key: &str) -> f64 {
-    v[key].as_f64().unwrap_or_else(|| panic!("key {key:?} is not a number in {v}"))
+    v[key]
+        .as_f64()
+        .unwrap_or_else(|| panic!("key {key:?} is not a number in {v}"))
 }

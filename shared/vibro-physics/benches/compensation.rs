@@ -9,24 +9,12 @@ use vibro_physics::passport::{Passport, PassportSpec};
 use vibro_physics::triad::TriadAxes;
 use vibro_physics::vibration::Vibration;
 
+/// The shipped AL-15 passport.
 fn al15() -> Passport {
-    Passport::try_from_spec(&PassportSpec {
-        id: "AL-15".into(),
-        a0_g: 3.324e-3,
-        k1: 1.0,
-        k1_v_per_g: -1.6698,
-        d1a_ppm: 15.0,
-        k2_ppm_per_g: 105.0,
-        k3_ppm_per_g2: 87.0,
-        k4_ppm_per_g3: 10.0,
-        k5_ppm_per_g4: 0.9,
-        m1_ppm: 1150.0,
-        m2_ppm: 1150.0,
-        m31_ppm_per_g: 11.6,
-        m32_ppm_per_g: 11.6,
-        lambda: vec![],
-    })
-    .expect("valid passport")
+    let spec: PassportSpec =
+        toml::from_str(include_str!("../../../config/accelerometers/al-15.toml"))
+            .expect("the shipped passport parses");
+    Passport::try_from_spec(&spec).expect("the shipped passport is valid")
 }
 
 /// Cyclone-4-like vibration: a tone on every axis and broadband random vibration, so

@@ -264,6 +264,9 @@ mod tests {
         let e = v.validate().unwrap_err().to_string();
         assert!(e.contains("tone[0].freq_hz = -1"), "{e}");
         assert!(e.contains("tone[0].aB2_g = NaN"), "{e}");
-        assert!(e.contains("cov31 = 5 g^2: |cov| must not exceed sigma1 * sigma3"), "{e}");
+        assert!(
+            e.contains("cov31 = 5 g^2: |cov| must not exceed sigma1 * sigma3"),
+            "{e}"
+        );
     }
 }

@@ -61,9 +61,21 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     // their IA. All see sigma = 1.4 g random vibration along IA ([P2]).
     let mut vibs = [Vibration::none(); 3];
     for (i, v) in vibs.iter_mut().enumerate() {
-        let ab_ia = if triad.axes.units[i].ia.body_index == 0 { 0.5 } else { 1.2 };
-        let ab_oa = if triad.axes.units[i].oa.body_index == 0 { 0.5 } else { 1.2 };
-        let ab_pa = if triad.axes.units[i].pa.body_index == 0 { 0.5 } else { 1.2 };
+        let ab_ia = if triad.axes.units[i].ia.body_index == 0 {
+            0.5
+        } else {
+            1.2
+        };
+        let ab_oa = if triad.axes.units[i].oa.body_index == 0 {
+            0.5
+        } else {
+            1.2
+        };
+        let ab_pa = if triad.axes.units[i].pa.body_index == 0 {
+            0.5
+        } else {
+            1.2
+        };
         *v = Vibration::single_tone(12.0, [ab_oa, ab_pa, ab_ia]);
         v.covariance_g2[2][2] = 1.4 * 1.4;
         v.covariance_g2[0][0] = 1.0;
@@ -85,10 +97,16 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         let (mut e1, mut e2, mut e4) = (0.0, 0.0, 0.0);
         for &t in &times_s {
             // Body frame: x longitudinal, small lateral accelerations from manoeuvres.
-            let body = [cyclone4_longitudinal_g(t), 0.05 * (t / 90.0).sin(), -0.03 * (t / 70.0).cos()];
+            let body = [
+                cyclone4_longitudinal_g(t),
+                0.05 * (t / 90.0).sin(),
+                -0.03 * (t / 70.0).cos(),
+            ];
             let mut readings = [0.0; 3];
             for i in 0..3 {
-                readings[i] = truth_models[i].mean_output_g(triad.axes.units[i].to_unit(&body)).0;
+                readings[i] = truth_models[i]
+                    .mean_output_g(triad.axes.units[i].to_unit(&body))
+                    .0;
             }
             let out = comp.compensate(readings);
             for i in 0..3 {
@@ -120,7 +138,10 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     }
     println!("{}", report.scenario);
     println!("Triad {}; {} mean readings per unit, errors against the true acceleration (RMS over the flight):", report.triad, report.samples);
-    println!("  {:<14}{:>16}{:>18}{:>20}{:>12}", "mode", "uncompensated", "main removed", "vibration removed", "reduction");
+    println!(
+        "  {:<14}{:>16}{:>18}{:>20}{:>12}",
+        "mode", "uncompensated", "main removed", "vibration removed", "reduction"
+    );
     for m in &report.modes {
         println!(
             "  {:<14}{:>16}{:>18}{:>20}{:>12}",

@@ -63,32 +63,64 @@ pub struct VibrationArgs {
     #[arg(long = "freq-hz", default_value_t = 0.0, allow_negative_numbers = true)]
     pub freq_hz: f64,
     /// Phase of the IA vibration relative to OA, phi3 - phi1, deg (the papers take 0).
-    #[arg(long = "phase31-deg", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "phase31-deg",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub phase31_deg: f64,
     /// Phase of the IA vibration relative to PA, phi3 - phi2, deg.
-    #[arg(long = "phase32-deg", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "phase32-deg",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub phase32_deg: f64,
     /// RMS of broadband random vibration along IA, g.
-    #[arg(long = "sigma3-g", conflicts_with = "psd", allow_negative_numbers = true)]
+    #[arg(
+        long = "sigma3-g",
+        conflicts_with = "psd",
+        allow_negative_numbers = true
+    )]
     pub sigma3_g: Option<f64>,
     /// RMS of broadband random vibration along OA, g.
-    #[arg(long = "sigma1-g", conflicts_with = "psd", allow_negative_numbers = true)]
+    #[arg(
+        long = "sigma1-g",
+        conflicts_with = "psd",
+        allow_negative_numbers = true
+    )]
     pub sigma1_g: Option<f64>,
     /// RMS of broadband random vibration along PA, g.
-    #[arg(long = "sigma2-g", conflicts_with = "psd", allow_negative_numbers = true)]
+    #[arg(
+        long = "sigma2-g",
+        conflicts_with = "psd",
+        allow_negative_numbers = true
+    )]
     pub sigma2_g: Option<f64>,
     /// Covariance K_31(0) of the random vibration along IA and OA, g^2.
-    #[arg(long = "cov31-g2", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "cov31-g2",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub cov31_g2: f64,
     /// Covariance K_32(0) of the random vibration along IA and PA, g^2.
-    #[arg(long = "cov32-g2", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "cov32-g2",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub cov32_g2: f64,
     /// Band PSD table (CSV: f_lo_hz, f_hi_hz, psd3_g2_per_hz [, psd1.., psd2..]) instead of
     /// the sigmas, e.g. config/vibration/p1-table3.csv.
     #[arg(long)]
     pub psd: Option<PathBuf>,
     /// Kurtosis of the random vibration along IA (3 = Gaussian).
-    #[arg(long = "kurtosis3", default_value_t = 3.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "kurtosis3",
+        default_value_t = 3.0,
+        allow_negative_numbers = true
+    )]
     pub kurtosis3: f64,
 }
 
@@ -102,14 +134,21 @@ impl VibrationArgs {
                 freq_hz: self.freq_hz,
                 amplitude_g: [self.ab1_g, self.ab2_g, self.ab3_g],
                 // Only the differences phi3 - phi1 and phi3 - phi2 matter: set phi3 = 0.
-                phase_rad: [-self.phase31_deg.to_radians(), -self.phase32_deg.to_radians(), 0.0],
+                phase_rad: [
+                    -self.phase31_deg.to_radians(),
+                    -self.phase32_deg.to_radians(),
+                    0.0,
+                ],
             })?;
         }
         if let Some(path) = &self.psd {
             let bands = vibro_config::load_psd_table(path)?;
             vib.set_random_from_psd(&bands);
         } else {
-            for (i, s) in [self.sigma1_g, self.sigma2_g, self.sigma3_g].iter().enumerate() {
+            for (i, s) in [self.sigma1_g, self.sigma2_g, self.sigma3_g]
+                .iter()
+                .enumerate()
+            {
                 let s = s.unwrap_or(0.0);
                 anyhow::ensure!(
                     s.is_finite() && s >= 0.0,
@@ -145,7 +184,11 @@ pub struct FlightArgs {
 
 impl FlightArgs {
     fn a_l_g(&self) -> anyhow::Result<[f64; 3]> {
-        for (name, v) in [("--aL1-g", self.al1_g), ("--aL2-g", self.al2_g), ("--aL3-g", self.al3_g)] {
+        for (name, v) in [
+            ("--aL1-g", self.al1_g),
+            ("--aL2-g", self.al2_g),
+            ("--aL3-g", self.al3_g),
+        ] {
             anyhow::ensure!(v.is_finite(), "{name} = {v}: must be finite");
         }
         Ok([self.al1_g, self.al2_g, self.al3_g])
@@ -173,10 +216,18 @@ pub struct CompensateArgs {
     #[arg(long = "reading-g", allow_negative_numbers = true)]
     pub reading_g: f64,
     /// Flight acceleration along OA, from the triad's unit along OA, g.
-    #[arg(long = "reading1-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "reading1-g",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub reading1_g: f64,
     /// Flight acceleration along PA, from the triad's unit along PA, g.
-    #[arg(long = "reading2-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "reading2-g",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub reading2_g: f64,
     #[command(flatten)]
     pub vibration: VibrationArgs,
@@ -222,11 +273,18 @@ struct VeReport<'a> {
     ve: VeComponents,
 }
 
-fn ve_components(p: &Passport, a_l: [f64; 3], vib: &Vibration, mode: Mode) -> anyhow::Result<VeComponents> {
+fn ve_components(
+    p: &Passport,
+    a_l: [f64; 3],
+    vib: &Vibration,
+    mode: Mode,
+) -> anyhow::Result<VeComponents> {
     Ok(match mode {
         Mode::Exact => exact_ve(p, a_l, vib)?,
         // The VE model of [P1 (13)-(16)] has no misprint: both published modes use it.
-        Mode::AsPublished | Mode::Paper => published(p, a_l, vib, vibro_physics::ve::Constants::PAPER),
+        Mode::AsPublished | Mode::Paper => {
+            published(p, a_l, vib, vibro_physics::ve::Constants::PAPER)
+        }
     })
 }
 
@@ -236,9 +294,19 @@ fn ve(args: VeArgs) -> anyhow::Result<()> {
     let mode = Mode::from(args.mode);
     let ve = ve_components(&p, a_l, &vib, mode)?;
     if args.json {
-        return print_json(&VeReport { passport: p.id(), mode: mode.name(), a_l_g: a_l, ve });
+        return print_json(&VeReport {
+            passport: p.id(),
+            mode: mode.name(),
+            a_l_g: a_l,
+            ve,
+        });
     }
-    println!("Vibration error of {} at aL3 = {} g ({} model)", p.id(), a_l[2], mode.name());
+    println!(
+        "Vibration error of {} at aL3 = {} g ({} model)",
+        p.id(),
+        a_l[2],
+        mode.name()
+    );
     print_components(&[("", ve)], a_l[2]);
     Ok(())
 }
@@ -282,7 +350,11 @@ struct CompensateReport<'a> {
 
 fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     let (p, vib) = args.vibration.resolve()?;
-    for (name, v) in [("--reading-g", args.reading_g), ("--reading1-g", args.reading1_g), ("--reading2-g", args.reading2_g)] {
+    for (name, v) in [
+        ("--reading-g", args.reading_g),
+        ("--reading1-g", args.reading1_g),
+        ("--reading2-g", args.reading2_g),
+    ] {
         anyhow::ensure!(v.is_finite(), "{name} = {v}: must be finite");
     }
     let mode = Mode::from(args.mode);
@@ -290,9 +362,19 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     unit.set_vibration(&vib)?;
     let stages = unit.compensate(args.reading_g, [args.reading1_g, args.reading2_g]);
     if args.json {
-        return print_json(&CompensateReport { passport: p.id(), mode: mode.name(), reading_g: args.reading_g, stages });
+        return print_json(&CompensateReport {
+            passport: p.id(),
+            mode: mode.name(),
+            reading_g: args.reading_g,
+            stages,
+        });
     }
-    println!("Compensation of {} ({} mode), reading U/K1 = {} g", p.id(), mode.name(), args.reading_g);
+    println!(
+        "Compensation of {} ({} mode), reading U/K1 = {} g",
+        p.id(),
+        mode.name(),
+        args.reading_g
+    );
     let s = &stages;
     println!("  {:<36}{:>+.9} g", "a(1) first approximation (17)", s.a1_g);
     for (label, a, correction) in [
@@ -300,7 +382,10 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
         ("a(3) deterministic VE removed (19)", s.a3_g, s.det_g),
         ("a(4) random VE removed (20)", s.a4_g, s.rand_g),
     ] {
-        println!("  {label:<36}{a:>+.9} g   (correction {})", fmt_g(correction));
+        println!(
+            "  {label:<36}{a:>+.9} g   (correction {})",
+            fmt_g(correction)
+        );
     }
     Ok(())
 }
@@ -324,7 +409,13 @@ fn check(args: CheckArgs) -> anyhow::Result<()> {
     let exact = ve_components(&p, a_l, &vib, Mode::Exact)?;
     let as_published = ve_components(&p, a_l, &vib, Mode::AsPublished)?;
     let mc = monte_carlo_ve(&p, a_l, &vib, args.samples, args.seed)?;
-    let z = |v: f64| if mc.std_error_g > 0.0 { (v - mc.ve_g) / mc.std_error_g } else { f64::NAN };
+    let z = |v: f64| {
+        if mc.std_error_g > 0.0 {
+            (v - mc.ve_g) / mc.std_error_g
+        } else {
+            f64::NAN
+        }
+    };
     let report = CheckReport {
         passport: p.id(),
         a_l_g: a_l,

@@ -32,7 +32,11 @@ pub struct RequireArgs {
     #[arg(long = "aB2-g", default_value_t = 0.0, allow_negative_numbers = true)]
     pub ab2_g: f64,
     /// RMS random vibration along IA seen by the unit, g.
-    #[arg(long = "sigma3-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "sigma3-g",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub sigma3_g: f64,
     /// Which model derives the limits.
     #[arg(long, value_enum, default_value = "paper")]
@@ -61,12 +65,25 @@ pub fn run(args: RequireArgs) -> anyhow::Result<()> {
         RequireMode::Exact => ("exact", exact(&env)?),
     };
     if args.json {
-        return print_json(&Report { mode, dstar_g: args.dstar_g, requirements });
+        return print_json(&Report {
+            mode,
+            dstar_g: args.dstar_g,
+            requirements,
+        });
     }
-    println!("Allowed coefficient moduli for D* = {} g ({mode} model)", args.dstar_g);
-    println!("  {:<16}{:>8}{:>14}  unit", "coefficient", "share", "allowed");
+    println!(
+        "Allowed coefficient moduli for D* = {} g ({mode} model)",
+        args.dstar_g
+    );
+    println!(
+        "  {:<16}{:>8}{:>14}  unit",
+        "coefficient", "share", "allowed"
+    );
     for r in &requirements {
-        println!("  {:<16}{:>7.2}D*{:>12.4}  {}", r.coefficient, r.share, r.allowed, r.unit);
+        println!(
+            "  {:<16}{:>7.2}D*{:>12.4}  {}",
+            r.coefficient, r.share, r.allowed, r.unit
+        );
     }
     Ok(())
 }

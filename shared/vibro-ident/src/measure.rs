@@ -1,0 +1,229 @@
+//! Measuring the vibration error on a shake table, MODEL.md section 8 [P2 (16)].
+//!
+//! The unit's output is recorded still (`U1`), under vibration (`U2`) and still again
+//! (`U3`), 5 min each in \[P2\]. Then
+//!
+//! ```text
+//! dV_measured = (<U2> - 0.5*(<U1> + <U3>)) / K1                       [P2 (16)]
+//! ```
+//!
+//! and the run is valid only if the input axis did not move: `|<U1> - <U3>|/|K1|`,
+//! the change of the still reading in g, must not exceed the tilt limit (1e-4 rad in
+//! \[P2\], i.e. 1e-4 g of gravity on an IA near horizontal, where a tilt `theta` changes
+//! the projection by `g*sin(theta) ~ theta*g`).
+//!
+//! **Uncertainty by batch means.** The output noise of a real unit is correlated
+//! (servo loop, flicker, thermal drift), so `std/sqrt(n)` of the raw samples
+//! underestimates the uncertainty of a mean, by the square root of the correlation
+//! time in samples. Each record is split into `n_batches` contiguous batches (sizes
+//! differ by at most one sample); when the batches are much longer than the
+//! correlation time their means are nearly independent, and the standard error of the
+//! record mean is `std(batch means)/sqrt(n_batches)` (sample std, `n_batches - 1`
+//! degrees of freedom). With the default 20 batches the uncertainty itself is known to
+//! about `1/sqrt(2*19) = 16 %`. Then `sigma(dV) = sqrt(se2^2 + 0.25*(se1^2 + se3^2))/|K1|`
+//! (the three records are independent).
+
+use crate::{Error, Result};
+use serde::Serialize;
+use std::fmt;
+
+/// The three records of a measurement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Phase {
+    /// Still, before vibration (`U1`).
+    Still1,
+    /// Under vibration (`U2`).
+    Vib,
+    /// Still, after vibration (`U3`).
+    Still2,
+}
+
+impl fmt::Display for Phase {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Phase::Still1 => "still1",
+            Phase::Vib => "vib",
+            Phase::Still2 => "still2",
+        })
+    }
+}
+
+/// The mean of one output record with its standard error.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RecordMean {
+    /// `<U>`, V.
+    pub mean_v: f64,
+    /// Standard error of `mean_v`, V.
+    pub std_error_v: f64,
+    /// Number of samples (0 when built from a mean).
+    pub n_samples: usize,
+    /// Number of batches the standard error comes from (0 when built from a mean).
+    pub n_batches: usize,
+}
+
+impl RecordMean {
+    /// Mean and batch-means standard error of a record (see the module docs).
+    pub fn from_samples(phase: Phase, samples_v: &[f64], n_batches: usize) -> Result<Self> {
+        if n_batches < 2 || samples_v.len() < n_batches {
+            return Err(Error::TooFewSamples {
+                phase,
+                n_samples: samples_v.len(),
+                n_batches,
+            });
+        }
+        if let Some((index, &value)) = samples_v.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(Error::NonFiniteSample {
+                phase,
+                index,
+                value,
+            });
+        }
+        let n = samples_v.len();
+        let mean_v = samples_v.iter().sum::<f64>() / n as f64;
+        let batch_means: Vec<f64> = (0..n_batches)
+            .map(|b| {
+                let batch = &samples_v[b * n / n_batches..(b + 1) * n / n_batches];
+                batch.iter().sum::<f64>() / batch.len() as f64
+            })
+            .collect();
+        let grand_v = batch_means.iter().sum::<f64>() / n_batches as f64;
+        let variance_v2 = batch_means
+            .iter()
+            .map(|m| (m - grand_v) * (m - grand_v))
+            .sum::<f64>()
+            / (n_batches - 1) as f64;
+        Ok(Self {
+            mean_v,
+            std_error_v: (variance_v2 / n_batches as f64).sqrt(),
+            n_samples: n,
+            n_batches,
+        })
+    }
+
+    /// A record summarised elsewhere: its mean and standard error.
+    pub fn from_mean(mean_v: f64, std_error_v: f64) -> Result<Self> {
+        if !mean_v.is_finite() {
+            return Err(Error::InvalidArgument {
+                name: "mean_v",
+                value: mean_v,
+                rule: "must be finite",
+            });
+        }
+        if !(std_error_v.is_finite() && std_error_v >= 0.0) {
+            return Err(Error::InvalidArgument {
+                name: "std_error_v",
+                value: std_error_v,
+                rule: "must be a finite standard error >= 0 V",
+            });
+        }
+        Ok(Self {
+            mean_v,
+            std_error_v,
+            n_samples: 0,
+            n_batches: 0,
+        })
+    }
+}
+
+/// Options of the measurement.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeasureOptions {
+    /// Number of batches per record for the batch-means standard error; default 20.
+    pub n_batches: usize,
+    /// Largest accepted tilt of the input axis, rad; default 1e-4 as in \[P2\].
+    pub tilt_limit_rad: f64,
+}
+
+impl Default for MeasureOptions {
+    fn default() -> Self {
+        Self {
+            n_batches: 20,
+            tilt_limit_rad: 1e-4,
+        }
+    }
+}
+
+/// A vibration error measured by [P2 (16)], with the tilt check passed.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct VeMeasurement {
+    /// `dV_measured = (<U2> - 0.5*(<U1> + <U3>))/K1`, g.
+    pub ve_g: f64,
+    /// Standard uncertainty of `ve_g`, g.
+    pub ve_sigma_g: f64,
+    /// `|<U1> - <U3>|/|K1|`, g: how far the still reading moved.
+    pub drift_g: f64,
+    /// Standard uncertainty of `<U1> - <U3>` over `|K1|`, g.
+    pub drift_sigma_g: f64,
+    /// The tilt limit applied, rad (= the drift limit in g, with g = 1 g).
+    pub tilt_limit_rad: f64,
+    pub k1_v_per_g: f64,
+    pub still1: RecordMean,
+    pub vib: RecordMean,
+    pub still2: RecordMean,
+}
+
+/// The VE from the three record means [P2 (16)], after the tilt check of MODEL.md
+/// section 8: rejected with [`Error::InputAxisMoved`] when
+/// `|<U1> - <U3>|/|K1| > tilt_limit_rad * 1 g`.
+pub fn measure_ve(
+    still1: &RecordMean,
+    vib: &RecordMean,
+    still2: &RecordMean,
+    k1_v_per_g: f64,
+    tilt_limit_rad: f64,
+) -> Result<VeMeasurement> {
+    crate::positions::validate_k1(k1_v_per_g)?;
+    if !(tilt_limit_rad.is_finite() && tilt_limit_rad > 0.0) {
+        return Err(Error::InvalidArgument {
+            name: "tilt_limit_rad",
+            value: tilt_limit_rad,
+            rule: "must be a finite angle > 0 rad",
+        });
+    }
+    let k1_abs = k1_v_per_g.abs();
+    let drift_g = (still1.mean_v - still2.mean_v).abs() / k1_abs;
+    // g = 1 g: a tilt of theta rad moves the reading by at most theta g.
+    let limit_g = tilt_limit_rad;
+    if drift_g > limit_g {
+        return Err(Error::InputAxisMoved {
+            drift_g,
+            limit_g,
+            limit_rad: tilt_limit_rad,
+        });
+    }
+    let se1 = still1.std_error_v;
+    let se2 = vib.std_error_v;
+    let se3 = still2.std_error_v;
+    let ve_g = (vib.mean_v - 0.5 * (still1.mean_v + still2.mean_v)) / k1_v_per_g;
+    let ve_sigma_g = (se2 * se2 + 0.25 * (se1 * se1 + se3 * se3)).sqrt() / k1_abs;
+    Ok(VeMeasurement {
+        ve_g,
+        ve_sigma_g,
+        drift_g,
+        drift_sigma_g: (se1 * se1 + se3 * se3).sqrt() / k1_abs,
+        tilt_limit_rad,
+        k1_v_per_g,
+        still1: *still1,
+        vib: *vib,
+        still2: *still2,
+    })
+}
+
+/// [`measure_ve`] from the raw records (V), with batch-means standard errors.
+pub fn measure_ve_from_samples(
+    still1_v: &[f64],
+    vib_v: &[f64],
+    still2_v: &[f64],
+    k1_v_per_g: f64,
+    options: &MeasureOptions,
+) -> Result<VeMeasurement> {
+    let b = options.n_batches;
+    measure_ve(
+        &RecordMean::from_samples(Phase::Still1, still1_v, b)?,
+        &RecordMean::from_samples(Phase::Vib, vib_v, b)?,
+        &RecordMean::from_samples(Phase::Still2, still2_v, b)?,
+        k1_v_per_g,
+        options.tilt_limit_rad,
+    )
+}
