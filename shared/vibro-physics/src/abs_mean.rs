@@ -7,11 +7,11 @@
 //! - Random alone: the folded-normal mean
 //!   `E|mu + x| = sigma sqrt(2/pi) exp(-mu^2/(2 sigma^2)) + mu (1 - 2 Phi(-mu/sigma))`,
 //!   or a mixture of two such terms for non-Gaussian vibration ([`ScaleMixture`]).
-//! - Anything else: the distribution of `v` is built on a grid of 4096 points by
+//! - Anything else: the distribution of `v` is built on a grid of 2048 points by
 //!   convolving the exact bin probabilities of each component (FFT, allocated once),
 //!   and `E|m + v| = sum_i p_i |m + u_i|` is read in O(1) from prefix sums. The result
 //!   is exact for the binned distribution and piecewise linear in `m`; its error from
-//!   binning is below `p_bin * h / 2` (about 1e-5 of the vibration amplitude), far
+//!   binning is below `p_bin * h / 2` (about 1e-4 of the vibration amplitude), far
 //!   below what the `d1A` term can show (MODEL.md's `d1A` is 15..25 ppm).
 //!
 //! [`AbsMean::eval`] also returns the slope `dE|m + v|/dm = P(v > -m) - P(v < -m)`,
@@ -24,11 +24,11 @@ use std::f64::consts::{FRAC_2_PI, PI, SQRT_2};
 use std::sync::Arc;
 
 /// Grid size of the convolution table.
-const TABLE_POINTS: usize = 4096;
+const TABLE_POINTS: usize = 2048;
 /// Index of `u = 0` on the grid.
 const CENTRE: usize = TABLE_POINTS / 2;
 /// Half-width of the support in bins, leaving a margin below `CENTRE`.
-const HALF_WIDTH_BINS: f64 = 2040.0;
+const HALF_WIDTH_BINS: f64 = 1016.0;
 /// Gaussian components are cut at this many standard deviations (tail mass ~1e-17).
 const GAUSS_CUT_SIGMAS: f64 = 8.5;
 
@@ -156,7 +156,7 @@ impl Default for AbsMean {
 }
 
 impl AbsMean {
-    /// Allocates the table (about 200 kB); starts with no vibration.
+    /// Allocates the table (about 100 kB); starts with no vibration.
     pub fn new() -> Self {
         let mut planner = RealFftPlanner::<f64>::new();
         let forward = planner.plan_fft_forward(TABLE_POINTS);
