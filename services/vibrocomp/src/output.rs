@@ -2,11 +2,16 @@
 
 use serde::Serialize;
 
-/// Prints `value` as pretty JSON on stdout.
+/// Prints `value` as pretty JSON on stdout. A closed pipe (`vibrocomp ... --json | head`)
+/// ends the output quietly instead of panicking.
 pub fn print_json<T: Serialize>(value: &T) -> anyhow::Result<()> {
+    use std::io::Write;
     let text = serde_json::to_string_pretty(value)?;
-    println!("{text}");
-    Ok(())
+    let mut out = std::io::stdout().lock();
+    match writeln!(out, "{text}") {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => Ok(other?),
+    }
 }
 
 /// Formats an acceleration in g with an engineering prefix chosen for readability

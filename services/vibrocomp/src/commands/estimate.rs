@@ -1,13 +1,599 @@
-//! `vibrocomp estimate`: placeholder replaced by the estimation work (issue 3) in this session.
+//! `vibrocomp estimate`: vibration estimates (tones, band RMS and PSD, covariance,
+//! kurtosis) per window of a recorded 3-axis vibration-sensor stream. The DSP lives in
+//! `vibro-dsp`; this module reads the CSV file as a stream of blocks, validates it
+//! (each problem with its file, line, column, value and rule) and prints one row per
+//! window or, with `--json`, the full estimates. See docs/estimation.md.
 
-use clap::Args;
+use anyhow::{bail, Context};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::fs::File;
+use std::io::{BufRead, BufReader, IsTerminal, Read};
+use std::path::{Path, PathBuf};
+use vibro_dsp::{
+    Counters, Estimate, Estimator, EstimatorConfig, EstimatorConfigRaw, ResponsePoint, SampleBlock,
+};
+
+use crate::output::print_json;
+
+/// Samples handed to the estimator at a time: the block size of a recorder's stream.
+const BLOCK_SAMPLES: usize = 4096;
+/// At most this many bad cells are listed before reading stops.
+const MAX_PROBLEMS: usize = 10;
+
+/// Units of the file's samples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Units {
+    /// Acceleration in g.
+    G,
+    /// Sensor output in volts, converted to g with `--sensitivity-v-per-g`.
+    V,
+}
 
 #[derive(Debug, Args)]
 pub struct EstimateArgs {
-    /// Input file (CSV).
-    pub file: std::path::PathBuf,
+    /// CSV file: three columns (axes x, y, z), one sample a row, at `--rate-hz`. A
+    /// first row of column names is allowed; blank lines and `#` comment lines are
+    /// skipped. `nan`/`inf` cells are taken as bad samples, flagged and left out.
+    pub file: PathBuf,
+    /// Sample rate of the file.
+    #[arg(long)]
+    pub rate_hz: f64,
+    /// Units of the samples.
+    #[arg(long, value_enum, default_value_t = Units::G)]
+    pub units: Units,
+    /// Sensitivity per axis with `--units v`: S1,S2,S3 in V/g (one value: all axes).
+    /// A negative value flips the axis.
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    pub sensitivity_v_per_g: Option<Vec<f64>>,
+    /// Window length.
+    #[arg(long, default_value_t = vibro_dsp::DEFAULT_WINDOW_S)]
+    pub window_s: f64,
+    /// Overlap of consecutive windows, as a fraction of the window (0 <= overlap < 1).
+    #[arg(long, default_value_t = vibro_dsp::DEFAULT_OVERLAP_FRACTION)]
+    pub overlap: f64,
+    /// Largest number of tones per window (0: no tone detection).
+    #[arg(long, default_value_t = vibro_dsp::DEFAULT_MAX_TONES)]
+    pub max_tones: usize,
+    /// Tone detection threshold: tone power over the local floor in a 1/window_s band, dB.
+    #[arg(
+        long,
+        default_value_t = vibro_dsp::DEFAULT_TONE_SNR_THRESHOLD_DB,
+        allow_negative_numbers = true
+    )]
+    pub snr_db: f64,
+    /// Band where tones are looked for, LO,HI in Hz (default: all resolvable).
+    #[arg(long, value_delimiter = ',')]
+    pub tone_band_hz: Option<Vec<f64>>,
+    /// Band of the broadband RMS, covariance and kurtosis, LO,HI in Hz.
+    #[arg(long, value_delimiter = ',', default_values_t = vibro_dsp::DEFAULT_BROADBAND_BAND_HZ)]
+    pub band_hz: Vec<f64>,
+    /// PSD bands, LO-HI in Hz, comma separated (default: RIG.md's random-vibration table).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "20-40,40-80,80-160,160-320,320-640"
+    )]
+    pub psd_bands_hz: Vec<String>,
+    /// Welch segment length (Hann, 50% overlap).
+    #[arg(long, default_value_t = vibro_dsp::DEFAULT_WELCH_SEGMENT_S)]
+    pub welch_segment_s: f64,
+    /// Corner of the sensors' AC coupling (first-order high-pass), divided out.
+    #[arg(long)]
+    pub ac_corner_hz: Option<f64>,
+    /// Frequency-response correction table (CSV: frequency_hz, gain_x, gain_y, gain_z,
+    /// phase_x_deg, phase_y_deg, phase_z_deg; measured / true), divided out.
+    #[arg(long)]
+    pub response: Option<PathBuf>,
+    /// Full scale per axis in g (one value: all axes): samples at or over it flag the
+    /// axis saturated.
+    #[arg(long, value_delimiter = ',')]
+    pub full_scale_g: Option<Vec<f64>>,
+    /// Print the full estimates as JSON.
+    #[arg(long)]
+    pub json: bool,
 }
 
-pub fn run(_args: EstimateArgs) -> anyhow::Result<()> {
-    anyhow::bail!("vibrocomp estimate is being built")
+/// What `--json` prints.
+#[derive(Debug, Serialize)]
+struct Report<'a> {
+    file: String,
+    units: Units,
+    columns: [String; 3],
+    rows: u64,
+    config: &'a EstimatorConfigRaw,
+    counters: Counters,
+    estimates: Vec<Estimate>,
+}
+
+pub fn run(args: EstimateArgs) -> anyhow::Result<()> {
+    let raw = config_from_args(&args)?;
+    let config = EstimatorConfig::try_from(raw.clone()).context(
+        "checking the estimation options (named by their configuration keys: \
+         window_s is --window-s, overlap_fraction is --overlap, broadband_band_hz is --band-hz, \
+         tone_snr_threshold_db is --snr-db)",
+    )?;
+    let mut estimator = Estimator::new(config);
+    let (estimates, columns, rows) = read_and_estimate(&args.file, &mut estimator)?;
+    if args.json {
+        return print_json(&Report {
+            file: args.file.display().to_string(),
+            units: args.units,
+            columns,
+            rows,
+            config: &raw,
+            counters: estimator.counters(),
+            estimates,
+        });
+    }
+    let mut out = std::io::stdout().lock();
+    match write_table(&mut out, &args, &columns, rows, &estimates) {
+        // The reader went away (`| head`): nothing left to tell it.
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => other.context("writing the table to stdout"),
+    }
+}
+
+/// Turns the options into the estimator's raw configuration (validated later, all at once).
+fn config_from_args(args: &EstimateArgs) -> anyhow::Result<EstimatorConfigRaw> {
+    let three = |name: &str, v: &[f64]| -> anyhow::Result<[f64; 3]> {
+        match v {
+            [a] => Ok([*a; 3]),
+            [a, b, c] => Ok([*a, *b, *c]),
+            _ => bail!("--{name} = {v:?}: give one value (all axes) or three (x, y, z)"),
+        }
+    };
+    let sensitivity = match (args.units, &args.sensitivity_v_per_g) {
+        (Units::G, None) => [1.0; 3],
+        (Units::G, Some(s)) => bail!(
+            "--sensitivity-v-per-g = {s:?} given with --units g: the samples are already in g \
+             (use --units v for volts)"
+        ),
+        (Units::V, None) => {
+            bail!("--units v needs --sensitivity-v-per-g S1,S2,S3 to convert volts to g")
+        }
+        (Units::V, Some(s)) => three("sensitivity-v-per-g", s)?,
+    };
+    let pair = |name: &str, v: &[f64]| -> anyhow::Result<[f64; 2]> {
+        match v {
+            [lo, hi] => Ok([*lo, *hi]),
+            _ => bail!("--{name} = {v:?}: give two values LO,HI in Hz"),
+        }
+    };
+    let mut raw = EstimatorConfigRaw::new(args.rate_hz, sensitivity);
+    raw.window_s = args.window_s;
+    raw.overlap_fraction = args.overlap;
+    raw.max_tones = args.max_tones;
+    raw.tone_snr_threshold_db = args.snr_db;
+    raw.tone_band_hz = args
+        .tone_band_hz
+        .as_deref()
+        .map(|v| pair("tone-band-hz", v))
+        .transpose()?;
+    raw.broadband_band_hz = pair("band-hz", &args.band_hz)?;
+    raw.psd_bands_hz = args
+        .psd_bands_hz
+        .iter()
+        .map(|b| parse_band(b))
+        .collect::<anyhow::Result<_>>()?;
+    raw.welch_segment_s = args.welch_segment_s;
+    raw.ac_corner_hz = args.ac_corner_hz;
+    raw.full_scale_g = args
+        .full_scale_g
+        .as_deref()
+        .map(|v| three("full-scale-g", v))
+        .transpose()?;
+    if let Some(path) = &args.response {
+        raw.response = read_response(path)?;
+    }
+    Ok(raw)
+}
+
+fn parse_band(text: &str) -> anyhow::Result<[f64; 2]> {
+    let bad = || {
+        anyhow::anyhow!(
+            "--psd-bands-hz: {text:?}: a band is LO-HI in Hz with two numbers, e.g. 20-40"
+        )
+    };
+    let (lo, hi) = text.trim().split_once('-').ok_or_else(bad)?;
+    Ok([
+        lo.trim().parse().map_err(|_| bad())?,
+        hi.trim().parse().map_err(|_| bad())?,
+    ])
+}
+
+/// One data line of a CSV file: its 1-based line number and its cells.
+struct Line {
+    number: usize,
+    text: String,
+}
+
+/// Reads the lines of a numeric CSV file, skipping blank and `#` lines.
+struct CsvLines<R> {
+    reader: R,
+    number: usize,
+}
+
+impl<R: BufRead> CsvLines<R> {
+    fn next_line(&mut self, file: &Path) -> anyhow::Result<Option<Line>> {
+        loop {
+            let mut text = String::new();
+            let n = self.reader.read_line(&mut text).with_context(|| {
+                format!("{}: cannot read line {}", file.display(), self.number + 1)
+            })?;
+            if n == 0 {
+                return Ok(None);
+            }
+            self.number += 1;
+            let trimmed = text.trim();
+            if trimmed.is_empty() || trimmed.starts_with('#') {
+                continue;
+            }
+            return Ok(Some(Line {
+                number: self.number,
+                text: trimmed.to_string(),
+            }));
+        }
+    }
+}
+
+fn cells(text: &str) -> Vec<&str> {
+    text.split(',')
+        .map(|c| c.trim().trim_matches('"').trim())
+        .collect()
+}
+
+/// Counts bytes read, for the progress bar.
+struct Counted<R> {
+    inner: R,
+    bytes: std::rc::Rc<std::cell::Cell<u64>>,
+}
+
+impl<R: Read> Read for Counted<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.bytes.set(self.bytes.get() + n as u64);
+        Ok(n)
+    }
+}
+
+fn progress_bar(total_bytes: u64) -> ProgressBar {
+    // Only on a terminal: redirected stderr (scripts, tests) stays clean.
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::with_draw_target(Some(total_bytes), ProgressDrawTarget::stderr());
+    if let Ok(style) =
+        ProgressStyle::with_template("estimating {bar:40} {bytes}/{total_bytes} ({eta} left)")
+    {
+        bar.set_style(style);
+    }
+    bar
+}
+
+/// Streams the CSV file through the estimator in blocks; returns the estimates, the
+/// column names and the number of data rows.
+fn read_and_estimate(
+    file: &Path,
+    estimator: &mut Estimator,
+) -> anyhow::Result<(Vec<Estimate>, [String; 3], u64)> {
+    let name = file.display().to_string();
+    let handle = File::open(file).with_context(|| format!("{name}: cannot open"))?;
+    let total_bytes = handle.metadata().map(|m| m.len()).unwrap_or(0);
+    let bytes = std::rc::Rc::new(std::cell::Cell::new(0));
+    let mut lines = CsvLines {
+        reader: BufReader::new(Counted {
+            inner: handle,
+            bytes: bytes.clone(),
+        }),
+        number: 0,
+    };
+    let bar = progress_bar(total_bytes);
+
+    let mut columns = ["x".to_string(), "y".to_string(), "z".to_string()];
+    let mut pending = lines.next_line(file)?;
+    let Some(first) = &pending else {
+        bail!("{name}: no data rows (expected three columns: x, y, z, one sample a row)");
+    };
+    let first_cells = cells(&first.text);
+    if first_cells.iter().any(|c| c.parse::<f64>().is_err()) {
+        // A header row names the columns; it must still have one per axis.
+        if first_cells.len() != 3 {
+            bail!(
+                "{name}: line {}: header has {} columns ({}); expected 3, one per axis (x, y, z)",
+                first.number,
+                first_cells.len(),
+                first_cells.join(", ")
+            );
+        }
+        columns = std::array::from_fn(|i| first_cells[i].to_string());
+        pending = lines.next_line(file)?;
+    }
+
+    let period_ns = 1e9 / estimator.config().sample_rate_hz();
+    let mut problems: Vec<String> = Vec::new();
+    let mut block: Vec<[f64; 3]> = Vec::with_capacity(BLOCK_SAMPLES);
+    let mut estimates = Vec::new();
+    let mut rows: u64 = 0;
+    let mut seq: u64 = 0;
+    let mut block_first_row: u64 = 0;
+    let mut flush = |block: &mut Vec<[f64; 3]>,
+                     seq: &mut u64,
+                     first_row: u64,
+                     estimator: &mut Estimator|
+     -> anyhow::Result<()> {
+        let b = SampleBlock {
+            seq: *seq,
+            t0_ns: (first_row as f64 * period_ns).round() as u64,
+            samples_raw: block,
+        };
+        estimator
+            .push_block(&b, |e| estimates.push(*e))
+            .with_context(|| format!("{name}: estimating the block from data row {first_row}"))?;
+        *seq += 1;
+        block.clear();
+        Ok(())
+    };
+    while let Some(line) = pending {
+        let c = cells(&line.text);
+        if c.len() != 3 {
+            problems.push(format!(
+                "line {}: {} columns; expected 3, one per axis ({})",
+                line.number,
+                c.len(),
+                columns.join(", ")
+            ));
+        } else {
+            let mut sample = [0.0; 3];
+            for (i, cell) in c.iter().enumerate() {
+                match cell.parse::<f64>() {
+                    Ok(v) => sample[i] = v,
+                    Err(_) => problems.push(format!(
+                        "line {}, column {} ({:?}): {:?}: {}",
+                        line.number,
+                        i + 1,
+                        columns[i],
+                        cell,
+                        if cell.is_empty() {
+                            "empty cell; every row needs a number per axis"
+                        } else {
+                            "not a number"
+                        }
+                    )),
+                }
+            }
+            block.push(sample);
+        }
+        if problems.len() >= MAX_PROBLEMS {
+            break;
+        }
+        rows += 1;
+        if block.len() == BLOCK_SAMPLES && problems.is_empty() {
+            flush(&mut block, &mut seq, block_first_row, estimator)?;
+            block_first_row = rows;
+            bar.set_position(bytes.get());
+        }
+        pending = lines.next_line(file)?;
+    }
+    if !problems.is_empty() {
+        bar.finish_and_clear();
+        let more = if problems.len() >= MAX_PROBLEMS {
+            format!(" (stopped after the first {MAX_PROBLEMS})")
+        } else {
+            String::new()
+        };
+        bail!("{name}: bad input{more}:\n  {}", problems.join("\n  "));
+    }
+    if !block.is_empty() {
+        flush(&mut block, &mut seq, block_first_row, estimator)?;
+    }
+    bar.finish_and_clear();
+    if estimates.is_empty() {
+        bail!(
+            "{name}: {rows} rows at {} Hz are shorter than one window ({} samples)",
+            estimator.config().sample_rate_hz(),
+            estimator.config().window_samples()
+        );
+    }
+    Ok((estimates, columns, rows))
+}
+
+/// Reads a response table: frequency_hz, gain_x, gain_y, gain_z, phase_x_deg,
+/// phase_y_deg, phase_z_deg (header required).
+fn read_response(file: &Path) -> anyhow::Result<Vec<ResponsePoint>> {
+    const COLUMNS: [&str; 7] = [
+        "frequency_hz",
+        "gain_x",
+        "gain_y",
+        "gain_z",
+        "phase_x_deg",
+        "phase_y_deg",
+        "phase_z_deg",
+    ];
+    let name = file.display().to_string();
+    let handle = File::open(file).with_context(|| format!("{name}: cannot open"))?;
+    let mut lines = CsvLines {
+        reader: BufReader::new(handle),
+        number: 0,
+    };
+    let Some(header) = lines.next_line(file)? else {
+        bail!(
+            "{name}: empty response table (header: {})",
+            COLUMNS.join(", ")
+        );
+    };
+    if cells(&header.text) != COLUMNS {
+        bail!(
+            "{name}: line {}: header {:?}; expected {}",
+            header.number,
+            header.text,
+            COLUMNS.join(", ")
+        );
+    }
+    let mut points = Vec::new();
+    let mut problems = Vec::new();
+    while let Some(line) = lines.next_line(file)? {
+        let c = cells(&line.text);
+        if c.len() != COLUMNS.len() {
+            problems.push(format!(
+                "line {}: {} columns; expected {}",
+                line.number,
+                c.len(),
+                COLUMNS.len()
+            ));
+            continue;
+        }
+        let mut v = [0.0; 7];
+        for (i, cell) in c.iter().enumerate() {
+            match cell.parse::<f64>() {
+                Ok(x) => v[i] = x,
+                Err(_) => problems.push(format!(
+                    "line {}, column {} ({}): {cell:?}: not a number",
+                    line.number,
+                    i + 1,
+                    COLUMNS[i]
+                )),
+            }
+        }
+        points.push(ResponsePoint {
+            frequency_hz: v[0],
+            gain: [v[1], v[2], v[3]],
+            phase_rad: [v[4].to_radians(), v[5].to_radians(), v[6].to_radians()],
+        });
+    }
+    if !problems.is_empty() {
+        bail!("{name}: bad response table:\n  {}", problems.join("\n  "));
+    }
+    Ok(points)
+}
+
+fn write_table(
+    out: &mut impl std::io::Write,
+    args: &EstimateArgs,
+    columns: &[String; 3],
+    rows: u64,
+    estimates: &[Estimate],
+) -> std::io::Result<()> {
+    let [lo, hi] = [args.band_hz[0], args.band_hz[1]];
+    writeln!(
+        out,
+        "{}: {rows} rows at {} Hz, columns {} in {}; window {} s, overlap {}: {} windows",
+        args.file.display(),
+        args.rate_hz,
+        columns.join(", "),
+        match args.units {
+            Units::G => "g",
+            Units::V => "V",
+        },
+        args.window_s,
+        args.overlap,
+        estimates.len()
+    )?;
+    writeln!(
+        out,
+        "{:>9} {:>9}  {:>27}  {:>20}  {:<12} tones: f Hz [amplitude per column, g]",
+        "start_s",
+        "end_s",
+        format!("rms {lo}..{hi} Hz per column, g"),
+        "kurtosis per column",
+        "flags"
+    )?;
+    for e in estimates {
+        let rms = e.broadband.rms_g.map(fmt_num);
+        let kurt = e.broadband.kurtosis.map(|k| fmt_fixed(k, 2));
+        let mut tones = String::new();
+        for t in e.tones.iter() {
+            let a = t.amplitude_g.map(fmt_num);
+            let _ = write!(
+                tones,
+                "{:.3} [{}, {}, {}]  ",
+                t.frequency_hz, a[0], a[1], a[2]
+            );
+        }
+        if tones.is_empty() {
+            tones.push('-');
+        }
+        writeln!(
+            out,
+            "{:>9.3} {:>9.3}  {:>27}  {:>20}  {:<12} {}",
+            e.start_ns as f64 * 1e-9,
+            e.end_ns as f64 * 1e-9,
+            rms.join(", "),
+            kurt.join(", "),
+            flags_text(e),
+            tones.trim_end()
+        )?;
+    }
+    out.flush()
+}
+
+/// A value with four significant digits, or `-` when not estimated.
+fn fmt_num(v: f64) -> String {
+    if !v.is_finite() {
+        "-".to_string()
+    } else if v != 0.0 && (v.abs() < 1e-3 || v.abs() >= 1e4) {
+        format!("{v:.3e}")
+    } else {
+        let digits = (3 - v.abs().log10().floor().max(-3.0) as i32).clamp(0, 6) as usize;
+        format!("{v:.digits$}")
+    }
+}
+
+fn fmt_fixed(v: f64, decimals: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.decimals$}")
+    } else {
+        "-".to_string()
+    }
+}
+
+fn flags_text(e: &Estimate) -> String {
+    let f = &e.flags;
+    let mut out = Vec::new();
+    if f.insufficient_data {
+        out.push("insufficient");
+    }
+    if f.gap {
+        out.push("gap");
+    }
+    if f.non_finite {
+        out.push("bad-samples");
+    }
+    if f.out_of_order {
+        out.push("out-of-order");
+    }
+    if f.saturated.iter().any(|s| *s) {
+        out.push("saturated");
+    }
+    if out.is_empty() {
+        "-".to_string()
+    } else {
+        out.join(",")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_keep_four_significant_digits() {
+        assert_eq!(fmt_num(1.23456), "1.235");
+        assert_eq!(fmt_num(0.0123456), "0.01235");
+        assert_eq!(fmt_num(123.456), "123.5");
+        assert_eq!(fmt_num(1.5e-5), "1.500e-5");
+        assert_eq!(fmt_num(f64::NAN), "-");
+    }
+
+    #[test]
+    fn psd_bands_parse_as_lo_hi() {
+        assert_eq!(parse_band(" 20-40 ").unwrap(), [20.0, 40.0]);
+        assert!(parse_band("20..40")
+            .unwrap_err()
+            .to_string()
+            .contains("LO-HI"));
+    }
 }

@@ -311,8 +311,11 @@ fn ve(args: VeArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A row of the component table: its label and how to read it at `aL3`.
+type ComponentRow = (&'static str, fn(&VeComponents, f64) -> f64);
+
 fn print_components(columns: &[(&str, VeComponents)], a_l3_g: f64) {
-    let rows: [(&str, fn(&VeComponents, f64) -> f64); 9] = [
+    let rows: [ComponentRow; 9] = [
         ("d0(1)", |v, _| v.d01_g),
         ("d0(2)", |v, _| v.d02_g),
         ("d0(3)", |v, _| v.d03_g),
