@@ -81,9 +81,7 @@ impl Detector {
         let fft = planner.plan_fft_forward(samples);
         let bins = samples / 2 + 1;
         // Periodic Hann (the DFT-even form), as Grandke's formula assumes.
-        let window: Vec<f64> = (0..samples)
-            .map(|k| 0.5 - 0.5 * (2.0 * PI * k as f64 / samples as f64).cos())
-            .collect();
+        let window = crate::welch::periodic_hann(samples);
         let window_sum_all = window.iter().sum();
         let window_sq_sum_all = window.iter().map(|w| w * w).sum();
         Self {

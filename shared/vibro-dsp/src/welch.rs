@@ -76,9 +76,7 @@ impl Welch {
         let fft = planner.plan_fft_forward(segment);
         let ifft = planner.plan_fft_inverse(segment);
         let bins = segment / 2 + 1;
-        let window: Vec<f64> = (0..segment)
-            .map(|k| 0.5 - 0.5 * (2.0 * PI * k as f64 / segment as f64).cos())
-            .collect();
+        let window = periodic_hann(segment);
         let window_sq_sum: f64 = window.iter().map(|w| w * w).sum();
         let hop = segment - segment / 2;
         let bin_rho = std::array::from_fn(|d| {
@@ -300,6 +298,15 @@ impl Welch {
     pub(crate) fn psd(&self, axis: usize) -> &[f64] {
         &self.auto[axis]
     }
+}
+
+/// The periodic (DFT-even) Hann window of `samples` points: `0.5 - 0.5 cos(2 pi k / N)`.
+/// Both the tone detector (Grandke's interpolation assumes this form) and the Welch
+/// segments (scipy's `get_window('hann')` default) use it.
+pub(crate) fn periodic_hann(samples: usize) -> Vec<f64> {
+    (0..samples)
+        .map(|k| 0.5 - 0.5 * (2.0 * PI * k as f64 / samples as f64).cos())
+        .collect()
 }
 
 #[cfg(test)]

@@ -182,15 +182,21 @@ pub struct FlightArgs {
     pub al2_g: f64,
 }
 
+/// Rejects the first non-finite flag value, naming the flag, its value and the rule.
+fn ensure_finite(flags: &[(&str, f64)]) -> anyhow::Result<()> {
+    for (name, v) in flags {
+        anyhow::ensure!(v.is_finite(), "{name} = {v}: must be finite");
+    }
+    Ok(())
+}
+
 impl FlightArgs {
     fn a_l_g(&self) -> anyhow::Result<[f64; 3]> {
-        for (name, v) in [
+        ensure_finite(&[
             ("--aL1-g", self.al1_g),
             ("--aL2-g", self.al2_g),
             ("--aL3-g", self.al3_g),
-        ] {
-            anyhow::ensure!(v.is_finite(), "{name} = {v}: must be finite");
-        }
+        ])?;
         Ok([self.al1_g, self.al2_g, self.al3_g])
     }
 }
@@ -353,13 +359,11 @@ struct CompensateReport<'a> {
 
 fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     let (p, vib) = args.vibration.resolve()?;
-    for (name, v) in [
+    ensure_finite(&[
         ("--reading-g", args.reading_g),
         ("--reading1-g", args.reading1_g),
         ("--reading2-g", args.reading2_g),
-    ] {
-        anyhow::ensure!(v.is_finite(), "{name} = {v}: must be finite");
-    }
+    ])?;
     let mode = Mode::from(args.mode);
     let mut unit = UnitCompensator::new(p, mode);
     unit.set_vibration(&vib)?;
