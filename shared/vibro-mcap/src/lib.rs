@@ -1,0 +1,1 @@
+//! MCAP codec (skeleton; being written).

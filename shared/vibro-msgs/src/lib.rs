@@ -1,0 +1,1 @@
+//! Wire types (skeleton; being written).

@@ -1,0 +1,110 @@
+//! The contract between the simulator and its physical effects.
+//!
+//! The simulator runs one chain per accelerometer unit (MODEL.md section 2 frames:
+//! index 0 = OA (axis 1), 1 = PA (axis 2), 2 = IA (axis 3)):
+//!
+//! ```text
+//!  scenario vibration (body frame, a `Vibration` description + PSD bands)
+//!     |  Effect::adjust_body_vibration      (generation side: phases, kurtosis, ...)
+//!     v
+//!  body-frame vibration samples at the internal rate
+//!     |---------------------------------------------> vibration sensor of unit u
+//!     |                                                 Effect::at_sensor (gain, misalignment)
+//!     |                                                 then sensitivity, AC coupling, noise, ADC
+//!     |  rotate to unit u's axes [OA, PA, IA]
+//!     |  Effect::at_unit_input  (vibration part only: mount transmissibility,
+//!     |                          the unit's own frequency response, clipping of the input)
+//!     v
+//!  a_unit = aL_unit + vibration_unit
+//!     |  conversion function (FP) of the passport, per sample
+//!     |  Effect::at_unit_output (terms the FP lacks: vibropendulous, anisoelastic,
+//!     |                          k6/k7, heating, frequency-dependent scale factor)
+//!     v
+//!  instantaneous output aF (g), averaged to the output rate
+//! ```
+//!
+//! Every effect documents its mean contribution in [`Effect::mean_shift_g`]: the
+//! change of the unit's time-averaged output that switching the effect on (alone)
+//! causes, from a formula that does not run the time-domain simulation. Tests check
+//! the simulator against it.
+//!
+//! Hooks are called once per block of samples with buffers the simulator owns; an
+//! effect keeps its filter state between blocks, allocates only in its constructor
+//! or in [`Effect::reset`], and never logs per sample.
+
+use vibro_physics::passport::Passport;
+use vibro_physics::vibration::{PsdBand, Vibration};
+
+/// Where a block of samples sits in the run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BlockCtx {
+    /// Unit index in the triad, 0..3.
+    pub unit: usize,
+    /// Time of the block's first sample since the start of the run, s.
+    pub t0_s: f64,
+    /// Sample period of the internal rate, s.
+    pub dt_s: f64,
+}
+
+/// What a mean-contribution formula may use: the unit's passport, its steady flight
+/// acceleration and the vibration at the unit as the scenario describes it (before
+/// any effect), in the unit's axes.
+#[derive(Debug, Clone, Copy)]
+pub struct MeanContext<'a> {
+    pub unit: usize,
+    pub passport: &'a Passport,
+    /// Flight (slow) acceleration in the unit's axes `[aL1, aL2, aL3]`, g.
+    pub a_l_unit_g: [f64; 3],
+    /// Vibration at the unit in its axes, with the effect switched off.
+    pub vibration_unit: &'a Vibration,
+    /// The random part's band PSD in the unit's axes (empty when the scenario gives
+    /// the random vibration as an RMS only). Sums to `vibration_unit.covariance_g2`'s
+    /// diagonal.
+    pub psd_unit: &'a [PsdBand],
+    /// Internal sample rate of the simulation, Hz (for effects whose discrete-time
+    /// realisation matters, such as a digital filter's exact response).
+    pub internal_rate_hz: f64,
+    /// Duration of the averaged run, s (for effects with a time constant).
+    pub duration_s: f64,
+}
+
+/// One physical effect the conversion function (FP) of MODEL.md leaves out
+/// (MODEL.md section 11). Every hook defaults to "no change".
+pub trait Effect: Send {
+    /// The effect's name in scenarios (`kind = "..."`) and reports.
+    fn kind(&self) -> &'static str;
+
+    /// Generation side: adjust the body-frame vibration description before samples
+    /// are drawn (phase between axes, kurtosis of the random part, ...).
+    fn adjust_body_vibration(&self, _vib_body: &mut Vibration) {}
+
+    /// Clear filter state and size buffers for a run at `internal_rate_hz`.
+    fn reset(&mut self, _internal_rate_hz: f64) {}
+
+    /// The vibration-sensor reading of unit `ctx.unit` before the sensor's own
+    /// electronics: `body_vib_g` are the body-frame vibration samples, `sensor_g`
+    /// holds the ideal reading (the vibration along the unit's IA) and may be changed.
+    fn at_sensor(&mut self, _ctx: &BlockCtx, _body_vib_g: &[[f64; 3]], _sensor_g: &mut [f64]) {}
+
+    /// The vibration reaching the accelerometer, in its axes `[OA, PA, IA]`, g
+    /// (vibration part only, without the flight acceleration); may be changed in place.
+    fn at_unit_input(&mut self, _ctx: &BlockCtx, _vib_unit_g: &mut [[f64; 3]]) {}
+
+    /// Terms added to the instantaneous output: `input_unit_g` is the total
+    /// acceleration at the unit (flight + vibration, after `at_unit_input`),
+    /// `out_g` the FP output in g, to which the effect adds.
+    fn at_unit_output(&mut self, _ctx: &BlockCtx, _input_unit_g: &[[f64; 3]], _out_g: &mut [f64]) {}
+
+    /// The documented mean contribution: the change of the unit's mean output, g,
+    /// when this effect alone is switched on, evaluated from a formula (closed form
+    /// or deterministic quadrature over the exact distributions), never from the
+    /// time-domain simulation.
+    fn mean_shift_g(&self, ctx: &MeanContext<'_>) -> crate::Result<f64>;
+
+    /// For effects acting only on the vibration sensors: the factor by which the
+    /// sensor's measured RMS (per tone amplitude and per band RMS) along IA changes,
+    /// `None` for other effects.
+    fn sensor_rms_factor(&self, _ctx: &MeanContext<'_>) -> Option<f64> {
+        None
+    }
+}
