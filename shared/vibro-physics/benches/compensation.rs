@@ -35,12 +35,23 @@ fn kernel(c: &mut Criterion) {
         let mut k = 0u64;
         group.bench_with_input(BenchmarkId::from_parameter(mode.name()), &mode, |b, _| {
             b.iter(|| {
-                // Readings that change every call, as a live stream's do.
+                // Readings that change every call, as a live stream's do: 0.1 mg per
+                // sample, and a 0.1 g jump every 1000 samples.
                 k = k.wrapping_add(1);
                 let d = (k % 1000) as f64 * 1e-4;
                 black_box(t.compensate(black_box([0.3 + d, -0.2 + d, 2.0 + d])))
             })
         });
+        if mode == Mode::Exact {
+            // No history: Newton's iteration from a(1) for every sample.
+            group.bench_function("exact-once", |b| {
+                b.iter(|| {
+                    k = k.wrapping_add(1);
+                    let d = (k % 1000) as f64 * 1e-4;
+                    black_box(t.compensate_once(black_box([0.3 + d, -0.2 + d, 2.0 + d])))
+                })
+            });
+        }
     }
     group.finish();
 }

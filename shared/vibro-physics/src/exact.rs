@@ -182,6 +182,15 @@ impl MeanModel {
         )
     }
 
+    /// A bound on the change of the asymmetry term's linearisation after a Newton
+    /// step `step_g` taken from `a3_g`: `0.5 |k1 d1A| |s| max|slope change|`, exact
+    /// for the convex `E|aL3 + v3|` (see [`AbsMean::slope_change_bound`]).
+    #[inline(always)]
+    pub fn asymmetry_step_error_bound_g(&self, a3_g: f64, step_g: f64) -> f64 {
+        let p = &self.passport;
+        0.5 * (p.k1 * p.d1a).abs() * step_g.abs() * self.abs.slope_change_bound(a3_g, step_g)
+    }
+
     /// The exact VE components at `a_l_g`. The additive part `d0(1)` holds the
     /// asymmetry term evaluated at this `aL3` (it is not a polynomial in `aL3`).
     pub fn ve(&self, a_l_g: [f64; 3]) -> VeComponents {
