@@ -1,0 +1,267 @@
+//! What a recording holds: one pass over every record, chunk CRCs checked.
+
+use crate::schema::kind_of_schema;
+use crate::{Error, Result};
+use mcap::records::Record as McapRecord;
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+/// One channel of a recording.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ChannelInfo {
+    /// MCAP channel ID.
+    pub id: u16,
+    /// Topic.
+    pub topic: String,
+    /// Schema name, e.g. `vibrocomp.v1.AccelBlock` (empty without a schema).
+    pub message_type: String,
+    /// The wire type, if the schema is a `vibrocomp.v1` message.
+    pub kind: Option<String>,
+    /// Message encoding (`protobuf`).
+    pub message_encoding: String,
+    /// Messages on the channel.
+    pub messages: u64,
+    /// Earliest and latest log time.
+    pub first_log_time_ns: Option<u64>,
+    pub last_log_time_ns: Option<u64>,
+    /// `last - first` log time, in seconds.
+    pub span_s: f64,
+    /// First and last sequence number, in file order.
+    pub first_sequence: Option<u32>,
+    pub last_sequence: Option<u32>,
+    /// Messages missing according to the sequence numbers: the sum of `jump - 1` over
+    /// every forward jump (with 32-bit wrap-around).
+    pub lost: u64,
+    /// Number of forward jumps (gaps).
+    pub gaps: u64,
+    /// Messages whose sequence did not advance (repeated or went back).
+    pub out_of_order: u64,
+}
+
+/// One metadata record.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct MetadataInfo {
+    pub name: String,
+    pub entries: BTreeMap<String, String>,
+}
+
+/// One attachment.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct AttachmentInfo {
+    pub name: String,
+    pub media_type: String,
+    pub bytes: u64,
+    pub log_time_ns: u64,
+}
+
+/// Summary of a recording, serialisable for `--json`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct LogInfo {
+    pub path: PathBuf,
+    /// File size.
+    pub file_bytes: u64,
+    /// The header's profile and writing library.
+    pub profile: String,
+    pub library: String,
+    /// Messages over all channels.
+    pub messages: u64,
+    /// Chunks (from the statistics record; `None` if the file has none).
+    pub chunks: Option<u64>,
+    /// Earliest and latest log time over all channels, and the span in seconds.
+    pub first_log_time_ns: Option<u64>,
+    pub last_log_time_ns: Option<u64>,
+    pub duration_s: f64,
+    /// Messages lost over all channels (sum of [`ChannelInfo::lost`]).
+    pub lost: u64,
+    /// Channels, by ID.
+    pub channels: Vec<ChannelInfo>,
+    pub metadata: Vec<MetadataInfo>,
+    pub attachments: Vec<AttachmentInfo>,
+}
+
+/// Sequence numbers advance by one; a forward jump of less than half the 32-bit range is
+/// a gap, anything else a repeat or a step back.
+fn track_sequence(c: &mut ChannelInfo, sequence: u32) {
+    match c.last_sequence {
+        None => c.first_sequence = Some(sequence),
+        Some(last) => {
+            let step = sequence.wrapping_sub(last);
+            if step == 1 {
+            } else if step != 0 && step < (1 << 31) {
+                c.gaps += 1;
+                c.lost += u64::from(step - 1);
+            } else {
+                c.out_of_order += 1;
+            }
+        }
+    }
+    c.last_sequence = Some(sequence);
+}
+
+fn span_s(first: Option<u64>, last: Option<u64>) -> f64 {
+    match (first, last) {
+        (Some(a), Some(b)) => b.saturating_sub(a) as f64 * 1e-9,
+        _ => 0.0,
+    }
+}
+
+/// Reads every record of `path` (checking every chunk's CRC) and summarises it.
+/// A truncated file is [`Error::Truncated`]: recover it first.
+pub fn info(path: impl AsRef<Path>) -> Result<LogInfo> {
+    let path = path.as_ref();
+    let mut file = File::open(path).map_err(|e| Error::io("open", path, e))?;
+    let file_bytes = file
+        .metadata()
+        .map_err(|e| Error::io("stat", path, e))?
+        .len();
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_validate_chunk_crcs(true)
+            .with_validate_data_section_crc(true)
+            .with_validate_summary_section_crc(true),
+    );
+    let mut schemas: HashMap<u16, String> = HashMap::new();
+    let mut channels: BTreeMap<u16, ChannelInfo> = BTreeMap::new();
+    let mut out = LogInfo {
+        path: path.to_path_buf(),
+        file_bytes,
+        profile: String::new(),
+        library: String::new(),
+        messages: 0,
+        chunks: None,
+        first_log_time_ns: None,
+        last_log_time_ns: None,
+        duration_s: 0.0,
+        lost: 0,
+        channels: Vec::new(),
+        metadata: Vec::new(),
+        attachments: Vec::new(),
+    };
+    while let Some(event) = reader.next_event() {
+        match event.map_err(|e| Error::mcap(path, e))? {
+            LinearReadEvent::ReadRequest(need) => {
+                let n = file
+                    .read(reader.insert(need))
+                    .map_err(|e| Error::io("read", path, e))?;
+                reader.notify_read(n);
+            }
+            LinearReadEvent::Record { opcode, data } => {
+                match mcap::parse_record(opcode, data).map_err(|e| Error::mcap(path, e))? {
+                    McapRecord::Header(h) => {
+                        out.profile = h.profile;
+                        out.library = h.library;
+                    }
+                    McapRecord::Schema { header, .. } => {
+                        schemas.insert(header.id, header.name);
+                    }
+                    McapRecord::Channel(c) => {
+                        let message_type = schemas.get(&c.schema_id).cloned().unwrap_or_default();
+                        let kind = kind_of_schema(&message_type).map(|k| k.name().to_string());
+                        channels.entry(c.id).or_insert(ChannelInfo {
+                            id: c.id,
+                            topic: c.topic,
+                            message_type,
+                            kind,
+                            message_encoding: c.message_encoding,
+                            messages: 0,
+                            first_log_time_ns: None,
+                            last_log_time_ns: None,
+                            span_s: 0.0,
+                            first_sequence: None,
+                            last_sequence: None,
+                            lost: 0,
+                            gaps: 0,
+                            out_of_order: 0,
+                        });
+                    }
+                    McapRecord::Message { header, .. } => {
+                        let Some(c) = channels.get_mut(&header.channel_id) else {
+                            return Err(Error::Mcap {
+                                path: path.to_path_buf(),
+                                source: mcap::McapError::UnknownChannel(
+                                    header.sequence,
+                                    header.channel_id,
+                                ),
+                            });
+                        };
+                        c.messages += 1;
+                        let t = header.log_time;
+                        c.first_log_time_ns = Some(c.first_log_time_ns.map_or(t, |f| f.min(t)));
+                        c.last_log_time_ns = Some(c.last_log_time_ns.map_or(t, |l| l.max(t)));
+                        track_sequence(c, header.sequence);
+                    }
+                    McapRecord::Attachment { header, data, .. } => {
+                        out.attachments.push(AttachmentInfo {
+                            name: header.name,
+                            media_type: header.media_type,
+                            bytes: data.len() as u64,
+                            log_time_ns: header.log_time,
+                        });
+                    }
+                    McapRecord::Metadata(m) => out.metadata.push(MetadataInfo {
+                        name: m.name,
+                        entries: m.metadata,
+                    }),
+                    McapRecord::Statistics(s) => out.chunks = Some(s.chunk_count.into()),
+                    _ => {}
+                }
+            }
+        }
+    }
+    for c in channels.values_mut() {
+        c.span_s = span_s(c.first_log_time_ns, c.last_log_time_ns);
+    }
+    out.channels = channels.into_values().collect();
+    out.messages = out.channels.iter().map(|c| c.messages).sum();
+    out.lost = out.channels.iter().map(|c| c.lost).sum();
+    out.first_log_time_ns = out
+        .channels
+        .iter()
+        .filter_map(|c| c.first_log_time_ns)
+        .min();
+    out.last_log_time_ns = out.channels.iter().filter_map(|c| c.last_log_time_ns).max();
+    out.duration_s = span_s(out.first_log_time_ns, out.last_log_time_ns);
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn channel() -> ChannelInfo {
+        ChannelInfo {
+            id: 1,
+            topic: "/t".into(),
+            message_type: String::new(),
+            kind: None,
+            message_encoding: String::new(),
+            messages: 0,
+            first_log_time_ns: None,
+            last_log_time_ns: None,
+            span_s: 0.0,
+            first_sequence: None,
+            last_sequence: None,
+            lost: 0,
+            gaps: 0,
+            out_of_order: 0,
+        }
+    }
+
+    #[test]
+    fn sequence_gaps_count_lost_messages_across_the_wrap() {
+        let mut c = channel();
+        for s in [5, 6, 9, 10, 10, 4, u32::MAX - 1, u32::MAX, 1] {
+            track_sequence(&mut c, s);
+        }
+        // 6 -> 9 loses 7, 8; 10 -> 10 repeats; 10 -> 4 goes back; 4 -> MAX-1 is a
+        // jump of more than half the range: back; MAX -> 1 wraps, losing 0.
+        assert_eq!(c.first_sequence, Some(5));
+        assert_eq!(c.last_sequence, Some(1));
+        assert_eq!(c.gaps, 2);
+        assert_eq!(c.lost, 2 + 1);
+        assert_eq!(c.out_of_order, 3);
+    }
+}

@@ -1,0 +1,420 @@
+//! Reading a finished recording in log-time order.
+//!
+//! The summary section gives the channels and the chunk index. Chunks are read from the
+//! file one at a time, in order of their first log time, and their messages are merged
+//! through a min-heap keyed by (log time, position in the file): a chunk is loaded as
+//! soon as it could hold the next message, so overlapping chunks (several writers'
+//! messages interleaved out of order) still come out sorted, and memory holds only the
+//! chunks that overlap. Each chunk's CRC is checked when it is read (`mcap`'s chunk
+//! reader), before any of its messages is yielded.
+
+use crate::schema::{kind_of_schema, MESSAGE_ENCODING, SCHEMA_ENCODING};
+use crate::{Error, Message, Result};
+use mcap::records::{op, ChunkIndex, Record as McapRecord};
+use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader};
+use std::cmp::{Ordering, Reverse};
+use std::collections::{BTreeMap, BinaryHeap, HashMap};
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use vibro_msgs::MessageKind;
+
+/// One decoded message with its MCAP header fields.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Record {
+    /// The channel's topic.
+    pub topic: Arc<str>,
+    /// The MCAP channel ID.
+    pub channel_id: u16,
+    /// The publisher's sequence number (32 bits in MCAP).
+    pub sequence: u32,
+    /// When the message was received (the order of iteration).
+    pub log_time_ns: u64,
+    /// When the message was published.
+    pub publish_time_ns: u64,
+    /// The decoded message.
+    pub message: Message,
+}
+
+/// A message waiting in the merge heap: still protobuf bytes, so that the heap moves
+/// small values and holds the chunk's compact form, not 12 KiB wire structs.
+struct Pending {
+    log_time_ns: u64,
+    order: u64,
+    channel_id: u16,
+    sequence: u32,
+    publish_time_ns: u64,
+    data: Vec<u8>,
+}
+
+impl PartialEq for Pending {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other) == Ordering::Equal
+    }
+}
+impl Eq for Pending {}
+impl PartialOrd for Pending {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Pending {
+    fn cmp(&self, other: &Self) -> Ordering {
+        (self.log_time_ns, self.order).cmp(&(other.log_time_ns, other.order))
+    }
+}
+
+#[derive(Clone)]
+struct ChannelEntry {
+    topic: Arc<str>,
+    kind: MessageKind,
+}
+
+/// Iterates over the messages of a finished MCAP file in log-time order (ties in file
+/// order), decoded into [`Message`]s. Channels whose schema is not a `vibrocomp.v1`
+/// message are skipped (see [`Reader::foreign_topics`]).
+pub struct Reader {
+    path: PathBuf,
+    file: File,
+    channels: HashMap<u16, ChannelEntry>,
+    foreign_topics: Vec<String>,
+    chunks: Vec<ChunkIndex>,
+    next_chunk: usize,
+    pending: BinaryHeap<Reverse<Pending>>,
+    next_order: u64,
+    chunk_buf: Vec<u8>,
+    summary: mcap::Summary,
+    failed: bool,
+}
+
+impl Reader {
+    /// Opens `path` and reads its summary section. A file without one (a crash, see
+    /// [`crate::recover`]) is [`Error::NotFinished`].
+    pub fn open(path: impl AsRef<Path>) -> Result<Reader> {
+        let path = path.as_ref().to_path_buf();
+        let mut file = File::open(&path).map_err(|e| Error::io("open", &path, e))?;
+        let summary = read_summary(&path, &mut file)?.ok_or_else(|| Error::NotFinished {
+            path: path.clone(),
+            what: "no summary section",
+        })?;
+        let message_count = summary.stats.as_ref().map_or(0, |s| s.message_count);
+        if summary.chunk_indexes.is_empty() && message_count > 0 {
+            return Err(Error::NotFinished {
+                path,
+                what: "no chunk index",
+            });
+        }
+        let mut channels = HashMap::new();
+        let mut foreign_topics = Vec::new();
+        for (&id, channel) in &summary.channels {
+            let kind = channel
+                .schema
+                .as_ref()
+                .filter(|s| s.encoding == SCHEMA_ENCODING)
+                .filter(|_| channel.message_encoding == MESSAGE_ENCODING)
+                .and_then(|s| kind_of_schema(&s.name));
+            match kind {
+                Some(kind) => {
+                    channels.insert(
+                        id,
+                        ChannelEntry {
+                            topic: Arc::from(channel.topic.as_str()),
+                            kind,
+                        },
+                    );
+                }
+                None => foreign_topics.push(channel.topic.clone()),
+            }
+        }
+        foreign_topics.sort();
+        let mut chunks = summary.chunk_indexes.clone();
+        chunks.sort_by_key(|c| (c.message_start_time, c.chunk_start_offset));
+        Ok(Reader {
+            path,
+            file,
+            channels,
+            foreign_topics,
+            chunks,
+            next_chunk: 0,
+            pending: BinaryHeap::new(),
+            next_order: 0,
+            chunk_buf: Vec::new(),
+            summary,
+            failed: false,
+        })
+    }
+
+    /// The file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// `(topic, message kind)` of every channel that will be decoded, sorted by topic.
+    pub fn channels(&self) -> Vec<(String, MessageKind)> {
+        let mut out: Vec<_> = self
+            .channels
+            .values()
+            .map(|c| (c.topic.to_string(), c.kind))
+            .collect();
+        out.sort();
+        out
+    }
+
+    /// Topics of channels that are not `vibrocomp.v1` messages; their messages are skipped.
+    pub fn foreign_topics(&self) -> &[String] {
+        &self.foreign_topics
+    }
+
+    /// Messages in the file according to its statistics record, if it has one.
+    pub fn message_count(&self) -> Option<u64> {
+        self.summary.stats.as_ref().map(|s| s.message_count)
+    }
+
+    /// Names of the attachments, in file order.
+    pub fn attachment_names(&self) -> Vec<String> {
+        self.summary
+            .attachment_indexes
+            .iter()
+            .map(|a| a.name.clone())
+            .collect()
+    }
+
+    /// The content of the first attachment called `name`, if any.
+    pub fn read_attachment(&mut self, name: &str) -> Result<Option<Vec<u8>>> {
+        let Some(index) = self
+            .summary
+            .attachment_indexes
+            .iter()
+            .find(|a| a.name == name)
+            .cloned()
+        else {
+            return Ok(None);
+        };
+        let mut buf = std::mem::take(&mut self.chunk_buf);
+        let read = read_record(
+            &self.path,
+            &mut self.file,
+            &mut buf,
+            index.offset,
+            index.length,
+            op::ATTACHMENT,
+        );
+        let parsed = read.and_then(|body| {
+            mcap::parse_record(op::ATTACHMENT, body)
+                .map(McapRecord::into_owned)
+                .map_err(|e| Error::mcap(&self.path, e))
+        });
+        self.chunk_buf = buf;
+        match parsed? {
+            McapRecord::Attachment { data, .. } => Ok(Some(data.into_owned())),
+            _ => Ok(None),
+        }
+    }
+
+    /// Every metadata record, `(name, entries)`, in file order.
+    pub fn metadata(&mut self) -> Result<Vec<(String, BTreeMap<String, String>)>> {
+        let indexes = self.summary.metadata_indexes.clone();
+        let mut out = Vec::with_capacity(indexes.len());
+        let mut buf = std::mem::take(&mut self.chunk_buf);
+        for index in indexes {
+            let read = read_record(
+                &self.path,
+                &mut self.file,
+                &mut buf,
+                index.offset,
+                index.length,
+                op::METADATA,
+            );
+            let parsed = read.and_then(|body| {
+                mcap::parse_record(op::METADATA, body)
+                    .map(McapRecord::into_owned)
+                    .map_err(|e| Error::mcap(&self.path, e))
+            });
+            match parsed {
+                Ok(McapRecord::Metadata(m)) => out.push((m.name, m.metadata)),
+                Ok(_) => {}
+                Err(e) => {
+                    self.chunk_buf = buf;
+                    return Err(e);
+                }
+            }
+        }
+        self.chunk_buf = buf;
+        Ok(out)
+    }
+
+    /// Reads the next chunk, checks its CRC, and queues its messages.
+    fn load_next_chunk(&mut self) -> Result<()> {
+        let Some(index) = self.chunks.get(self.next_chunk).cloned() else {
+            return Ok(());
+        };
+        self.next_chunk += 1;
+        let mut buf = std::mem::take(&mut self.chunk_buf);
+        let loaded = self.queue_chunk(&index, &mut buf);
+        self.chunk_buf = buf;
+        loaded
+    }
+
+    fn queue_chunk(&mut self, index: &ChunkIndex, buf: &mut Vec<u8>) -> Result<()> {
+        let path = self.path.clone();
+        let body = read_record(
+            &path,
+            &mut self.file,
+            buf,
+            index.chunk_start_offset,
+            index.chunk_length,
+            op::CHUNK,
+        )?;
+        let (header, data) =
+            match mcap::parse_record(op::CHUNK, body).map_err(|e| Error::mcap(&path, e))? {
+                McapRecord::Chunk { header, data } => (header, data),
+                _ => {
+                    return Err(Error::Mcap {
+                        path,
+                        source: mcap::McapError::BadIndex,
+                    })
+                }
+            };
+        // Read the whole chunk first: its CRC is checked at its end, and nothing of a
+        // corrupt chunk may be yielded.
+        let mut messages = Vec::new();
+        for record in
+            mcap::read::ChunkReader::new(header, &data).map_err(|e| Error::mcap(&path, e))?
+        {
+            if let McapRecord::Message { header, data } =
+                record.map_err(|e| Error::mcap(&path, e))?
+            {
+                if self.channels.contains_key(&header.channel_id) {
+                    messages.push((header, data.into_owned()));
+                }
+            }
+        }
+        for (header, data) in messages {
+            self.pending.push(Reverse(Pending {
+                log_time_ns: header.log_time,
+                order: self.next_order,
+                channel_id: header.channel_id,
+                sequence: header.sequence,
+                publish_time_ns: header.publish_time,
+                data,
+            }));
+            self.next_order += 1;
+        }
+        Ok(())
+    }
+
+    fn next_record(&mut self) -> Result<Option<Record>> {
+        loop {
+            let next_chunk_start = self
+                .chunks
+                .get(self.next_chunk)
+                .map(|c| c.message_start_time);
+            let load = match (self.pending.peek(), next_chunk_start) {
+                (_, None) => false,
+                (None, Some(_)) => true,
+                // A chunk starting no later than the earliest pending message may hold
+                // messages that come first.
+                (Some(Reverse(top)), Some(start)) => start <= top.log_time_ns,
+            };
+            if load {
+                self.load_next_chunk()?;
+                continue;
+            }
+            let Some(Reverse(p)) = self.pending.pop() else {
+                return Ok(None);
+            };
+            // Only channels in `self.channels` were queued.
+            let Some(channel) = self.channels.get(&p.channel_id) else {
+                continue;
+            };
+            return Ok(Some(Record {
+                topic: Arc::clone(&channel.topic),
+                channel_id: p.channel_id,
+                sequence: p.sequence,
+                log_time_ns: p.log_time_ns,
+                publish_time_ns: p.publish_time_ns,
+                message: Message::decode(channel.kind, &p.data)?,
+            }));
+        }
+    }
+}
+
+impl Iterator for Reader {
+    type Item = Result<Record>;
+
+    /// The next message in log-time order. After an error the iterator ends.
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.failed {
+            return None;
+        }
+        match self.next_record() {
+            Ok(record) => record.map(Ok),
+            Err(e) => {
+                self.failed = true;
+                Some(Err(e))
+            }
+        }
+    }
+}
+
+/// Reads the record of `length` bytes (opcode and length prefix included) at `offset`
+/// into `buf`, checks its opcode, and returns its body.
+fn read_record<'b>(
+    path: &Path,
+    file: &mut File,
+    buf: &'b mut Vec<u8>,
+    offset: u64,
+    length: u64,
+    opcode: u8,
+) -> Result<&'b [u8]> {
+    let bad_index = || Error::Mcap {
+        path: path.to_path_buf(),
+        source: mcap::McapError::BadIndex,
+    };
+    let len = usize::try_from(length).map_err(|_| bad_index())?;
+    if len < 9 {
+        return Err(bad_index());
+    }
+    buf.resize(len, 0);
+    file.seek(SeekFrom::Start(offset))
+        .map_err(|e| Error::io("seek in", path, e))?;
+    file.read_exact(buf).map_err(|e| match e.kind() {
+        std::io::ErrorKind::UnexpectedEof => Error::Truncated {
+            path: path.to_path_buf(),
+        },
+        _ => Error::io("read", path, e),
+    })?;
+    if buf[0] != opcode {
+        return Err(bad_index());
+    }
+    Ok(&buf[9..])
+}
+
+/// Reads the summary section through `mcap`'s sans-io summary reader.
+fn read_summary(path: &Path, file: &mut File) -> Result<Option<mcap::Summary>> {
+    let mut reader = SummaryReader::new();
+    while let Some(event) = reader.next_event() {
+        let event = event.map_err(|e| match e {
+            // No footer at the end: the writer never finished.
+            mcap::McapError::BadMagic | mcap::McapError::BadFooter => Error::NotFinished {
+                path: path.to_path_buf(),
+                what: "no footer",
+            },
+            e => Error::mcap(path, e),
+        })?;
+        match event {
+            SummaryReadEvent::ReadRequest(need) => {
+                let n = file
+                    .read(reader.insert(need))
+                    .map_err(|e| Error::io("read", path, e))?;
+                reader.notify_read(n);
+            }
+            SummaryReadEvent::SeekRequest(to) => {
+                let pos = file.seek(to).map_err(|e| Error::io("seek in", path, e))?;
+                reader.notify_seeked(pos);
+            }
+        }
+    }
+    Ok(reader.finish())
+}

@@ -1,0 +1,622 @@
+//! The recorder: a cheap `write` on the caller's thread, and a writer thread of its own
+//! that owns the `mcap::Writer`.
+//!
+//! `write` looks the topic up, checks the message's type and counts, and copies the
+//! fixed-size wire struct into a bounded queue (`std::sync::mpsc::sync_channel`, whose
+//! slots are allocated once, up front): no heap allocation, no encoding, no I/O, and it
+//! never blocks. When the queue is full it returns [`Error::QueueFull`] at once and counts
+//! the rejection: a real-time caller must not be held up by a slow disk, and a silent drop
+//! is never an option. The rejected message's `sequence` is then missing from the file,
+//! which [`crate::info`] reports as a loss.
+//!
+//! The writer thread encodes each message as protobuf, writes it into a zstd chunk, and
+//! closes the chunk (and flushes it to the operating system) no later than
+//! `flush_interval_s` after the first message written into it, so a crash of the process
+//! loses at most about that much: [`crate::recover`] restores everything up to the last
+//! closed chunk. Control calls (`add_channel`, `add_attachment`, `add_metadata`) are
+//! rare and must not be lost, so they wait for room in the queue instead.
+
+use crate::schema::{schema, schema_id, MESSAGE_ENCODING, SCHEMA_ENCODING};
+use crate::{Error, Message, Result};
+use std::borrow::Cow;
+use std::collections::{BTreeMap, HashMap};
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use vibro_msgs::MessageKind;
+
+/// Chunk compression.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum Compression {
+    /// zstd (the default): the usual choice for MCAP, fast to decompress.
+    Zstd,
+    /// No compression (largest files, least CPU).
+    None,
+}
+
+/// How a [`Recorder`] writes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecorderOptions {
+    /// Chunk compression (default zstd).
+    pub compression: Compression,
+    /// A chunk is closed once its uncompressed size exceeds this (default 1 MiB).
+    pub chunk_size_bytes: u64,
+    /// A chunk is closed and flushed at most this long after its first message
+    /// (default 1 s): the most a crash can lose.
+    pub flush_interval_s: f64,
+    /// Messages the queue holds before `write` returns [`Error::QueueFull`] (default
+    /// 1024). Each slot is the size of the largest wire type, about 12 KiB, allocated
+    /// when the recorder is created.
+    pub queue_capacity: usize,
+    /// zstd worker threads (default 0: the writer thread compresses by itself, so a
+    /// recorder takes one core at most, next to the real-time services).
+    pub compression_threads: u32,
+    /// The MCAP header's profile (default `vibrocomp`).
+    pub profile: String,
+}
+
+impl Default for RecorderOptions {
+    fn default() -> Self {
+        Self {
+            compression: Compression::Zstd,
+            chunk_size_bytes: 1 << 20,
+            flush_interval_s: 1.0,
+            queue_capacity: 1024,
+            compression_threads: 0,
+            profile: "vibrocomp".to_string(),
+        }
+    }
+}
+
+impl RecorderOptions {
+    fn flush_interval(&self) -> Result<Duration> {
+        let s = self.flush_interval_s;
+        if !(s.is_finite() && s > 0.0) {
+            return Err(Error::InvalidOption {
+                name: "flush_interval_s",
+                value: s.to_string(),
+                rule: "must be finite and > 0",
+            });
+        }
+        Duration::try_from_secs_f64(s).map_err(|_| Error::InvalidOption {
+            name: "flush_interval_s",
+            value: s.to_string(),
+            rule: "must fit a Duration",
+        })
+    }
+
+    fn check(&self) -> Result<Duration> {
+        if self.chunk_size_bytes == 0 {
+            return Err(Error::InvalidOption {
+                name: "chunk_size_bytes",
+                value: "0".to_string(),
+                rule: "must be > 0",
+            });
+        }
+        if self.queue_capacity == 0 {
+            return Err(Error::InvalidOption {
+                name: "queue_capacity",
+                value: "0".to_string(),
+                rule: "must be > 0",
+            });
+        }
+        self.flush_interval()
+    }
+}
+
+/// A registered channel, for [`Recorder::write_to`] (skips the topic lookup).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ChannelId {
+    id: u16,
+    kind: MessageKind,
+    topic: Arc<str>,
+}
+
+impl ChannelId {
+    /// The MCAP channel ID.
+    pub fn id(&self) -> u16 {
+        self.id
+    }
+    /// The message type of the channel.
+    pub fn kind(&self) -> MessageKind {
+        self.kind
+    }
+    /// The topic.
+    pub fn topic(&self) -> &str {
+        &self.topic
+    }
+}
+
+/// Counters of a running recorder.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct RecorderStats {
+    /// Messages accepted into the queue.
+    pub accepted: u64,
+    /// Messages rejected because the queue was full.
+    pub rejected_full: u64,
+    /// Messages the writer thread has written into the file so far.
+    pub written: u64,
+}
+
+/// What [`Recorder::finish`] wrote.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct RecordingSummary {
+    /// The file.
+    pub path: PathBuf,
+    /// Messages written per topic.
+    pub messages_per_topic: BTreeMap<String, u64>,
+    /// Messages written in total.
+    pub messages: u64,
+    /// Messages rejected by `write` because the queue was full.
+    pub rejected_full: u64,
+    /// Chunks in the file.
+    pub chunks: u64,
+    /// Attachments in the file.
+    pub attachments: u64,
+    /// Metadata records in the file.
+    pub metadata: u64,
+    /// File size in bytes.
+    pub bytes: u64,
+}
+
+#[derive(Default)]
+struct Counters {
+    accepted: AtomicU64,
+    rejected_full: AtomicU64,
+    written: AtomicU64,
+}
+
+/// What travels to the writer thread. Messages are copied in by value (see [`Message`]).
+#[allow(clippy::large_enum_variant)]
+enum Command {
+    Channel {
+        id: u16,
+        topic: String,
+        kind: MessageKind,
+    },
+    Message {
+        channel_id: u16,
+        sequence: u32,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+        message: Message,
+    },
+    Attachment {
+        name: String,
+        media_type: String,
+        data: Vec<u8>,
+        /// `None`: the wall clock when written.
+        time_ns: Option<u64>,
+    },
+    Metadata {
+        name: String,
+        entries: BTreeMap<String, String>,
+    },
+}
+
+/// Records wire messages into an MCAP file from any thread; see the module docs for the
+/// threading, back-pressure and flush rules.
+///
+/// Call [`Recorder::finish`] to close the file and get its errors. Dropping a recorder
+/// also finishes the file (waiting for the writer thread) but loses any error.
+pub struct Recorder {
+    path: PathBuf,
+    tx: Option<SyncSender<Command>>,
+    thread: Option<JoinHandle<Result<RecordingSummary>>>,
+    channels: HashMap<String, ChannelId>,
+    next_channel_id: u16,
+    capacity: usize,
+    counters: Arc<Counters>,
+}
+
+impl Recorder {
+    /// Creates (truncates) `path` and starts the writer thread.
+    pub fn create(path: impl AsRef<Path>, options: RecorderOptions) -> Result<Recorder> {
+        let path = path.as_ref().to_path_buf();
+        let flush_interval = options.check()?;
+        let file = std::fs::File::create(&path).map_err(|e| Error::io("create", &path, e))?;
+        let write_options = mcap::WriteOptions::new()
+            .compression(match options.compression {
+                Compression::Zstd => Some(mcap::Compression::Zstd),
+                Compression::None => None,
+            })
+            .chunk_size(Some(options.chunk_size_bytes))
+            .compression_threads(options.compression_threads)
+            .profile(options.profile.clone());
+        let writer = write_options
+            .create(BufWriter::new(file))
+            .map_err(|e| Error::mcap(&path, e))?;
+
+        let (tx, rx) = std::sync::mpsc::sync_channel(options.queue_capacity);
+        let counters = Arc::new(Counters::default());
+        let thread = {
+            let thread_path = path.clone();
+            let counters = Arc::clone(&counters);
+            std::thread::Builder::new()
+                .name("mcap-recorder".to_string())
+                .spawn(move || {
+                    WriterThread {
+                        path: thread_path,
+                        writer,
+                        flush_interval,
+                        counters,
+                        topics: BTreeMap::new(),
+                        buf: Vec::with_capacity(16 * 1024),
+                        attachments: 0,
+                        metadata: 0,
+                    }
+                    .run(rx)
+                })
+                .map_err(|e| Error::io("start the writer thread for", &path, e))?
+        };
+        Ok(Recorder {
+            path,
+            tx: Some(tx),
+            thread: Some(thread),
+            channels: HashMap::new(),
+            next_channel_id: 1,
+            capacity: options.queue_capacity,
+            counters,
+        })
+    }
+
+    /// The file being written.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Registers `topic` for messages of `kind` (its schema is added with the first
+    /// channel of that kind). Registering the same topic and kind again returns the same
+    /// channel.
+    pub fn add_channel(&mut self, topic: &str, kind: MessageKind) -> Result<ChannelId> {
+        if let Some(existing) = self.channels.get(topic) {
+            if existing.kind == kind {
+                return Ok(existing.clone());
+            }
+            return Err(Error::TopicExists {
+                topic: topic.to_string(),
+                existing: existing.kind,
+                requested: kind,
+            });
+        }
+        let id = self.next_channel_id;
+        self.next_channel_id = id.checked_add(1).ok_or(Error::TooManyChannels {
+            topic: topic.to_string(),
+            max: u16::MAX,
+        })?;
+        self.send_control(Command::Channel {
+            id,
+            topic: topic.to_string(),
+            kind,
+        })?;
+        let channel = ChannelId {
+            id,
+            kind,
+            topic: Arc::from(topic),
+        };
+        self.channels.insert(topic.to_string(), channel.clone());
+        Ok(channel)
+    }
+
+    /// Queues one message for `topic` (registered with [`Recorder::add_channel`]).
+    /// `log_time_ns` is when it was received, `publish_time_ns` when it was published,
+    /// `sequence` the publisher's counter (MCAP keeps 32 bits; gaps show losses).
+    ///
+    /// Never blocks: a full queue returns [`Error::QueueFull`] and the message is not
+    /// recorded (counted in [`RecorderStats::rejected_full`]).
+    pub fn write<M: Copy + Into<Message>>(
+        &self,
+        topic: &str,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+        sequence: u32,
+        message: &M,
+    ) -> Result<()> {
+        let channel = self
+            .channels
+            .get(topic)
+            .ok_or_else(|| Error::UnknownTopic {
+                topic: topic.to_string(),
+            })?;
+        self.write_to(
+            channel,
+            log_time_ns,
+            publish_time_ns,
+            sequence,
+            (*message).into(),
+        )
+    }
+
+    /// [`Recorder::write`] for a channel already looked up.
+    pub fn write_to(
+        &self,
+        channel: &ChannelId,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+        sequence: u32,
+        message: Message,
+    ) -> Result<()> {
+        if message.kind() != channel.kind {
+            return Err(Error::WrongMessageType {
+                topic: Arc::clone(&channel.topic),
+                expected: channel.kind,
+                got: message.kind(),
+            });
+        }
+        message.validate()?;
+        let tx = self.tx.as_ref().ok_or_else(|| self.stopped())?;
+        match tx.try_send(Command::Message {
+            channel_id: channel.id,
+            sequence,
+            log_time_ns,
+            publish_time_ns,
+            message,
+        }) {
+            Ok(()) => {
+                self.counters.accepted.fetch_add(1, Ordering::Relaxed);
+                Ok(())
+            }
+            Err(TrySendError::Full(_)) => {
+                self.counters.rejected_full.fetch_add(1, Ordering::Relaxed);
+                Err(Error::QueueFull {
+                    topic: Arc::clone(&channel.topic),
+                    sequence,
+                    capacity: self.capacity,
+                })
+            }
+            Err(TrySendError::Disconnected(_)) => Err(self.stopped()),
+        }
+    }
+
+    /// Adds a file (a configuration or passport) to the recording. Waits for room in the
+    /// queue.
+    pub fn add_attachment(&self, name: &str, media_type: &str, data: Vec<u8>) -> Result<()> {
+        self.send_control(Command::Attachment {
+            name: name.to_string(),
+            media_type: media_type.to_string(),
+            data,
+            time_ns: None,
+        })
+    }
+
+    /// [`Recorder::add_attachment`] with its log and creation time given (ns) instead
+    /// of the wall clock: a generated log (the simulator's) stays a function of its
+    /// inputs, bit-identical from run to run.
+    pub fn add_attachment_at(
+        &self,
+        name: &str,
+        media_type: &str,
+        data: Vec<u8>,
+        time_ns: u64,
+    ) -> Result<()> {
+        self.send_control(Command::Attachment {
+            name: name.to_string(),
+            media_type: media_type.to_string(),
+            data,
+            time_ns: Some(time_ns),
+        })
+    }
+
+    /// Adds a named set of key-value pairs (run parameters, versions). Waits for room in
+    /// the queue.
+    pub fn add_metadata(&self, name: &str, entries: BTreeMap<String, String>) -> Result<()> {
+        self.send_control(Command::Metadata {
+            name: name.to_string(),
+            entries,
+        })
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> RecorderStats {
+        RecorderStats {
+            accepted: self.counters.accepted.load(Ordering::Relaxed),
+            rejected_full: self.counters.rejected_full.load(Ordering::Relaxed),
+            written: self.counters.written.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Writes everything queued, the summary and the footer, syncs the file to disk and
+    /// reports what was written, or the first error the writer thread met.
+    pub fn finish(mut self) -> Result<RecordingSummary> {
+        self.close()
+    }
+
+    fn close(&mut self) -> Result<RecordingSummary> {
+        // Dropping the sender lets the writer thread drain the queue and finish.
+        self.tx = None;
+        let thread = self.thread.take().ok_or_else(|| self.stopped())?;
+        let mut summary = thread.join().map_err(|_| Error::WriterPanicked {
+            path: self.path.clone(),
+        })??;
+        summary.rejected_full = self.counters.rejected_full.load(Ordering::Relaxed);
+        Ok(summary)
+    }
+
+    fn send_control(&self, command: Command) -> Result<()> {
+        let tx = self.tx.as_ref().ok_or_else(|| self.stopped())?;
+        tx.send(command).map_err(|_| self.stopped())
+    }
+
+    fn stopped(&self) -> Error {
+        Error::RecorderStopped {
+            path: self.path.clone(),
+        }
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        if self.thread.is_some() {
+            // Best effort: the file is finished, but an error has nobody to go to.
+            // `finish()` is the way to see it.
+            let _ = self.close();
+        }
+    }
+}
+
+struct WriterThread {
+    path: PathBuf,
+    writer: mcap::Writer<BufWriter<std::fs::File>>,
+    flush_interval: Duration,
+    counters: Arc<Counters>,
+    topics: BTreeMap<u16, (String, u64)>,
+    buf: Vec<u8>,
+    attachments: u64,
+    metadata: u64,
+}
+
+impl WriterThread {
+    fn run(mut self, rx: Receiver<Command>) -> Result<RecordingSummary> {
+        // When the open chunk got its first message: it must be closed by then + interval.
+        let mut open_since: Option<Instant> = None;
+        loop {
+            let command = match open_since {
+                None => match rx.recv() {
+                    Ok(c) => c,
+                    Err(_) => break,
+                },
+                Some(since) => {
+                    let left =
+                        (since + self.flush_interval).saturating_duration_since(Instant::now());
+                    match rx.recv_timeout(left) {
+                        Ok(c) => c,
+                        Err(RecvTimeoutError::Timeout) => {
+                            self.flush()?;
+                            open_since = None;
+                            continue;
+                        }
+                        Err(RecvTimeoutError::Disconnected) => break,
+                    }
+                }
+            };
+            let writes_chunk = self.handle(command)?;
+            if writes_chunk && open_since.is_none() {
+                open_since = Some(Instant::now());
+            }
+            if open_since.is_some_and(|since| since.elapsed() >= self.flush_interval) {
+                self.flush()?;
+                open_since = None;
+            }
+        }
+        self.finish()
+    }
+
+    /// Returns whether the command wrote into the open chunk.
+    fn handle(&mut self, command: Command) -> Result<bool> {
+        let path = &self.path;
+        match command {
+            Command::Channel { id, topic, kind } => {
+                let s = schema(kind);
+                let schema_id = self
+                    .writer
+                    .add_schema_with_id(schema_id(kind), s.name, SCHEMA_ENCODING, s.data)
+                    .map_err(|e| Error::mcap(path, e))?;
+                let metadata = BTreeMap::from([(
+                    "vibrocomp.type_name".to_string(),
+                    kind.type_name().to_string(),
+                )]);
+                self.writer
+                    .add_channel_with_id(id, schema_id, &topic, MESSAGE_ENCODING, &metadata)
+                    .map_err(|e| Error::mcap(path, e))?;
+                self.topics.insert(id, (topic, 0));
+                Ok(true)
+            }
+            Command::Message {
+                channel_id,
+                sequence,
+                log_time_ns,
+                publish_time_ns,
+                message,
+            } => {
+                message.encode(&mut self.buf)?;
+                let header = mcap::records::MessageHeader {
+                    channel_id,
+                    sequence,
+                    log_time: log_time_ns,
+                    publish_time: publish_time_ns,
+                };
+                self.writer
+                    .write_to_known_channel(&header, &self.buf)
+                    .map_err(|e| Error::mcap(path, e))?;
+                if let Some((_, n)) = self.topics.get_mut(&channel_id) {
+                    *n += 1;
+                }
+                self.counters.written.fetch_add(1, Ordering::Relaxed);
+                Ok(true)
+            }
+            Command::Attachment {
+                name,
+                media_type,
+                data,
+                time_ns,
+            } => {
+                let now_ns = time_ns.unwrap_or_else(unix_time_ns);
+                self.writer
+                    .attach(&mcap::Attachment {
+                        log_time: now_ns,
+                        create_time: now_ns,
+                        name,
+                        media_type,
+                        data: Cow::Owned(data),
+                    })
+                    .map_err(|e| Error::mcap(path, e))?;
+                self.attachments += 1;
+                // Attachments live outside chunks: the open chunk was closed first.
+                Ok(false)
+            }
+            Command::Metadata { name, entries } => {
+                self.writer
+                    .write_metadata(&mcap::records::Metadata {
+                        name,
+                        metadata: entries,
+                    })
+                    .map_err(|e| Error::mcap(path, e))?;
+                self.metadata += 1;
+                Ok(false)
+            }
+        }
+    }
+
+    fn flush(&mut self) -> Result<()> {
+        self.writer.flush().map_err(|e| Error::mcap(&self.path, e))
+    }
+
+    fn finish(mut self) -> Result<RecordingSummary> {
+        let path = self.path.clone();
+        let summary = self.writer.finish().map_err(|e| Error::mcap(&path, e))?;
+        let file = self
+            .writer
+            .into_inner()
+            .into_inner()
+            .map_err(|e| Error::io("write", &path, e.into_error()))?;
+        file.sync_all().map_err(|e| Error::io("sync", &path, e))?;
+        let bytes = file
+            .metadata()
+            .map_err(|e| Error::io("stat", &path, e))?
+            .len();
+        let mut messages_per_topic = BTreeMap::new();
+        for (topic, n) in self.topics.into_values() {
+            *messages_per_topic.entry(topic).or_insert(0) += n;
+        }
+        Ok(RecordingSummary {
+            path,
+            messages: messages_per_topic.values().sum(),
+            messages_per_topic,
+            rejected_full: 0,
+            chunks: summary.stats.as_ref().map_or(0, |s| s.chunk_count.into()),
+            attachments: self.attachments,
+            metadata: self.metadata,
+            bytes,
+        })
+    }
+}
+
+fn unix_time_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
+}

@@ -1,0 +1,174 @@
+//! Crash recovery: a recording cut anywhere recovers exactly the messages of its
+//! complete chunks, into a file that reads back like any finished recording.
+
+use crate::common::{accel, scratch, vib};
+use vibro_mcap::{info, recover, Compression, Error, Reader, Recorder, RecorderOptions};
+use vibro_msgs::MessageKind;
+
+/// A chunk of the test file: where its record starts and ends, and its messages.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+struct Chunk {
+    start: u64,
+    end: u64,
+    messages: u64,
+}
+
+/// Writes a finished file of many small chunks and returns its bytes, its chunks in file
+/// order, and where its summary section starts (just after the data-end record).
+fn chunked_file(dir: &std::path::Path, compression: Compression) -> (Vec<u8>, Vec<Chunk>, u64) {
+    let path = dir.join("whole.mcap");
+    let options = RecorderOptions {
+        compression,
+        chunk_size_bytes: 8 * 1024,
+        ..RecorderOptions::default()
+    };
+    let mut recorder = Recorder::create(&path, options).unwrap();
+    recorder
+        .add_channel("/accel", MessageKind::AccelBlock)
+        .unwrap();
+    recorder.add_channel("/vib", MessageKind::VibBlock).unwrap();
+    for seq in 0..30u32 {
+        let t = u64::from(seq) * 10_000_000;
+        recorder
+            .write("/accel", t, t, seq, &accel(seq.into()))
+            .unwrap();
+        recorder
+            .write("/vib", t + 1, t, seq, &vib(seq.into()))
+            .unwrap();
+    }
+    recorder.finish().unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+
+    // Independent of the code under test: the mcap crate's in-memory summary reader.
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    let mut chunks: Vec<Chunk> = summary
+        .chunk_indexes
+        .iter()
+        .map(|c| Chunk {
+            start: c.chunk_start_offset,
+            end: c.chunk_start_offset + c.chunk_length,
+            messages: summary.stream_chunk(&bytes, c).unwrap().count() as u64,
+        })
+        .collect();
+    chunks.sort();
+    let summary_start = mcap::read::footer(&bytes).unwrap().summary_start;
+    (bytes, chunks, summary_start)
+}
+
+#[test]
+fn truncated_files_recover_exactly_their_complete_chunks() {
+    let dir = scratch("truncate");
+    let (bytes, chunks, summary_start) = chunked_file(&dir, Compression::Zstd);
+    assert!(chunks.len() >= 6, "{} chunks", chunks.len());
+    assert_eq!(chunks.iter().map(|c| c.messages).sum::<u64>(), 60);
+    let data_end = chunks.last().unwrap().end;
+
+    let mut cuts = vec![
+        (
+            mcap::MAGIC.len() as u64 + 40,
+            "inside the header or first chunk",
+        ),
+        (chunks[0].end, "right after the first chunk"),
+        (chunks[2].end - 100, "in the middle of the third chunk"),
+        (chunks[2].end, "right after the third chunk"),
+        (chunks[2].end + 3, "in the record after the third chunk"),
+        (data_end, "after the last chunk, no summary or footer"),
+        (summary_start, "right after the data-end record"),
+        (bytes.len() as u64 - 1, "inside the end magic"),
+    ];
+    cuts.push((bytes.len() as u64, "the whole file"));
+    let n_cuts = cuts.len();
+    let mut checked = 0;
+    for (cut, what) in cuts {
+        let damaged = dir.join(format!("cut-{cut}.mcap"));
+        std::fs::write(&damaged, &bytes[..cut as usize]).unwrap();
+        let out = dir.join(format!("recovered-{cut}.mcap"));
+        let complete_chunks = chunks.iter().filter(|c| c.end <= cut);
+        let expected: u64 = complete_chunks.clone().map(|c| c.messages).sum();
+        let expected_chunks = complete_chunks.count() as u64;
+        let report = match recover(&damaged, &out) {
+            Ok(r) => r,
+            Err(Error::Truncated { .. }) if cut < chunks[0].start => continue,
+            Err(e) => panic!("cut at {cut} ({what}): {e}"),
+        };
+        assert_eq!(report.messages_recovered, expected, "cut at {cut} ({what})");
+        assert_eq!(
+            report.chunks_recovered, expected_chunks,
+            "cut at {cut} ({what})"
+        );
+        assert_eq!(report.chunks_skipped, 0);
+        assert_eq!(report.input_bytes, cut);
+        assert!(report.valid_prefix_bytes <= cut);
+        let last_end = chunks.iter().map(|c| c.end).filter(|&e| e <= cut).max();
+        assert!(report.valid_prefix_bytes >= last_end.unwrap_or(0));
+        let complete = cut >= summary_start; // the data-end record was read
+        assert_eq!(report.input_complete, complete, "cut at {cut} ({what})");
+        assert_eq!(
+            report.stop_reason.is_none(),
+            complete,
+            "{:?}",
+            report.stop_reason
+        );
+
+        // The result is a finished file: info and the reader agree, and the messages are
+        // the first `expected` ones written, unchanged.
+        let i = info(&out).unwrap();
+        assert_eq!(i.messages, expected);
+        assert_eq!(i.lost, 0);
+        let read: Vec<_> = Reader::open(&out).unwrap().map(Result::unwrap).collect();
+        assert_eq!(read.len() as u64, expected);
+        for r in &read {
+            let original = match r.message.kind() {
+                MessageKind::AccelBlock => vibro_mcap::Message::from(accel(r.sequence.into())),
+                _ => vib(r.sequence.into()).into(),
+            };
+            assert_eq!(r.message.wire_bytes(), original.wire_bytes());
+        }
+        assert_eq!(report.output_bytes, std::fs::metadata(&out).unwrap().len());
+        checked += 1;
+    }
+    // Only a cut inside the header may be unrecoverable.
+    assert!(
+        checked >= n_cuts - 1,
+        "{checked} of {n_cuts} cuts recovered"
+    );
+}
+
+#[test]
+fn a_corrupt_chunk_is_skipped_and_the_rest_recovered() {
+    let dir = scratch("skip");
+    let (mut bytes, chunks, _) = chunked_file(&dir, Compression::None);
+    // Flip a byte in the middle of the second chunk's records.
+    let second = chunks[1];
+    bytes[((second.start + second.end) / 2) as usize] ^= 0x01;
+    // And cut the file inside the last chunk, as a crash would.
+    let last = chunks[chunks.len() - 1];
+    let last_start = last.start;
+    let cut = (last.start + last.end) / 2;
+    let damaged = dir.join("damaged.mcap");
+    std::fs::write(&damaged, &bytes[..cut as usize]).unwrap();
+    let report = recover(&damaged, dir.join("out.mcap")).unwrap();
+    let all_but_last: u64 = chunks[..chunks.len() - 1].iter().map(|c| c.messages).sum();
+    assert_eq!(report.chunks_skipped, 1);
+    assert_eq!(report.chunks_recovered, chunks.len() as u64 - 2);
+    assert_eq!(report.messages_recovered, all_but_last - second.messages);
+    assert!(report.stop_reason.as_deref().unwrap().starts_with(&format!(
+        "the file ends inside a record that starts at byte {last_start}"
+    )));
+    assert_eq!(report.valid_prefix_bytes, last_start);
+}
+
+#[test]
+fn a_file_without_a_complete_header_cannot_be_recovered() {
+    let dir = scratch("header");
+    let (bytes, _, _) = chunked_file(&dir, Compression::Zstd);
+    let damaged = dir.join("stub.mcap");
+    std::fs::write(&damaged, &bytes[..12]).unwrap();
+    let e = recover(&damaged, dir.join("out.mcap")).unwrap_err();
+    assert!(
+        matches!(&e, Error::Truncated { path } if path == &damaged),
+        "{e}"
+    );
+    std::fs::write(&damaged, b"not an mcap file at all").unwrap();
+    assert!(recover(&damaged, dir.join("out.mcap")).is_err());
+}

@@ -1,0 +1,644 @@
+//! The wire types. Field order puts every 8-byte field first, then 4-byte, then 1-byte
+//! fields, then explicit padding, so the layout is the same for any C compiler and there
+//! are no holes. Sample arrays are `[sample][unit]`: unit (or axis) index 0, 1, 2 is
+//! accelerometer AK1..AK3 and the vibration sensor VD1..VD3 mounted next to it (RIG.md).
+//!
+//! Slots at or beyond `count` are not part of the message: producers should zero them,
+//! consumers must ignore them (the MCAP codec does not store them).
+
+use crate::layout::wire_struct;
+use crate::{Error, Result, ACCEL_BLOCK_MAX, MAX_BANDS, MAX_TONES, UNITS, VIB_BLOCK_MAX};
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Flag bits of [`AccelBlock::flags`]. Bits not listed are reserved and zero.
+pub mod accel_flags {
+    /// Samples were lost between the previous block and this one (`first_sample_index`
+    /// jumped, or the producer knows it dropped readings).
+    pub const GAP_BEFORE: u32 = 1 << 0;
+    /// At least one sample of the block is at or beyond the accelerometer's output range.
+    pub const SATURATED: u32 = 1 << 1;
+    /// Every defined bit.
+    pub const ALL: u32 = GAP_BEFORE | SATURATED;
+}
+
+/// Flag bits of [`VibBlock::flags`]. Bits not listed are reserved and zero.
+pub mod vib_flags {
+    /// Samples were lost between the previous block and this one.
+    pub const GAP_BEFORE: u32 = 1 << 0;
+    /// At least one sample of the block is at or beyond the sensor's full scale.
+    pub const SATURATED: u32 = 1 << 1;
+    /// Every defined bit.
+    pub const ALL: u32 = GAP_BEFORE | SATURATED;
+}
+
+/// Flag bits of [`VibEstimate::flags`], mirroring `vibro_dsp::Flags`. Bits not listed are
+/// reserved and zero.
+pub mod estimate_flags {
+    /// No tone passed the detection threshold.
+    pub const TONE_FREE: u32 = 1 << 0;
+    /// Samples were missing in or just before the window.
+    pub const GAP: u32 = 1 << 1;
+    /// NaN, infinite or absurd samples were kept out of the estimate.
+    pub const NON_FINITE: u32 = 1 << 2;
+    /// Out-of-order or overlapping blocks were dropped since the previous estimate.
+    pub const OUT_OF_ORDER: u32 = 1 << 3;
+    /// Too few valid samples or Welch segments: some values are NaN.
+    pub const INSUFFICIENT_DATA: u32 = 1 << 4;
+    /// Axis 0 had samples at or over full scale; axis `i` is `SATURATED_AXIS0 << i`.
+    pub const SATURATED_AXIS0: u32 = 1 << 8;
+    /// Every defined bit.
+    pub const ALL: u32 = TONE_FREE
+        | GAP
+        | NON_FINITE
+        | OUT_OF_ORDER
+        | INSUFFICIENT_DATA
+        | SATURATED_AXIS0
+        | (SATURATED_AXIS0 << 1)
+        | (SATURATED_AXIS0 << 2);
+}
+
+/// Flag bits of [`CompensatedBlock::flags`]. Bits not listed are reserved and zero.
+pub mod compensation_flags {
+    /// The vibration estimate used is older than the compensator's staleness limit.
+    pub const VIBRATION_ESTIMATE_STALE: u32 = 1 << 0;
+    /// No vibration estimate was available: `a3_g`/`a4_g` equal `a2_g`, `det_g`/`rand_g` are 0.
+    pub const ESTIMATE_MISSING: u32 = 1 << 1;
+    /// Only the main error was removed (by configuration or because the estimate was
+    /// unusable): `a3_g`/`a4_g` equal `a2_g`.
+    pub const MAIN_ONLY: u32 = 1 << 2;
+    /// The input block had samples lost before it.
+    pub const INPUT_GAP: u32 = 1 << 3;
+    /// At least one input sample was NaN or infinite; its outputs are NaN.
+    pub const NON_FINITE_INPUT: u32 = 1 << 4;
+    /// The estimate used carried quality flags (gap, non-finite, insufficient data, ...).
+    pub const ESTIMATE_FLAGGED: u32 = 1 << 5;
+    /// Every defined bit.
+    pub const ALL: u32 = VIBRATION_ESTIMATE_STALE
+        | ESTIMATE_MISSING
+        | MAIN_ONLY
+        | INPUT_GAP
+        | NON_FINITE_INPUT
+        | ESTIMATE_FLAGGED;
+}
+
+/// Flag bits of [`TruthBlock::flags`]. Bits not listed are reserved and zero.
+pub mod truth_flags {
+    /// Samples were lost between the previous block and this one.
+    pub const GAP_BEFORE: u32 = 1 << 0;
+    /// `vib_error_ia_g` holds the true mean vibration error; without this bit it is NaN.
+    pub const VIB_ERROR_KNOWN: u32 = 1 << 1;
+    /// Every defined bit.
+    pub const ALL: u32 = GAP_BEFORE | VIB_ERROR_KNOWN;
+}
+
+wire_struct! {
+    /// Raw outputs of the accelerometer triad: each sample is a unit's mean output over one
+    /// output interval `T = sample_period_ns`. Sample `i` is the mean over
+    /// `(t0_ns + (i - 1) T, t0_ns + i T]`: `t0_ns` is the END of sample 0's interval, the
+    /// time the reading is latched (RIG.md: "read as means over navigation intervals").
+    type_name = "vibrocomp::AccelBlock::v1";
+    pub struct AccelBlock {
+        /// Producer's block counter: +1 per published block, from 0.
+        pub seq: u64,
+        /// Index of sample 0 in the producer's sample stream since it started.
+        pub first_sample_index: u64,
+        /// End of sample 0's averaging interval (its latch time).
+        pub t0_ns: u64,
+        /// Output interval `T`.
+        pub sample_period_ns: u64,
+        /// Producer's clock when it published the block.
+        pub publish_ns: u64,
+        /// Mean output `U` of each unit over each interval, `[sample][unit]`.
+        pub output_v: [[f64; UNITS]; ACCEL_BLOCK_MAX],
+        /// Valid samples in `output_v`, `0..=ACCEL_BLOCK_MAX`.
+        pub count: u32,
+        /// Identifies the producer (rig or simulator instance).
+        pub source_id: u32,
+        /// [`accel_flags`] bits.
+        pub flags: u32,
+        /// Zero.
+        pub _pad: [u8; 4],
+    }
+}
+
+wire_struct! {
+    /// Vibration-sensor samples, one sensor per accelerometer unit (axis index = unit
+    /// index), in the sensor's raw output (volts: sensitivity, AC coupling and response
+    /// are the estimator's job). Sample `i` was taken at `t0_ns + i T`. `f64` keeps
+    /// simulated samples bit-exact through the system.
+    type_name = "vibrocomp::VibBlock::v1";
+    pub struct VibBlock {
+        /// Producer's block counter: +1 per published block, from 0.
+        pub seq: u64,
+        /// Index of sample 0 in the producer's sample stream since it started.
+        pub first_sample_index: u64,
+        /// Time of sample 0.
+        pub t0_ns: u64,
+        /// Sampling interval `T`.
+        pub sample_period_ns: u64,
+        /// Producer's clock when it published the block.
+        pub publish_ns: u64,
+        /// Sensor output, `[sample][axis]`.
+        pub sample_v: [[f64; UNITS]; VIB_BLOCK_MAX],
+        /// Valid samples in `sample_v`, `0..=VIB_BLOCK_MAX`.
+        pub count: u32,
+        /// Identifies the producer (rig or simulator instance).
+        pub source_id: u32,
+        /// [`vib_flags`] bits.
+        pub flags: u32,
+        /// Zero.
+        pub _pad: [u8; 4],
+    }
+}
+
+wire_struct! {
+    /// One window's vibration estimate: a field-by-field mirror of `vibro_dsp::Estimate`
+    /// (tones, broadband, bands as struct-of-arrays; `usize` counts as `u32`; `Flags` as
+    /// [`estimate_flags`] bits) plus stream bookkeeping. Values that could not be estimated
+    /// are NaN. Per-axis arrays are in sensor-axis order; tone and band slots at or beyond
+    /// `tone_count`/`band_count` are not part of the message.
+    type_name = "vibrocomp::VibEstimate::v1";
+    pub struct VibEstimate {
+        /// Estimator service's publish counter: +1 per published estimate, from 0.
+        pub seq: u64,
+        /// `Estimate::index`: estimates emitted since the estimator was built.
+        pub index: u64,
+        /// `seq` of the last [`VibBlock`] that entered the window.
+        pub source_seq: u64,
+        /// Estimator service's clock when it published the estimate.
+        pub publish_ns: u64,
+        /// Timestamp of the window's first sample.
+        pub start_ns: u64,
+        /// One sample period after the window's last sample (exclusive end).
+        pub end_ns: u64,
+        /// Mid-point of the window: the reference time of the tone phases.
+        pub center_ns: u64,
+        /// Lower edge of the broadband band.
+        pub broadband_f_lo_hz: f64,
+        /// Upper edge of the broadband band.
+        pub broadband_f_hi_hz: f64,
+        /// Broadband RMS per axis (`sigma_i` of MODEL.md), tones removed.
+        pub broadband_rms_g: [f64; UNITS],
+        /// Standard uncertainty of `broadband_rms_g`.
+        pub broadband_rms_u_g: [f64; UNITS],
+        /// Covariance `K_ij(0)` over the band, `[i][j]`.
+        pub broadband_covariance_g2: [[f64; UNITS]; UNITS],
+        /// Standard uncertainty of `broadband_covariance_g2`.
+        pub broadband_covariance_u_g2: [[f64; UNITS]; UNITS],
+        /// Kurtosis `E[x^4] / E[x^2]^2` per axis (3 for Gaussian), dimensionless.
+        pub broadband_kurtosis: [f64; UNITS],
+        /// Standard uncertainty of `broadband_kurtosis` under the Gaussian hypothesis.
+        pub broadband_kurtosis_u: [f64; UNITS],
+        /// Tone frequency, per tone.
+        pub tone_frequency_hz: [f64; MAX_TONES],
+        /// Standard uncertainty of `tone_frequency_hz`.
+        pub tone_frequency_u_hz: [f64; MAX_TONES],
+        /// Tone amplitude `[tone][axis]` (`aB_i` of MODEL.md).
+        pub tone_amplitude_g: [[f64; UNITS]; MAX_TONES],
+        /// Standard uncertainty of `tone_amplitude_g`.
+        pub tone_amplitude_u_g: [[f64; UNITS]; MAX_TONES],
+        /// Tone phase at `center_ns`, `[tone][axis]`.
+        pub tone_phase_rad: [[f64; UNITS]; MAX_TONES],
+        /// Standard uncertainty of `tone_phase_rad`.
+        pub tone_phase_u_rad: [[f64; UNITS]; MAX_TONES],
+        /// Tone power over the local noise floor, `[tone][axis]`.
+        pub tone_snr_db: [[f64; UNITS]; MAX_TONES],
+        /// Lower edge of each band.
+        pub band_f_lo_hz: [f64; MAX_BANDS],
+        /// Upper edge of each band.
+        pub band_f_hi_hz: [f64; MAX_BANDS],
+        /// Mean one-sided PSD over the band, `[band][axis]`.
+        pub band_psd_g2_per_hz: [[f64; UNITS]; MAX_BANDS],
+        /// Standard uncertainty of `band_psd_g2_per_hz`.
+        pub band_psd_u_g2_per_hz: [[f64; UNITS]; MAX_BANDS],
+        /// RMS in the band, `[band][axis]`.
+        pub band_rms_g: [[f64; UNITS]; MAX_BANDS],
+        /// Samples in the window, valid or not.
+        pub samples: u32,
+        /// Samples that entered the estimate.
+        pub valid_samples: u32,
+        /// Samples at or over full scale, per axis.
+        pub saturated_samples: [u32; UNITS],
+        /// Welch segments averaged for the broadband values.
+        pub broadband_welch_segments: u32,
+        /// Valid tone slots, `0..=MAX_TONES`.
+        pub tone_count: u32,
+        /// Valid band slots, `0..=MAX_BANDS`.
+        pub band_count: u32,
+        /// [`estimate_flags`] bits.
+        pub flags: u32,
+        /// Zero.
+        pub _pad: [u8; 4],
+    }
+}
+
+wire_struct! {
+    /// Compensated accelerometer readings, one output block per input [`AccelBlock`], in
+    /// acceleration units along each unit's IA: the stages of MODEL.md section 7,
+    /// `a(1)` (17) to `a(4)` (20), and the corrections removed between them
+    /// (`a2 = a1 - main`, `a3 = a2 - det`, `a4 = a3 - rand`). Sample timing is the input's.
+    type_name = "vibrocomp::CompensatedBlock::v1";
+    pub struct CompensatedBlock {
+        /// Compensator's publish counter: +1 per published block, from 0.
+        pub seq: u64,
+        /// `seq` of the input [`AccelBlock`].
+        pub input_seq: u64,
+        /// The input's `first_sample_index`.
+        pub first_sample_index: u64,
+        /// The input's `t0_ns` (end of sample 0's averaging interval).
+        pub t0_ns: u64,
+        /// The input's `sample_period_ns`.
+        pub sample_period_ns: u64,
+        /// `seq` of the [`VibEstimate`] used (0 with `ESTIMATE_MISSING`).
+        pub estimate_seq: u64,
+        /// The input's `publish_ns`.
+        pub input_publish_ns: u64,
+        /// Compensator's clock when it received the input.
+        pub recv_ns: u64,
+        /// Compensator's clock when it published this block.
+        pub publish_ns: u64,
+        /// End of the last sample's interval minus the estimate's `end_ns`: how old the
+        /// vibration estimate is relative to the data (negative if the estimate is newer).
+        pub estimate_age_ns: i64,
+        /// First approximation `a(1)`, [P2 (17)], `[sample][unit]`.
+        pub a1_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
+        /// Main error removed, `a(2)`, [P2 (18)].
+        pub a2_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
+        /// Deterministic vibration error removed, `a(3)`, [P2 (19)].
+        pub a3_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
+        /// Random vibration error removed, `a(4)`, [P2 (20)]: the compensated reading.
+        pub a4_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
+        /// Main-error correction `dO(a(1))`, `a1 - a2`.
+        pub main_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
+        /// Deterministic VE correction, `a2 - a3`.
+        pub det_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
+        /// Random VE correction, `a3 - a4`.
+        pub rand_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
+        /// Valid samples, equal to the input's `count`.
+        pub count: u32,
+        /// The input's `source_id`.
+        pub source_id: u32,
+        /// [`compensation_flags`] bits.
+        pub flags: u32,
+        /// [`CompensationMode`] code.
+        pub mode: u8,
+        /// Zero.
+        pub _pad: [u8; 3],
+    }
+}
+
+wire_struct! {
+    /// The simulator's truth for each accelerometer output sample, aligned with the
+    /// [`AccelBlock`] of the same `seq` (same `first_sample_index`, `t0_ns`, `count`).
+    type_name = "vibrocomp::TruthBlock::v1";
+    pub struct TruthBlock {
+        /// `seq` of the matching [`AccelBlock`].
+        pub seq: u64,
+        /// `first_sample_index` of the matching [`AccelBlock`].
+        pub first_sample_index: u64,
+        /// `t0_ns` of the matching [`AccelBlock`].
+        pub t0_ns: u64,
+        /// `sample_period_ns` of the matching [`AccelBlock`].
+        pub sample_period_ns: u64,
+        /// Simulator's clock when it published the block.
+        pub publish_ns: u64,
+        /// True flight (slowly varying) acceleration along each unit's IA, `aL3` of
+        /// MODEL.md, mean over the sample's interval, `[sample][unit]`.
+        pub a_l_ia_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
+        /// True mean vibration error along each unit's IA over the interval (NaN unless
+        /// `VIB_ERROR_KNOWN`).
+        pub vib_error_ia_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
+        /// Valid samples, equal to the matching block's `count`.
+        pub count: u32,
+        /// The matching block's `source_id`.
+        pub source_id: u32,
+        /// [`truth_flags`] bits.
+        pub flags: u32,
+        /// Zero.
+        pub _pad: [u8; 4],
+    }
+}
+
+wire_struct! {
+    /// A service's periodic health report, published on `{prefix}heartbeat/{service}`.
+    /// Counters are cumulative since the service started.
+    type_name = "vibrocomp::Heartbeat::v1";
+    pub struct Heartbeat {
+        /// Heartbeat counter: +1 per heartbeat, from 0.
+        pub seq: u64,
+        /// Service's clock when it published the heartbeat.
+        pub publish_ns: u64,
+        /// Time since the service started.
+        pub uptime_ns: u64,
+        /// Messages received.
+        pub received: u64,
+        /// Messages published.
+        pub published: u64,
+        /// Input messages or samples known lost (sequence gaps, overflow).
+        pub lost: u64,
+        /// Outputs produced with a stale or missing input (e.g. a stale estimate).
+        pub stale: u64,
+        /// Median receive-to-publish latency over the last period.
+        pub latency_p50_ns: u64,
+        /// 99th percentile receive-to-publish latency over the last period.
+        pub latency_p99_ns: u64,
+        /// [`ServiceId`] code.
+        pub service: u8,
+        /// [`ServiceState`] code.
+        pub state: u8,
+        /// Zero.
+        pub _pad: [u8; 6],
+    }
+}
+
+fn check_count(field: &'static str, count: u32, max: usize) -> Result<()> {
+    if usize::try_from(count).is_ok_and(|c| c <= max) {
+        Ok(())
+    } else {
+        Err(Error::CountOutOfRange { field, count, max })
+    }
+}
+
+impl AccelBlock {
+    /// The valid samples, `[sample][unit]` (at most `ACCEL_BLOCK_MAX`, even if `count` is larger).
+    pub fn samples_v(&self) -> &[[f64; UNITS]] {
+        &self.output_v[..(self.count as usize).min(ACCEL_BLOCK_MAX)]
+    }
+}
+
+impl VibBlock {
+    /// The valid samples, `[sample][axis]` (at most `VIB_BLOCK_MAX`, even if `count` is larger).
+    pub fn samples_v(&self) -> &[[f64; UNITS]] {
+        &self.sample_v[..(self.count as usize).min(VIB_BLOCK_MAX)]
+    }
+}
+
+/// The kinds of wire type, for code that handles any of them (recorders, replay).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum MessageKind {
+    AccelBlock,
+    VibBlock,
+    VibEstimate,
+    CompensatedBlock,
+    TruthBlock,
+    Heartbeat,
+}
+
+impl MessageKind {
+    /// Every kind, in declaration order.
+    pub const ALL: [MessageKind; 6] = [
+        MessageKind::AccelBlock,
+        MessageKind::VibBlock,
+        MessageKind::VibEstimate,
+        MessageKind::CompensatedBlock,
+        MessageKind::TruthBlock,
+        MessageKind::Heartbeat,
+    ];
+
+    /// The Rust type's name, e.g. `AccelBlock`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            MessageKind::AccelBlock => "AccelBlock",
+            MessageKind::VibBlock => "VibBlock",
+            MessageKind::VibEstimate => "VibEstimate",
+            MessageKind::CompensatedBlock => "CompensatedBlock",
+            MessageKind::TruthBlock => "TruthBlock",
+            MessageKind::Heartbeat => "Heartbeat",
+        }
+    }
+
+    /// The iceoryx2 payload type name, e.g. `vibrocomp::AccelBlock::v1`.
+    pub const fn type_name(self) -> &'static str {
+        match self {
+            MessageKind::AccelBlock => AccelBlock::TYPE_NAME,
+            MessageKind::VibBlock => VibBlock::TYPE_NAME,
+            MessageKind::VibEstimate => VibEstimate::TYPE_NAME,
+            MessageKind::CompensatedBlock => CompensatedBlock::TYPE_NAME,
+            MessageKind::TruthBlock => TruthBlock::TYPE_NAME,
+            MessageKind::Heartbeat => Heartbeat::TYPE_NAME,
+        }
+    }
+
+    /// Size of the wire struct in bytes.
+    pub const fn size_bytes(self) -> usize {
+        match self {
+            MessageKind::AccelBlock => size_of::<AccelBlock>(),
+            MessageKind::VibBlock => size_of::<VibBlock>(),
+            MessageKind::VibEstimate => size_of::<VibEstimate>(),
+            MessageKind::CompensatedBlock => size_of::<CompensatedBlock>(),
+            MessageKind::TruthBlock => size_of::<TruthBlock>(),
+            MessageKind::Heartbeat => size_of::<Heartbeat>(),
+        }
+    }
+
+    /// Alignment of the wire struct in bytes.
+    pub const fn align_bytes(self) -> usize {
+        match self {
+            MessageKind::AccelBlock => align_of::<AccelBlock>(),
+            MessageKind::VibBlock => align_of::<VibBlock>(),
+            MessageKind::VibEstimate => align_of::<VibEstimate>(),
+            MessageKind::CompensatedBlock => align_of::<CompensatedBlock>(),
+            MessageKind::TruthBlock => align_of::<TruthBlock>(),
+            MessageKind::Heartbeat => align_of::<Heartbeat>(),
+        }
+    }
+
+    /// The byte layout of every field.
+    pub const fn fields(self) -> &'static [crate::FieldLayout] {
+        match self {
+            MessageKind::AccelBlock => AccelBlock::FIELDS,
+            MessageKind::VibBlock => VibBlock::FIELDS,
+            MessageKind::VibEstimate => VibEstimate::FIELDS,
+            MessageKind::CompensatedBlock => CompensatedBlock::FIELDS,
+            MessageKind::TruthBlock => TruthBlock::FIELDS,
+            MessageKind::Heartbeat => Heartbeat::FIELDS,
+        }
+    }
+}
+
+impl std::fmt::Display for MessageKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// What every wire type offers to generic code.
+pub trait WireMessage: Copy + std::fmt::Debug + ZeroCopySend + 'static {
+    /// Which wire type this is.
+    const KIND: MessageKind;
+
+    /// Checks what a receiver must check before indexing the arrays: every count is
+    /// within its array's capacity. Flags and codes are carried as they are.
+    fn validate(&self) -> Result<()>;
+
+    /// The message's bytes in shared memory (native byte order, no padding holes).
+    fn bytes(&self) -> &[u8];
+}
+
+macro_rules! wire_message {
+    ($($t:ident),*) => {
+        $(
+            impl WireMessage for $t {
+                const KIND: MessageKind = MessageKind::$t;
+                fn validate(&self) -> Result<()> {
+                    self.validate_counts()
+                }
+                fn bytes(&self) -> &[u8] {
+                    self.as_bytes()
+                }
+            }
+        )*
+    };
+}
+
+wire_message!(
+    AccelBlock,
+    VibBlock,
+    VibEstimate,
+    CompensatedBlock,
+    TruthBlock,
+    Heartbeat
+);
+
+impl AccelBlock {
+    fn validate_counts(&self) -> Result<()> {
+        check_count("AccelBlock.count", self.count, ACCEL_BLOCK_MAX)
+    }
+}
+
+impl VibBlock {
+    fn validate_counts(&self) -> Result<()> {
+        check_count("VibBlock.count", self.count, VIB_BLOCK_MAX)
+    }
+}
+
+impl VibEstimate {
+    fn validate_counts(&self) -> Result<()> {
+        check_count("VibEstimate.tone_count", self.tone_count, MAX_TONES)?;
+        check_count("VibEstimate.band_count", self.band_count, MAX_BANDS)
+    }
+}
+
+impl CompensatedBlock {
+    fn validate_counts(&self) -> Result<()> {
+        check_count("CompensatedBlock.count", self.count, ACCEL_BLOCK_MAX)
+    }
+}
+
+impl TruthBlock {
+    fn validate_counts(&self) -> Result<()> {
+        check_count("TruthBlock.count", self.count, ACCEL_BLOCK_MAX)
+    }
+}
+
+impl Heartbeat {
+    fn validate_counts(&self) -> Result<()> {
+        Ok(())
+    }
+}
+
+/// Declares a `u8`-coded enum carried in a wire field: the wire keeps the raw `u8` (an
+/// out-of-range byte from a C publisher must not be undefined behaviour), and this type
+/// converts it with an error that names the field and value.
+macro_rules! wire_code {
+    (
+        $(#[$meta:meta])*
+        $name:ident, field = $field:literal {
+            $( $(#[$vmeta:meta])* $variant:ident = $code:literal => $text:literal, )*
+        }
+    ) => {
+        $(#[$meta])*
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+        #[repr(u8)]
+        pub enum $name {
+            $( $(#[$vmeta])* $variant = $code, )*
+        }
+
+        impl $name {
+            /// Every value, in code order.
+            pub const ALL: &'static [$name] = &[$($name::$variant),*];
+
+            /// The wire code.
+            pub const fn code(self) -> u8 {
+                self as u8
+            }
+
+            /// The lower-case name used in service names, logs and JSON.
+            pub const fn as_str(self) -> &'static str {
+                match self {
+                    $( $name::$variant => $text, )*
+                }
+            }
+        }
+
+        impl TryFrom<u8> for $name {
+            type Error = Error;
+            fn try_from(code: u8) -> Result<Self> {
+                match code {
+                    $( $code => Ok($name::$variant), )*
+                    _ => Err(Error::UnknownCode {
+                        field: $field,
+                        value: code,
+                        known: $name::ALL
+                            .iter()
+                            .map(|v| format!("{} = {}", v.code(), v.as_str()))
+                            .collect::<Vec<_>>()
+                            .join(", "),
+                    }),
+                }
+            }
+        }
+
+        impl std::fmt::Display for $name {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str(self.as_str())
+            }
+        }
+    };
+}
+
+wire_code! {
+    /// The compensation mode of a [`CompensatedBlock`] (`mode` field); 0 is not a mode,
+    /// so a zeroed block is never mistaken for a valid one.
+    CompensationMode, field = "CompensatedBlock.mode" {
+        /// The papers' constants, including [P2 (19)]'s misprinted 1.185.
+        AsPublished = 1 => "as-published",
+        /// The papers' model with the misprint fixed.
+        Paper = 2 => "paper",
+        /// Exact means of the conversion function (MODEL.md section 6).
+        Exact = 3 => "exact",
+    }
+}
+
+wire_code! {
+    /// Which service published a [`Heartbeat`] (`service` field, and the heartbeat's
+    /// service name `{prefix}heartbeat/{name}`); 0 is not a service.
+    ServiceId, field = "Heartbeat.service" {
+        /// The flight/rig simulator.
+        Sim = 1 => "sim",
+        /// A hardware rig bridge.
+        Rig = 2 => "rig",
+        /// The vibration estimator.
+        Estimator = 3 => "estimator",
+        /// The compensator.
+        Compensator = 4 => "compensator",
+        /// The MCAP recorder.
+        Recorder = 5 => "recorder",
+        /// The monitor / user interface.
+        Monitor = 6 => "monitor",
+    }
+}
+
+wire_code! {
+    /// A service's state in its [`Heartbeat`] (`state` field); 0 is not a state.
+    ServiceState, field = "Heartbeat.state" {
+        /// Started, not yet processing (waiting for inputs or configuration).
+        Starting = 1 => "starting",
+        /// Processing normally.
+        Running = 2 => "running",
+        /// Processing, but with stale or missing inputs or losses.
+        Degraded = 3 => "degraded",
+        /// Shutting down.
+        Stopping = 4 => "stopping",
+    }
+}
