@@ -10,9 +10,43 @@ pub enum Error {
         value: String,
         rule: String,
     },
+    /// Several parameters break their rules, all reported at once (each an
+    /// [`Error::Invalid`]); added by the effects library.
+    #[error("{}", .0.iter().map(ToString::to_string).collect::<Vec<_>>().join("; "))]
+    Several(Vec<Error>),
     /// The physics core refused an input.
     #[error(transparent)]
     Physics(#[from] vibro_physics::Error),
+    /// A scenario file breaks its rules; every problem is listed, each naming the key
+    /// path, the value and the rule.
+    #[error("{file}: {}", problems.join("; "))]
+    Scenario { file: String, problems: Vec<String> },
+    /// A file a scenario refers to (passport, triad, PSD table) could not be loaded.
+    #[error(transparent)]
+    Config(#[from] vibro_config::ConfigError),
+    /// A file could not be read.
+    #[error("{file}: cannot read: {source}")]
+    Io {
+        file: String,
+        source: std::io::Error,
+    },
+    /// The section-8 measurement of a campaign condition failed.
+    #[error("condition {condition}: VE measurement (MODEL.md section 8): {source}")]
+    Measurement {
+        condition: String,
+        source: vibro_ident::Error,
+    },
+    /// Writing a CSV summary failed.
+    #[error("writing CSV: {0}")]
+    Csv(#[from] csv::Error),
+    /// An FFT was handed buffers of the wrong size (cannot happen with the buffers the
+    /// simulator allocates; kept so that no path panics).
+    #[error("FFT of {what} failed: {message}")]
+    Fft { what: &'static str, message: String },
+    /// A request the simulator cannot honour for this input (e.g. a positions CSV for
+    /// a condition without a tone).
+    #[error("{what}: {reason}")]
+    Unsupported { what: String, reason: String },
 }
 
 /// Result of the simulator.

@@ -1,0 +1,359 @@
+//! `saturation`: the servo cannot produce more than its range (MODEL.md section 11,
+//! sixth item).
+//!
+//! Physics: the torquer current of a force-balance accelerometer saturates, so the
+//! output is clipped at `+-range_g`: `out = clip(out, -range, range)` in
+//! [`Effect::at_unit_output`] (list it last, so that it clips the other effects'
+//! terms too). Clipping is a rectifier: when vibration pushes the output past the
+//! range on one side more than on the other, the mean moves.
+//!
+//! Mean contribution: `E[clip(FP(a)) - FP(a)]` over the exact distribution of the
+//! input (MODEL.md sections 3 and 6: independent tones with uniform phases, a
+//! Gaussian or scale-mixture random part), by deterministic quadrature with the
+//! passport's FP ([`vibro_physics::fp::output_g`]):
+//! - random part on IA: innermost, over `z` with `x3 = sigma3 sqrt(w) z` for each
+//!   scale `w` of the mixture: the clipping thresholds `FP = +-range` along the path
+//!   are located by bracketing and bisection and become panel edges of a composite
+//!   8-point Gauss–Legendre rule on `|z| <= 9` (panels <= 0.5 wide; the tail beyond
+//!   9 is below 1e-18 of probability), which makes it exact to about 1e-12;
+//! - with no random part, the last tone is innermost, over its phase the same way;
+//! - the other tones: midpoint rule over each phase (tensor grid of at most 4096
+//!   nodes, 1024 per tone for one tone): exponentially convergent when a random part
+//!   smooths the inner mean, `O(n^-1.5)` (about 3e-5 relative for one outer tone)
+//!   when the inner mean is itself a tone's, and poorer beyond three tones.
+//!
+//! OA and PA enter FP through `m1 a1 + m2 a2 + m31 a3 a1 + m32 a3 a2`: their tones
+//! exactly (same phases as IA's), their random parts through their regression on the
+//! IA random part, `E[x_i | x3] = (cov_i3 / sigma3^2) x3`. The residual spread of
+//! `x_i` is left out; it smooths the clipping threshold by about `m1 sigma1`, which
+//! changes the mean by about `0.5 (m1 sigma1)^2` times the output density at the
+//! threshold (below 1e-7 g for the passports of MODEL.md).
+
+use super::quad::{
+    crossings, for_each_phase, integrate_between_breaks, normal_pdf, points_per_tone,
+};
+use super::{EffectInfo, ParamInfo, Params, Scope};
+use crate::effect::{BlockCtx, Effect, MeanContext};
+use crate::Result;
+use std::f64::consts::TAU;
+use vibro_physics::abs_mean::ScaleMixture;
+use vibro_physics::fp::output_g;
+use vibro_physics::passport::Passport;
+
+const KIND: &str = "saturation";
+/// Half-width of the Gaussian integration range, standard deviations.
+const Z_MAX: f64 = 9.0;
+/// Bracketing cells over `[-Z_MAX, Z_MAX]` or over a phase period.
+const CELLS: usize = 96;
+/// Largest panel of the inner Gauss–Legendre rule in `z`, standard deviations.
+const MAX_PANEL_Z: f64 = 0.5;
+/// Largest panel of the inner Gauss–Legendre rule over a phase, rad.
+const MAX_PANEL_RAD: f64 = TAU / 32.0;
+/// Nodes of the outer phase grid.
+const OUTER_BUDGET: usize = 4096;
+const OUTER_MAX_PER_TONE: usize = 1024;
+
+/// Catalogue entry.
+pub const INFO: EffectInfo = EffectInfo {
+    kind: KIND,
+    summary: "servo saturation: the instantaneous output is clipped to +-range_g",
+    params: &[ParamInfo {
+        name: "range_g",
+        unit: "g",
+        meaning: "output range (clip level); required, 0.1 <= range <= 1e4",
+    }],
+    hooks: "at_unit_output",
+    scope: Scope::Unit,
+    example: r#"[[effect]]
+kind = "saturation"
+range_g = 15.0
+"#,
+    build,
+};
+
+fn build(p: &mut Params<'_>) -> Result<Box<dyn Effect>> {
+    let range_g = p.required(
+        "range_g",
+        "must be finite and 0.1 <= range_g <= 1e4 g",
+        |r| (0.1..=1e4).contains(&r),
+    );
+    Ok(Box::new(Saturation { range_g }))
+}
+
+#[derive(Debug, Clone)]
+struct Saturation {
+    range_g: f64,
+}
+
+impl Effect for Saturation {
+    fn kind(&self) -> &'static str {
+        KIND
+    }
+
+    fn at_unit_output(&mut self, _ctx: &BlockCtx, _input_unit_g: &[[f64; 3]], out_g: &mut [f64]) {
+        let r = self.range_g;
+        for o in out_g.iter_mut() {
+            *o = o.clamp(-r, r);
+        }
+    }
+
+    fn mean_shift_g(&self, ctx: &MeanContext<'_>) -> Result<f64> {
+        ctx.vibration_unit.validate()?;
+        Ok(clip_mean_shift(ctx, self.range_g))
+    }
+}
+
+/// `E[clip(FP(a), -r, r) - FP(a)]` by the quadrature of the module docs.
+fn clip_mean_shift(ctx: &MeanContext<'_>, r: f64) -> f64 {
+    let p = ctx.passport;
+    let vib = ctx.vibration_unit;
+    let a_l = ctx.a_l_unit_g;
+    let tones = vib.tones();
+    let sigma3 = vib.sigma_g(2);
+    let random = sigma3 > 0.0;
+    // Regression of the OA, PA random parts on IA's.
+    let beta = if random {
+        [
+            vib.covariance_g2[0][2] / (sigma3 * sigma3),
+            vib.covariance_g2[1][2] / (sigma3 * sigma3),
+        ]
+    } else {
+        [0.0; 2]
+    };
+    let mixture = ScaleMixture::for_kurtosis(vib.kurtosis[2]);
+    let components: &[(f64, f64)] = &if mixture.is_gaussian() {
+        [(1.0, 1.0), (0.0, 0.0)]
+    } else {
+        [
+            (mixture.prob[0], mixture.scale[0]),
+            (mixture.prob[1], mixture.scale[1]),
+        ]
+    };
+    let n_outer = if random {
+        tones.len()
+    } else {
+        tones.len().saturating_sub(1)
+    };
+    let n_points = points_per_tone(n_outer, OUTER_BUDGET, OUTER_MAX_PER_TONE);
+    let mut total = 0.0;
+    let mut breaks = Vec::new();
+    for_each_phase(n_outer, n_points, |sines, cosines, weight| {
+        let mut base = a_l;
+        for ((t, s), c) in tones.iter().zip(sines).zip(cosines) {
+            for (i, b) in base.iter_mut().enumerate() {
+                // aB sin(theta + phi) = aB (sin theta cos phi + cos theta sin phi).
+                *b += t.amplitude_g[i] * (s * t.phase_rad[i].cos() + c * t.phase_rad[i].sin());
+            }
+        }
+        let inner = if random {
+            let mut sum = 0.0;
+            for &(prob, w) in components.iter().filter(|(prob, _)| *prob > 0.0) {
+                let s = sigma3 * w.sqrt();
+                let path = |z: f64| {
+                    [
+                        base[0] + beta[0] * s * z,
+                        base[1] + beta[1] * s * z,
+                        base[2] + s * z,
+                    ]
+                };
+                sum += prob
+                    * clipped_integral(p, r, &path, -Z_MAX, Z_MAX, MAX_PANEL_Z, &mut breaks, |z| {
+                        normal_pdf(z)
+                    });
+            }
+            sum
+        } else if let Some(last) = tones.last() {
+            let path = |th: f64| {
+                std::array::from_fn(|i| {
+                    base[i] + last.amplitude_g[i] * (th + last.phase_rad[i]).sin()
+                })
+            };
+            clipped_integral(p, r, &path, 0.0, TAU, MAX_PANEL_RAD, &mut breaks, |_| {
+                1.0 / TAU
+            })
+        } else {
+            let f = output_g(p, base[0], base[1], base[2]);
+            f.clamp(-r, r) - f
+        };
+        total += weight * inner;
+    });
+    total
+}
+
+/// `int_lo^hi (clip(FP(path(x))) - FP(path(x))) density(x) dx`, with the points where
+/// `FP = +-r` along the path as panel edges; pieces where nothing is clipped are
+/// skipped (the integrand is zero on them).
+#[allow(clippy::too_many_arguments)]
+fn clipped_integral(
+    p: &Passport,
+    r: f64,
+    path: &impl Fn(f64) -> [f64; 3],
+    lo: f64,
+    hi: f64,
+    max_panel: f64,
+    breaks: &mut Vec<f64>,
+    density: impl Fn(f64) -> f64,
+) -> f64 {
+    let fp = |x: f64| {
+        let a = path(x);
+        output_g(p, a[0], a[1], a[2])
+    };
+    breaks.clear();
+    crossings(&mut |x| fp(x) - r, lo, hi, CELLS, breaks);
+    crossings(&mut |x| fp(x) + r, lo, hi, CELLS, breaks);
+    breaks.sort_by(f64::total_cmp);
+    let mut sum = 0.0;
+    let mut left = lo;
+    for right in breaks.iter().copied().chain([hi]) {
+        if right > left {
+            let mid = fp(0.5 * (left + right));
+            if mid.abs() > r {
+                let mut f = |x: f64| {
+                    let v = fp(x);
+                    (v.clamp(-r, r) - v) * density(x)
+                };
+                sum += integrate_between_breaks(&mut f, left, right, &[], max_panel);
+            }
+            left = right;
+        }
+    }
+    sum
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::testkit::{
+        al15, al15_spec, assert_agrees, band, build_toml, passport, tone, unit_shift, Scene,
+    };
+    use super::*;
+    use std::f64::consts::PI;
+    use vibro_physics::abs_mean::normal_cdf;
+    use vibro_physics::passport::PassportSpec;
+    use vibro_physics::vibration::Vibration;
+
+    /// A linear unit (`aF = a3`), so closed forms of the clipped mean exist.
+    fn linear() -> vibro_physics::passport::Passport {
+        passport(&PassportSpec {
+            a0_g: 0.0,
+            d1a_ppm: 0.0,
+            k2_ppm_per_g: 0.0,
+            k3_ppm_per_g2: 0.0,
+            k4_ppm_per_g3: 0.0,
+            k5_ppm_per_g4: 0.0,
+            m1_ppm: 0.0,
+            m2_ppm: 0.0,
+            m31_ppm_per_g: 0.0,
+            m32_ppm_per_g: 0.0,
+            ..al15_spec()
+        })
+    }
+
+    fn shift(p: &vibro_physics::passport::Passport, a_l3: f64, vib: &Vibration, r: f64) -> f64 {
+        let s = Scene::new(1000.0, 1024);
+        let mut ctx = s.ctx(0, p, vib);
+        ctx.a_l_unit_g = [0.0, 0.0, a_l3];
+        clip_mean_shift(&ctx, r)
+    }
+
+    /// Independent closed forms: `E[(mu + x - r)+]` for a Gaussian,
+    /// `sigma phi(d) - (r - mu) Q(d)` with `d = (r - mu)/sigma`, and for a sinusoid,
+    /// `(sqrt(A^2 - c^2) - c acos(c/A)) / pi` with `c = r - mu`.
+    #[test]
+    fn quadrature_matches_closed_forms_for_a_linear_unit() {
+        let p = linear();
+        let (mu, r) = (1.0, 2.5);
+        let excess_gauss = |s: f64, c: f64| {
+            let d = c / s;
+            s * normal_pdf(d) - c * (1.0 - normal_cdf(d))
+        };
+        let s = 1.1;
+        let want = -excess_gauss(s, r - mu) + excess_gauss(s, r + mu);
+        let got = shift(&p, mu, &Vibration::random_rms([0.0, 0.0, s]), r);
+        assert!((got - want).abs() < 1e-12, "gauss: {got} vs {want}");
+        let excess_sine = |a: f64, c: f64| {
+            if c >= a {
+                0.0
+            } else {
+                ((a * a - c * c).sqrt() - c * (c / a).acos()) / PI
+            }
+        };
+        let a = 2.0;
+        let want = -excess_sine(a, r - mu) + excess_sine(a, r + mu);
+        let got = shift(&p, mu, &Vibration::single_tone(30.0, [0.0, 0.0, a]), r);
+        assert!((got - want).abs() < 1e-12, "sine: {got} vs {want}");
+        // Nothing reaches the range: exactly zero.
+        assert_eq!(
+            shift(&p, mu, &Vibration::single_tone(30.0, [0.0, 0.0, 1.0]), r),
+            0.0
+        );
+    }
+
+    /// Two tones (the outer phase grid against an inner tone): the result is stable
+    /// when the outer grid is refined, and a tone plus noise converges fast.
+    #[test]
+    fn outer_phase_grid_is_converged() {
+        let p = al15();
+        let mut v = Vibration::single_tone(30.0, [0.5, 0.0, 1.5]);
+        v.push_tone(tone(71.0, [0.0, 0.4, 1.0], [0.0, 0.0, 40.0]))
+            .unwrap();
+        let coarse = {
+            let s = Scene::new(1000.0, 1024);
+            let mut ctx = s.ctx(0, &p, &v);
+            ctx.a_l_unit_g = [0.0, 0.0, 1.0];
+            clip_mean_shift(&ctx, 2.8)
+        };
+        // Reference: the same quadrature with the two tones' roles swapped.
+        let mut w = Vibration::none();
+        w.push_tone(tone(71.0, [0.0, 0.4, 1.0], [0.0, 0.0, 40.0]))
+            .unwrap();
+        w.push_tone(tone(30.0, [0.5, 0.0, 1.5], [0.0, 0.0, 0.0]))
+            .unwrap();
+        let s = Scene::new(1000.0, 1024);
+        let mut ctx = s.ctx(0, &p, &w);
+        ctx.a_l_unit_g = [0.0, 0.0, 1.0];
+        let swapped = clip_mean_shift(&ctx, 2.8);
+        assert!(coarse < -1e-3, "{coarse}");
+        assert!(
+            (coarse - swapped).abs() < 1e-4 * coarse.abs(),
+            "{coarse} vs {swapped}"
+        );
+    }
+
+    fn scene() -> Scene {
+        let mut s = Scene::new(2048.0, 1 << 14);
+        s.a_l_g = [0.4, -0.2, 1.0];
+        s.tones = vec![tone(30.7, [1.0, 0.5, 1.6], [0.0, 60.0, 0.0])];
+        s.bands = vec![band(20.0, 300.0, [0.002, 0.001, 0.001])];
+        s.coherence = [[1.0, 0.0, 0.5], [0.0, 1.0, 0.0], [0.5, 0.0, 1.0]];
+        s
+    }
+
+    #[test]
+    fn mean_formula_matches_time_domain_tone_and_noise() {
+        let p = al15();
+        let s = scene();
+        let mut e = build_toml("kind = \"saturation\"\nrange_g = 3.0", &p);
+        let vib = s.vibration();
+        let formula = e.mean_shift_g(&s.ctx(0, &p, &vib)).unwrap();
+        let est = unit_shift(&s, &p, 0, e.as_mut(), 900);
+        assert_agrees("saturation (tone + noise)", est, formula, 10.0);
+    }
+
+    #[test]
+    fn mean_formula_matches_time_domain_two_tones_kurtotic_noise() {
+        let p = al15();
+        let mut s = scene();
+        s.tones.push(tone(77.3, [0.2, 0.3, 0.8], [0.0, 0.0, 30.0]));
+        s.kurtosis = 6.0;
+        let mut e = build_toml("kind = \"saturation\"\nrange_g = 3.2", &p);
+        let vib = s.vibration();
+        let formula = e.mean_shift_g(&s.ctx(0, &p, &vib)).unwrap();
+        let est = unit_shift(&s, &p, 0, e.as_mut(), 1000);
+        assert_agrees(
+            "saturation (two tones + kurtotic noise)",
+            est,
+            formula,
+            10.0,
+        );
+    }
+}
