@@ -1,0 +1,505 @@
+//! The compensator's configuration: `config/services/compensator.toml` → [`RawConfig`]
+//! (unknown keys refused) → [`Config`] (validated; the only form `run` takes).
+//!
+//! Relative paths (`triad`, `passports`) are looked up next to the configuration file
+//! first, then in the working directory; a value that is not a file is a shipped id
+//! (`default` for the triad, `AL-15`, `AL-1M`, `AKS-05` for passports). Passports named
+//! inside a triad file are resolved by vibro-config (working directory, then ids).
+
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+use std::time::Duration;
+use vibro_config::TriadConfig;
+use vibro_estimator::common::{
+    check_prefix, check_seconds, default_prefix, parse_toml, read_config_file, ConfigError,
+    ConfigSource, ServiceSettings, ServiceSettingsRaw,
+};
+use vibro_msgs::{CompensationMode, ServiceNames};
+use vibro_physics::compensation::{Mode, TriadCompensator};
+use vibro_physics::vibration::MAX_TONES as PHYSICS_MAX_TONES;
+
+use crate::mapping::{EstimateMapping, KurtosisUse};
+
+/// Where `main` looks for its configuration when `--config` is not given.
+pub const DEFAULT_CONFIG_PATH: &str = "config/services/compensator.toml";
+/// The shipped configuration, compiled in so the binary runs from any directory.
+const EMBEDDED_CONFIG: &str = include_str!("../../../config/services/compensator.toml");
+
+/// The configuration as written.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawConfig {
+    /// Service-name prefix, e.g. `vibrocomp/`.
+    #[serde(default = "default_prefix")]
+    pub prefix: String,
+    /// `exact`, `paper` or `as-published` (MODEL.md section 7).
+    pub mode: String,
+    /// A triad file, or `default` for the shipped one.
+    pub triad: String,
+    /// Per-unit passports overriding the triad's: a file or a shipped id each.
+    #[serde(default)]
+    pub passports: Option<Vec<String>>,
+    /// An estimate whose window ended more than this before a block's last sample is
+    /// stale: the block is compensated for the main error only.
+    #[serde(default = "default_max_estimate_age_s")]
+    pub max_estimate_age_s: f64,
+    /// How often the model files are checked for changes; 0 disables hot reload.
+    #[serde(default = "default_reload_poll_s")]
+    pub reload_poll_s: f64,
+    #[serde(default)]
+    pub estimate: EstimateMappingRaw,
+    #[serde(default)]
+    pub service: ServiceSettingsRaw,
+}
+
+fn default_max_estimate_age_s() -> f64 {
+    2.0
+}
+fn default_reload_poll_s() -> f64 {
+    0.5
+}
+
+/// The `[estimate]` table as written (see [`EstimateMapping`]).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EstimateMappingRaw {
+    #[serde(default = "yes")]
+    pub use_tones: bool,
+    #[serde(default = "yes")]
+    pub use_random: bool,
+    #[serde(default = "yes")]
+    pub use_cross_covariance: bool,
+    /// `estimated` or `gaussian`.
+    #[serde(default = "default_kurtosis")]
+    pub kurtosis: String,
+    #[serde(default = "default_max_tones")]
+    pub max_tones: usize,
+}
+
+fn yes() -> bool {
+    true
+}
+fn default_kurtosis() -> String {
+    "estimated".into()
+}
+fn default_max_tones() -> usize {
+    PHYSICS_MAX_TONES
+}
+
+impl Default for EstimateMappingRaw {
+    fn default() -> Self {
+        Self {
+            use_tones: true,
+            use_random: true,
+            use_cross_covariance: true,
+            kurtosis: default_kurtosis(),
+            max_tones: default_max_tones(),
+        }
+    }
+}
+
+/// The part of the configuration that hot reload replaces while the service runs.
+#[derive(Debug, Clone)]
+pub struct Model {
+    pub mode: Mode,
+    /// Geometry and passports (with the `passports` overrides applied).
+    pub triad: TriadConfig,
+    /// `max_estimate_age_s` in ns.
+    pub max_estimate_age_ns: u64,
+    pub estimate: EstimateMapping,
+}
+
+impl Model {
+    /// A compensator for this model, with no vibration known yet (allocates its tables).
+    pub fn compensator(&self) -> TriadCompensator {
+        TriadCompensator::new(self.triad.axes, self.triad.passports, self.mode)
+    }
+
+    /// The mode's code on the wire.
+    pub fn wire_mode(&self) -> CompensationMode {
+        wire_mode(self.mode)
+    }
+
+    /// `K1` of each unit, V/g: readings are `U / K1`.
+    pub fn k1_v_per_g(&self) -> [f64; 3] {
+        self.triad.passports.map(|p| p.k1_v_per_g)
+    }
+}
+
+/// The wire code of a compensation mode.
+pub fn wire_mode(mode: Mode) -> CompensationMode {
+    match mode {
+        Mode::AsPublished => CompensationMode::AsPublished,
+        Mode::Paper => CompensationMode::Paper,
+        Mode::Exact => CompensationMode::Exact,
+    }
+}
+
+/// A validated configuration.
+#[derive(Debug, Clone)]
+pub struct Config {
+    pub source: ConfigSource,
+    pub names: ServiceNames,
+    pub model: Model,
+    pub service: ServiceSettings,
+    /// `None`: hot reload disabled.
+    pub reload_poll: Option<Duration>,
+    /// The files whose changes trigger a reload: this configuration, the triad and the
+    /// passports it reads from disk.
+    pub watched_files: Vec<PathBuf>,
+    /// Prefix and `[service]` as the file has them (before command-line overrides),
+    /// to tell a reload that changes them (they need a restart).
+    pub(crate) as_written: (String, ServiceSettings),
+}
+
+/// A value as written, and the file it names if it is one.
+fn locate(value: &str, base: Option<&Path>) -> (String, Option<PathBuf>) {
+    if let Some(base) = base {
+        let p = base.join(value);
+        if p.is_file() {
+            return (p.display().to_string(), Some(p));
+        }
+    }
+    let p = Path::new(value);
+    if p.is_file() {
+        (value.to_string(), Some(p.to_path_buf()))
+    } else {
+        (value.to_string(), None)
+    }
+}
+
+/// Passport files a triad file names (resolved as vibro-config does: from the
+/// working directory), so that hot reload watches them too.
+fn passport_files_of_triad(triad_file: &Path) -> Vec<PathBuf> {
+    let Ok(text) = std::fs::read_to_string(triad_file) else {
+        return Vec::new();
+    };
+    let Ok(table) = toml::from_str::<toml::Table>(&text) else {
+        return Vec::new();
+    };
+    let units = table.get("unit").and_then(|u| u.as_array());
+    units
+        .into_iter()
+        .flatten()
+        .filter_map(|u| u.get("passport").and_then(|p| p.as_str()))
+        .map(PathBuf::from)
+        .filter(|p| p.is_file())
+        .collect()
+}
+
+impl TryFrom<RawConfig> for Config {
+    type Error = ConfigError;
+
+    /// Validates with relative paths taken from the working directory.
+    fn try_from(raw: RawConfig) -> Result<Self, ConfigError> {
+        Self::from_raw(raw, None)
+    }
+}
+
+impl Config {
+    /// Validates `raw`, looking up relative paths in `base_dir` first; reports every
+    /// problem at once (the file is named by the caller).
+    pub fn from_raw(raw: RawConfig, base_dir: Option<&Path>) -> Result<Self, ConfigError> {
+        let mut problems = Vec::new();
+        let mut watched = Vec::new();
+        let names = check_prefix("prefix", &raw.prefix, &mut problems);
+        let service = raw.service.validate("service", &mut problems);
+        let mode = match Mode::from_str(&raw.mode) {
+            Ok(m) => Some(m),
+            Err(_) => {
+                problems.push(format!(
+                    "mode = {:?}: must be one of \"exact\", \"paper\", \"as-published\"",
+                    raw.mode
+                ));
+                None
+            }
+        };
+
+        let (triad_arg, triad_file) = locate(&raw.triad, base_dir);
+        let mut triad = match vibro_config::resolve_triad(&triad_arg) {
+            Ok(t) => Some(t),
+            Err(e) => {
+                problems.push(format!("triad = {:?}: {e}", raw.triad));
+                None
+            }
+        };
+        if let Some(file) = triad_file {
+            watched.extend(passport_files_of_triad(&file));
+            watched.insert(0, file);
+        }
+        if let Some(list) = &raw.passports {
+            if list.len() != 3 {
+                problems.push(format!(
+                    "passports = {list:?}: {} entries, a triad has exactly 3 units",
+                    list.len()
+                ));
+            } else {
+                for (i, value) in list.iter().enumerate() {
+                    let (arg, file) = locate(value, base_dir);
+                    watched.extend(file);
+                    match vibro_config::resolve_passport(&arg) {
+                        Ok(p) => {
+                            if let Some(t) = triad.as_mut() {
+                                t.passports[i] = p;
+                            }
+                        }
+                        Err(e) => problems.push(format!("passports[{i}] = {value:?}: {e}")),
+                    }
+                }
+            }
+        }
+        if let Some(t) = &triad {
+            for (i, p) in t.passports.iter().enumerate() {
+                let k1 = p.k1_v_per_g;
+                if !(k1.is_finite() && k1 != 0.0) {
+                    problems.push(format!(
+                        "unit {i} ({}) passport {}: K1_v_per_g = {k1}: must be finite and non-zero",
+                        t.names[i],
+                        p.id()
+                    ));
+                }
+            }
+        }
+
+        let age_s = raw.max_estimate_age_s;
+        let max_age = if age_s.is_finite() && age_s > 0.0 && age_s <= 3600.0 {
+            Some((age_s * 1e9).round() as u64)
+        } else {
+            problems.push(format!(
+                "max_estimate_age_s = {age_s}: must be finite and 0 < s <= 3600"
+            ));
+            None
+        };
+        let reload_poll = if raw.reload_poll_s == 0.0 {
+            Some(None)
+        } else {
+            check_seconds(
+                "reload_poll_s",
+                raw.reload_poll_s,
+                0.01,
+                60.0,
+                &mut problems,
+            )
+            .map(Some)
+        };
+
+        let e = &raw.estimate;
+        let kurtosis = match e.kurtosis.as_str() {
+            "estimated" => Some(KurtosisUse::Estimated),
+            "gaussian" => Some(KurtosisUse::Gaussian),
+            other => {
+                problems.push(format!(
+                    "estimate.kurtosis = {other:?}: must be \"estimated\" or \"gaussian\""
+                ));
+                None
+            }
+        };
+        if !(1..=PHYSICS_MAX_TONES).contains(&e.max_tones) {
+            problems.push(format!(
+                "estimate.max_tones = {}: must be 1..={PHYSICS_MAX_TONES} (the model's capacity)",
+                e.max_tones
+            ));
+        }
+
+        match (names, service, mode, triad, max_age, reload_poll, kurtosis) {
+            (
+                Some(names),
+                Some(service),
+                Some(mode),
+                Some(triad),
+                Some(max_age),
+                Some(reload_poll),
+                Some(kurtosis),
+            ) if problems.is_empty() => Ok(Self {
+                source: ConfigSource::Inline,
+                as_written: (names.prefix().to_string(), service),
+                names,
+                model: Model {
+                    mode,
+                    triad,
+                    max_estimate_age_ns: max_age,
+                    estimate: EstimateMapping {
+                        use_tones: e.use_tones,
+                        use_random: e.use_random,
+                        use_cross_covariance: e.use_cross_covariance,
+                        kurtosis,
+                        max_tones: e.max_tones,
+                    },
+                },
+                service,
+                reload_poll,
+                watched_files: watched,
+            }),
+            _ => Err(ConfigError::new("configuration", problems)),
+        }
+    }
+
+    /// Parses and validates TOML text; `source` names it in errors, and a file source's
+    /// directory is where relative paths are looked up first.
+    pub fn parse(text: &str, source: ConfigSource) -> Result<Self, ConfigError> {
+        let file = source.to_string();
+        let raw: RawConfig = parse_toml(text, &file)?;
+        let base = match &source {
+            ConfigSource::File(p) => p.parent(),
+            _ => None,
+        };
+        let mut config = Self::from_raw(raw, base).map_err(|e| e.in_file(&file))?;
+        if let ConfigSource::File(p) = &source {
+            config.watched_files.insert(0, p.clone());
+        }
+        config.source = source;
+        Ok(config)
+    }
+
+    /// Loads a configuration file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        Self::parse(
+            &read_config_file(path)?,
+            ConfigSource::File(path.to_path_buf()),
+        )
+    }
+
+    /// [`DEFAULT_CONFIG_PATH`] if it exists (run from the repository), else the
+    /// shipped copy compiled into the binary.
+    pub fn load_default() -> Result<Self, ConfigError> {
+        let path = Path::new(DEFAULT_CONFIG_PATH);
+        if path.is_file() {
+            Self::load(path)
+        } else {
+            Self::shipped()
+        }
+    }
+
+    /// The shipped configuration (compiled in).
+    pub fn shipped() -> Result<Self, ConfigError> {
+        Self::parse(EMBEDDED_CONFIG, ConfigSource::Embedded(DEFAULT_CONFIG_PATH))
+    }
+
+    /// Replaces the service-name prefix (the `--prefix` option).
+    pub fn with_prefix(mut self, prefix: &str) -> Result<Self, ConfigError> {
+        let mut problems = Vec::new();
+        match check_prefix("--prefix", prefix, &mut problems) {
+            Some(names) => {
+                self.names = names;
+                Ok(self)
+            }
+            None => Err(ConfigError::new("command line", problems)),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp_dir(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("vct-cfg-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn the_shipped_configuration_is_valid() {
+        let c = Config::shipped().unwrap();
+        assert_eq!(c.names.prefix(), "vibrocomp/");
+        assert_eq!(c.model.mode, Mode::Exact);
+        assert_eq!(c.model.max_estimate_age_ns, 2_000_000_000);
+        assert_eq!(c.model.triad.id, "default");
+        assert_eq!(c.model.estimate, EstimateMapping::default());
+        assert_eq!(c.reload_poll, Some(Duration::from_millis(500)));
+        assert!(
+            c.watched_files.is_empty(),
+            "embedded: nothing on disk to watch"
+        );
+        let on_disk = Config::load(Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../config/services/compensator.toml"
+        )))
+        .unwrap();
+        assert_eq!(on_disk.model.mode, c.model.mode);
+        assert_eq!(on_disk.watched_files.len(), 1);
+    }
+
+    #[test]
+    fn every_problem_is_reported_with_file_key_and_value() {
+        let text = EMBEDDED_CONFIG
+            .replace("mode = \"exact\"", "mode = \"fast\"")
+            .replace("triad = \"default\"", "triad = \"nowhere.toml\"")
+            .replace("max_estimate_age_s = 2.0", "max_estimate_age_s = -1.0")
+            .replace("kurtosis = \"estimated\"", "kurtosis = \"normal\"")
+            .replace("max_tones = 8", "max_tones = 9");
+        let e = Config::parse(&text, ConfigSource::File("c.toml".into())).unwrap_err();
+        let msg = e.to_string();
+        assert!(msg.starts_with("c.toml: "), "{msg}");
+        for needle in [
+            "mode = \"fast\": must be one of",
+            "triad = \"nowhere.toml\": \"nowhere.toml\" is neither a readable file nor a known triad id",
+            "max_estimate_age_s = -1: must be finite and 0 < s <= 3600",
+            "estimate.kurtosis = \"normal\"",
+            "estimate.max_tones = 9: must be 1..=8",
+        ] {
+            assert!(msg.contains(needle), "{needle:?} missing from {msg}");
+        }
+        assert_eq!(e.problems.len(), 5, "{msg}");
+        let e = Config::parse(
+            &format!("{EMBEDDED_CONFIG}\nspeed = 1\n"),
+            ConfigSource::File("c.toml".into()),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("unknown field `speed`"), "{e}");
+    }
+
+    #[test]
+    fn paths_are_found_next_to_the_file_and_watched() {
+        let dir = temp_dir("paths");
+        let passport = vibro_config::EMBEDDED_PASSPORTS[1].2; // AL-1M
+        std::fs::write(dir.join("unit2.toml"), passport).unwrap();
+        let triad = r#"
+id = "flipped"
+[[unit]]
+name = "A"
+passport = "AL-15"
+ia = "-y"
+oa = "+z"
+pa = "-x"
+[[unit]]
+name = "B"
+passport = "AL-15"
+ia = "+z"
+oa = "-x"
+pa = "+y"
+[[unit]]
+name = "C"
+passport = "AKS-05"
+ia = "-x"
+oa = "-y"
+pa = "z"
+"#;
+        std::fs::write(dir.join("triad.toml"), triad).unwrap();
+        let text = EMBEDDED_CONFIG
+            .replace("triad = \"default\"", "triad = \"triad.toml\"")
+            .replace(
+                "# passports = [\"AL-15\", \"AL-15\", \"AL-15\"]",
+                "passports = [\"AL-15\", \"unit2.toml\", \"aks-05\"]",
+            );
+        let path = dir.join("compensator.toml");
+        std::fs::write(&path, text).unwrap();
+        let c = Config::load(&path).unwrap();
+        assert_eq!(c.model.triad.id, "flipped");
+        assert_eq!(c.model.triad.passports[1].id(), "AL-1M");
+        assert_eq!(c.model.triad.passports[2].id(), "AKS-05");
+        assert_eq!(
+            c.watched_files,
+            [path.clone(), dir.join("triad.toml"), dir.join("unit2.toml")]
+        );
+        let bad = std::fs::read_to_string(&path)
+            .unwrap()
+            .replace("\"aks-05\"]", "\"aks-05\", \"AL-15\"]");
+        std::fs::write(&path, bad).unwrap();
+        let e = Config::load(&path).unwrap_err().to_string();
+        assert!(e.contains("4 entries, a triad has exactly 3 units"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

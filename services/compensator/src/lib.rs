@@ -1,0 +1,48 @@
+//! # vibro-compensator
+//!
+//! The compensator service: the in-flight compensation algorithm of MODEL.md section 7
+//! ([P2 (17)-(20)]) on the live streams. It subscribes to the accelerometer blocks
+//! (`{prefix}accel`, [`vibro_msgs::AccelBlock`]) and the vibration estimates
+//! (`{prefix}estimate`, [`vibro_msgs::VibEstimate`]), and publishes one
+//! [`vibro_msgs::CompensatedBlock`] per input block on `{prefix}compensated` with every
+//! stage `a(1)..a(4)`, the corrections, the mode and the estimate's age, plus a
+//! heartbeat on `{prefix}heartbeat/compensator`.
+//!
+//! - Readings are `U / K1` per unit (each unit's passport), compensated per sample by
+//!   [`vibro_physics::compensation::TriadCompensator::compensate`] (the tracking stream
+//!   kernel).
+//! - The vibration is the latest estimate's, mapped from the sensors to each unit's
+//!   axes ([`mapping`]) and given to the compensator once per estimate. An estimate
+//!   whose window ended more than `max_estimate_age_s` before a block's last sample is
+//!   stale: that block is compensated for the main error only and flagged, as are
+//!   blocks before the first estimate.
+//! - The model files are reloaded while running (a tokio task polls them).
+//!
+//! ```no_run
+//! use vibro_compensator::{run, Config};
+//! use vibro_estimator::common::Shutdown;
+//! # fn main() -> anyhow::Result<()> {
+//! let config = Config::load(std::path::Path::new("config/services/compensator.toml"))?;
+//! let shutdown = Shutdown::new();
+//! let summary = run(config, shutdown)?; // until shutdown.trigger() from elsewhere
+//! println!("{}", summary.to_json());
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! References: MODEL.md sections 3 and 7, RIG.md (the accelerometer block),
+//! `docs/services.md` (streams, flags, staleness, loss accounting, hot reload).
+
+// Per-axis and per-unit index loops mirror the formulas' subscripts (and index several
+// arrays at once); iterator chains would hide the indices.
+#![allow(clippy::needless_range_loop)]
+
+mod config;
+pub mod mapping;
+mod reload;
+mod service;
+
+pub use config::{wire_mode, Config, EstimateMappingRaw, Model, RawConfig, DEFAULT_CONFIG_PATH};
+pub use mapping::{unit_vibrations, EstimateMapping, KurtosisUse, MappingError, UnitVibrations};
+pub use service::{run, run_async, Summary, MAX_ABS_READING_G};
+pub use vibro_estimator::common::{LoopMode, Shutdown};

@@ -1,0 +1,705 @@
+//! The compensator's hot loop: `{prefix}accel` + `{prefix}estimate` →
+//! `TriadCompensator` → `{prefix}compensated`.
+
+use crate::config::{Config, Model};
+use crate::mapping::{unit_vibrations, UnitVibrations};
+use crate::reload::{self, ModelUpdate};
+use anyhow::{anyhow, Context};
+use iceoryx2::prelude::CallbackProgression;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, TryRecvError};
+use std::sync::Arc;
+use tracing::{debug, info, warn};
+use vibro_estimator::common::{
+    count_first, data_stream_config, estimate_stream_config, now_ns, ConfigSource, Continuity,
+    HeartbeatPublisher, HeartbeatReport, JsonObject, Latency, LoopMode, Quantiles, Shutdown,
+    StreamCounters,
+};
+use vibro_ipc::{
+    cleanup_dead_nodes, create_node, create_waitset, StreamPublisher, StreamSubscriber,
+};
+use vibro_msgs::compensation_flags as cf;
+use vibro_msgs::{
+    accel_flags, estimate_flags, AccelBlock, CompensatedBlock, CompensationMode, ServiceId,
+    ServiceState, Stream, VibEstimate, WireMessage,
+};
+use vibro_physics::compensation::TriadCompensator;
+use vibro_physics::vibration::Vibration;
+
+/// Readings beyond this magnitude are treated like NaN: no accelerometer measures them,
+/// and the model's fifth powers would overflow.
+pub const MAX_ABS_READING_G: f64 = 1e6;
+
+/// What the compensator did, returned by [`run`] when it stops (and printed by `--json`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Summary {
+    /// Time the hot loop ran.
+    pub uptime_s: f64,
+    /// The `{prefix}accel` stream (received, lost by `seq` and `first_sample_index`,
+    /// out of order = dropped, restarts, malformed = dropped).
+    pub accel: StreamCounters,
+    /// The `{prefix}estimate` stream.
+    pub estimates: StreamCounters,
+    /// Estimates mapped to the model.
+    pub estimates_accepted: u64,
+    /// Estimates that could not be used (non-finite values, counts out of range, ...).
+    pub estimates_rejected: u64,
+    /// Times the compensator's vibration was set (once per estimate used, and when the
+    /// estimate went stale or came back).
+    pub vibration_updates: u64,
+    /// Tones left out because the model holds at most `estimate.max_tones`.
+    pub tones_dropped: u64,
+    /// Blocks published on `{prefix}compensated`.
+    pub published: u64,
+    /// Samples compensated (or set NaN for non-finite input).
+    pub samples: u64,
+    pub non_finite_samples: u64,
+    /// Blocks published with `INPUT_GAP`.
+    pub input_gap_blocks: u64,
+    /// Blocks published with `VIBRATION_ESTIMATE_STALE`.
+    pub stale_blocks: u64,
+    /// Blocks published with `ESTIMATE_MISSING`.
+    pub missing_blocks: u64,
+    /// Blocks published with `ESTIMATE_FLAGGED`.
+    pub flagged_estimate_blocks: u64,
+    /// Blocks a subscriber's full buffer did not take (after the back-pressure timeout).
+    pub undelivered: u64,
+    /// Other publish failures (loan, send): those blocks were not published.
+    pub publish_errors: u64,
+    pub receive_errors: u64,
+    /// Reloaded models taken by the hot loop.
+    pub reloads_applied: u64,
+    /// Reloads refused (invalid or unreadable files).
+    pub reload_errors: u64,
+    pub heartbeats: u64,
+    /// Mode at the end.
+    pub mode: CompensationMode,
+    /// From receiving an accelerometer block to publishing its compensated block.
+    pub latency: Quantiles,
+}
+
+impl Summary {
+    /// The summary as one JSON object.
+    pub fn to_json(&self) -> String {
+        let mut o = JsonObject::new();
+        o.str("service", "compensator")
+            .f64("uptime_s", self.uptime_s)
+            .str("mode", self.mode.as_str())
+            .object("accel", self.accel.to_json())
+            .object("estimates", self.estimates.to_json())
+            .u64("estimates_accepted", self.estimates_accepted)
+            .u64("estimates_rejected", self.estimates_rejected)
+            .u64("vibration_updates", self.vibration_updates)
+            .u64("tones_dropped", self.tones_dropped)
+            .u64("published", self.published)
+            .u64("samples", self.samples)
+            .u64("non_finite_samples", self.non_finite_samples)
+            .u64("input_gap_blocks", self.input_gap_blocks)
+            .u64("stale_blocks", self.stale_blocks)
+            .u64("missing_blocks", self.missing_blocks)
+            .u64("flagged_estimate_blocks", self.flagged_estimate_blocks)
+            .u64("undelivered", self.undelivered)
+            .u64("publish_errors", self.publish_errors)
+            .u64("receive_errors", self.receive_errors)
+            .u64("reloads_applied", self.reloads_applied)
+            .u64("reload_errors", self.reload_errors)
+            .u64("heartbeats", self.heartbeats)
+            .object("latency", self.latency.to_json());
+        o.finish()
+    }
+}
+
+/// Runs the compensator until `shutdown` is triggered, on a tokio runtime of its own
+/// (for the hot-reload watcher); the hot loop runs on a dedicated thread. Do not call
+/// it from inside a tokio runtime: use [`run_async`] there.
+pub fn run(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_time()
+        .build()
+        .context("starting the compensator's tokio runtime")?;
+    runtime.block_on(run_async(config, shutdown))
+}
+
+/// Runs the compensator until `shutdown` is triggered: the hot loop on its own thread,
+/// the hot-reload watcher (when the configuration is a file and `reload_poll_s > 0`)
+/// as a task on the current runtime.
+pub async fn run_async(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
+    // Built here so the hot thread starts with its tables allocated.
+    let compensator = config.model.compensator();
+    let (update_tx, update_rx) = std::sync::mpsc::channel();
+    let reload_errors = Arc::new(AtomicU64::new(0));
+    let watcher = match (&config.source, config.reload_poll) {
+        (ConfigSource::File(path), Some(poll)) => Some(tokio::spawn(reload::watch(
+            path.clone(),
+            config.clone(),
+            poll,
+            update_tx,
+            Arc::clone(&reload_errors),
+            shutdown.clone(),
+        ))),
+        _ => None,
+    };
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    std::thread::Builder::new()
+        .name("vibro-compensator".into())
+        .spawn(move || {
+            let _ = tx.send(hot_loop(config, compensator, update_rx, shutdown));
+        })
+        .context("spawning the compensator's hot-loop thread")?;
+    let result = rx
+        .await
+        .map_err(|_| anyhow!("the compensator's hot loop ended without a result (it panicked)"));
+    if let Some(w) = watcher {
+        w.abort();
+    }
+    let mut summary = result??;
+    summary.reload_errors = reload_errors.load(Ordering::Relaxed);
+    Ok(summary)
+}
+
+/// The latest usable estimate, mapped to the units.
+struct Latest {
+    /// Counts the estimates accepted: tells two estimates apart even when a restarted
+    /// estimator reuses a `seq`.
+    generation: u64,
+    estimate: VibEstimate,
+    vibrations: UnitVibrations,
+    /// The estimate carries quality flags (other than `TONE_FREE`), or its kurtosis
+    /// had to be replaced.
+    flagged: bool,
+}
+
+/// The hot loop's state. Nothing in it allocates per block or per sample.
+struct Compensation {
+    model: Model,
+    compensator: TriadCompensator,
+    k1_v_per_g: [f64; 3],
+    latest: Option<Latest>,
+    /// `generation` of the estimate whose vibration the compensator holds; `None`: no
+    /// vibration.
+    applied: Option<u64>,
+    accel_continuity: Continuity,
+    estimate_continuity: Continuity,
+    /// A dropped (malformed) block: the next output is flagged `INPUT_GAP`.
+    pending_gap: bool,
+    rejecting: bool,
+    out_seq: u64,
+    latency: Latency,
+    s: Summary,
+}
+
+impl Compensation {
+    fn take_update(&mut self, update: ModelUpdate) {
+        self.model = update.model;
+        self.compensator = update.compensator;
+        self.k1_v_per_g = self.model.k1_v_per_g();
+        self.applied = None;
+        if let Some(l) = &mut self.latest {
+            match unit_vibrations(&l.estimate, &self.model.triad.axes, &self.model.estimate) {
+                Ok(v) => l.vibrations = v,
+                Err(e) => {
+                    warn!("{e}: not usable with the reloaded model");
+                    self.latest = None;
+                }
+            }
+        }
+        self.s.reloads_applied += 1;
+        self.s.mode = self.model.wire_mode();
+        info!(
+            mode = self.model.mode.name(),
+            "hot loop took the reloaded model"
+        );
+    }
+
+    fn on_estimate(&mut self, e: &VibEstimate) {
+        self.s.estimates.received += 1;
+        if let Err(err) = e.validate() {
+            if count_first(&mut self.s.estimates.malformed) {
+                warn!(seq = e.seq, "dropping a malformed estimate: {err}");
+            }
+            return;
+        }
+        let arrival = self.estimate_continuity.check_seq(e.seq);
+        self.s.estimates.record(&arrival);
+        if !arrival.accepted {
+            return;
+        }
+        match unit_vibrations(e, &self.model.triad.axes, &self.model.estimate) {
+            Ok(v) => {
+                let quality = e.flags & estimate_flags::ALL & !estimate_flags::TONE_FREE;
+                self.s.estimates_accepted += 1;
+                self.s.tones_dropped += u64::from(v.tones_dropped);
+                self.latest = Some(Latest {
+                    generation: self.s.estimates_accepted,
+                    estimate: *e,
+                    vibrations: v,
+                    flagged: quality != 0 || v.kurtosis_defaulted,
+                });
+                if self.rejecting {
+                    info!(seq = e.seq, "vibration estimates usable again");
+                    self.rejecting = false;
+                }
+            }
+            Err(err) => {
+                self.s.estimates_rejected += 1;
+                if !self.rejecting {
+                    warn!("{err}; keeping the previous estimate while it is not stale");
+                    self.rejecting = true;
+                }
+            }
+        }
+    }
+
+    /// Gives the compensator the vibration of estimate generation `want` (or none). Per estimate,
+    /// never per sample: `set_vibration` rebuilds the exact model's tables (~1 ms).
+    fn apply(&mut self, want: Option<u64>) -> bool {
+        self.s.vibration_updates += 1;
+        let ok = match (want, &self.latest) {
+            (Some(_), Some(l)) => (0..3).all(|i| {
+                self.compensator
+                    .set_vibration(i, &l.vibrations.units[i])
+                    .is_ok()
+            }),
+            _ => true,
+        };
+        if want.is_none() || !ok {
+            for i in 0..3 {
+                // `Vibration::none()` always validates.
+                let _ = self.compensator.set_vibration(i, &Vibration::none());
+            }
+        }
+        self.applied = if ok { want } else { None };
+        ok
+    }
+
+    fn on_accel(
+        &mut self,
+        block: &AccelBlock,
+        recv_ns: u64,
+        out: &mut StreamPublisher<CompensatedBlock>,
+    ) {
+        self.s.accel.received += 1;
+        if let Err(e) = block.validate() {
+            if count_first(&mut self.s.accel.malformed) {
+                warn!(
+                    seq = block.seq,
+                    "dropping a malformed accelerometer block: {e}"
+                );
+            }
+            self.pending_gap = true;
+            return;
+        }
+        let arrival = self.accel_continuity.check(
+            block.seq,
+            block.first_sample_index,
+            u64::from(block.count),
+        );
+        self.s.accel.record(&arrival);
+        if !arrival.accepted {
+            if self.s.accel.out_of_order == 1 {
+                warn!(
+                    seq = block.seq,
+                    "dropping a duplicate or out-of-order accelerometer block"
+                );
+            }
+            return;
+        }
+        let mut flags = 0u32;
+        if arrival.gap() || self.pending_gap || block.flags & accel_flags::GAP_BEFORE != 0 {
+            flags |= cf::INPUT_GAP;
+        }
+        self.pending_gap = false;
+
+        // Staleness: the estimate's window end against the end of the block's last
+        // sample interval (both on the producers' clock).
+        let count = block.count as u64;
+        let end_ns = block.t0_ns.saturating_add(
+            block
+                .sample_period_ns
+                .saturating_mul(count.saturating_sub(1)),
+        );
+        let (mut want, mut estimate_seq, mut age_ns) = (None, 0u64, 0i64);
+        // `want`: the estimate whose vibration this block needs; `None`: main error only.
+        match &self.latest {
+            None => flags |= cf::ESTIMATE_MISSING | cf::MAIN_ONLY,
+            Some(l) => {
+                let age = i128::from(end_ns) - i128::from(l.estimate.end_ns);
+                age_ns = age.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64;
+                estimate_seq = l.estimate.seq;
+                if age > i128::from(self.model.max_estimate_age_ns) {
+                    flags |= cf::VIBRATION_ESTIMATE_STALE | cf::MAIN_ONLY;
+                } else {
+                    want = Some(l.generation);
+                    if l.flagged {
+                        flags |= cf::ESTIMATE_FLAGGED;
+                    }
+                }
+            }
+        }
+        if want != self.applied && !self.apply(want) {
+            warn!(
+                seq = estimate_seq,
+                "the compensator refused the estimate's vibration; main error only"
+            );
+            self.latest = None;
+            self.s.estimates_rejected += 1;
+            flags = (flags & !cf::ESTIMATE_FLAGGED) | cf::ESTIMATE_MISSING | cf::MAIN_ONLY;
+            (estimate_seq, age_ns) = (0, 0);
+        }
+        let main_only = flags & cf::MAIN_ONLY != 0;
+
+        let seq = self.out_seq;
+        self.out_seq += 1;
+        let mode = self.model.wire_mode().code();
+        let k1 = self.k1_v_per_g;
+        let compensator = &mut self.compensator;
+        let mut non_finite = 0u64;
+        let mut publish_ns = 0u64;
+        let result = out.publish_with(|m| {
+            m.seq = seq;
+            m.input_seq = block.seq;
+            m.first_sample_index = block.first_sample_index;
+            m.t0_ns = block.t0_ns;
+            m.sample_period_ns = block.sample_period_ns;
+            m.estimate_seq = estimate_seq;
+            m.input_publish_ns = block.publish_ns;
+            m.recv_ns = recv_ns;
+            m.estimate_age_ns = age_ns;
+            m.count = block.count;
+            m.source_id = block.source_id;
+            m.mode = mode;
+            for (k, u_v) in block.samples_v().iter().enumerate() {
+                // Readings in g: U / K1 per unit (MODEL.md section 2).
+                let readings_g = [u_v[0] / k1[0], u_v[1] / k1[1], u_v[2] / k1[2]];
+                if !readings_g.iter().all(|r| r.abs() <= MAX_ABS_READING_G) {
+                    // The units are coupled through the cross terms: a bad reading
+                    // spoils the whole triad sample.
+                    non_finite += 1;
+                    for a in [
+                        &mut m.a1_g,
+                        &mut m.a2_g,
+                        &mut m.a3_g,
+                        &mut m.a4_g,
+                        &mut m.main_g,
+                        &mut m.det_g,
+                        &mut m.rand_g,
+                    ] {
+                        a[k] = [f64::NAN; 3];
+                    }
+                    continue;
+                }
+                let stages = compensator.compensate(readings_g);
+                for (i, s) in stages.units.iter().enumerate() {
+                    m.a1_g[k][i] = s.a1_g;
+                    m.a2_g[k][i] = s.a2_g;
+                    m.main_g[k][i] = s.main_g;
+                    if main_only {
+                        // No vibration model: (19) and (20) remove nothing, exactly.
+                        m.a3_g[k][i] = s.a2_g;
+                        m.a4_g[k][i] = s.a2_g;
+                    } else {
+                        m.a3_g[k][i] = s.a3_g;
+                        m.a4_g[k][i] = s.a4_g;
+                        m.det_g[k][i] = s.det_g;
+                        m.rand_g[k][i] = s.rand_g;
+                    }
+                }
+            }
+            m.flags = if non_finite > 0 {
+                flags | cf::NON_FINITE_INPUT
+            } else {
+                flags
+            };
+            publish_ns = now_ns();
+            m.publish_ns = publish_ns;
+        });
+        self.s.samples += count;
+        self.s.non_finite_samples += non_finite;
+        match result {
+            Ok(_) => {}
+            Err(vibro_ipc::Error::Undelivered { .. }) => self.s.undelivered += 1,
+            Err(e) => {
+                if count_first(&mut self.s.publish_errors) {
+                    warn!("{e}");
+                }
+                return;
+            }
+        }
+        self.s.published += 1;
+        self.s.input_gap_blocks += u64::from(flags & cf::INPUT_GAP != 0);
+        self.s.stale_blocks += u64::from(flags & cf::VIBRATION_ESTIMATE_STALE != 0);
+        self.s.missing_blocks += u64::from(flags & cf::ESTIMATE_MISSING != 0);
+        self.s.flagged_estimate_blocks += u64::from(flags & cf::ESTIMATE_FLAGGED != 0);
+        self.latency.record(publish_ns.saturating_sub(recv_ns));
+    }
+
+    fn heartbeat_report(&self, state: ServiceState) -> HeartbeatReport {
+        HeartbeatReport {
+            received: self.s.accel.received,
+            published: self.s.published,
+            // A dropped malformed block shows as a missing seq: counted once.
+            lost: self.s.accel.lost_messages,
+            stale: self.s.stale_blocks + self.s.missing_blocks,
+            latency: self.latency.period(),
+            state,
+        }
+    }
+}
+
+/// Takes every pending estimate (the newest wins); returns whether there was one.
+/// On an empty stream this is one shared-memory poll, no system call.
+fn drain_estimates(estimates: &StreamSubscriber<VibEstimate>, st: &mut Compensation) -> bool {
+    let mut any = false;
+    loop {
+        match estimates.receive() {
+            Ok(Some(e)) => {
+                any = true;
+                st.on_estimate(&e);
+            }
+            Ok(None) => return any,
+            Err(e) => {
+                if count_first(&mut st.s.receive_errors) {
+                    warn!("{e}");
+                }
+                return any;
+            }
+        }
+    }
+}
+
+fn hot_loop(
+    config: Config,
+    compensator: TriadCompensator,
+    updates: Receiver<Box<ModelUpdate>>,
+    shutdown: Shutdown,
+) -> anyhow::Result<Summary> {
+    let started_ns = now_ns();
+    let names = &config.names;
+    let node =
+        create_node("vibro-compensator").context("creating the compensator's iceoryx2 node")?;
+    let cleaned = cleanup_dead_nodes(&node);
+    if cleaned > 0 {
+        info!(cleaned, "removed the resources of dead iceoryx2 nodes");
+    }
+    let accel = StreamSubscriber::<AccelBlock>::create(
+        &node,
+        &names.accel(),
+        &names.event(Stream::Accel),
+        &data_stream_config(),
+    )
+    .with_context(|| format!("subscribing to {}", names.accel()))?;
+    let estimates = StreamSubscriber::<VibEstimate>::create(
+        &node,
+        &names.estimate(),
+        &names.event(Stream::Estimate),
+        &estimate_stream_config(),
+    )
+    .with_context(|| format!("subscribing to {}", names.estimate()))?;
+    let mut compensated = StreamPublisher::<CompensatedBlock>::create(
+        &node,
+        &names.compensated(),
+        &names.event(Stream::Compensated),
+        &data_stream_config(),
+    )
+    .with_context(|| format!("publishing on {}", names.compensated()))?;
+    let mut heartbeat = HeartbeatPublisher::create(&node, names, ServiceId::Compensator)?;
+
+    let waitset = create_waitset().context("creating the compensator's wait set")?;
+    let _accel_guard = waitset
+        .attach_notification(accel.listener())
+        .with_context(|| format!("attaching {} to the wait set", names.event(Stream::Accel)))?;
+    let _estimate_guard = waitset
+        .attach_notification(estimates.listener())
+        .with_context(|| {
+            format!(
+                "attaching {} to the wait set",
+                names.event(Stream::Estimate)
+            )
+        })?;
+    let _poll_guard = waitset
+        .attach_interval(config.service.shutdown_poll)
+        .context("attaching the shutdown-poll interval to the wait set")?;
+    let _heartbeat_guard = waitset
+        .attach_interval(config.service.heartbeat_period)
+        .context("attaching the heartbeat interval to the wait set")?;
+
+    let mode = config.model.wire_mode();
+    let mut st = Compensation {
+        k1_v_per_g: config.model.k1_v_per_g(),
+        model: config.model.clone(),
+        compensator,
+        latest: None,
+        applied: None,
+        accel_continuity: Continuity::new(),
+        estimate_continuity: Continuity::new(),
+        pending_gap: false,
+        rejecting: false,
+        out_seq: 0,
+        latency: Latency::new()?,
+        s: Summary {
+            uptime_s: 0.0,
+            accel: StreamCounters::default(),
+            estimates: StreamCounters::default(),
+            estimates_accepted: 0,
+            estimates_rejected: 0,
+            vibration_updates: 0,
+            tones_dropped: 0,
+            published: 0,
+            samples: 0,
+            non_finite_samples: 0,
+            input_gap_blocks: 0,
+            stale_blocks: 0,
+            missing_blocks: 0,
+            flagged_estimate_blocks: 0,
+            undelivered: 0,
+            publish_errors: 0,
+            receive_errors: 0,
+            reloads_applied: 0,
+            reload_errors: 0,
+            heartbeats: 0,
+            mode,
+            latency: Quantiles::default(),
+        },
+    };
+
+    let heartbeat_ns = config.service.heartbeat_period.as_nanos() as u64;
+    let summary_ns = config.service.summary_period.as_nanos() as u64;
+    let mut next_heartbeat_ns = started_ns;
+    let mut next_summary_ns = started_ns.saturating_add(summary_ns);
+    let mut last = st.s.clone();
+    let mut period_start_ns = started_ns;
+    let mut updates_open = true;
+
+    info!(
+        accel = %names.accel(),
+        estimate = %names.estimate(),
+        compensated = %names.compensated(),
+        mode = config.model.mode.name(),
+        triad = %config.model.triad.id,
+        passports = ?config.model.triad.passports.map(|p| p.id().to_string()),
+        loop_mode = %config.service.loop_mode,
+        source = %config.source,
+        "compensator running"
+    );
+
+    let spin = config.service.loop_mode == LoopMode::Spin;
+    while !shutdown.is_triggered() {
+        if !spin {
+            waitset
+                .wait_and_process_once_with_timeout(
+                    |_| CallbackProgression::Continue,
+                    config.service.shutdown_poll,
+                )
+                .context("waiting on the compensator's wait set")?;
+            for result in [accel.clear_events(), estimates.clear_events()] {
+                if let Err(e) = result {
+                    if count_first(&mut st.s.receive_errors) {
+                        warn!("{e}");
+                    }
+                }
+            }
+        }
+        // Reloaded models: looked at once per wake-up, the newest wins.
+        while updates_open {
+            match updates.try_recv() {
+                Ok(update) => st.take_update(*update),
+                Err(TryRecvError::Empty) => break,
+                Err(TryRecvError::Disconnected) => updates_open = false,
+            }
+        }
+        let mut received_any = drain_estimates(&estimates, &mut st);
+        loop {
+            match accel.receive() {
+                Ok(Some(block)) => {
+                    received_any = true;
+                    let recv_ns = now_ns();
+                    // An estimate published before this block is visible now: take it,
+                    // so each block uses the latest estimate sent before it.
+                    drain_estimates(&estimates, &mut st);
+                    st.on_accel(&block, recv_ns, &mut compensated);
+                }
+                Ok(None) => break,
+                Err(e) => {
+                    if count_first(&mut st.s.receive_errors) {
+                        warn!("{e}");
+                    }
+                    break;
+                }
+            }
+        }
+        if spin {
+            if received_any {
+                // Keep the event buffers from filling while nobody waits on them.
+                let _ = accel.clear_events();
+                let _ = estimates.clear_events();
+            } else {
+                std::hint::spin_loop();
+            }
+        }
+
+        let now = now_ns();
+        if now >= next_heartbeat_ns {
+            next_heartbeat_ns = now.saturating_add(heartbeat_ns);
+            let s = &st.s;
+            let degraded = s.accel.lost_messages + s.accel.lost_samples + s.accel.malformed
+                > last.accel.lost_messages + last.accel.lost_samples + last.accel.malformed
+                || s.stale_blocks + s.missing_blocks > last.stale_blocks + last.missing_blocks;
+            let state = if s.accel.received == 0 {
+                ServiceState::Starting
+            } else if degraded {
+                ServiceState::Degraded
+            } else {
+                ServiceState::Running
+            };
+            if let Err(e) = heartbeat.publish(&st.heartbeat_report(state)) {
+                debug!("heartbeat: {e}");
+            }
+        }
+        if now >= next_summary_ns {
+            next_summary_ns = now.saturating_add(summary_ns);
+            let dt_s = (now.saturating_sub(period_start_ns) as f64 * 1e-9).max(1e-9);
+            let q = st.latency.period();
+            let s = &st.s;
+            info!(
+                "compensator ({}): {:.1} blocks/s, {} estimates ({} rejected), lost {} blocks / {} samples, stale {} missing {} blocks, latency p50 {:.1} us p99 {:.1} us",
+                s.mode,
+                (s.accel.received - last.accel.received) as f64 / dt_s,
+                s.estimates.received - last.estimates.received,
+                s.estimates_rejected - last.estimates_rejected,
+                s.accel.lost_messages - last.accel.lost_messages,
+                s.accel.lost_samples - last.accel.lost_samples,
+                s.stale_blocks - last.stale_blocks,
+                s.missing_blocks - last.missing_blocks,
+                q.p50_ns as f64 * 1e-3,
+                q.p99_ns as f64 * 1e-3,
+            );
+            st.latency.reset_period();
+            last = st.s.clone();
+            period_start_ns = now;
+            let cleaned = cleanup_dead_nodes(&node);
+            if cleaned > 0 {
+                info!(cleaned, "removed the resources of dead iceoryx2 nodes");
+            }
+        }
+    }
+
+    if let Err(e) = heartbeat.publish(&st.heartbeat_report(ServiceState::Stopping)) {
+        debug!("final heartbeat: {e}");
+    }
+    let mut summary = st.s.clone();
+    summary.uptime_s = now_ns().saturating_sub(started_ns) as f64 * 1e-9;
+    summary.heartbeats = heartbeat.sent();
+    summary.latency = st.latency.total();
+    info!(
+        received = summary.accel.received,
+        published = summary.published,
+        lost_blocks = summary.accel.lost_messages,
+        stale_blocks = summary.stale_blocks,
+        missing_blocks = summary.missing_blocks,
+        p50_us = summary.latency.p50_ns as f64 * 1e-3,
+        p99_us = summary.latency.p99_ns as f64 * 1e-3,
+        "compensator stopped"
+    );
+    // The wait set, the ports and the node are released here, by Drop.
+    Ok(summary)
+}

@@ -1,0 +1,76 @@
+//! The periodic [`Heartbeat`] every service publishes on `{prefix}heartbeat/{service}`.
+
+use super::{now_ns, Quantiles};
+use anyhow::Context;
+use vibro_ipc::{IpcNode, StreamPublisher};
+use vibro_msgs::{Heartbeat, ServiceId, ServiceNames, ServiceState, Stream};
+
+/// What a service reports in one heartbeat (cumulative counters).
+#[derive(Debug, Clone, Copy)]
+pub struct HeartbeatReport {
+    pub received: u64,
+    pub published: u64,
+    pub lost: u64,
+    pub stale: u64,
+    /// Latency over the last period.
+    pub latency: Quantiles,
+    pub state: ServiceState,
+}
+
+/// Publishes one service's heartbeats.
+pub struct HeartbeatPublisher {
+    publisher: StreamPublisher<Heartbeat>,
+    service: ServiceId,
+    started_ns: u64,
+    seq: u64,
+}
+
+impl HeartbeatPublisher {
+    pub fn create(
+        node: &IpcNode,
+        names: &ServiceNames,
+        service: ServiceId,
+    ) -> anyhow::Result<Self> {
+        let stream = Stream::Heartbeat(service);
+        let publisher = StreamPublisher::create(
+            node,
+            &names.stream(stream),
+            &names.event(stream),
+            &super::data_stream_config(),
+        )
+        .with_context(|| format!("publishing heartbeats on {}", names.stream(stream)))?;
+        Ok(Self {
+            publisher,
+            service,
+            started_ns: now_ns(),
+            seq: 0,
+        })
+    }
+
+    /// Heartbeats published so far.
+    pub fn sent(&self) -> u64 {
+        self.seq
+    }
+
+    /// Publishes one heartbeat. Nobody listening is fine; a full subscriber is counted
+    /// by the transport and reported as an error here.
+    pub fn publish(&mut self, report: &HeartbeatReport) -> vibro_ipc::Result<usize> {
+        let now = now_ns();
+        let hb = Heartbeat {
+            seq: self.seq,
+            publish_ns: now,
+            uptime_ns: now.saturating_sub(self.started_ns),
+            received: report.received,
+            published: report.published,
+            lost: report.lost,
+            stale: report.stale,
+            latency_p50_ns: report.latency.p50_ns,
+            latency_p99_ns: report.latency.p99_ns,
+            service: self.service.code(),
+            state: report.state.code(),
+            ..Heartbeat::ZEROED
+        };
+        self.seq += 1;
+        self.publisher.publish(&hb)
+    }
+}

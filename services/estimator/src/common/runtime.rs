@@ -1,0 +1,69 @@
+//! What a service's `main` needs besides its library: logging, and a tokio runtime
+//! that turns SIGINT/SIGTERM into the [`Shutdown`] signal.
+
+use super::Shutdown;
+use anyhow::Context;
+use std::future::Future;
+use tokio::signal::unix::{signal, SignalKind};
+
+/// Logs to stderr, INFO by default, `RUST_LOG` to change it. Safe to call twice.
+pub fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+/// Runs `service(shutdown)` on a tokio runtime with SIGINT and SIGTERM handled: the first
+/// signal triggers `shutdown` (the service stops its loop, releases its ports and
+/// returns), a second one exits at once with 128 + the signal number.
+///
+/// The handlers are installed before `service` starts, so a signal can never hit the
+/// default action (process death without releasing shared memory) once this runs.
+pub fn run_service<F, Fut, T>(service: F) -> anyhow::Result<T>
+where
+    F: FnOnce(Shutdown) -> Fut,
+    Fut: Future<Output = anyhow::Result<T>>,
+{
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("vibro-tokio")
+        .enable_all()
+        .build()
+        .context("starting the tokio runtime")?;
+    runtime.block_on(async move {
+        let shutdown = Shutdown::new();
+        let mut interrupt =
+            signal(SignalKind::interrupt()).context("installing the SIGINT handler")?;
+        let mut terminate =
+            signal(SignalKind::terminate()).context("installing the SIGTERM handler")?;
+        let signals = tokio::spawn({
+            let shutdown = shutdown.clone();
+            async move {
+                let mut first = true;
+                loop {
+                    let number = tokio::select! {
+                        _ = interrupt.recv() => libc::SIGINT,
+                        _ = terminate.recv() => libc::SIGTERM,
+                    };
+                    if first {
+                        tracing::info!(
+                            signal = number,
+                            "shutting down (a second signal exits at once)"
+                        );
+                        shutdown.trigger();
+                        first = false;
+                    } else {
+                        tracing::warn!(signal = number, "second signal: exiting without cleanup");
+                        std::process::exit(128 + number);
+                    }
+                }
+            }
+        });
+        let result = service(shutdown).await;
+        signals.abort();
+        result
+    })
+}

@@ -1,0 +1,41 @@
+//! # vibro-estimator
+//!
+//! The estimator service: it subscribes to the vibration-sensor blocks
+//! (`{prefix}vib`, [`vibro_msgs::VibBlock`]), runs [`vibro_dsp::Estimator`] on them and
+//! publishes one [`vibro_msgs::VibEstimate`] per window on `{prefix}estimate` (history
+//! 1, so a late compensator gets the latest), plus a heartbeat on
+//! `{prefix}heartbeat/estimator`.
+//!
+//! The receive → estimate → publish loop runs on its own thread and never awaits
+//! (iceoryx2 has no async API); tokio owns signals and supervision. Every input gap
+//! (by `seq` and by `first_sample_index`) is counted; the estimates it affects carry
+//! the estimator's `GAP` flag.
+//!
+//! The crate also holds [`common`], the plumbing the compensator shares.
+//!
+//! ```no_run
+//! use vibro_estimator::{common::Shutdown, run, Config};
+//! # fn main() -> anyhow::Result<()> {
+//! let config = Config::shipped()?.with_prefix("rig-a/")?;
+//! let shutdown = Shutdown::new();
+//! let stopper = shutdown.clone();
+//! std::thread::spawn(move || {
+//!     std::thread::sleep(std::time::Duration::from_secs(5));
+//!     stopper.trigger();
+//! });
+//! let summary = run(config, shutdown)?;
+//! println!("{}", summary.to_json());
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! References: `docs/services.md` (streams, flags, loss accounting), `docs/estimation.md`
+//! (the estimator), MODEL.md section 7 (what the compensator does with the estimates).
+
+pub mod common;
+mod config;
+mod service;
+
+pub use common::{LoopMode, Shutdown};
+pub use config::{Config, RawConfig, DEFAULT_CONFIG_PATH};
+pub use service::{mirror_estimate, run, run_async, Summary};
