@@ -4,3 +4,4 @@ mod common;
 mod estimate;
 mod identify;
 mod model;
+mod sim;

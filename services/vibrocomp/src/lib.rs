@@ -6,6 +6,7 @@
 
 pub mod commands;
 pub mod output;
+pub mod rig;
 
 use clap::{Parser, Subcommand};
 use std::ffi::OsString;
@@ -34,6 +35,8 @@ pub enum Command {
     Require(commands::require::RequireArgs),
     /// Estimate vibration parameters (tones, band RMS, covariance) from a recorded stream.
     Estimate(commands::estimate::EstimateArgs),
+    /// Simulate a rig: flights to MCAP or live over iceoryx2, shake-table campaigns to CSV.
+    Sim(commands::sim::SimArgs),
 }
 
 /// Runs the command line with the given arguments and returns the process exit code:
@@ -69,5 +72,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Identify(cmd) => commands::identify::run(cmd),
         Command::Require(args) => commands::require::run(args),
         Command::Estimate(args) => commands::estimate::run(args),
+        Command::Sim(args) => commands::sim::run(&args),
     }
 }

@@ -48,6 +48,24 @@ use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
 
+/// The clock of every `*_ns` stamp in the messages: `CLOCK_MONOTONIC`, which on Linux
+/// is one clock for all processes, so a latency between two processes' stamps is
+/// meaningful (and immune to wall-clock steps).
+pub fn now_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC always exists on
+    // Linux, and on failure `ts` stays zero.
+    unsafe {
+        libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts);
+    }
+    (ts.tv_sec as u64)
+        .saturating_mul(1_000_000_000)
+        .saturating_add(ts.tv_nsec as u64)
+}
+
 /// The iceoryx2 service variant of every vibrocomp stream: inter-process.
 pub type Ipc = ipc::Service;
 /// A node of the vibrocomp transport.

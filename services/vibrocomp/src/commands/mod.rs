@@ -5,3 +5,4 @@ pub mod estimate;
 pub mod identify;
 pub mod model;
 pub mod require;
+pub mod sim;

@@ -1,0 +1,738 @@
+//! `vibrocomp sim`: runs a scenario of the rig simulator (`shared/vibro-sim`).
+//!
+//! - A **flight** streams the vibration sensors, the accelerometers and the truth:
+//!   into an MCAP log (`--out`), live over iceoryx2 at real-time rate (`--live`), or
+//!   both; it always prints the mean error of each unit against the exact model.
+//! - A **campaign** runs every shake-table condition (MODEL.md section 8) and prints
+//!   the measured VE beside the exact and published models; `--summary-csv` writes the
+//!   per-condition table the model lab reads, `--positions-csv` the test positions
+//!   `vibrocomp identify positions` reads.
+//!
+//! Effects of the scenario can be switched off (`--no-effects`) or on and tuned
+//! (`--effect kind:key=value,...`); `--list-effects` prints the library.
+
+use std::collections::BTreeMap;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use serde::Serialize;
+use vibro_mcap::{Recorder, RecorderOptions};
+use vibro_msgs::{ServiceNames, Stream};
+use vibro_sim::effects::{catalogue, EffectSpec};
+use vibro_sim::{Scenario, ScenarioKind, Simulator};
+
+use crate::output::{fmt_g, print_json};
+use crate::rig::{Packetizer, RigMessage};
+
+/// Topics of the rig streams in a log: the stream names under the default prefix.
+pub fn topic(stream: Stream) -> String {
+    format!("/{}", stream.suffix())
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SimArgs {
+    /// Scenario: a TOML file or a shipped id (cyclone-4, cyclone-4-short,
+    /// tactical-100s, tactical-300s, section8-grid, random-runs, ten-positions,
+    /// compensation-experiment-al1m, compensation-experiment-aks05).
+    #[arg(required_unless_present = "list_effects")]
+    pub scenario: Option<String>,
+    /// Replaces the scenario's seed.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Replaces a flight's duration, s.
+    #[arg(long = "duration-s")]
+    pub duration_s: Option<f64>,
+    /// Switches an effect on, with parameters: `kind` or `kind:key=value,key=value`
+    /// (values in TOML syntax; `units=[0,2]` limits it to those units). Repeatable.
+    #[arg(long = "effect", value_name = "KIND[:KEY=VALUE,...]")]
+    pub effects: Vec<String>,
+    /// Switches off every effect of the scenario (before `--effect`).
+    #[arg(long)]
+    pub no_effects: bool,
+    /// Flight: writes the rig streams, the truth and the scenario to this MCAP log.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Flight: publishes the rig streams over iceoryx2 at real-time rate.
+    #[arg(long)]
+    pub live: bool,
+    /// Service-name prefix of the live streams.
+    #[arg(long, default_value = vibro_msgs::DEFAULT_PREFIX)]
+    pub prefix: String,
+    /// Live speed as a multiple of real time.
+    #[arg(long, default_value_t = 1.0)]
+    pub rate: f64,
+    /// Campaign: writes the per-condition summary table (CSV).
+    #[arg(long = "summary-csv")]
+    pub summary_csv: Option<PathBuf>,
+    /// Campaign: writes the conditions as test positions for `identify positions`.
+    #[arg(long = "positions-csv")]
+    pub positions_csv: Option<PathBuf>,
+    /// Campaign: conditions simulated in parallel (results do not depend on it).
+    #[arg(long, default_value_t = 1)]
+    pub threads: usize,
+    /// Prints the effects library and exits.
+    #[arg(long)]
+    pub list_effects: bool,
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(args: &SimArgs) -> anyhow::Result<()> {
+    if args.list_effects {
+        return list_effects(args.json);
+    }
+    let Some(arg) = args.scenario.as_deref() else {
+        bail!("a scenario is required (a file or a shipped id)");
+    };
+    let mut scenario =
+        vibro_sim::resolve_scenario(arg).with_context(|| format!("scenario {arg}"))?;
+    apply_overrides(&mut scenario, args)?;
+    match &scenario.kind {
+        ScenarioKind::Flight(_) => run_flight(&scenario, args),
+        ScenarioKind::Campaign(_) => run_campaign(&scenario, args),
+    }
+}
+
+/// `--seed`, `--duration-s`, `--no-effects`, `--effect`.
+fn apply_overrides(scenario: &mut Scenario, args: &SimArgs) -> anyhow::Result<()> {
+    if let Some(seed) = args.seed {
+        scenario.seed = seed;
+    }
+    if let Some(d) = args.duration_s {
+        let ScenarioKind::Flight(flight) = &mut scenario.kind else {
+            bail!(
+                "--duration-s = {d}: applies to flights only; {} is a campaign",
+                scenario.name
+            );
+        };
+        if !(d.is_finite() && d > 0.0) {
+            bail!("--duration-s = {d}: must be finite and > 0");
+        }
+        flight.duration_s = d;
+    }
+    if args.no_effects {
+        for e in &mut scenario.effects {
+            e.enabled = false;
+        }
+    }
+    for text in &args.effects {
+        let spec = parse_effect(text)?;
+        match scenario.effects.iter_mut().find(|e| e.kind == spec.kind) {
+            // `--effect kind` switches the scenario's own table on; parameters replace it.
+            Some(existing) if spec.params.is_empty() && spec.units.is_none() => {
+                existing.enabled = true
+            }
+            Some(existing) => *existing = spec,
+            None => scenario.effects.push(spec),
+        }
+    }
+    // Builds every enabled effect once: a bad parameter fails here, named.
+    vibro_sim::scenario_effects(scenario).context("effects")?;
+    Ok(())
+}
+
+/// `kind` or `kind:key=value,key=value` (values in TOML syntax, arrays allowed).
+fn parse_effect(text: &str) -> anyhow::Result<EffectSpec> {
+    let (kind, rest) = text.split_once(':').unwrap_or((text, ""));
+    let kind = kind.trim();
+    if !catalogue().iter().any(|e| e.kind == kind) {
+        let known: Vec<&str> = catalogue().iter().map(|e| e.kind).collect();
+        bail!(
+            "--effect {text:?}: unknown kind {kind:?}; known: {}",
+            known.join(", ")
+        );
+    }
+    let mut table = toml::Table::new();
+    for item in split_params(rest) {
+        let Some((key, value)) = item.split_once('=') else {
+            bail!("--effect {text:?}: {item:?} is not key=value");
+        };
+        let parsed: toml::Table = toml::from_str(&format!("{} = {}", key.trim(), value.trim()))
+            .with_context(|| format!("--effect {text:?}: {item:?}: the value must be TOML (a number, a string in quotes, an array)"))?;
+        table.extend(parsed);
+    }
+    let mut spec_table = toml::Table::new();
+    spec_table.insert("kind".into(), toml::Value::String(kind.to_string()));
+    spec_table.extend(table);
+    let spec: EffectSpec = spec_table
+        .try_into()
+        .with_context(|| format!("--effect {text:?}"))?;
+    Ok(spec)
+}
+
+/// Splits `a=1,b=[1,2],c=3` on the commas outside brackets.
+fn split_params(text: &str) -> Vec<&str> {
+    let (mut out, mut depth, mut start) = (Vec::new(), 0i32, 0);
+    for (i, c) in text.char_indices() {
+        match c {
+            '[' => depth += 1,
+            ']' => depth -= 1,
+            ',' if depth == 0 => {
+                out.push(&text[start..i]);
+                start = i + 1;
+            }
+            _ => {}
+        }
+    }
+    out.push(&text[start..]);
+    out.into_iter()
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .collect()
+}
+
+#[derive(Serialize)]
+struct EffectListing<'a> {
+    kind: &'a str,
+    summary: &'a str,
+    hooks: &'a str,
+    params: Vec<BTreeMap<&'static str, &'a str>>,
+}
+
+fn list_effects(json: bool) -> anyhow::Result<()> {
+    let list: Vec<EffectListing> = catalogue()
+        .iter()
+        .map(|e| EffectListing {
+            kind: e.kind,
+            summary: e.summary,
+            hooks: e.hooks,
+            params: e
+                .params
+                .iter()
+                .map(|p| {
+                    BTreeMap::from([("name", p.name), ("unit", p.unit), ("meaning", p.meaning)])
+                })
+                .collect(),
+        })
+        .collect();
+    if json {
+        return print_json(&list);
+    }
+    for e in &list {
+        println!("{:<26} {}", e.kind, e.summary);
+        for p in &e.params {
+            println!("    {:<24} [{}] {}", p["name"], p["unit"], p["meaning"]);
+        }
+    }
+    println!("\nSwitch one on with --effect kind:key=value,...; docs/effects.md has the formulas.");
+    Ok(())
+}
+
+fn progress_bar(len: u64, what: &str) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
+    if let Ok(style) =
+        ProgressStyle::with_template(&format!("{what} {{bar:40}} {{pos}}/{{len}} ({{eta}} left)"))
+    {
+        bar.set_style(style);
+    }
+    bar
+}
+
+fn effect_labels(scenario: &Scenario) -> Vec<String> {
+    scenario
+        .effects
+        .iter()
+        .filter(|e| e.enabled)
+        .map(|e| {
+            if e.params.is_empty() {
+                e.kind.clone()
+            } else {
+                let params: Vec<String> =
+                    e.params.iter().map(|(k, v)| format!("{k}={v}")).collect();
+                format!("{}({})", e.kind, params.join(", "))
+            }
+        })
+        .collect()
+}
+
+/// Per-unit statistics of a flight.
+#[derive(Debug, Serialize)]
+struct UnitReport {
+    name: String,
+    /// Mean of `U/K1 - aL3` over the flight: the simulated total error (offset, main
+    /// error, VE and every effect), g.
+    mean_error_g: f64,
+    /// Mean of `E[aF] - aL3` from the exact model, no effect, g.
+    exact_mean_error_g: f64,
+    /// Mean exact VE, g.
+    exact_ve_g: f64,
+    /// `mean_error_g - exact_mean_error_g`: what the model does not explain (effects,
+    /// plus the run's statistical error), g.
+    unexplained_g: f64,
+    /// Standard error of `unexplained_g` from 10 batch means of `U/K1 - E[aF]`, g.
+    unexplained_sigma_g: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct FlightReport {
+    scenario: String,
+    file: String,
+    seed: u64,
+    duration_s: f64,
+    effects: Vec<String>,
+    sensor_samples: u64,
+    output_samples: u64,
+    vib_blocks: u64,
+    accel_blocks: u64,
+    sensor_clipped: [u64; 3],
+    elapsed_s: f64,
+    real_time_factor: f64,
+    out: Option<String>,
+    live_prefix: Option<String>,
+    units: Vec<UnitReport>,
+}
+
+/// Live publishers of the rig streams.
+struct Live {
+    _node: vibro_ipc::IpcNode,
+    vib: vibro_ipc::StreamPublisher<vibro_msgs::VibBlock>,
+    accel: vibro_ipc::StreamPublisher<vibro_msgs::AccelBlock>,
+    truth: vibro_ipc::StreamPublisher<vibro_msgs::TruthBlock>,
+    start: Instant,
+    rate: f64,
+}
+
+impl Live {
+    fn new(prefix: &str, rate: f64) -> anyhow::Result<Self> {
+        if !(rate.is_finite() && rate > 0.0) {
+            bail!("--rate = {rate}: must be finite and > 0");
+        }
+        let names = ServiceNames::new(prefix).with_context(|| format!("--prefix {prefix:?}"))?;
+        let node = vibro_ipc::create_node("vibrocomp-sim").context("iceoryx2 node")?;
+        let config = vibro_ipc::StreamConfig::default();
+        let open = |s: Stream| (names.stream(s), names.event(s));
+        let (vd, ve) = open(Stream::Vib);
+        let (ad, ae) = open(Stream::Accel);
+        let (td, te) = open(Stream::Truth);
+        Ok(Self {
+            vib: vibro_ipc::StreamPublisher::create(&node, &vd, &ve, &config)?,
+            accel: vibro_ipc::StreamPublisher::create(&node, &ad, &ae, &config)?,
+            truth: vibro_ipc::StreamPublisher::create(&node, &td, &te, &config)?,
+            _node: node,
+            start: Instant::now(),
+            rate,
+        })
+    }
+
+    /// Waits until the message's simulated time, scaled by `rate`, then publishes it
+    /// stamped with the publish clock.
+    fn publish(&mut self, msg: RigMessage<'_>) -> anyhow::Result<()> {
+        let due = Duration::from_nanos((msg.time_ns() as f64 / self.rate) as u64);
+        if let Some(wait) = due.checked_sub(self.start.elapsed()) {
+            std::thread::sleep(wait);
+        }
+        let now = vibro_ipc::now_ns();
+        match msg {
+            RigMessage::Vib(b) => {
+                let mut b = *b;
+                b.publish_ns = now;
+                self.vib.publish(&b)?;
+            }
+            RigMessage::Accel(b) => {
+                let mut b = *b;
+                b.publish_ns = now;
+                self.accel.publish(&b)?;
+            }
+            RigMessage::Truth(b) => {
+                let mut b = *b;
+                b.publish_ns = now;
+                self.truth.publish(&b)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Opens a recorder for a flight log, with the scenario as metadata and the passports
+/// and scenario description as attachments.
+fn open_log(path: &Path, scenario: &Scenario, effects: &[String]) -> anyhow::Result<Recorder> {
+    let mut rec = Recorder::create(path, RecorderOptions::default())
+        .with_context(|| format!("{}: cannot create the log", path.display()))?;
+    for s in [Stream::Vib, Stream::Accel, Stream::Truth] {
+        rec.add_channel(&topic(s), s.kind())?;
+    }
+    let rates = scenario.rates;
+    let mut meta = BTreeMap::from([
+        ("name".to_string(), scenario.name.clone()),
+        ("file".to_string(), scenario.file.clone()),
+        ("seed".to_string(), scenario.seed.to_string()),
+        ("sensor_hz".to_string(), rates.sensor_hz.to_string()),
+        ("internal_hz".to_string(), rates.internal_hz.to_string()),
+        ("output_hz".to_string(), rates.output_hz.to_string()),
+        (
+            "sensor_sensitivity_v_per_g".to_string(),
+            scenario.sensor.sensitivity_v_per_g.to_string(),
+        ),
+        (
+            "sensor_ac_corner_hz".to_string(),
+            scenario.sensor.ac_corner_hz.to_string(),
+        ),
+        ("effects".to_string(), effects.join("; ")),
+    ]);
+    if let Some(f) = scenario.flight() {
+        meta.insert("duration_s".into(), f.duration_s.to_string());
+        meta.insert("units".into(), f.triad.names.join(", "));
+        for (i, p) in f.triad.passports.iter().enumerate() {
+            let text = toml::to_string(&p.to_spec()).context("passport as TOML")?;
+            rec.add_attachment_at(
+                &format!("passport-{}-{}.toml", i, f.triad.names[i]),
+                "application/toml",
+                text.into_bytes(),
+                0,
+            )?;
+        }
+    }
+    rec.add_metadata("scenario", meta)?;
+    for (i, e) in scenario.effects.iter().filter(|e| e.enabled).enumerate() {
+        let mut m: BTreeMap<String, String> = e
+            .params
+            .iter()
+            .map(|(k, v)| (k.clone(), v.to_string()))
+            .collect();
+        m.insert("kind".into(), e.kind.clone());
+        if let Some(units) = &e.units {
+            m.insert("units".into(), format!("{units:?}"));
+        }
+        rec.add_metadata(&format!("effect-{i}"), m)?;
+    }
+    if let Ok(text) = std::fs::read(&scenario.file) {
+        rec.add_attachment_at("scenario.toml", "application/toml", text, 0)?;
+    }
+    Ok(rec)
+}
+
+/// Writes one message to the log, waiting for room in the writer's queue (offline
+/// generation must lose nothing).
+fn write_log(rec: &Recorder, msg: RigMessage<'_>) -> anyhow::Result<()> {
+    let t = msg.time_ns();
+    loop {
+        let result = match msg {
+            RigMessage::Vib(b) => rec.write(&topic(Stream::Vib), t, b.publish_ns, b.seq as u32, b),
+            RigMessage::Accel(b) => {
+                rec.write(&topic(Stream::Accel), t, b.publish_ns, b.seq as u32, b)
+            }
+            RigMessage::Truth(b) => {
+                rec.write(&topic(Stream::Truth), t, b.publish_ns, b.seq as u32, b)
+            }
+        };
+        match result {
+            Err(vibro_mcap::Error::QueueFull { .. }) => {
+                std::thread::sleep(Duration::from_micros(200))
+            }
+            other => return other.map_err(Into::into),
+        }
+    }
+}
+
+fn run_flight(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
+    let effects_text = effect_labels(scenario);
+    let effects = vibro_sim::scenario_effects(scenario)?;
+    let mut sim = Simulator::new(scenario, effects).context("simulator")?;
+    let rates = scenario.rates;
+    let names: Vec<String> = sim.unit_names().iter().map(|s| s.to_string()).collect();
+    let k1_v_per_g: Vec<f64> = scenario
+        .flight()
+        .map(|f| f.triad.passports.iter().map(|p| p.k1_v_per_g).collect())
+        .unwrap_or_default();
+    let total = sim.total_samples();
+    let mut packetizer = Packetizer::new(rates.sensor_hz, rates.output_hz, 512, 32, 1);
+    let recorder = match &args.out {
+        Some(path) => Some(open_log(path, scenario, &effects_text)?),
+        None => None,
+    };
+    let mut live = if args.live {
+        Some(Live::new(&args.prefix, args.rate)?)
+    } else {
+        None
+    };
+    let bar = progress_bar(total.output, "simulating");
+    // Sums per unit, and per batch for the standard error.
+    const BATCHES: usize = 10;
+    let batch_len = (total.output / BATCHES as u64).max(1);
+    let mut sum_err = [0.0f64; 3];
+    let mut sum_resid = [[0.0f64; 3]; BATCHES];
+    let mut sum_exact = [0.0f64; 3];
+    let mut sum_ve = [0.0f64; 3];
+    let mut n = 0u64;
+    let started = Instant::now();
+    let mut emit = |msg: RigMessage<'_>| -> anyhow::Result<()> {
+        if let Some(rec) = &recorder {
+            write_log(rec, msg)?;
+        }
+        if let Some(live) = &mut live {
+            live.publish(msg)?;
+        }
+        Ok(())
+    };
+    while let Some(chunk) = sim.next_chunk()? {
+        for (row, truth) in chunk.accel_v().iter().zip(chunk.truth()) {
+            let batch = ((n / batch_len) as usize).min(BATCHES - 1);
+            for u in 0..3 {
+                let a_l3 = truth.a_l_unit_g[u][2];
+                let reading_g = row[u] / k1_v_per_g[u];
+                sum_err[u] += reading_g - a_l3;
+                sum_resid[batch][u] += reading_g - truth.exact_mean_output_g[u];
+                sum_exact[u] += truth.exact_mean_output_g[u] - a_l3;
+                sum_ve[u] += truth.exact_ve_g[u];
+            }
+            n += 1;
+        }
+        packetizer.push_chunk(chunk, &mut emit)?;
+        bar.set_position(n);
+    }
+    packetizer.flush(&mut emit)?;
+    if live.is_some() {
+        // A subscriber's queued samples live in the publisher's shared memory: give
+        // the consumers a moment to take the last blocks before the ports close.
+        std::thread::sleep(Duration::from_millis(300));
+    }
+    bar.finish_and_clear();
+    if let Some(rec) = recorder {
+        rec.finish().context("finishing the log")?;
+    }
+    let elapsed_s = started.elapsed().as_secs_f64();
+    let nf = n.max(1) as f64;
+    let units = (0..3)
+        .map(|u| {
+            let mean = sum_err[u] / nf;
+            let resid: f64 = sum_resid.iter().map(|b| b[u]).sum::<f64>() / nf;
+            // Batch means of the residual (the last batch takes the remainder).
+            let means: Vec<f64> = (0..BATCHES)
+                .map(|b| {
+                    let len = if b == BATCHES - 1 {
+                        n.saturating_sub(batch_len * (BATCHES as u64 - 1))
+                    } else {
+                        batch_len
+                    };
+                    sum_resid[b][u] / len.max(1) as f64
+                })
+                .collect();
+            let var =
+                means.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / (BATCHES as f64 - 1.0);
+            UnitReport {
+                name: names.get(u).cloned().unwrap_or_default(),
+                mean_error_g: mean,
+                exact_mean_error_g: sum_exact[u] / nf,
+                exact_ve_g: sum_ve[u] / nf,
+                unexplained_g: resid,
+                unexplained_sigma_g: (var / BATCHES as f64).sqrt(),
+            }
+        })
+        .collect();
+    let (vib_blocks, accel_blocks) = packetizer.blocks();
+    let duration_s = sim.duration_s();
+    let report = FlightReport {
+        scenario: scenario.name.clone(),
+        file: scenario.file.clone(),
+        seed: scenario.seed,
+        duration_s,
+        effects: effects_text,
+        sensor_samples: total.sensor,
+        output_samples: n,
+        vib_blocks,
+        accel_blocks,
+        sensor_clipped: sim.sensor_clipped(),
+        elapsed_s,
+        real_time_factor: duration_s / elapsed_s.max(1e-9),
+        out: args.out.as_ref().map(|p| p.display().to_string()),
+        live_prefix: args.live.then(|| args.prefix.clone()),
+        units,
+    };
+    if args.json {
+        return print_json(&report);
+    }
+    println!(
+        "Flight {} ({}), seed {}, {:.1} s: {} sensor samples x3, {} accelerometer samples x3",
+        report.scenario,
+        report.file,
+        report.seed,
+        duration_s,
+        report.sensor_samples,
+        report.output_samples
+    );
+    println!(
+        "  effects: {}",
+        if report.effects.is_empty() {
+            "none".to_string()
+        } else {
+            report.effects.join(", ")
+        }
+    );
+    println!(
+        "  mean error U/K1 - aL3 over the flight, simulated and by the exact model (no effect):"
+    );
+    println!("  unit    simulated      exact model    of which VE     simulated - exact");
+    for u in &report.units {
+        println!(
+            "  {:<6} {:>12}  {:>12}  {:>12}  {:>12} +- {}",
+            u.name,
+            fmt_g(u.mean_error_g),
+            fmt_g(u.exact_mean_error_g),
+            fmt_g(u.exact_ve_g),
+            fmt_g(u.unexplained_g),
+            fmt_g(u.unexplained_sigma_g)
+        );
+    }
+    println!(
+        "  generated in {:.2} s ({:.1}x real time){}",
+        elapsed_s,
+        report.real_time_factor,
+        report
+            .out
+            .as_ref()
+            .map(|p| format!("; log: {p}"))
+            .unwrap_or_default()
+    );
+    Ok(())
+}
+
+#[derive(Debug, Serialize)]
+struct ConditionReport {
+    id: String,
+    angle_deg: f64,
+    a_l_unit_g: [f64; 3],
+    direction: String,
+    tone_freq_hz: Option<f64>,
+    tone_amplitude_g: Option<f64>,
+    sigma_unit_g: [f64; 3],
+    measured_ve_g: f64,
+    measured_ve_sigma_g: f64,
+    exact_ve_g: f64,
+    published_ve_g: f64,
+    z_exact: f64,
+    drift_accepted: bool,
+}
+
+#[derive(Debug, Serialize)]
+struct CampaignReport {
+    scenario: String,
+    file: String,
+    seed: u64,
+    passport: String,
+    effects: Vec<String>,
+    elapsed_s: f64,
+    conditions: Vec<ConditionReport>,
+    summary_csv: Option<String>,
+    positions_csv: Option<String>,
+}
+
+fn run_campaign(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
+    if args.out.is_some() || args.live {
+        bail!(
+            "--out/--live stream a flight; {} is a campaign: use --summary-csv / --positions-csv",
+            scenario.name
+        );
+    }
+    let Some(campaign) = scenario.campaign() else {
+        bail!("{} is not a campaign", scenario.name);
+    };
+    let bar = progress_bar(campaign.conditions.len() as u64, "conditions");
+    let started = Instant::now();
+    let options = vibro_sim::CampaignOptions {
+        threads: args.threads.max(1),
+    };
+    let summaries = vibro_sim::run_campaign(scenario, &options, &mut |_| bar.inc(1))?;
+    bar.finish_and_clear();
+    let write = |path: &PathBuf, positions: bool| -> anyhow::Result<()> {
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("{}: cannot create", path.display()))?;
+        let w = std::io::BufWriter::new(file);
+        if positions {
+            let comment = vec![format!(
+                "simulated by vibrocomp sim {} (seed {})",
+                scenario.name, scenario.seed
+            )];
+            vibro_sim::write_positions_csv(w, &summaries, &comment)?;
+        } else {
+            vibro_sim::write_summary_csv(w, &summaries)?;
+        }
+        Ok(())
+    };
+    if let Some(p) = &args.summary_csv {
+        write(p, false)?;
+    }
+    if let Some(p) = &args.positions_csv {
+        write(p, true)?;
+    }
+    let conditions: Vec<ConditionReport> = summaries
+        .iter()
+        .map(|s| ConditionReport {
+            id: s.condition.id.clone(),
+            angle_deg: s.condition.angle_deg,
+            a_l_unit_g: s.condition.a_l_unit_g,
+            direction: s.condition.direction.name().to_string(),
+            tone_freq_hz: s.condition.tone.map(|t| t.freq_hz),
+            tone_amplitude_g: s.condition.tone_amplitude_g,
+            sigma_unit_g: s.sigma_unit_g(),
+            measured_ve_g: s.measurement.ve_g,
+            measured_ve_sigma_g: s.measurement.ve_sigma_g,
+            exact_ve_g: s.exact_ve_g,
+            published_ve_g: s.published_ve_g,
+            z_exact: s.z_exact,
+            drift_accepted: s.drift_accepted,
+        })
+        .collect();
+    let report = CampaignReport {
+        scenario: scenario.name.clone(),
+        file: scenario.file.clone(),
+        seed: scenario.seed,
+        passport: campaign.passport_source.clone(),
+        effects: effect_labels(scenario),
+        elapsed_s: started.elapsed().as_secs_f64(),
+        conditions,
+        summary_csv: args.summary_csv.as_ref().map(|p| p.display().to_string()),
+        positions_csv: args.positions_csv.as_ref().map(|p| p.display().to_string()),
+    };
+    if args.json {
+        return print_json(&report);
+    }
+    println!(
+        "Campaign {} ({}), passport {}, seed {}, {} conditions in {:.1} s",
+        report.scenario,
+        report.file,
+        report.passport,
+        report.seed,
+        report.conditions.len(),
+        report.elapsed_s
+    );
+    println!(
+        "  effects: {}",
+        if report.effects.is_empty() {
+            "none".to_string()
+        } else {
+            report.effects.join(", ")
+        }
+    );
+    println!("  id     angle  direction   tone            sigma3     measured VE           exact        published     z");
+    for c in &report.conditions {
+        let tone = match (c.tone_freq_hz, c.tone_amplitude_g) {
+            (Some(f), Some(a)) => format!("{a:.2} g @ {f:.0} Hz"),
+            _ => "-".to_string(),
+        };
+        println!(
+            "  {:<6} {:>5.0}  {:<10} {:<15} {:>7.3} g  {:>11} +- {:<10} {:>11}  {:>11}  {:>5.1}{}",
+            c.id,
+            c.angle_deg,
+            c.direction,
+            tone,
+            c.sigma_unit_g[2],
+            fmt_g(c.measured_ve_g),
+            fmt_g(c.measured_ve_sigma_g),
+            fmt_g(c.exact_ve_g),
+            fmt_g(c.published_ve_g),
+            c.z_exact,
+            if c.drift_accepted {
+                ""
+            } else {
+                "  (tilt check failed)"
+            }
+        );
+    }
+    Ok(())
+}
