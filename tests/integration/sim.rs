@@ -470,3 +470,35 @@ fn live_publishing_delivers_every_block_in_order() {
         live.publish_ns
     );
 }
+
+/// `vibrocomp sim` on the 20 s Cyclone-4 flight: with no effect the simulated mean
+/// error of every unit is the exact model's within the run's statistical error; with a
+/// mount resonance switched on, what the model does not explain stands out.
+#[test]
+fn flight_report_shows_what_the_model_does_not_explain() {
+    let z = |v: &serde_json::Value| -> Vec<f64> {
+        v["units"]
+            .as_array()
+            .expect("units")
+            .iter()
+            .map(|u| num(u, "unexplained_g") / num(u, "unexplained_sigma_g"))
+            .collect()
+    };
+    let plain = run_json(&["sim", "cyclone-4-short", "--json"]);
+    for (u, z) in z(&plain).iter().enumerate() {
+        assert!(z.abs() < 4.0, "unit {u}: z = {z} without effects: {plain}");
+    }
+    for u in plain["units"].as_array().expect("units") {
+        // The VE is a real part of the error the model explains.
+        assert!(num(u, "exact_ve_g") > 4e-4, "{u}");
+    }
+    let resonant = run_json(&[
+        "sim",
+        "cyclone-4-short",
+        "--effect",
+        "mount_resonance:freq_hz=48,q=1.56",
+        "--json",
+    ]);
+    let largest = z(&resonant).into_iter().fold(0.0, f64::max);
+    assert!(largest > 4.0, "the resonance should stand out: {resonant}");
+}
