@@ -3,5 +3,8 @@
 mod common;
 mod estimate;
 mod identify;
+mod log;
 mod model;
+mod python_client;
+mod replay;
 mod sim;

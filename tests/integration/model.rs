@@ -162,11 +162,12 @@ fn bad_input_names_the_value_and_rule() {
     );
 }
 
-/// `vibrocomp demo --json`: every mode cuts the error of the embedded flight more than
-/// ten times, and the exact mode recovers the truth to the solver's tolerance.
+/// `vibrocomp model flight --json`: every mode cuts the error of the Cyclone-4 flight's
+/// model readings more than ten times, and the exact mode recovers the truth to the
+/// solver's tolerance.
 #[test]
-fn demo_reports_reductions() {
-    let v = run_json(&["demo", "--json"]);
+fn model_flight_reports_reductions() {
+    let v = run_json(&["model", "flight", "--json"]);
     let modes = v["modes"].as_array().unwrap();
     assert_eq!(modes.len(), 3);
     for m in modes {

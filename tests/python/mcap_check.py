@@ -9,8 +9,11 @@ message's fields. Doubles appear twice: as JSON numbers in `first_message` (NaN 
 infinities as strings) and as exact IEEE-754 bit patterns (unsigned 64-bit integers) in
 `first_message_f64_bits`, keyed by field path, so a caller can compare bit for bit.
 
+With --all-messages, each channel also lists every message (`messages`: sequence, log
+and publish time, fields and f64 bits, as for the first message).
+
 Usage:
-    python3 tests/python/mcap_check.py FILE.mcap [--expect-counts '{"/accel": 10}']
+    python3 tests/python/mcap_check.py FILE.mcap [--expect-counts '{"/accel": 10}'] [--all-messages]
 
 Exits non-zero on any failure: unreadable file, CRC mismatch, a message that does not
 decode, a channel without a protobuf schema, or counts different from --expect-counts.
@@ -92,7 +95,7 @@ def to_plain(msg, path, bits):
     return out
 
 
-def check(path):
+def check(path, all_messages=False):
     channels = {}
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
@@ -123,6 +126,17 @@ def check(path):
                     "sequence_gaps": 0,
                 },
             )
+            if all_messages:
+                bits = {}
+                c.setdefault("messages", []).append(
+                    {
+                        "sequence": message.sequence,
+                        "log_time_ns": message.log_time,
+                        "publish_time_ns": message.publish_time,
+                        "fields": to_plain(decoded, "", bits),
+                        "f64_bits": bits,
+                    }
+                )
             if c["count"] == 0:
                 bits = {}
                 c["first_message"] = to_plain(decoded, "", bits)
@@ -153,9 +167,14 @@ def main():
         "--expect-counts",
         help='JSON object {"topic": message count}; every topic must match exactly',
     )
+    parser.add_argument(
+        "--all-messages",
+        action="store_true",
+        help="list every message of every channel, not only the first",
+    )
     args = parser.parse_args()
     try:
-        result = check(args.file)
+        result = check(args.file, args.all_messages)
     except Exception as e:  # any reader, CRC or decoder failure
         print(f"mcap_check.py: {args.file}: {type(e).__name__}: {e}", file=sys.stderr)
         return 1

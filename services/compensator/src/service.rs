@@ -2,6 +2,7 @@
 //! `TriadCompensator` → `{prefix}compensated`.
 
 use crate::config::{Config, Model};
+use crate::interval::within_output_interval;
 use crate::mapping::{unit_vibrations, UnitVibrations};
 use crate::reload::{self, ModelUpdate};
 use anyhow::{anyhow, Context};
@@ -157,6 +158,71 @@ pub async fn run_async(config: Config, shutdown: Shutdown) -> anyhow::Result<Sum
     Ok(summary)
 }
 
+/// Where compensated blocks go: the `{prefix}compensated` publisher in the service,
+/// a vector in [`InProcess`].
+pub trait OutputSink {
+    /// Publishes one block, written in place by `fill` into a default message.
+    fn publish_with(
+        &mut self,
+        fill: impl FnOnce(&mut CompensatedBlock),
+    ) -> vibro_ipc::Result<usize>;
+}
+
+impl OutputSink for StreamPublisher<CompensatedBlock> {
+    fn publish_with(
+        &mut self,
+        fill: impl FnOnce(&mut CompensatedBlock),
+    ) -> vibro_ipc::Result<usize> {
+        StreamPublisher::publish_with(self, fill)
+    }
+}
+
+impl OutputSink for Vec<CompensatedBlock> {
+    fn publish_with(
+        &mut self,
+        fill: impl FnOnce(&mut CompensatedBlock),
+    ) -> vibro_ipc::Result<usize> {
+        let mut m = CompensatedBlock::default();
+        fill(&mut m);
+        self.push(m);
+        Ok(1)
+    }
+}
+
+/// The compensator's handling of each message without the transport: the same code
+/// the service's hot loop runs (validation, continuity, staleness, the estimate in
+/// use, flags, the compensation itself), fed in-process. A log replayed through the
+/// service processes in lock-step gives bit-identical blocks (timestamps aside).
+pub struct InProcess {
+    st: Compensation,
+}
+
+impl InProcess {
+    /// The compensator of `config`'s model (the transport settings are not used).
+    pub fn new(config: &Config) -> anyhow::Result<Self> {
+        Ok(Self {
+            st: Compensation::new(config.model.clone(), config.model.compensator())?,
+        })
+    }
+
+    /// An estimate arrives (the service takes every pending estimate before each
+    /// accelerometer block).
+    pub fn on_estimate(&mut self, estimate: &VibEstimate) {
+        self.st.on_estimate(estimate);
+    }
+
+    /// An accelerometer block arrives at `recv_ns`: its compensated block (if it was
+    /// not dropped) is appended to `out`.
+    pub fn on_accel(&mut self, block: &AccelBlock, recv_ns: u64, out: &mut Vec<CompensatedBlock>) {
+        self.st.on_accel(block, recv_ns, out);
+    }
+
+    /// The counters so far.
+    pub fn summary(&self) -> Summary {
+        self.st.s.clone()
+    }
+}
+
 /// The latest usable estimate, mapped to the units.
 struct Latest {
     /// Counts the estimates accepted: tells two estimates apart even when a restarted
@@ -178,6 +244,9 @@ struct Compensation {
     /// `generation` of the estimate whose vibration the compensator holds; `None`: no
     /// vibration.
     applied: Option<u64>,
+    /// The accelerometer stream's sample period (each output is the mean over it), s;
+    /// 0 before the first block.
+    output_interval_s: f64,
     accel_continuity: Continuity,
     estimate_continuity: Continuity,
     /// A dropped (malformed) block: the next output is flagged `INPUT_GAP`.
@@ -189,26 +258,75 @@ struct Compensation {
 }
 
 impl Compensation {
+    fn new(model: Model, compensator: TriadCompensator) -> anyhow::Result<Self> {
+        let mode = model.wire_mode();
+        Ok(Compensation {
+            k1_v_per_g: model.k1_v_per_g(),
+            model,
+            compensator,
+            latest: None,
+            applied: None,
+            output_interval_s: 0.0,
+            accel_continuity: Continuity::new(),
+            estimate_continuity: Continuity::new(),
+            pending_gap: false,
+            rejecting: false,
+            out_seq: 0,
+            latency: Latency::new()?,
+            s: Summary {
+                uptime_s: 0.0,
+                accel: StreamCounters::default(),
+                estimates: StreamCounters::default(),
+                estimates_accepted: 0,
+                estimates_rejected: 0,
+                vibration_updates: 0,
+                tones_dropped: 0,
+                published: 0,
+                samples: 0,
+                non_finite_samples: 0,
+                input_gap_blocks: 0,
+                stale_blocks: 0,
+                missing_blocks: 0,
+                flagged_estimate_blocks: 0,
+                undelivered: 0,
+                publish_errors: 0,
+                receive_errors: 0,
+                reloads_applied: 0,
+                reload_errors: 0,
+                heartbeats: 0,
+                mode,
+                latency: Quantiles::default(),
+            },
+        })
+    }
+
     fn take_update(&mut self, update: ModelUpdate) {
         self.model = update.model;
         self.compensator = update.compensator;
         self.k1_v_per_g = self.model.k1_v_per_g();
-        self.applied = None;
-        if let Some(l) = &mut self.latest {
-            match unit_vibrations(&l.estimate, &self.model.triad.axes, &self.model.estimate) {
-                Ok(v) => l.vibrations = v,
-                Err(e) => {
-                    warn!("{e}: not usable with the reloaded model");
-                    self.latest = None;
-                }
-            }
-        }
+        self.remap_latest();
         self.s.reloads_applied += 1;
         self.s.mode = self.model.wire_mode();
         info!(
             mode = self.model.mode.name(),
             "hot loop took the reloaded model"
         );
+    }
+
+    /// Maps the latest estimate again (after a model or output-rate change); the
+    /// compensator takes it at the next block.
+    fn remap_latest(&mut self) {
+        self.applied = None;
+        if let Some(l) = &mut self.latest {
+            let within = within_output_interval(&l.estimate, self.output_interval_s);
+            match unit_vibrations(&within, &self.model.triad.axes, &self.model.estimate) {
+                Ok(v) => l.vibrations = v,
+                Err(e) => {
+                    warn!("{e}: not usable");
+                    self.latest = None;
+                }
+            }
+        }
     }
 
     fn on_estimate(&mut self, e: &VibEstimate) {
@@ -224,7 +342,10 @@ impl Compensation {
         if !arrival.accepted {
             return;
         }
-        match unit_vibrations(e, &self.model.triad.axes, &self.model.estimate) {
+        // The vibration inside one output interval: what the samples do not resolve
+        // (crate::interval; unknown before the first block: the whole vibration).
+        let within = within_output_interval(e, self.output_interval_s);
+        match unit_vibrations(&within, &self.model.triad.axes, &self.model.estimate) {
             Ok(v) => {
                 let quality = e.flags & estimate_flags::ALL & !estimate_flags::TONE_FREE;
                 self.s.estimates_accepted += 1;
@@ -272,12 +393,7 @@ impl Compensation {
         ok
     }
 
-    fn on_accel(
-        &mut self,
-        block: &AccelBlock,
-        recv_ns: u64,
-        out: &mut StreamPublisher<CompensatedBlock>,
-    ) {
+    fn on_accel(&mut self, block: &AccelBlock, recv_ns: u64, out: &mut impl OutputSink) {
         self.s.accel.received += 1;
         if let Err(e) = block.validate() {
             if count_first(&mut self.s.accel.malformed) {
@@ -304,6 +420,32 @@ impl Compensation {
             }
             return;
         }
+        let count = block.count as u64;
+        let end_ns = block.t0_ns.saturating_add(
+            block
+                .sample_period_ns
+                .saturating_mul(count.saturating_sub(1)),
+        );
+        let interval_s = block.sample_period_ns as f64 * 1e-9;
+        if interval_s != self.output_interval_s {
+            // A new output rate changes what the samples resolve: map the latest
+            // estimate again (once per rate change, not per block).
+            self.output_interval_s = interval_s;
+            self.remap_latest();
+        }
+        if arrival.restarted {
+            // The producer started again (a new replay, a restarted rig): the stream
+            // history no longer applies, and an estimate dated after this block
+            // belongs to the previous run.
+            self.compensator.reset_tracking();
+            if self
+                .latest
+                .as_ref()
+                .is_some_and(|l| l.estimate.end_ns > end_ns)
+            {
+                self.latest = None;
+            }
+        }
         let mut flags = 0u32;
         if arrival.gap() || self.pending_gap || block.flags & accel_flags::GAP_BEFORE != 0 {
             flags |= cf::INPUT_GAP;
@@ -312,12 +454,6 @@ impl Compensation {
 
         // Staleness: the estimate's window end against the end of the block's last
         // sample interval (both on the producers' clock).
-        let count = block.count as u64;
-        let end_ns = block.t0_ns.saturating_add(
-            block
-                .sample_period_ns
-                .saturating_mul(count.saturating_sub(1)),
-        );
         let (mut want, mut estimate_seq, mut age_ns) = (None, 0u64, 0i64);
         // `want`: the estimate whose vibration this block needs; `None`: main error only.
         match &self.latest {
@@ -503,6 +639,7 @@ fn hot_loop(
     )
     .with_context(|| format!("publishing on {}", names.compensated()))?;
     let mut heartbeat = HeartbeatPublisher::create(&node, names, ServiceId::Compensator)?;
+    let mut progress = HeartbeatPublisher::progress(&node, names, ServiceId::Compensator)?;
 
     let waitset = create_waitset().context("creating the compensator's wait set")?;
     let _accel_guard = waitset
@@ -523,44 +660,7 @@ fn hot_loop(
         .attach_interval(config.service.heartbeat_period)
         .context("attaching the heartbeat interval to the wait set")?;
 
-    let mode = config.model.wire_mode();
-    let mut st = Compensation {
-        k1_v_per_g: config.model.k1_v_per_g(),
-        model: config.model.clone(),
-        compensator,
-        latest: None,
-        applied: None,
-        accel_continuity: Continuity::new(),
-        estimate_continuity: Continuity::new(),
-        pending_gap: false,
-        rejecting: false,
-        out_seq: 0,
-        latency: Latency::new()?,
-        s: Summary {
-            uptime_s: 0.0,
-            accel: StreamCounters::default(),
-            estimates: StreamCounters::default(),
-            estimates_accepted: 0,
-            estimates_rejected: 0,
-            vibration_updates: 0,
-            tones_dropped: 0,
-            published: 0,
-            samples: 0,
-            non_finite_samples: 0,
-            input_gap_blocks: 0,
-            stale_blocks: 0,
-            missing_blocks: 0,
-            flagged_estimate_blocks: 0,
-            undelivered: 0,
-            publish_errors: 0,
-            receive_errors: 0,
-            reloads_applied: 0,
-            reload_errors: 0,
-            heartbeats: 0,
-            mode,
-            latency: Quantiles::default(),
-        },
-    };
+    let mut st = Compensation::new(config.model.clone(), compensator)?;
 
     let heartbeat_ns = config.service.heartbeat_period.as_nanos() as u64;
     let summary_ns = config.service.summary_period.as_nanos() as u64;
@@ -625,6 +725,20 @@ fn hot_loop(
                     }
                     break;
                 }
+            }
+        }
+        if received_any {
+            // Once per wake-up: every block taken so far is compensated and published.
+            let report = HeartbeatReport {
+                received: st.s.accel.received,
+                published: st.s.published,
+                lost: st.s.accel.lost_messages,
+                stale: st.s.stale_blocks + st.s.missing_blocks,
+                latency: Quantiles::default(),
+                state: ServiceState::Running,
+            };
+            if let Err(e) = progress.publish(&report) {
+                debug!("progress: {e}");
             }
         }
         if spin {

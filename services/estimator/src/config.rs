@@ -98,6 +98,12 @@ impl Config {
         }
     }
 
+    /// The text of the shipped configuration (what a recording attaches when the
+    /// service runs on it).
+    pub fn shipped_text() -> &'static str {
+        EMBEDDED_CONFIG
+    }
+
     /// The shipped configuration (compiled in).
     pub fn shipped() -> Result<Self, ConfigError> {
         Self::parse(EMBEDDED_CONFIG, ConfigSource::Embedded(DEFAULT_CONFIG_PATH))

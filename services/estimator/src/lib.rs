@@ -36,6 +36,27 @@ pub mod common;
 mod config;
 mod service;
 
-pub use common::{LoopMode, Shutdown};
+pub use common::{LoopMode, ServiceArgs, Shutdown};
 pub use config::{Config, RawConfig, DEFAULT_CONFIG_PATH};
 pub use service::{mirror_estimate, run, run_async, Summary};
+
+/// What `vibro-estimator` and `vibrocomp service estimator` do: load the configuration
+/// (file, prefix and loop-mode overrides), run until SIGINT/SIGTERM, print the JSON
+/// summary with `--json`.
+pub fn main_with(args: &common::ServiceArgs) -> anyhow::Result<()> {
+    let mut config = match &args.config {
+        Some(path) => Config::load(path)?,
+        None => Config::load_default()?,
+    };
+    if let Some(prefix) = &args.prefix {
+        config = config.with_prefix(prefix)?;
+    }
+    if let Some(mode) = args.mode {
+        config.service.loop_mode = mode;
+    }
+    let summary = common::run_service(|shutdown| run_async(config, shutdown))?;
+    if args.json {
+        println!("{}", summary.to_json());
+    }
+    Ok(())
+}

@@ -208,6 +208,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
     )
     .with_context(|| format!("publishing on {}", names.estimate()))?;
     let mut heartbeat = HeartbeatPublisher::create(&node, names, ServiceId::Estimator)?;
+    let mut progress = HeartbeatPublisher::progress(&node, names, ServiceId::Estimator)?;
 
     let waitset = create_waitset().context("creating the estimator's wait set")?;
     let _vib_guard = waitset
@@ -297,6 +298,11 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
             let arrival =
                 continuity.check(block.seq, block.first_sample_index, u64::from(block.count));
             c.vib.record(&arrival);
+            if arrival.restarted {
+                // The producer started again (a new replay, a restarted rig): a new
+                // time base, so a new window rather than "out of order" blocks.
+                estimator.reset();
+            }
             if block.flags & vib_flags::ALL != 0 {
                 c.producer_flagged += 1;
             }
@@ -358,6 +364,20 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
         }
         if let Some(e) = fatal.take() {
             return Err(e).context("estimating a vibration window");
+        }
+        if received_any {
+            // Once per wake-up: every estimate the blocks completed is out.
+            let report = HeartbeatReport {
+                received: c.vib.received,
+                published: c.estimates_published,
+                lost: c.vib.lost_messages,
+                stale: c.estimates_flagged,
+                latency: Quantiles::default(),
+                state: ServiceState::Running,
+            };
+            if let Err(e) = progress.publish(&report) {
+                debug!("progress: {e}");
+            }
         }
         if spin {
             if received_any {

@@ -7,6 +7,7 @@
 pub mod commands;
 pub mod output;
 pub mod rig;
+pub mod system;
 
 use clap::{Parser, Subcommand};
 use std::ffi::OsString;
@@ -23,7 +24,8 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// The main job: the embedded Cyclone-4 flight compensated in every mode.
+    /// The main job: the simulated Cyclone-4 flight through the estimator and
+    /// compensator processes, recorded, with the error before and after compensation.
     Demo(commands::demo::DemoArgs),
     /// The vibration-error model: VE components, compensation, model check.
     #[command(subcommand)]
@@ -37,6 +39,19 @@ pub enum Command {
     Estimate(commands::estimate::EstimateArgs),
     /// Simulate a rig: flights to MCAP or live over iceoryx2, shake-table campaigns to CSV.
     Sim(commands::sim::SimArgs),
+    /// Inspect, repair and import MCAP logs.
+    #[command(subcommand)]
+    Log(commands::log::LogCommand),
+    /// Start the estimator and compensator (and a recorder), restart them on a crash,
+    /// stop them on Ctrl-C.
+    Up(commands::up::UpArgs),
+    /// Record the live streams into an MCAP log.
+    Record(commands::record::RecordArgs),
+    /// Replay the rig streams of an MCAP log into the services.
+    Replay(commands::replay::ReplayArgs),
+    /// Run one service in this process (what `up` and `demo` start as child processes).
+    #[command(subcommand)]
+    Service(commands::service::ServiceCommand),
 }
 
 /// Runs the command line with the given arguments and returns the process exit code:
@@ -73,5 +88,10 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Require(args) => commands::require::run(args),
         Command::Estimate(args) => commands::estimate::run(args),
         Command::Sim(args) => commands::sim::run(&args),
+        Command::Log(cmd) => commands::log::run(cmd),
+        Command::Service(cmd) => commands::service::run(&cmd),
+        Command::Up(args) => commands::up::run(&args),
+        Command::Record(args) => commands::record::run(&args),
+        Command::Replay(args) => commands::replay::run(&args),
     }
 }

@@ -132,6 +132,11 @@ impl Packetizer {
             if let Some(t) = truth.get(k) {
                 self.truth.a_l_ia_g[i] =
                     [t.a_l_unit_g[0][2], t.a_l_unit_g[1][2], t.a_l_unit_g[2][2]];
+                self.truth.a_sensed_ia_g[i] = [
+                    t.a_mean_unit_g[0][2],
+                    t.a_mean_unit_g[1][2],
+                    t.a_mean_unit_g[2][2],
+                ];
                 self.truth.vib_error_ia_g[i] = t.exact_ve_g;
             }
             self.accel.count += 1;
@@ -179,6 +184,7 @@ impl Packetizer {
         let n = self.accel.count as usize;
         self.accel.output_v[n..].fill([0.0; 3]);
         self.truth.a_l_ia_g[n..].fill([0.0; 3]);
+        self.truth.a_sensed_ia_g[n..].fill([0.0; 3]);
         self.truth.vib_error_ia_g[n..].fill([0.0; 3]);
         self.accel.publish_ns = RigMessage::Accel(&self.accel).time_ns();
         self.truth.publish_ns = self.accel.publish_ns;

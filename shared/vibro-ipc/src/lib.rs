@@ -137,9 +137,24 @@ impl Default for StreamConfig {
     }
 }
 
+/// The quality of service of each vibrocomp stream, the one place it is decided: every
+/// participant (services, recorder, replay, rig bridges) opens a stream with this.
+/// `estimate` keeps a history of 1, so a compensator that connects late receives the
+/// latest estimate with the estimator's next publish; the rest use the defaults.
+pub fn stream_config(stream: vibro_msgs::Stream) -> StreamConfig {
+    match stream {
+        vibro_msgs::Stream::Estimate => StreamConfig {
+            history: 1,
+            ..StreamConfig::default()
+        },
+        _ => StreamConfig::default(),
+    }
+}
+
 /// A node named `name`, with iceoryx2's own signal handling disabled (the
 /// application handles SIGINT/SIGTERM and releases ports by dropping them).
 pub fn create_node(name: &str) -> Result<IpcNode> {
+    quiet_iceoryx_log();
     let node_name = NodeName::new(name).map_err(|e| Error::Name {
         name: name.to_owned(),
         reason: format!("{e:?}"),
@@ -149,6 +164,14 @@ pub fn create_node(name: &str) -> Result<IpcNode> {
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
         .map_err(|e| iox("create node", name, e))
+}
+
+/// iceoryx2 logs at `Warn` by default, and warns on every start that no config file was
+/// loaded (running on its defaults is what vibrocomp does): keep its log to errors
+/// unless the user asks for more with iceoryx2's own `IOX2_LOG_LEVEL`.
+fn quiet_iceoryx_log() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| set_log_level_from_env_or(LogLevel::Error));
 }
 
 /// A wait set with iceoryx2's signal handling disabled, for a service's hot loop.

@@ -515,6 +515,7 @@ impl TryFrom<&TruthBlock> for proto::TruthBlock {
             source_id: m.source_id,
             flags: m.flags,
             a_l_ia_g: flatten(&m.a_l_ia_g, n),
+            a_sensed_ia_g: flatten(&m.a_sensed_ia_g, n),
             vib_error_ia_g: flatten(&m.vib_error_ia_g, n),
         })
     }
@@ -526,6 +527,9 @@ impl TryFrom<&proto::TruthBlock> for TruthBlock {
         const K: MessageKind = MessageKind::TruthBlock;
         let (a_l_ia_g, n) = unflatten::<ACCEL_BLOCK_MAX>(K, "a_l_ia_g", &p.a_l_ia_g)?;
         same_count(K, "vib_error_ia_g", &p.vib_error_ia_g, n)?;
+        same_count(K, "a_sensed_ia_g", &p.a_sensed_ia_g, n)?;
+        let (a_sensed_ia_g, _) =
+            unflatten::<ACCEL_BLOCK_MAX>(K, "a_sensed_ia_g", &p.a_sensed_ia_g)?;
         let (vib_error_ia_g, _) =
             unflatten::<ACCEL_BLOCK_MAX>(K, "vib_error_ia_g", &p.vib_error_ia_g)?;
         Ok(Self {
@@ -535,6 +539,7 @@ impl TryFrom<&proto::TruthBlock> for TruthBlock {
             sample_period_ns: p.sample_period_ns,
             publish_ns: p.publish_ns,
             a_l_ia_g,
+            a_sensed_ia_g,
             vib_error_ia_g,
             count: count_u32(n),
             source_id: p.source_id,
@@ -708,6 +713,7 @@ mod tests {
         t.publish_ns = 9;
         fill(&mut t.a_l_ia_g, ACCEL_BLOCK_MAX, 8);
         fill(&mut t.vib_error_ia_g, ACCEL_BLOCK_MAX, 9);
+        fill(&mut t.a_sensed_ia_g, ACCEL_BLOCK_MAX, 10);
         t.count = ACCEL_BLOCK_MAX as u32;
         t.flags = 2;
 

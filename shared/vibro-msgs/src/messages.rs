@@ -96,7 +96,7 @@ wire_struct! {
     /// output interval `T = sample_period_ns`. Sample `i` is the mean over
     /// `(t0_ns + (i - 1) T, t0_ns + i T]`: `t0_ns` is the END of sample 0's interval, the
     /// time the reading is latched (RIG.md: "read as means over navigation intervals").
-    type_name = "vibrocomp::AccelBlock::v1";
+    type_name = "vibrocomp::AccelBlock::v2";
     pub struct AccelBlock {
         /// Producer's block counter: +1 per published block, from 0.
         pub seq: u64,
@@ -126,7 +126,7 @@ wire_struct! {
     /// index), in the sensor's raw output (volts: sensitivity, AC coupling and response
     /// are the estimator's job). Sample `i` was taken at `t0_ns + i T`. `f64` keeps
     /// simulated samples bit-exact through the system.
-    type_name = "vibrocomp::VibBlock::v1";
+    type_name = "vibrocomp::VibBlock::v2";
     pub struct VibBlock {
         /// Producer's block counter: +1 per published block, from 0.
         pub seq: u64,
@@ -157,7 +157,7 @@ wire_struct! {
     /// [`estimate_flags`] bits) plus stream bookkeeping. Values that could not be estimated
     /// are NaN. Per-axis arrays are in sensor-axis order; tone and band slots at or beyond
     /// `tone_count`/`band_count` are not part of the message.
-    type_name = "vibrocomp::VibEstimate::v1";
+    type_name = "vibrocomp::VibEstimate::v2";
     pub struct VibEstimate {
         /// Estimator service's publish counter: +1 per published estimate, from 0.
         pub seq: u64,
@@ -237,7 +237,7 @@ wire_struct! {
     /// acceleration units along each unit's IA: the stages of MODEL.md section 7,
     /// `a(1)` (17) to `a(4)` (20), and the corrections removed between them
     /// (`a2 = a1 - main`, `a3 = a2 - det`, `a4 = a3 - rand`). Sample timing is the input's.
-    type_name = "vibrocomp::CompensatedBlock::v1";
+    type_name = "vibrocomp::CompensatedBlock::v2";
     pub struct CompensatedBlock {
         /// Compensator's publish counter: +1 per published block, from 0.
         pub seq: u64,
@@ -290,7 +290,7 @@ wire_struct! {
 wire_struct! {
     /// The simulator's truth for each accelerometer output sample, aligned with the
     /// [`AccelBlock`] of the same `seq` (same `first_sample_index`, `t0_ns`, `count`).
-    type_name = "vibrocomp::TruthBlock::v1";
+    type_name = "vibrocomp::TruthBlock::v2";
     pub struct TruthBlock {
         /// `seq` of the matching [`AccelBlock`].
         pub seq: u64,
@@ -305,6 +305,11 @@ wire_struct! {
         /// True flight (slowly varying) acceleration along each unit's IA, `aL3` of
         /// MODEL.md, mean over the sample's interval, `[sample][unit]`.
         pub a_l_ia_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
+        /// The whole acceleration each unit sensed along its IA (flight plus the
+        /// vibration's own motion, after input effects such as a mount resonance), mean
+        /// over the sample's interval, `[sample][unit]`: what a perfect accelerometer
+        /// would output, so `a(k) - a_sensed_ia_g` is the error left after stage `k`.
+        pub a_sensed_ia_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
         /// True mean vibration error along each unit's IA over the interval (NaN unless
         /// `VIB_ERROR_KNOWN`).
         pub vib_error_ia_g: [[f64; UNITS]; ACCEL_BLOCK_MAX],
@@ -322,7 +327,7 @@ wire_struct! {
 wire_struct! {
     /// A service's periodic health report, published on `{prefix}heartbeat/{service}`.
     /// Counters are cumulative since the service started.
-    type_name = "vibrocomp::Heartbeat::v1";
+    type_name = "vibrocomp::Heartbeat::v2";
     pub struct Heartbeat {
         /// Heartbeat counter: +1 per heartbeat, from 0.
         pub seq: u64,
@@ -407,7 +412,7 @@ impl MessageKind {
         }
     }
 
-    /// The iceoryx2 payload type name, e.g. `vibrocomp::AccelBlock::v1`.
+    /// The iceoryx2 payload type name, e.g. `vibrocomp::AccelBlock::v2`.
     pub const fn type_name(self) -> &'static str {
         match self {
             MessageKind::AccelBlock => AccelBlock::TYPE_NAME,
@@ -473,6 +478,12 @@ pub trait WireMessage: Copy + std::fmt::Debug + ZeroCopySend + 'static {
 
     /// The message's bytes in shared memory (native byte order, no padding holes).
     fn bytes(&self) -> &[u8];
+
+    /// The producer's sequence number (every type has one).
+    fn seq(&self) -> u64;
+
+    /// The producer's `CLOCK_MONOTONIC` time of publishing, ns.
+    fn publish_ns(&self) -> u64;
 }
 
 macro_rules! wire_message {
@@ -485,6 +496,12 @@ macro_rules! wire_message {
                 }
                 fn bytes(&self) -> &[u8] {
                     self.as_bytes()
+                }
+                fn seq(&self) -> u64 {
+                    self.seq
+                }
+                fn publish_ns(&self) -> u64 {
+                    self.publish_ns
                 }
             }
         )*

@@ -29,6 +29,11 @@ pub enum Stream {
     Truth,
     /// [`crate::Heartbeat`]s of one service: `{prefix}heartbeat/{service}`.
     Heartbeat(ServiceId),
+    /// [`crate::Heartbeat`]s a service publishes after each wake-up that took input:
+    /// `{prefix}progress/{service}`. `received` then counts every input message the
+    /// service has consumed and acted on, so a lock-stepped replay knows when the
+    /// outputs of what it sent are out (`vibrocomp replay --as-fast-as-possible`).
+    Progress(ServiceId),
 }
 
 impl Stream {
@@ -42,6 +47,7 @@ impl Stream {
             Stream::Truth,
         ];
         all.extend(ServiceId::ALL.iter().map(|&s| Stream::Heartbeat(s)));
+        all.extend(ServiceId::ALL.iter().map(|&s| Stream::Progress(s)));
         all
     }
 
@@ -54,7 +60,7 @@ impl Stream {
             Stream::Estimate => K::VibEstimate,
             Stream::Compensated => K::CompensatedBlock,
             Stream::Truth => K::TruthBlock,
-            Stream::Heartbeat(_) => K::Heartbeat,
+            Stream::Heartbeat(_) | Stream::Progress(_) => K::Heartbeat,
         }
     }
 
@@ -67,6 +73,7 @@ impl Stream {
             Stream::Compensated => "compensated".to_string(),
             Stream::Truth => "truth".to_string(),
             Stream::Heartbeat(service) => format!("heartbeat/{service}"),
+            Stream::Progress(service) => format!("progress/{service}"),
         }
     }
 }
@@ -191,6 +198,11 @@ impl ServiceNames {
     /// `{prefix}heartbeat/{service}`.
     pub fn heartbeat(&self, service: ServiceId) -> String {
         self.stream(Stream::Heartbeat(service))
+    }
+
+    /// `{prefix}progress/{service}`.
+    pub fn progress(&self, service: ServiceId) -> String {
+        self.stream(Stream::Progress(service))
     }
 
     /// The iceoryx2 name of `stream`'s publish-subscribe service.

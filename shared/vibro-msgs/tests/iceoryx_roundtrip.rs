@@ -130,6 +130,7 @@ fn truth() -> TruthBlock {
     m.publish_ns = 16;
     fill(&mut m.a_l_ia_g, 10);
     fill(&mut m.vib_error_ia_g, 11);
+    fill(&mut m.a_sensed_ia_g, 12);
     m.count = 1;
     m.source_id = 17;
     m.flags = vibro_msgs::truth_flags::VIB_ERROR_KNOWN;

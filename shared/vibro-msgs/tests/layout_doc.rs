@@ -223,10 +223,11 @@ fn constants_and_service_names_are_documented() {
         let suffix = stream.suffix();
         let generic = match stream {
             Stream::Heartbeat(_) => "`{prefix}heartbeat/{service}`".to_string(),
+            Stream::Progress(_) => "`{prefix}progress/{service}`".to_string(),
             _ => format!("`{{prefix}}{suffix}`"),
         };
         assert!(doc.contains(&generic), "docs/messages.md lacks {generic}");
-        if let Stream::Heartbeat(service) = stream {
+        if let Stream::Heartbeat(service) | Stream::Progress(service) = stream {
             assert!(
                 doc.contains(&format!("`{service}`")),
                 "docs/messages.md lacks the service `{service}`"

@@ -31,14 +31,32 @@ impl HeartbeatPublisher {
         names: &ServiceNames,
         service: ServiceId,
     ) -> anyhow::Result<Self> {
-        let stream = Stream::Heartbeat(service);
+        Self::open(node, names, service, Stream::Heartbeat(service))
+    }
+
+    /// The publisher of the service's progress messages (`{prefix}progress/{service}`):
+    /// a heartbeat after each wake-up that took input, for lock-stepped replays.
+    pub fn progress(
+        node: &IpcNode,
+        names: &ServiceNames,
+        service: ServiceId,
+    ) -> anyhow::Result<Self> {
+        Self::open(node, names, service, Stream::Progress(service))
+    }
+
+    fn open(
+        node: &IpcNode,
+        names: &ServiceNames,
+        service: ServiceId,
+        stream: Stream,
+    ) -> anyhow::Result<Self> {
         let publisher = StreamPublisher::create(
             node,
             &names.stream(stream),
             &names.event(stream),
             &super::data_stream_config(),
         )
-        .with_context(|| format!("publishing heartbeats on {}", names.stream(stream)))?;
+        .with_context(|| format!("publishing on {}", names.stream(stream)))?;
         Ok(Self {
             publisher,
             service,

@@ -2,6 +2,7 @@
 //! the shutdown token, stream continuity, latency histograms, heartbeats, the
 //! `[service]` configuration table, JSON summaries and the runtime of `main`.
 
+mod cli;
 mod clock;
 mod continuity;
 mod heartbeat;
@@ -11,6 +12,7 @@ mod runtime;
 mod settings;
 mod shutdown;
 
+pub use cli::ServiceArgs;
 pub use clock::now_ns;
 pub use continuity::{Arrival, Continuity, StreamCounters};
 pub use heartbeat::{HeartbeatPublisher, HeartbeatReport};

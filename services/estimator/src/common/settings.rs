@@ -256,16 +256,13 @@ impl ServiceSettingsRaw {
 /// vibro-ipc's defaults. Every participant of a stream must ask for no more than the
 /// stream was created with, so all services use these.
 pub fn data_stream_config() -> StreamConfig {
-    StreamConfig::default()
+    vibro_ipc::stream_config(vibro_msgs::Stream::Accel)
 }
 
 /// Quality of service of `{prefix}estimate`: history 1, so a compensator that connects
 /// late receives the latest estimate with the estimator's next publish.
 pub fn estimate_stream_config() -> StreamConfig {
-    StreamConfig {
-        history: 1,
-        ..StreamConfig::default()
-    }
+    vibro_ipc::stream_config(vibro_msgs::Stream::Estimate)
 }
 
 #[cfg(test)]

@@ -35,6 +35,11 @@ impl Shutdown {
     }
 
     /// Whether shutdown was asked for: cheap enough for a hot loop.
+    /// The flag itself, for loops that take an `&AtomicBool` (`vibro_replay`).
+    pub fn flag(&self) -> &AtomicBool {
+        &self.flag
+    }
+
     #[inline]
     pub fn is_triggered(&self) -> bool {
         self.flag.load(Ordering::Acquire)

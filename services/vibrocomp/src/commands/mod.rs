@@ -3,6 +3,12 @@
 pub mod demo;
 pub mod estimate;
 pub mod identify;
+pub mod log;
 pub mod model;
+pub mod model_flight;
+pub mod record;
+pub mod replay;
 pub mod require;
+pub mod service;
 pub mod sim;
+pub mod up;

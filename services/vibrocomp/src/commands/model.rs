@@ -21,6 +21,8 @@ pub enum ModelCommand {
     Compensate(CompensateArgs),
     /// Exact vs as-published vs Monte Carlo, side by side.
     Check(CheckArgs),
+    /// The Cyclone-4 flight's mean readings from the model, compensated in every mode.
+    Flight(super::model_flight::FlightArgs),
 }
 
 /// The model mode on the command line.
@@ -267,6 +269,7 @@ pub fn run(cmd: ModelCommand) -> anyhow::Result<()> {
         ModelCommand::Ve(args) => ve(args),
         ModelCommand::Compensate(args) => compensate(args),
         ModelCommand::Check(args) => check(args),
+        ModelCommand::Flight(args) => super::model_flight::run(args),
     }
 }
 

@@ -253,44 +253,44 @@ fn effect_labels(scenario: &Scenario) -> Vec<String> {
 
 /// Per-unit statistics of a flight.
 #[derive(Debug, Serialize)]
-struct UnitReport {
-    name: String,
+pub struct UnitReport {
+    pub name: String,
     /// Mean of `U/K1 - a` over the flight, `a` the mean acceleration the unit sensed
     /// over each output interval: the simulated total error (offset, main error, VE
     /// and every effect), g.
-    mean_error_g: f64,
+    pub mean_error_g: f64,
     /// Mean of `E[aF] - aL3` from the exact model, no effect, g.
-    exact_mean_error_g: f64,
+    pub exact_mean_error_g: f64,
     /// Mean exact VE, g.
-    exact_ve_g: f64,
+    pub exact_ve_g: f64,
     /// `mean_error_g - exact_mean_error_g`: what the model does not explain (effects,
     /// plus the run's statistical error), g.
-    unexplained_g: f64,
+    pub unexplained_g: f64,
     /// Standard error of `unexplained_g` from 10 batch means, g.
-    unexplained_sigma_g: f64,
+    pub unexplained_sigma_g: f64,
 }
 
 #[derive(Debug, Serialize)]
-struct FlightReport {
-    scenario: String,
-    file: String,
-    seed: u64,
-    duration_s: f64,
-    effects: Vec<String>,
-    sensor_samples: u64,
-    output_samples: u64,
-    vib_blocks: u64,
-    accel_blocks: u64,
-    sensor_clipped: [u64; 3],
-    elapsed_s: f64,
-    real_time_factor: f64,
-    out: Option<String>,
-    live_prefix: Option<String>,
-    units: Vec<UnitReport>,
+pub struct FlightReport {
+    pub scenario: String,
+    pub file: String,
+    pub seed: u64,
+    pub duration_s: f64,
+    pub effects: Vec<String>,
+    pub sensor_samples: u64,
+    pub output_samples: u64,
+    pub vib_blocks: u64,
+    pub accel_blocks: u64,
+    pub sensor_clipped: [u64; 3],
+    pub elapsed_s: f64,
+    pub real_time_factor: f64,
+    pub out: Option<String>,
+    pub live_prefix: Option<String>,
+    pub units: Vec<UnitReport>,
 }
 
 /// Live publishers of the rig streams.
-struct Live {
+pub struct Live {
     _node: vibro_ipc::IpcNode,
     vib: vibro_ipc::StreamPublisher<vibro_msgs::VibBlock>,
     accel: vibro_ipc::StreamPublisher<vibro_msgs::AccelBlock>,
@@ -439,6 +439,28 @@ fn write_log(rec: &Recorder, msg: RigMessage<'_>) -> anyhow::Result<()> {
 }
 
 fn run_flight(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
+    let live = if args.live {
+        Some(Live::new(&args.prefix, args.rate)?)
+    } else {
+        None
+    };
+    let mut report = simulate_flight(scenario, args.out.as_deref(), live)?;
+    report.live_prefix = args.live.then(|| args.prefix.clone());
+    if args.json {
+        return print_json(&report);
+    }
+    print_flight(&report);
+    Ok(())
+}
+
+/// Runs a flight scenario: into the MCAP log `out` (rig streams, truth, scenario,
+/// effects, passports), live (already opened publishers), or both; returns each
+/// unit's mean error against the exact model.
+pub fn simulate_flight(
+    scenario: &Scenario,
+    out: Option<&Path>,
+    mut live: Option<Live>,
+) -> anyhow::Result<FlightReport> {
     let effects_text = effect_labels(scenario);
     let effects = vibro_sim::scenario_effects(scenario)?;
     let mut sim = Simulator::new(scenario, effects).context("simulator")?;
@@ -454,14 +476,9 @@ fn run_flight(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
         .unwrap_or_default();
     let total = sim.total_samples();
     let mut packetizer = Packetizer::new(rates.sensor_hz, rates.output_hz, 512, 32, 1);
-    let recorder = match &args.out {
+    let recorder = match out {
         Some(path) => Some(open_log(path, scenario, &effects_text)?),
         None => None,
-    };
-    let mut live = if args.live {
-        Some(Live::new(&args.prefix, args.rate)?)
-    } else {
-        None
     };
     let bar = progress_bar(total.output, "simulating");
     // Sums per unit, and per batch for the standard error.
@@ -560,13 +577,16 @@ fn run_flight(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
         sensor_clipped: sim.sensor_clipped(),
         elapsed_s,
         real_time_factor: duration_s / elapsed_s.max(1e-9),
-        out: args.out.as_ref().map(|p| p.display().to_string()),
-        live_prefix: args.live.then(|| args.prefix.clone()),
+        out: out.map(|p| p.display().to_string()),
+        live_prefix: None,
         units,
     };
-    if args.json {
-        return print_json(&report);
-    }
+    Ok(report)
+}
+
+fn print_flight(report: &FlightReport) {
+    let duration_s = report.duration_s;
+    let elapsed_s = report.elapsed_s;
     println!(
         "Flight {} ({}), seed {}, {:.1} s: {} sensor samples x3, {} accelerometer samples x3",
         report.scenario,
@@ -609,7 +629,6 @@ fn run_flight(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
             .map(|p| format!("; log: {p}"))
             .unwrap_or_default()
     );
-    Ok(())
 }
 
 #[derive(Debug, Serialize)]

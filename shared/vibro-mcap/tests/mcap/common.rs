@@ -143,6 +143,7 @@ pub fn truth(seq: u64) -> TruthBlock {
     m.publish_ns = 8_000 + seq;
     fill(&mut m.a_l_ia_g, ACCEL_BLOCK_MAX, seq + 20);
     fill(&mut m.vib_error_ia_g, ACCEL_BLOCK_MAX, seq + 21);
+    fill(&mut m.a_sensed_ia_g, ACCEL_BLOCK_MAX, seq + 22);
     m.count = ACCEL_BLOCK_MAX as u32;
     m.source_id = 7;
     m.flags = vibro_msgs::truth_flags::VIB_ERROR_KNOWN;

@@ -275,6 +275,10 @@ fn the_python_reference_reader_decodes_every_type_to_the_written_values() {
     assert_eq!(int(c, "flags"), u64::from(t.flags));
     assert_eq!(seen_bits(c, "a_l_ia_g"), flat(&t.a_l_ia_g, t.count));
     assert_eq!(
+        seen_bits(c, "a_sensed_ia_g"),
+        flat(&t.a_sensed_ia_g, t.count)
+    );
+    assert_eq!(
         seen_bits(c, "vib_error_ia_g"),
         flat(&t.vib_error_ia_g, t.count)
     );

@@ -1,0 +1,222 @@
+//! `vibrocomp record OUT.mcap`: records the live streams of a running system into an
+//! MCAP log (`vibro_replay::record`), with the services' configurations and the
+//! passports in use attached, until Ctrl-C / SIGTERM (or `--duration-s`).
+
+use anyhow::Context;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+use vibro_estimator::common::{init_tracing, run_service};
+use vibro_msgs::{ServiceNames, Stream};
+use vibro_replay::{record, stream_of_topic, topic, RecordOptions, DEFAULT_RECORD_STREAMS};
+
+use crate::output::print_json;
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct RecordArgs {
+    /// The log to write (replaced if it exists).
+    pub out: PathBuf,
+    /// Service-name prefix of the system to record.
+    #[arg(long, default_value = vibro_msgs::DEFAULT_PREFIX)]
+    pub prefix: String,
+    /// Topics to record, comma-separated (`/vib,/accel,...`), or `all` (the progress
+    /// messages included) [default: the data streams and the services' heartbeats].
+    #[arg(long, value_delimiter = ',')]
+    pub topics: Vec<String>,
+    /// A file to store in the log (repeatable).
+    #[arg(long = "attach", value_name = "FILE")]
+    pub attach: Vec<PathBuf>,
+    /// The estimator's configuration, attached [default: the one the service uses by
+    /// default: config/services/estimator.toml if present, else the shipped copy].
+    #[arg(long, value_name = "FILE")]
+    pub estimator_config: Option<PathBuf>,
+    /// The compensator's configuration, attached with the passports of its triad
+    /// [default: as for the estimator].
+    #[arg(long, value_name = "FILE")]
+    pub compensator_config: Option<PathBuf>,
+    /// Stop by itself after this many seconds.
+    #[arg(long = "duration-s")]
+    pub duration_s: Option<f64>,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Serialize)]
+struct Report {
+    #[serde(flatten)]
+    summary: vibro_replay::RecordSummary,
+    attachments: Vec<String>,
+}
+
+/// The streams named by `--topics`.
+pub fn parse_topics(topics: &[String]) -> anyhow::Result<Vec<Stream>> {
+    if topics.is_empty() {
+        return Ok(DEFAULT_RECORD_STREAMS.to_vec());
+    }
+    if topics.len() == 1 && topics[0] == "all" {
+        return Ok(Stream::all());
+    }
+    let mut streams = Vec::new();
+    for t in topics {
+        let t = t.trim();
+        let stream = stream_of_topic(t).with_context(|| {
+            format!(
+                "--topics {t:?}: not a stream of the system (known: {})",
+                Stream::all()
+                    .into_iter()
+                    .map(topic)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })?;
+        if !streams.contains(&stream) {
+            streams.push(stream);
+        }
+    }
+    Ok(streams)
+}
+
+/// The configuration text a service runs on: the file given, else its default rule.
+fn config_text(
+    given: Option<&Path>,
+    default_path: &str,
+    shipped: &'static str,
+) -> anyhow::Result<(String, Vec<u8>)> {
+    let path = given
+        .map(Path::to_path_buf)
+        .or_else(|| Some(PathBuf::from(default_path)).filter(|p| p.is_file()));
+    match path {
+        Some(p) => {
+            let bytes = std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?;
+            Ok((p.display().to_string(), bytes))
+        }
+        None => Ok((
+            format!("{default_path} (shipped)"),
+            shipped.as_bytes().to_vec(),
+        )),
+    }
+}
+
+/// Attachments: the files given, both services' configurations and the passports.
+fn attachments(args: &RecordArgs) -> anyhow::Result<Vec<(String, String, Vec<u8>)>> {
+    let mut out = Vec::new();
+    for path in &args.attach {
+        let data = std::fs::read(path).with_context(|| format!("--attach {}", path.display()))?;
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().to_string())
+            .unwrap_or_else(|| path.display().to_string());
+        out.push((name, "application/octet-stream".to_string(), data));
+    }
+    let (name, text) = config_text(
+        args.estimator_config.as_deref(),
+        vibro_estimator::DEFAULT_CONFIG_PATH,
+        vibro_estimator::Config::shipped_text(),
+    )?;
+    out.push((
+        format!("estimator.toml ({name})"),
+        "application/toml".into(),
+        text,
+    ));
+    let (name, text) = config_text(
+        args.compensator_config.as_deref(),
+        vibro_compensator::DEFAULT_CONFIG_PATH,
+        vibro_compensator::Config::shipped_text(),
+    )?;
+    out.push((
+        format!("compensator.toml ({name})"),
+        "application/toml".into(),
+        text,
+    ));
+    let compensator = match &args.compensator_config {
+        Some(p) => vibro_compensator::Config::load(p)?,
+        None => vibro_compensator::Config::load_default()?,
+    };
+    let triad = &compensator.model.triad;
+    for (i, p) in triad.passports.iter().enumerate() {
+        let text = toml::to_string(&p.to_spec()).context("passport as TOML")?;
+        out.push((
+            format!("passport-{}-{}.toml", i, p.id()),
+            "application/toml".into(),
+            text.into_bytes(),
+        ));
+    }
+    Ok(out)
+}
+
+pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
+    init_tracing();
+    let names =
+        ServiceNames::new(&args.prefix).with_context(|| format!("--prefix {:?}", args.prefix))?;
+    let streams = parse_topics(&args.topics)?;
+    if let Some(d) = args.duration_s {
+        anyhow::ensure!(
+            d.is_finite() && d > 0.0,
+            "--duration-s = {d}: must be finite and > 0"
+        );
+    }
+    let attachments = attachments(args)?;
+    let attached: Vec<String> = attachments.iter().map(|a| a.0.clone()).collect();
+    let mut options = RecordOptions::new(names, streams);
+    options.attachments = attachments;
+    options.metadata.push((
+        "recorder".to_string(),
+        BTreeMap::from([
+            (
+                "program".to_string(),
+                format!("vibrocomp {}", env!("CARGO_PKG_VERSION")),
+            ),
+            ("pid".to_string(), std::process::id().to_string()),
+        ]),
+    ));
+    let out = args.out.clone();
+    let duration = args.duration_s.map(Duration::from_secs_f64);
+    let summary = run_service(|shutdown| async move {
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        let flag = shutdown.clone();
+        std::thread::Builder::new()
+            .name("vibrocomp-recorder".into())
+            .spawn(move || {
+                let _ = tx.send(record(&out, &options, flag.flag(), || {}));
+            })
+            .context("spawning the recorder thread")?;
+        if let Some(d) = duration {
+            let timer = shutdown.clone();
+            tokio::spawn(async move {
+                tokio::time::sleep(d).await;
+                timer.trigger();
+            });
+        }
+        let result = rx.await.map_err(|_| {
+            anyhow::anyhow!("the recorder thread ended without a result (it panicked)")
+        })?;
+        result.with_context(|| format!("recording {}", args.out.display()))
+    })?;
+    let report = Report {
+        summary,
+        attachments: attached,
+    };
+    if args.json {
+        return print_json(&report);
+    }
+    let s = &report.summary;
+    println!(
+        "Recorded {} messages from prefix {} into {} ({} bytes, {} chunks) over {:.1} s; lost {}",
+        s.messages,
+        s.prefix,
+        s.path.display(),
+        s.bytes,
+        s.chunks,
+        s.duration_s,
+        s.lost
+    );
+    for (topic, c) in &s.topics {
+        println!(
+            "  {:<24} {:>9} recorded  lost {:>4}  out of order {:>3}  malformed {:>3}",
+            topic, c.recorded, c.lost, c.out_of_order, c.malformed
+        );
+    }
+    Ok(())
+}

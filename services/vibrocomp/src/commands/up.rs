@@ -1,0 +1,252 @@
+//! `vibrocomp up [--record OUT.mcap]`: starts the estimator and the compensator (and
+//! the recorder) as child processes, restarts a crashed service (up to a limit), and
+//! stops everything cleanly on Ctrl-C / SIGTERM.
+
+use anyhow::Context;
+use serde::Serialize;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+use tokio::sync::mpsc;
+use tracing::{error, info, warn};
+use vibro_estimator::common::{init_tracing, run_service, Shutdown};
+use vibro_msgs::ServiceNames;
+
+use crate::output::print_json;
+use crate::system::{Role, SystemSpec};
+
+#[derive(Debug, Clone, clap::Args)]
+pub struct UpArgs {
+    /// Service-name prefix of the system.
+    #[arg(long, default_value = vibro_msgs::DEFAULT_PREFIX)]
+    pub prefix: String,
+    /// Records every stream into this log while the system runs.
+    #[arg(long, value_name = "OUT.mcap")]
+    pub record: Option<PathBuf>,
+    /// The estimator's configuration [default: config/services/estimator.toml, else shipped].
+    #[arg(long, value_name = "FILE")]
+    pub estimator_config: Option<PathBuf>,
+    /// The compensator's configuration [default: config/services/compensator.toml, else shipped].
+    #[arg(long, value_name = "FILE")]
+    pub compensator_config: Option<PathBuf>,
+    /// The services' loop mode: event (default) or spin.
+    #[arg(long, value_name = "event|spin")]
+    pub mode: Option<String>,
+    /// Restarts allowed per service within --restart-window-s before `up` gives up.
+    #[arg(long, default_value_t = 5)]
+    pub max_restarts: u32,
+    #[arg(long = "restart-window-s", default_value_t = 60.0)]
+    pub restart_window_s: f64,
+    /// Seconds a stopping process gets before it is killed.
+    #[arg(long = "stop-timeout-s", default_value_t = 5.0)]
+    pub stop_timeout_s: f64,
+    /// Print a JSON summary (restarts, exit codes) at exit.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// What happened to one supervised process.
+#[derive(Debug, Clone, Serialize)]
+struct RoleReport {
+    role: &'static str,
+    starts: u32,
+    crashes: u32,
+    last_exit: Option<String>,
+    gave_up: bool,
+}
+
+#[derive(Debug, Serialize)]
+struct UpReport {
+    prefix: String,
+    record: Option<String>,
+    processes: Vec<RoleReport>,
+}
+
+struct Limits {
+    max_restarts: u32,
+    window: Duration,
+    stop_timeout: Duration,
+}
+
+fn signal(pid: Option<u32>, sig: libc::c_int) {
+    if let Some(pid) = pid {
+        // SAFETY: signalling our own child by its pid.
+        unsafe {
+            libc::kill(pid as libc::pid_t, sig);
+        }
+    }
+}
+
+/// Runs one role until shutdown, restarting it when it dies (the recorder is not
+/// restarted: a new recorder would replace the log).
+async fn supervise(
+    spec: SystemSpec,
+    role: Role,
+    limits: Limits,
+    shutdown: Shutdown,
+    events: mpsc::UnboundedSender<RoleReport>,
+) -> anyhow::Result<()> {
+    let mut report = RoleReport {
+        role: role.name(),
+        starts: 0,
+        crashes: 0,
+        last_exit: None,
+        gave_up: false,
+    };
+    let mut recent: Vec<Instant> = Vec::new();
+    loop {
+        let mut child = tokio::process::Command::from(spec.command(role)?)
+            .kill_on_drop(true)
+            .spawn()
+            .with_context(|| format!("starting the {}", role.name()))?;
+        report.starts += 1;
+        let pid = child.id();
+        info!(process = role.name(), pid, "started");
+        tokio::select! {
+            status = child.wait() => {
+                let status = status.with_context(|| format!("waiting for the {}", role.name()))?;
+                report.last_exit = Some(status.to_string());
+                if shutdown.is_triggered() {
+                    break;
+                }
+                report.crashes += 1;
+                warn!(process = role.name(), %status, "exited unexpectedly");
+                if role == Role::Recorder {
+                    error!("the recorder is not restarted (a new one would replace the log); the services keep running");
+                    break;
+                }
+                let now = Instant::now();
+                recent.retain(|t| now.duration_since(*t) < limits.window);
+                recent.push(now);
+                if recent.len() as u32 > limits.max_restarts {
+                    error!(
+                        process = role.name(),
+                        crashes = recent.len(),
+                        window_s = limits.window.as_secs_f64(),
+                        "too many crashes: giving up and stopping the system"
+                    );
+                    report.gave_up = true;
+                    shutdown.trigger();
+                    break;
+                }
+                // Backs off a little more after each crash in the window.
+                tokio::time::sleep(Duration::from_millis(200 * recent.len() as u64)).await;
+            }
+            _ = shutdown.triggered() => {
+                signal(pid, libc::SIGTERM);
+                match tokio::time::timeout(limits.stop_timeout, child.wait()).await {
+                    Ok(status) => report.last_exit = status.ok().map(|s| s.to_string()),
+                    Err(_) => {
+                        warn!(process = role.name(), "did not stop in time: killed");
+                        let _ = child.kill().await;
+                        report.last_exit = Some("killed".into());
+                    }
+                }
+                break;
+            }
+        }
+    }
+    let _ = events.send(report);
+    Ok(())
+}
+
+pub fn run(args: &UpArgs) -> anyhow::Result<()> {
+    init_tracing();
+    ServiceNames::new(&args.prefix).with_context(|| format!("--prefix {:?}", args.prefix))?;
+    for (name, v) in [
+        ("--restart-window-s", args.restart_window_s),
+        ("--stop-timeout-s", args.stop_timeout_s),
+    ] {
+        anyhow::ensure!(
+            v.is_finite() && v > 0.0,
+            "{name} = {v}: must be finite and > 0"
+        );
+    }
+    // A bad configuration fails here, once, instead of in a restart loop.
+    match &args.estimator_config {
+        Some(p) => drop(vibro_estimator::Config::load(p)?),
+        None => drop(vibro_estimator::Config::load_default()?),
+    }
+    match &args.compensator_config {
+        Some(p) => drop(vibro_compensator::Config::load(p)?),
+        None => drop(vibro_compensator::Config::load_default()?),
+    }
+    let spec = SystemSpec {
+        prefix: args.prefix.clone(),
+        estimator_config: args.estimator_config.clone(),
+        compensator_config: args.compensator_config.clone(),
+        mode: args.mode.clone(),
+        record: args.record.clone(),
+        json: false,
+        exe: None,
+    };
+    let roles = spec.roles();
+    let reports = run_service(|shutdown| async move {
+        let (tx, mut rx) = mpsc::unbounded_channel();
+        let mut tasks = Vec::new();
+        for role in roles {
+            let limits = Limits {
+                max_restarts: args.max_restarts,
+                window: Duration::from_secs_f64(args.restart_window_s),
+                stop_timeout: Duration::from_secs_f64(args.stop_timeout_s),
+            };
+            tasks.push(tokio::spawn(supervise(
+                spec.clone(),
+                role,
+                limits,
+                shutdown.clone(),
+                tx.clone(),
+            )));
+        }
+        drop(tx);
+        info!(
+            prefix = %spec.prefix,
+            record = ?spec.record,
+            "system up; Ctrl-C stops it"
+        );
+        let mut first_error = None;
+        for t in tasks {
+            match t.await {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => {
+                    shutdown.trigger();
+                    first_error.get_or_insert(e);
+                }
+                Err(e) => {
+                    shutdown.trigger();
+                    first_error.get_or_insert(anyhow::anyhow!("supervisor task failed: {e}"));
+                }
+            }
+        }
+        let mut reports = Vec::new();
+        while let Some(r) = rx.recv().await {
+            reports.push(r);
+        }
+        match first_error {
+            Some(e) => Err(e),
+            None => Ok(reports),
+        }
+    })?;
+    let gave_up = reports.iter().any(|r| r.gave_up);
+    if args.json {
+        print_json(&UpReport {
+            prefix: args.prefix.clone(),
+            record: args.record.as_ref().map(|p| p.display().to_string()),
+            processes: reports.clone(),
+        })?;
+    } else {
+        for r in &reports {
+            println!(
+                "{:<12} started {} time(s), crashed {}, last exit: {}",
+                r.role,
+                r.starts,
+                r.crashes,
+                r.last_exit.as_deref().unwrap_or("-")
+            );
+        }
+    }
+    anyhow::ensure!(
+        !gave_up,
+        "a service crashed too often; the system was stopped"
+    );
+    Ok(())
+}

@@ -1,0 +1,527 @@
+//! Log replay through the real service processes (`vibrocomp service estimator`,
+//! `vibrocomp service compensator`, `vibrocomp record`, `vibrocomp replay`):
+//!
+//! - as fast as possible, lock-stepped, the compensated output recorded from the
+//!   processes equals bit for bit what the estimator library and the compensator's
+//!   in-process handler give for the same log, and again on a second replay into the
+//!   same running services;
+//! - paced at 10x real time, nothing is lost (sequence numbers of every recorded
+//!   channel, the services' own counters);
+//! - the recordings decode with the Python `mcap` reader (CRCs checked).
+
+use crate::common::{bin, repo_path};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::Duration;
+use vibro_dsp::{Estimator, SampleBlock};
+use vibro_mcap::{Message, Reader};
+use vibro_msgs::compensation_flags::INPUT_GAP;
+use vibro_msgs::{CompensatedBlock, ServiceId, ServiceNames, VibEstimate};
+use vibrocomp::system::{wait_for_heartbeats, Process, Role, SystemSpec};
+
+static NEXT: AtomicU32 = AtomicU32::new(0);
+
+/// A unique, short prefix per test (tests run in parallel).
+fn prefix(tag: &str) -> String {
+    format!(
+        "vct-rp{tag}-{}-{}/",
+        std::process::id(),
+        NEXT.fetch_add(1, Ordering::Relaxed)
+    )
+}
+
+struct Dir(PathBuf);
+impl Dir {
+    fn new(tag: &str) -> Self {
+        let d = std::env::temp_dir().join(format!(
+            "vibrocomp-replay-{tag}-{}-{}",
+            std::process::id(),
+            NEXT.fetch_add(1, Ordering::Relaxed)
+        ));
+        std::fs::create_dir_all(&d).unwrap();
+        Self(d)
+    }
+    fn path(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+}
+impl Drop for Dir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A short simulated flight log (the demo's scenario, `seconds` long).
+fn flight_log(dir: &Dir, seconds: &str) -> PathBuf {
+    let out = dir.path("flight.mcap");
+    let status = bin()
+        .args([
+            "sim",
+            "cyclone-4-short",
+            "--duration-s",
+            seconds,
+            "--json",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
+    out
+}
+
+fn spec(prefix: &str, record: Option<PathBuf>) -> SystemSpec {
+    SystemSpec {
+        prefix: prefix.to_string(),
+        // The shipped configurations, as a user in the repository gets them.
+        estimator_config: Some(repo_path("config/services/estimator.toml")),
+        compensator_config: Some(repo_path("config/services/compensator.toml")),
+        record,
+        json: true,
+        exe: Some(PathBuf::from(env!("CARGO_BIN_EXE_vibrocomp"))),
+        ..SystemSpec::default()
+    }
+}
+
+fn start(spec: &SystemSpec, role: Role, log: &Path) -> Process {
+    Process::spawn(spec, role, Some(log)).unwrap()
+}
+
+fn wait_up(prefix: &str, services: &[ServiceId], procs: &mut [&mut Process], log: &Path) {
+    let names = ServiceNames::new(prefix).unwrap();
+    if let Err(e) = wait_for_heartbeats(&names, services, Duration::from_secs(30), || {
+        for p in procs.iter_mut() {
+            p.check_alive()?;
+        }
+        Ok(())
+    }) {
+        panic!(
+            "{e:#}\nservices log:\n{}",
+            std::fs::read_to_string(log).unwrap_or_default()
+        );
+    }
+}
+
+fn replay(prefix: &str, log: &Path, extra: &[&str]) -> serde_json::Value {
+    let out = bin()
+        .arg("replay")
+        .arg(log)
+        .args(["--prefix", prefix, "--json"])
+        .args(extra)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "replay failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// The /compensated blocks of a recording, in order.
+fn compensated(path: &Path) -> Vec<CompensatedBlock> {
+    Reader::open(path)
+        .unwrap()
+        .map(|r| r.unwrap())
+        .filter_map(|r| match r.message {
+            Message::CompensatedBlock(b) if &*r.topic == "/compensated" => Some(b),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The reference: the log in order through the estimator library and the compensator's
+/// in-process handler, with the shipped configurations.
+fn in_process(log: &Path) -> Vec<CompensatedBlock> {
+    let est_config =
+        vibro_estimator::Config::load(&repo_path("config/services/estimator.toml")).unwrap();
+    let comp_config =
+        vibro_compensator::Config::load(&repo_path("config/services/compensator.toml")).unwrap();
+    let mut estimator = Estimator::new(est_config.estimator.clone());
+    let mut compensator = vibro_compensator::InProcess::new(&comp_config).unwrap();
+    let mut out = Vec::new();
+    let mut estimate_seq = 0u64;
+    let mut pending: Vec<VibEstimate> = Vec::new();
+    for r in Reader::open(log).unwrap() {
+        let r = r.unwrap();
+        match (&*r.topic, &r.message) {
+            ("/vib", Message::VibBlock(b)) => {
+                let input = SampleBlock {
+                    seq: b.seq,
+                    t0_ns: b.t0_ns,
+                    samples_raw: b.samples_v(),
+                };
+                estimator
+                    .push_block(&input, |e| {
+                        let mut m = VibEstimate::ZEROED;
+                        vibro_estimator::mirror_estimate(e, &mut m);
+                        m.seq = estimate_seq;
+                        m.source_seq = b.seq;
+                        estimate_seq += 1;
+                        pending.push(m);
+                    })
+                    .unwrap();
+                for e in pending.drain(..) {
+                    compensator.on_estimate(&e);
+                }
+            }
+            ("/accel", Message::AccelBlock(b)) => compensator.on_accel(b, 0, &mut out),
+            _ => {}
+        }
+    }
+    out
+}
+
+fn bits(rows: &[[f64; 3]], n: u32) -> Vec<u64> {
+    rows[..n as usize]
+        .iter()
+        .flatten()
+        .map(|v| v.to_bits())
+        .collect()
+}
+
+/// Compares everything a compensated block carries but the timestamps of its trip
+/// (publish/receive times) and the counters that continue across replays, which are
+/// compared relative to the run's first.
+fn assert_same(
+    run: &[CompensatedBlock],
+    reference: &[CompensatedBlock],
+    what: &str,
+    restarted: bool,
+) {
+    assert_eq!(run.len(), reference.len(), "{what}: block count");
+    let base = |v: &[CompensatedBlock]| {
+        (
+            v[0].seq,
+            v.iter()
+                .filter(|b| b.flags & vibro_msgs::compensation_flags::ESTIMATE_MISSING == 0)
+                .map(|b| b.estimate_seq)
+                .min()
+                .unwrap_or(0),
+        )
+    };
+    let ((s0, e0), (r0, f0)) = (base(run), base(reference));
+    let mut estimated = 0;
+    for (k, (a, b)) in run.iter().zip(reference).enumerate() {
+        let ctx = format!("{what}: block {k} (input seq {})", b.input_seq);
+        assert_eq!(a.seq - s0, b.seq - r0, "{ctx}: seq");
+        assert_eq!(a.input_seq, b.input_seq, "{ctx}");
+        assert_eq!(a.first_sample_index, b.first_sample_index, "{ctx}");
+        assert_eq!(a.t0_ns, b.t0_ns, "{ctx}");
+        assert_eq!(a.sample_period_ns, b.sample_period_ns, "{ctx}");
+        assert_eq!(a.count, b.count, "{ctx}");
+        if restarted && k == 0 {
+            // The producer started again (seq back to 0): the stream's discontinuity
+            // is flagged on the first block, and nothing else differs.
+            assert_eq!(a.flags, b.flags | INPUT_GAP, "{ctx}: flags");
+        } else {
+            assert_eq!(a.flags, b.flags, "{ctx}: flags");
+        }
+        assert_eq!(a.mode, b.mode, "{ctx}");
+        assert_eq!(a.estimate_age_ns, b.estimate_age_ns, "{ctx}: estimate age");
+        if b.flags & vibro_msgs::compensation_flags::ESTIMATE_MISSING == 0 {
+            estimated += 1;
+            assert_eq!(a.estimate_seq - e0, b.estimate_seq - f0, "{ctx}: estimate");
+        }
+        for (name, x, y) in [
+            ("a1", &a.a1_g, &b.a1_g),
+            ("a2", &a.a2_g, &b.a2_g),
+            ("a3", &a.a3_g, &b.a3_g),
+            ("a4", &a.a4_g, &b.a4_g),
+            ("main", &a.main_g, &b.main_g),
+            ("det", &a.det_g, &b.det_g),
+            ("rand", &a.rand_g, &b.rand_g),
+        ] {
+            assert_eq!(bits(x, a.count), bits(y, b.count), "{ctx}: {name}");
+        }
+    }
+    // The comparison covers compensation with estimates, not only the main error.
+    assert!(
+        estimated > run.len() / 2,
+        "{what}: only {estimated} of {} blocks had an estimate",
+        run.len()
+    );
+}
+
+fn stop_all(procs: Vec<Process>) -> Vec<serde_json::Value> {
+    procs
+        .into_iter()
+        .map(|p| p.stop(Duration::from_secs(20)).unwrap().summary().unwrap())
+        .collect()
+}
+
+#[test]
+fn lockstepped_replay_through_the_processes_equals_the_library_twice() {
+    let dir = Dir::new("bit");
+    let log = flight_log(&dir, "4");
+    let reference = in_process(&log);
+    assert_eq!(reference.len(), 100, "4 s at 800 Hz in 32-sample blocks");
+
+    let p = prefix("b");
+    let services_log = dir.path("services.log");
+    let first = dir.path("session-1.mcap");
+    let second = dir.path("session-2.mcap");
+    let s = spec(&p, Some(first.clone()));
+    let mut est = start(&s, Role::Estimator, &services_log);
+    let mut comp = start(&s, Role::Compensator, &services_log);
+    let mut rec = start(&s, Role::Recorder, &services_log);
+    wait_up(
+        &p,
+        &[
+            ServiceId::Estimator,
+            ServiceId::Compensator,
+            ServiceId::Recorder,
+        ],
+        &mut [&mut est, &mut comp, &mut rec],
+        &services_log,
+    );
+    let r1 = replay(&p, &log, &["--as-fast-as-possible"]);
+    assert_eq!(r1["lockstepped"], true);
+    assert_eq!(r1["undelivered"], 0);
+    let rec1 = rec
+        .stop(Duration::from_secs(20))
+        .unwrap()
+        .summary()
+        .unwrap();
+    assert_eq!(rec1["lost"], 0, "{rec1}");
+
+    // Second replay into the same running services, a new recorder.
+    let s2 = spec(&p, Some(second.clone()));
+    let mut rec = start(&s2, Role::Recorder, &services_log);
+    wait_up(&p, &[ServiceId::Recorder], &mut [&mut rec], &services_log);
+    let r2 = replay(&p, &log, &["--as-fast-as-possible"]);
+    assert_eq!(r2["messages"], r1["messages"]);
+    let summaries = stop_all(vec![rec, comp, est]);
+
+    assert_same(&compensated(&first), &reference, "first replay", false);
+    assert_same(&compensated(&second), &reference, "second replay", true);
+    // The services saw two producer restarts' worth of data and lost none of it.
+    let (comp_s, est_s) = (&summaries[1], &summaries[2]);
+    assert_eq!(comp_s["accel"]["received"], 200, "{comp_s}");
+    assert_eq!(comp_s["accel"]["lost_messages"], 0, "{comp_s}");
+    assert_eq!(comp_s["accel"]["restarts"], 1, "{comp_s}");
+    assert_eq!(comp_s["undelivered"], 0, "{comp_s}");
+    assert_eq!(est_s["vib"]["lost_messages"], 0, "{est_s}");
+    assert_eq!(est_s["vib"]["received"], 400, "{est_s}");
+}
+
+/// Python's reader decodes every message of a recording made from the processes,
+/// with the same count per channel as the Rust reader.
+fn python_check(path: &Path) -> serde_json::Value {
+    let info = vibro_mcap::info(path).unwrap();
+    let counts: serde_json::Map<String, serde_json::Value> = info
+        .channels
+        .iter()
+        .map(|c| (c.topic.clone(), c.messages.into()))
+        .collect();
+    let out = Command::new("python3")
+        .arg(repo_path("tests/python/mcap_check.py"))
+        .arg(path)
+        .arg("--expect-counts")
+        .arg(serde_json::Value::Object(counts).to_string())
+        .output()
+        .expect("python3 runs; run `pip install -r tests/python/requirements.txt`");
+    assert!(
+        out.status.success(),
+        "mcap_check.py failed ({}): {}\n(run `pip install -r tests/python/requirements.txt`)",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+#[test]
+fn ten_times_real_time_loses_nothing_and_the_recording_reads_in_python() {
+    let dir = Dir::new("rate");
+    let log = flight_log(&dir, "5");
+    let p = prefix("r");
+    let services_log = dir.path("services.log");
+    let session = dir.path("session.mcap");
+    let s = spec(&p, Some(session.clone()));
+    let mut est = start(&s, Role::Estimator, &services_log);
+    let mut comp = start(&s, Role::Compensator, &services_log);
+    let mut rec = start(&s, Role::Recorder, &services_log);
+    wait_up(
+        &p,
+        &[
+            ServiceId::Estimator,
+            ServiceId::Compensator,
+            ServiceId::Recorder,
+        ],
+        &mut [&mut est, &mut comp, &mut rec],
+        &services_log,
+    );
+    let r = replay(&p, &log, &["--rate", "10"]);
+    assert_eq!(r["lockstepped"], false);
+    assert_eq!(r["undelivered"], 0, "{r}");
+    let span = r["log_span_s"].as_f64().unwrap();
+    let elapsed = r["elapsed_s"].as_f64().unwrap();
+    // Paced, not as fast as possible: 5 s of log at 10x takes about 0.5 s.
+    assert!(elapsed > 0.9 * span / 10.0, "{r}");
+    // Give the compensator a moment to take the last block, then stop all.
+    std::thread::sleep(Duration::from_millis(500));
+    let summaries = stop_all(vec![rec, comp, est]);
+    let (rec_s, comp_s, est_s) = (&summaries[0], &summaries[1], &summaries[2]);
+    assert_eq!(rec_s["lost"], 0, "{rec_s}");
+    for (s, k) in [(comp_s, "accel"), (est_s, "vib")] {
+        assert_eq!(s[k]["lost_messages"], 0, "{s}");
+        assert_eq!(s[k]["lost_samples"], 0, "{s}");
+        assert_eq!(s["undelivered"], 0, "{s}");
+    }
+    assert_eq!(comp_s["accel"]["received"], 125, "{comp_s}");
+    assert_eq!(est_s["vib"]["received"], 250, "{est_s}");
+
+    // Every channel is continuous by its producer's sequence numbers.
+    let info = vibro_mcap::info(&session).unwrap();
+    assert_eq!(info.lost, 0, "{info:?}");
+    let count = |topic: &str| {
+        info.channels
+            .iter()
+            .find(|c| c.topic == topic)
+            .map_or(0, |c| c.messages)
+    };
+    assert_eq!(count("/accel"), 125);
+    assert_eq!(count("/vib"), 250);
+    assert_eq!(count("/truth"), 125);
+    assert_eq!(count("/compensated"), 125);
+    assert!(count("/estimate") >= 8, "{info:?}");
+    assert!(count("/heartbeat/compensator") >= 1);
+    // The recording carries the configurations and passports it ran with.
+    let names: Vec<&str> = info.attachments.iter().map(|a| a.name.as_str()).collect();
+    assert!(
+        names.iter().any(|n| n.starts_with("compensator.toml")),
+        "{names:?}"
+    );
+    assert!(
+        names.iter().any(|n| n.starts_with("passport-0-AL-15")),
+        "{names:?}"
+    );
+
+    let py = python_check(&session);
+    assert!(py.to_string().contains("/compensated"), "{py}");
+}
+
+/// `vibrocomp demo` as a user runs it: the flight through the processes, recorded, and
+/// an error reduction of at least 10x against the simulator's truth, nothing lost.
+#[test]
+fn the_demo_cuts_the_error_tenfold_and_loses_nothing() {
+    let dir = Dir::new("demo");
+    let out = bin()
+        .args(["demo", "--json", "--out-dir"])
+        .arg(dir.path("demo"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "demo failed: {}\nservices log: {}",
+        String::from_utf8_lossy(&out.stderr),
+        std::fs::read_to_string(dir.path("demo/services.log")).unwrap_or_default()
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let e = &v["errors"];
+    let all = &e["all_units"];
+    let f = |x: &serde_json::Value| x.as_f64().unwrap();
+    assert!(f(&all["reduction"]) >= 10.0, "{v}");
+    // The vibration-error stage itself helps, on every unit (not only the bias).
+    for u in e["units"].as_array().unwrap() {
+        assert!(
+            f(&u["vibration_removed_rms_g"]) < 0.5 * f(&u["main_removed_rms_g"]),
+            "{u}"
+        );
+    }
+    assert_eq!(v["lost_messages"], 0, "{v}");
+    assert_eq!(
+        v["replay"]["messages"], 2000,
+        "20 s: 1000 vib + 500 accel + 500 truth"
+    );
+    assert!(
+        f(&e["compensated_windows"]) >= 0.9 * f(&e["windows"]),
+        "{v}"
+    );
+    // Everything recorded reads back in Python.
+    python_check(&dir.path("demo/session.mcap"));
+}
+
+/// The children of a process, with their command lines.
+fn children(pid: u32) -> Vec<(u32, String)> {
+    let mut out = Vec::new();
+    let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).unwrap();
+    for t in tasks.flatten() {
+        let list = std::fs::read_to_string(t.path().join("children")).unwrap_or_default();
+        for c in list
+            .split_whitespace()
+            .filter_map(|s| s.parse::<u32>().ok())
+        {
+            let cmd = std::fs::read(format!("/proc/{c}/cmdline")).unwrap_or_default();
+            let cmd = String::from_utf8_lossy(&cmd).replace('\0', " ");
+            out.push((c, cmd));
+        }
+    }
+    out
+}
+
+/// `vibrocomp up`: a killed compensator is started again, and Ctrl-C stops everything
+/// cleanly (exit 0, a summary of starts and crashes).
+#[test]
+fn up_restarts_a_killed_service_and_stops_on_sigint() {
+    let p = prefix("u");
+    let up = bin()
+        .args(["up", "--json", "--prefix", &p])
+        .arg("--compensator-config")
+        .arg(repo_path("config/services/compensator.toml"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let names = ServiceNames::new(&p).unwrap();
+    let both = [ServiceId::Estimator, ServiceId::Compensator];
+    wait_for_heartbeats(&names, &both, Duration::from_secs(30), || Ok(())).unwrap();
+    let kids = children(up.id());
+    assert_eq!(kids.len(), 2, "{kids:?}");
+    let (victim, _) = kids
+        .iter()
+        .find(|(_, cmd)| cmd.contains("service compensator"))
+        .unwrap_or_else(|| panic!("no compensator among {kids:?}"))
+        .clone();
+    // SAFETY: signalling a process this test started (through `up`).
+    unsafe { libc::kill(victim as libc::pid_t, libc::SIGKILL) };
+    // A new compensator comes up (a new pid) and publishes heartbeats again.
+    let mut replaced = false;
+    for _ in 0..200 {
+        std::thread::sleep(Duration::from_millis(50));
+        let now = children(up.id());
+        if now
+            .iter()
+            .any(|(pid, cmd)| *pid != victim && cmd.contains("service compensator"))
+        {
+            replaced = true;
+            break;
+        }
+    }
+    assert!(replaced, "the compensator was not restarted");
+    wait_for_heartbeats(
+        &names,
+        &[ServiceId::Compensator],
+        Duration::from_secs(30),
+        || Ok(()),
+    )
+    .unwrap();
+    unsafe { libc::kill(up.id() as libc::pid_t, libc::SIGINT) };
+    let out = up.wait_with_output().unwrap();
+    assert!(out.status.success(), "up exited with {}", out.status);
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let procs = v["processes"].as_array().unwrap();
+    let comp = procs.iter().find(|r| r["role"] == "compensator").unwrap();
+    assert_eq!(comp["starts"], 2, "{v}");
+    assert_eq!(comp["crashes"], 1, "{v}");
+    let est = procs.iter().find(|r| r["role"] == "estimator").unwrap();
+    assert_eq!(est["starts"], 1, "{v}");
+    assert_eq!(est["crashes"], 0, "{v}");
+    // Stopped by their signal handlers: exit status 0.
+    assert_eq!(est["last_exit"], "exit status: 0", "{v}");
+}
