@@ -75,6 +75,8 @@ pub struct EstimateMappingRaw {
     pub kurtosis: String,
     #[serde(default = "default_max_tones")]
     pub max_tones: usize,
+    #[serde(default = "yes")]
+    pub within_output_interval: bool,
 }
 
 fn yes() -> bool {
@@ -95,6 +97,7 @@ impl Default for EstimateMappingRaw {
             use_cross_covariance: true,
             kurtosis: default_kurtosis(),
             max_tones: default_max_tones(),
+            within_output_interval: true,
         }
     }
 }
@@ -325,6 +328,7 @@ impl Config {
                         use_cross_covariance: e.use_cross_covariance,
                         kurtosis,
                         max_tones: e.max_tones,
+                        within_output_interval: e.within_output_interval,
                     },
                 },
                 service,

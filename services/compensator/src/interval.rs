@@ -45,7 +45,7 @@ pub fn within_fraction(f_hz: f64, interval_s: f64) -> f64 {
 /// The mean of [`within_fraction`] over `[f_lo, f_hi]` (a flat PSD over the band),
 /// by Simpson's rule on 128 panels.
 pub fn band_within_fraction(f_lo_hz: f64, f_hi_hz: f64, interval_s: f64) -> f64 {
-    if !(f_hi_hz > f_lo_hz) {
+    if f_hi_hz.partial_cmp(&f_lo_hz) != Some(std::cmp::Ordering::Greater) {
         return within_fraction(f_lo_hz.max(0.0), interval_s);
     }
     const N: usize = 128;
@@ -61,6 +61,10 @@ pub fn band_within_fraction(f_lo_hz: f64, f_hi_hz: f64, interval_s: f64) -> f64 
 /// Per sensor axis, the fraction of the broadband variance left inside an interval.
 fn random_fractions(est: &VibEstimate, interval_s: f64) -> [f64; 3] {
     let (lo, hi) = (est.broadband_f_lo_hz, est.broadband_f_hi_hz);
+    if !(lo.is_finite() && hi.is_finite() && lo >= 0.0 && hi > lo) {
+        // No spectrum to weigh with: keep the whole variance (the papers' setting).
+        return [1.0; 3];
+    }
     let flat = band_within_fraction(lo, hi, interval_s);
     let bands = (est.band_count as usize).min(vibro_msgs::MAX_BANDS);
     let mut out = [flat; 3];

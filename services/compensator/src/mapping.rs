@@ -44,6 +44,11 @@ pub struct EstimateMapping {
     pub kurtosis: KurtosisUse,
     /// Most tones handed to the model, `1..=vibro_physics::vibration::MAX_TONES`.
     pub max_tones: usize,
+    /// Use only the vibration inside one output interval (`crate::interval`): the
+    /// samples resolve the rest, and stage (18) at each sample removes what it
+    /// rectifies. `false`: the whole vibration, for readings that are means over
+    /// intervals long against the vibration periods (the papers' setting).
+    pub within_output_interval: bool,
 }
 
 impl Default for EstimateMapping {
@@ -54,6 +59,7 @@ impl Default for EstimateMapping {
             use_cross_covariance: true,
             kurtosis: KurtosisUse::Estimated,
             max_tones: PHYSICS_MAX_TONES,
+            within_output_interval: true,
         }
     }
 }

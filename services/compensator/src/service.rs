@@ -313,12 +313,23 @@ impl Compensation {
         );
     }
 
+    /// The averaging interval the estimate is reduced to: the output interval, or 0
+    /// (the whole vibration) when `[estimate] within_output_interval = false`.
+    fn interval_s(&self) -> f64 {
+        if self.model.estimate.within_output_interval {
+            self.output_interval_s
+        } else {
+            0.0
+        }
+    }
+
     /// Maps the latest estimate again (after a model or output-rate change); the
     /// compensator takes it at the next block.
     fn remap_latest(&mut self) {
         self.applied = None;
+        let interval_s = self.interval_s();
         if let Some(l) = &mut self.latest {
-            let within = within_output_interval(&l.estimate, self.output_interval_s);
+            let within = within_output_interval(&l.estimate, interval_s);
             match unit_vibrations(&within, &self.model.triad.axes, &self.model.estimate) {
                 Ok(v) => l.vibrations = v,
                 Err(e) => {
@@ -344,7 +355,7 @@ impl Compensation {
         }
         // The vibration inside one output interval: what the samples do not resolve
         // (crate::interval; unknown before the first block: the whole vibration).
-        let within = within_output_interval(e, self.output_interval_s);
+        let within = within_output_interval(e, self.interval_s());
         match unit_vibrations(&within, &self.model.triad.axes, &self.model.estimate) {
             Ok(v) => {
                 let quality = e.flags & estimate_flags::ALL & !estimate_flags::TONE_FREE;

@@ -276,7 +276,8 @@ mod tests {
         names.sort();
         names.dedup();
         assert_eq!(names.len(), total);
-        assert_eq!(total, 2 * (5 + ServiceId::ALL.len()));
+        // Five data streams, a heartbeat and a progress stream per service.
+        assert_eq!(total, 2 * (5 + 2 * ServiceId::ALL.len()));
     }
 
     #[test]
