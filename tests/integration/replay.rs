@@ -525,3 +525,65 @@ fn up_restarts_a_killed_service_and_stops_on_sigint() {
     // Stopped by their signal handlers: exit status 0.
     assert_eq!(est["last_exit"], "exit status: 0", "{v}");
 }
+
+/// `replay --loop`: each pass continues the sequence numbers, sample indices and data
+/// times of the one before, so the services see one continuous stream (no restart, no
+/// gap) until Ctrl-C.
+#[test]
+fn a_looped_replay_is_one_continuous_stream() {
+    let dir = Dir::new("loop");
+    let log = flight_log(&dir, "2");
+    let p = prefix("l");
+    let services_log = dir.path("services.log");
+    let s = spec(&p, None);
+    let mut est = start(&s, Role::Estimator, &services_log);
+    let mut comp = start(&s, Role::Compensator, &services_log);
+    wait_up(
+        &p,
+        &[ServiceId::Estimator, ServiceId::Compensator],
+        &mut [&mut est, &mut comp],
+        &services_log,
+    );
+    let replay = bin()
+        .arg("replay")
+        .arg(&log)
+        .args(["--prefix", &p, "--json", "--loop", "--rate", "4"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Three passes of 2 s at 4x take 1.5 s; stop during the fourth or later.
+    std::thread::sleep(Duration::from_millis(1800));
+    // SAFETY: signalling a child this test started.
+    unsafe { libc::kill(replay.id() as libc::pid_t, libc::SIGINT) };
+    let out = replay.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(r["passes"].as_u64().unwrap() >= 3, "{r}");
+    std::thread::sleep(Duration::from_millis(300));
+    let summaries = stop_all(vec![comp, est]);
+    let (comp_s, est_s) = (&summaries[0], &summaries[1]);
+    let accel_sent = r["topics"]["/accel"].as_u64().unwrap();
+    assert!(accel_sent > 150, "{r}");
+    assert_eq!(comp_s["accel"]["received"], accel_sent, "{comp_s}");
+    for (s, k) in [(comp_s, "accel"), (est_s, "vib")] {
+        for c in [
+            "lost_messages",
+            "lost_samples",
+            "restarts",
+            "index_backwards",
+            "out_of_order",
+        ] {
+            assert_eq!(s[k][c], 0, "{k}.{c}: {s}");
+        }
+    }
+    // Continuous data times: the estimator never saw a gap or a step back.
+    assert_eq!(est_s["dsp"]["sequence_gaps"], 0, "{est_s}");
+    assert_eq!(est_s["dsp"]["blocks_dropped"], 0, "{est_s}");
+    assert_eq!(est_s["dsp"]["restarts"], 0, "{est_s}");
+    assert_eq!(comp_s["input_gap_blocks"], 0, "{comp_s}");
+}

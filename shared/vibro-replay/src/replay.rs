@@ -373,13 +373,13 @@ pub fn replay(
         )?,
         shifts: [Shift::default(); 3],
     };
-    // Every published stream needs someone listening before the first message.
+    // The services' inputs need someone listening before the first message (the truth
+    // is for recorders and monitors, if any).
     let connect_start = Instant::now();
     let counts = |p: &Publishers| {
         [
             p.vib.as_ref().map(|x| x.subscriber_count()),
             p.accel.as_ref().map(|x| x.subscriber_count()),
-            p.truth.as_ref().map(|x| x.subscriber_count()),
         ]
     };
     loop {
@@ -388,7 +388,7 @@ pub fn replay(
             break;
         }
         if connect_start.elapsed() > options.connect_timeout {
-            let missing = [Stream::Vib, Stream::Accel, Stream::Truth]
+            let missing = [Stream::Vib, Stream::Accel]
                 .into_iter()
                 .zip(c)
                 .find(|(_, n)| *n == Some(0))

@@ -228,10 +228,18 @@ fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
             info.lost
         )?;
     }
+    // Topics as wide as the longest (`/heartbeat/compensator` is 22 characters).
+    let tw = info
+        .channels
+        .iter()
+        .map(|c| c.topic.len())
+        .max()
+        .unwrap_or(0)
+        .max(6);
     if !info.channels.is_empty() {
         writeln!(
             out,
-            "  {:<14} {:<17} {:>9}  {:>21}  {:>21}  {:>11}  {:>21}  {:>6}  {:>5}  {:>12}",
+            "  {:<tw$} {:<17} {:>9}  {:>21}  {:>21}  {:>11}  {:>21}  {:>6}  {:>5}  {:>12}",
             "topic",
             "type",
             "messages",
@@ -252,7 +260,7 @@ fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
         };
         writeln!(
             out,
-            "  {:<14} {:<17} {:>9}  {:>21}  {:>21}  {:>11.3}  {:>21}  {:>6}  {:>5}  {:>12}",
+            "  {:<tw$} {:<17} {:>9}  {:>21}  {:>21}  {:>11.3}  {:>21}  {:>6}  {:>5}  {:>12}",
             c.topic,
             kind,
             c.messages,
