@@ -3,6 +3,7 @@
 mod common;
 mod estimate;
 mod identify;
+mod latency;
 mod log;
 mod model;
 mod python_client;

@@ -564,7 +564,13 @@ impl Compensation {
         self.s.non_finite_samples += non_finite;
         match result {
             Ok(_) => {}
-            Err(vibro_ipc::Error::Undelivered { .. }) => self.s.undelivered += 1,
+            Err(e @ vibro_ipc::Error::Undelivered { .. }) => {
+                // Once, then counted: the heartbeat turns `degraded` and the periodic
+                // summary line carries the count (no logging per block).
+                if count_first(&mut self.s.undelivered) {
+                    warn!("{e}; further undelivered blocks are counted in the summary");
+                }
+            }
             Err(e) => {
                 if count_first(&mut self.s.publish_errors) {
                     warn!("{e}");
@@ -768,7 +774,8 @@ fn hot_loop(
             let s = &st.s;
             let degraded = s.accel.lost_messages + s.accel.lost_samples + s.accel.malformed
                 > last.accel.lost_messages + last.accel.lost_samples + last.accel.malformed
-                || s.stale_blocks + s.missing_blocks > last.stale_blocks + last.missing_blocks;
+                || s.stale_blocks + s.missing_blocks > last.stale_blocks + last.missing_blocks
+                || s.undelivered > last.undelivered;
             let state = if s.accel.received == 0 {
                 ServiceState::Starting
             } else if degraded {
@@ -786,7 +793,7 @@ fn hot_loop(
             let q = st.latency.period();
             let s = &st.s;
             info!(
-                "compensator ({}): {:.1} blocks/s, {} estimates ({} rejected), lost {} blocks / {} samples, stale {} missing {} blocks, latency p50 {:.1} us p99 {:.1} us",
+                "compensator ({}): {:.1} blocks/s, {} estimates ({} rejected), lost {} blocks / {} samples, stale {} missing {} blocks, undelivered {}, latency p50 {:.1} us p99 {:.1} us",
                 s.mode,
                 (s.accel.received - last.accel.received) as f64 / dt_s,
                 s.estimates.received - last.estimates.received,
@@ -795,6 +802,7 @@ fn hot_loop(
                 s.accel.lost_samples - last.accel.lost_samples,
                 s.stale_blocks - last.stale_blocks,
                 s.missing_blocks - last.missing_blocks,
+                s.undelivered - last.undelivered,
                 q.p50_ns as f64 * 1e-3,
                 q.p99_ns as f64 * 1e-3,
             );

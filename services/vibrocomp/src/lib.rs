@@ -49,6 +49,12 @@ pub enum Command {
     Record(commands::record::RecordArgs),
     /// Replay the rig streams of an MCAP log into the services.
     Replay(commands::replay::ReplayArgs),
+    /// Latency of each hop and end to end through the services, against bare iceoryx2
+    /// and Unix sockets.
+    Latency(commands::latency::LatencyArgs),
+    /// The baselines' peers of `latency` (internal).
+    #[command(subcommand, hide = true)]
+    LatencyPeer(commands::latency::PeerCommand),
     /// Run one service in this process (what `up` and `demo` start as child processes).
     #[command(subcommand)]
     Service(commands::service::ServiceCommand),
@@ -91,6 +97,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Log(cmd) => commands::log::run(cmd),
         Command::Service(cmd) => commands::service::run(&cmd),
         Command::Up(args) => commands::up::run(&args),
+        Command::Latency(args) => commands::latency::run(&args),
+        Command::LatencyPeer(cmd) => commands::latency::run_peer(&cmd),
         Command::Record(args) => commands::record::run(&args),
         Command::Replay(args) => commands::replay::run(&args),
     }

@@ -232,6 +232,11 @@ impl Process {
         })
     }
 
+    /// The child's process id (0 once stopped).
+    pub fn pid(&self) -> u32 {
+        self.child.as_ref().map_or(0, |c| c.id())
+    }
+
     /// Fails if the process has exited.
     pub fn check_alive(&mut self) -> anyhow::Result<()> {
         if let Some(c) = &mut self.child {

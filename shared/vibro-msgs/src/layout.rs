@@ -174,6 +174,28 @@ macro_rules! wire_struct {
                     )
                 }
             }
+
+            /// The message from its bytes (native byte order), e.g. read from a socket;
+            /// `None` unless `bytes` is exactly `size_of::<Self>()` long. Counts are
+            /// not checked: call `validate` before indexing the arrays.
+            pub fn from_bytes(bytes: &[u8]) -> Option<Self> {
+                if bytes.len() != ::core::mem::size_of::<Self>() {
+                    return None;
+                }
+                let mut out = Self::ZEROED;
+                // SAFETY: as for `as_bytes`, every byte of `Self` is part of a plain
+                // integer or float field, for which every bit pattern is valid; the
+                // source holds exactly `size_of::<Self>()` bytes and does not overlap
+                // the local `out`.
+                unsafe {
+                    ::core::ptr::copy_nonoverlapping(
+                        bytes.as_ptr(),
+                        (&mut out as *mut Self).cast::<u8>(),
+                        bytes.len(),
+                    );
+                }
+                Some(out)
+            }
         }
 
         impl Default for $name {

@@ -7,7 +7,10 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use tracing::{debug, info};
-use vibro_ipc::{create_node, now_ns, stream_config, IpcNode, StreamPublisher, StreamSubscriber};
+use vibro_ipc::{
+    cleanup_dead_nodes, create_node, now_ns, stream_config, IpcNode, StreamPublisher,
+    StreamSubscriber,
+};
 use vibro_mcap::{Message, Reader};
 use vibro_msgs::{AccelBlock, Heartbeat, ServiceId, ServiceNames, Stream, TruthBlock, VibBlock};
 
@@ -515,8 +518,16 @@ pub fn replay(
             };
             match sent {
                 None => continue,
-                // Counted by the publisher (`undelivered`); the replay goes on.
-                Some(Err(vibro_ipc::Error::Undelivered { .. })) => {}
+                // Counted by the publisher (`undelivered`); the replay goes on. A
+                // consumer killed without closing its ports keeps a full buffer on the
+                // stream until someone removes its dead node, and every later message
+                // would wait the whole back-pressure timeout for it: remove it now.
+                Some(Err(vibro_ipc::Error::Undelivered { .. })) => {
+                    let cleaned = cleanup_dead_nodes(&node);
+                    if cleaned > 0 {
+                        info!(cleaned, "removed the resources of dead iceoryx2 nodes");
+                    }
+                }
                 Some(Err(e)) => return Err(e.into()),
                 Some(Ok(_)) => {}
             }

@@ -3,6 +3,7 @@
 pub mod demo;
 pub mod estimate;
 pub mod identify;
+pub mod latency;
 pub mod log;
 pub mod model;
 pub mod model_flight;

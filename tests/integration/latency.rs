@@ -1,0 +1,67 @@
+//! `vibrocomp latency --json`: runs the three pipelines briefly on real processes and
+//! reports every hop of each with zero losses. Timings are not asserted here (they
+//! belong to BENCHMARKS.md); the structure, the counts and the losses are.
+
+use crate::common::run_json;
+
+#[test]
+fn latency_reports_every_hop_of_three_pipelines_without_loss() {
+    let v = run_json(&[
+        "latency",
+        "--json",
+        "--duration-s",
+        "2",
+        "--warmup-s",
+        "0.5",
+    ]);
+    let runs = v["runs"].as_array().unwrap();
+    let names: Vec<&str> = runs
+        .iter()
+        .map(|r| r["pipeline"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        names,
+        ["vibrocomp (iceoryx2)", "bare iceoryx2", "Unix sockets"],
+        "{v}"
+    );
+    for r in runs {
+        // 2 s at 800 Hz in blocks of 32: 50 blocks, every one answered.
+        assert_eq!(r["accel_blocks_sent"], 50, "{r}");
+        assert_eq!(r["vib_blocks_sent"], 100, "{r}");
+        assert_eq!(r["compensated_received"], 50, "{r}");
+        assert_eq!(r["lost_samples"], 0, "{r}");
+        for hop in [
+            "rig_to_service",
+            "processing",
+            "service_to_subscriber",
+            "end_to_end",
+        ] {
+            let h = &r[hop];
+            // Blocks whose first sample ends at or after 0.5 s: t0 = (32 k + 1) 1.25 ms,
+            // k = 13..49.
+            assert_eq!(h["count"], 37, "{hop}: {r}");
+            let q: Vec<f64> = ["p50_us", "p90_us", "p99_us", "p999_us", "max_us"]
+                .iter()
+                .map(|k| h[k].as_f64().unwrap())
+                .collect();
+            assert!(q[0] > 0.0, "{hop}: {h}");
+            assert!(
+                q.windows(2).all(|w| w[0] <= w[1]),
+                "{hop}: percentiles not ordered: {h}"
+            );
+        }
+        // End to end is at least as long as each of its hops' medians.
+        let p50 = |k: &str| r[k]["p50_us"].as_f64().unwrap();
+        assert!(p50("end_to_end") >= p50("processing"), "{r}");
+        assert!(!r["cpu_percent"].as_array().unwrap().is_empty(), "{r}");
+    }
+    for k in [
+        "vs_bare_p50",
+        "vs_bare_p99",
+        "vs_sockets_p50",
+        "vs_sockets_p99",
+    ] {
+        let x = v["ratios"][k].as_f64().unwrap();
+        assert!(x.is_finite() && x > 0.0, "{k}: {v}");
+    }
+}
