@@ -2,6 +2,7 @@
 
 mod common;
 mod estimate;
+mod faults;
 mod identify;
 mod latency;
 mod log;

@@ -8,7 +8,7 @@ use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-use vibro_ipc::{create_node, stream_config, StreamSubscriber};
+use vibro_ipc::{create_node, StreamSubscriber};
 use vibro_msgs::{Heartbeat, ServiceId, ServiceNames, Stream};
 
 /// One process of the system.
@@ -136,13 +136,8 @@ pub fn wait_for_heartbeats(
         .iter()
         .map(|&s| {
             let stream = Stream::Heartbeat(s);
-            StreamSubscriber::<Heartbeat>::create(
-                &node,
-                &names.stream(stream),
-                &names.event(stream),
-                &stream_config(stream),
-            )
-            .with_context(|| format!("subscribing to {}", names.stream(stream)))
+            StreamSubscriber::<Heartbeat>::open(&node, names, stream)
+                .with_context(|| format!("subscribing to {}", names.stream(stream)))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
     let mut seen = vec![false; services.len()];

@@ -281,6 +281,21 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> StreamPublisher<T> {
         })
     }
 
+    /// Opens `stream` of the system `names` with its event service and the stream's
+    /// quality of service ([`stream_config`]).
+    pub fn open(
+        node: &IpcNode,
+        names: &vibro_msgs::ServiceNames,
+        stream: vibro_msgs::Stream,
+    ) -> Result<Self> {
+        Self::create(
+            node,
+            &names.stream(stream),
+            &names.event(stream),
+            &stream_config(stream),
+        )
+    }
+
     /// Sends a copy of `msg` to every subscriber and wakes their wait sets; returns
     /// how many subscribers it reached.
     pub fn publish(&mut self, msg: &T) -> Result<usize> {
@@ -380,6 +395,21 @@ impl<T: ZeroCopySend + Debug + 'static> StreamSubscriber<T> {
             subscriber,
             listener,
         })
+    }
+
+    /// Opens `stream` of the system `names` with its event service and the stream's
+    /// quality of service ([`stream_config`]).
+    pub fn open(
+        node: &IpcNode,
+        names: &vibro_msgs::ServiceNames,
+        stream: vibro_msgs::Stream,
+    ) -> Result<Self> {
+        Self::create(
+            node,
+            &names.stream(stream),
+            &names.event(stream),
+            &stream_config(stream),
+        )
     }
 
     /// The next message, if any (never blocks).

@@ -9,8 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 use tracing::{info, warn};
 use vibro_ipc::{
-    cleanup_dead_nodes, create_node, create_waitset, now_ns, stream_config, Ipc, StreamPublisher,
-    StreamSubscriber,
+    cleanup_dead_nodes, create_node, create_waitset, now_ns, Ipc, StreamPublisher, StreamSubscriber,
 };
 use vibro_mcap::{ChannelId, Message, Recorder, RecorderOptions};
 use vibro_msgs::{
@@ -163,12 +162,7 @@ fn open<T: WireMessage + Into<Message>>(
     stream: Stream,
     recorder: &mut Recorder,
 ) -> Result<(Box<dyn Drain>, State)> {
-    let subscriber = StreamSubscriber::<T>::create(
-        node,
-        &names.stream(stream),
-        &names.event(stream),
-        &stream_config(stream),
-    )?;
+    let subscriber = StreamSubscriber::<T>::open(node, names, stream)?;
     let topic = topic(stream);
     let channel = recorder.add_channel(&topic, stream.kind())?;
     Ok((
@@ -215,18 +209,8 @@ impl Status {
         let hb = Stream::Heartbeat(ServiceId::Recorder);
         let pr = Stream::Progress(ServiceId::Recorder);
         Ok(Self {
-            heartbeat: StreamPublisher::create(
-                node,
-                &names.stream(hb),
-                &names.event(hb),
-                &stream_config(hb),
-            )?,
-            progress: StreamPublisher::create(
-                node,
-                &names.stream(pr),
-                &names.event(pr),
-                &stream_config(pr),
-            )?,
+            heartbeat: StreamPublisher::open(node, names, hb)?,
+            progress: StreamPublisher::open(node, names, pr)?,
             started_ns: now_ns(),
             heartbeat_seq: 0,
             progress_seq: 0,

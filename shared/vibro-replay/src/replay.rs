@@ -8,8 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use tracing::{debug, info};
 use vibro_ipc::{
-    cleanup_dead_nodes, create_node, now_ns, stream_config, IpcNode, StreamPublisher,
-    StreamSubscriber,
+    cleanup_dead_nodes, create_node, now_ns, IpcNode, StreamPublisher, StreamSubscriber,
 };
 use vibro_mcap::{Message, Reader};
 use vibro_msgs::{AccelBlock, Heartbeat, ServiceId, ServiceNames, Stream, TruthBlock, VibBlock};
@@ -135,12 +134,7 @@ impl Consumer {
         Ok(Self {
             service,
             stream: names.stream(data),
-            progress: StreamSubscriber::create(
-                node,
-                &names.stream(s),
-                &names.event(s),
-                &stream_config(s),
-            )?,
+            progress: StreamSubscriber::open(node, names, s)?,
             baseline: 0,
             received: 0,
         })
@@ -206,8 +200,7 @@ fn baseline(
     timeout: Duration,
 ) -> Result<()> {
     let s = Stream::Heartbeat(c.service);
-    let heartbeats: StreamSubscriber<Heartbeat> =
-        StreamSubscriber::create(node, &names.stream(s), &names.event(s), &stream_config(s))?;
+    let heartbeats: StreamSubscriber<Heartbeat> = StreamSubscriber::open(node, names, s)?;
     let start = Instant::now();
     loop {
         if let Some(h) = heartbeats.receive()? {
@@ -270,12 +263,7 @@ fn open_publisher<T: vibro_msgs::WireMessage>(
     if !wanted {
         return Ok(None);
     }
-    Ok(Some(StreamPublisher::create(
-        node,
-        &names.stream(stream),
-        &names.event(stream),
-        &stream_config(stream),
-    )?))
+    Ok(Some(StreamPublisher::open(node, names, stream)?))
 }
 
 /// Shifts a block's counters by `s` and records where it ends.

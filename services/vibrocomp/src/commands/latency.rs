@@ -33,9 +33,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use vibro_estimator::common::LoopMode;
-use vibro_ipc::{
-    create_node, create_waitset, now_ns, stream_config, StreamPublisher, StreamSubscriber,
-};
+use vibro_ipc::{create_node, create_waitset, now_ns, StreamPublisher, StreamSubscriber};
 use vibro_msgs::{
     AccelBlock, CompensatedBlock, Heartbeat, ServiceId, ServiceNames, Stream, VibBlock, VibEstimate,
 };
@@ -386,12 +384,7 @@ fn receive_iceoryx(
 ) -> anyhow::Result<Vec<Stamps>> {
     let names = ServiceNames::new(&prefix)?;
     let node = create_node("vibrocomp-latency-rx")?;
-    let sub = StreamSubscriber::<CompensatedBlock>::create(
-        &node,
-        &names.compensated(),
-        &names.event(Stream::Compensated),
-        &stream_config(Stream::Compensated),
-    )?;
+    let sub = StreamSubscriber::<CompensatedBlock>::open(&node, &names, Stream::Compensated)?;
     let waitset = create_waitset()?;
     let _guard = waitset
         .attach_notification(sub.listener())
@@ -443,18 +436,8 @@ fn run_iceoryx(
 ) -> anyhow::Result<(u64, u64, Vec<Stamps>)> {
     let names = ServiceNames::new(prefix)?;
     let node = create_node("vibrocomp-latency")?;
-    let mut accel = StreamPublisher::<AccelBlock>::create(
-        &node,
-        &names.accel(),
-        &names.event(Stream::Accel),
-        &stream_config(Stream::Accel),
-    )?;
-    let mut vib = StreamPublisher::<VibBlock>::create(
-        &node,
-        &names.vib(),
-        &names.event(Stream::Vib),
-        &stream_config(Stream::Vib),
-    )?;
+    let mut accel = StreamPublisher::<AccelBlock>::open(&node, &names, Stream::Accel)?;
+    let mut vib = StreamPublisher::<VibBlock>::open(&node, &names, Stream::Vib)?;
     let stop = Arc::new(AtomicBool::new(false));
     let capacity = (args.duration_s * args.rate_hz / f64::from(args.block_samples)) as usize + 16;
     let rx = {
@@ -804,25 +787,10 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
 fn peer_bare(prefix: &str, mode: LoopMode) -> anyhow::Result<()> {
     let names = ServiceNames::new(prefix)?;
     let node = create_node("vibrocomp-bare")?;
-    let accel = StreamSubscriber::<AccelBlock>::create(
-        &node,
-        &names.accel(),
-        &names.event(Stream::Accel),
-        &stream_config(Stream::Accel),
-    )?;
-    let mut out = StreamPublisher::<CompensatedBlock>::create(
-        &node,
-        &names.compensated(),
-        &names.event(Stream::Compensated),
-        &stream_config(Stream::Compensated),
-    )?;
+    let accel = StreamSubscriber::<AccelBlock>::open(&node, &names, Stream::Accel)?;
+    let mut out = StreamPublisher::<CompensatedBlock>::open(&node, &names, Stream::Compensated)?;
     let hb = Stream::Heartbeat(ServiceId::Compensator);
-    let mut heartbeat = StreamPublisher::<Heartbeat>::create(
-        &node,
-        &names.stream(hb),
-        &names.event(hb),
-        &stream_config(hb),
-    )?;
+    let mut heartbeat = StreamPublisher::<Heartbeat>::open(&node, &names, hb)?;
     let waitset = create_waitset()?;
     let _g = waitset
         .attach_notification(accel.listener())

@@ -27,10 +27,8 @@ use vibro_sim::{Scenario, ScenarioKind, Simulator};
 use crate::output::{fmt_g, print_json};
 use crate::rig::{Packetizer, RigMessage};
 
-/// Topics of the rig streams in a log: the stream names under the default prefix.
-pub fn topic(stream: Stream) -> String {
-    format!("/{}", stream.suffix())
-}
+/// Topics of the rig streams in a log: the stream names without the prefix.
+pub use vibro_replay::topic;
 
 #[derive(Debug, clap::Args)]
 pub struct SimArgs {
