@@ -382,6 +382,27 @@ fn nodes_of(pid: u32) -> (Vec<String>, Vec<String>) {
     (alive, dead)
 }
 
+/// The killed process `victim` has no iceoryx2 node left, dead or alive, while its
+/// replacement's node is listed (so the listing does find nodes by pid). Polled for
+/// 2 s in case another process's clean-up of it is still under way.
+fn assert_nodes_cleaned(victim: u32, replacement: u32) {
+    let mut left = (Vec::new(), Vec::new());
+    let cleaned = poll(Duration::from_secs(2), || {
+        left = nodes_of(victim);
+        left.0.is_empty() && left.1.is_empty()
+    });
+    assert!(
+        cleaned,
+        "nodes of the killed process (pid {victim}) left: alive {:?}, dead {:?}",
+        left.0, left.1
+    );
+    let (alive, _) = nodes_of(replacement);
+    assert!(
+        !alive.is_empty(),
+        "the node listing does not show the replacement (pid {replacement})"
+    );
+}
+
 /// A service's heartbeats, read by the test.
 struct Heartbeats {
     // Declared before the node it belongs to, so it is dropped first.
@@ -394,13 +415,9 @@ impl Heartbeats {
         let names = ServiceNames::new(prefix).unwrap();
         let node = create_node("vct-faults-hb").unwrap();
         let s = Stream::Heartbeat(service);
-        let sub = StreamSubscriber::create(
-            &node,
-            &names.stream(s),
-            &names.event(s),
-            &stream_config(s),
-        )
-        .unwrap();
+        let sub =
+            StreamSubscriber::create(&node, &names.stream(s), &names.event(s), &stream_config(s))
+                .unwrap();
         Self { sub, _node: node }
     }
 
@@ -418,6 +435,17 @@ impl Heartbeats {
             found.is_some()
         });
         found.unwrap_or_else(|| panic!("no such heartbeat within {timeout:?}; last: {last:?}"))
+    }
+
+    /// Waits for the second heartbeat published after `after_ns`: the loop that
+    /// published it drained its inputs after the first one, so after `after_ns`
+    /// (each wake-up drains every input, then looks at the heartbeat timer).
+    fn wait_drained(&self, after_ns: u64, timeout: Duration) -> Heartbeat {
+        let mut after = 0;
+        self.wait_for(timeout, |h| {
+            after += u32::from(h.publish_ns > after_ns);
+            after >= 2
+        })
     }
 }
 
@@ -465,6 +493,18 @@ fn u64_at(v: &serde_json::Value, path: &[&str]) -> u64 {
     }
     x.as_u64()
         .unwrap_or_else(|| panic!("{path:?} is not a count in {v}"))
+}
+
+/// CPU time (user + system) a process has used, s (/proc/PID/stat).
+fn cpu_s(pid: u32) -> Option<f64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // Fields after the command name (which may hold spaces), from field 3 on.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: u64 = f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?;
+    // SAFETY: sysconf has no preconditions.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
+    Some(ticks as f64 / hz.max(1) as f64)
 }
 
 /// Resident memory of a process, KiB (`VmRSS` in /proc/PID/status).
@@ -520,9 +560,8 @@ fn a_killed_estimator_turns_the_compensation_stale_until_up_restarts_it() {
     let mut seen = 0;
     assert!(
         poll(Duration::from_secs(30), || {
-            while let Some(e) = estimates.receive().unwrap() {
-                // The history sample of an earlier run does not count.
-                seen += u32::from(e.publish_ns > 0);
+            while estimates.receive().unwrap().is_some() {
+                seen += 1;
             }
             seen >= 4
         }),
@@ -552,17 +591,9 @@ fn a_killed_estimator_turns_the_compensation_stale_until_up_restarts_it() {
     let respawn_s = killed.elapsed().as_secs_f64();
     wait_up(&p, &[ServiceId::Estimator], &mut [&mut up]);
     let restart_s = killed.elapsed().as_secs_f64();
-    // The new estimator removed the dead node's resources before it opened its ports.
-    let (alive_new, _) = nodes_of(replacement);
-    let (alive_old, dead_old) = nodes_of(victim);
-    assert!(
-        !alive_new.is_empty(),
-        "the node listing does not show the running estimator (pid {replacement})"
-    );
-    assert!(
-        alive_old.is_empty() && dead_old.is_empty(),
-        "nodes of the killed estimator (pid {victim}) left: alive {alive_old:?}, dead {dead_old:?}"
-    );
+    // The new estimator removed the dead node's resources before it opened its ports
+    // (or another process's start-up clean-up did: either way they are gone).
+    assert_nodes_cleaned(victim, replacement);
 
     let r = replay_done(replay, Duration::from_secs(60));
     let accel_sent = u64_at(&r, &["topics", "/accel"]);
@@ -594,13 +625,27 @@ fn a_killed_estimator_turns_the_compensation_stale_until_up_restarts_it() {
     // The restarted estimator counts its estimates from 0 again.
     assert_eq!(channel(&info, "/estimate").out_of_order, 1, "{info:?}");
 
+    // The kill on the data time base: the last /vib block received before it.
+    let kill_data_ns = recs
+        .iter()
+        .filter(|r| &*r.topic == "/vib" && r.log_time_ns <= killed_ns)
+        .filter_map(|r| match &r.message {
+            Message::VibBlock(v) => Some(v.t0_ns),
+            _ => None,
+        })
+        .max()
+        .unwrap();
     let max_age_ns = (max_age_s * 1e9) as i64;
-    let stale: Vec<usize> = (0..comp.len())
-        .filter(|&k| comp[k].1.flags & cf::VIBRATION_ESTIMATE_STALE != 0)
-        .collect();
-    assert!(!stale.is_empty(), "no stale block");
-    let (s, e) = (stale[0], stale[stale.len() - 1] + 1);
-    assert_eq!(stale.len(), e - s, "one stale stretch: {stale:?}");
+    let is_stale = |k: usize| comp[k].1.flags & cf::VIBRATION_ESTIMATE_STALE != 0;
+    // The stale stretch the kill caused. (An estimator held up by a loaded machine
+    // may give stale blocks before it too: counted, not failed.)
+    let s = (0..comp.len())
+        .find(|&k| is_stale(k) && block_end_ns(&comp[k].1) > kill_data_ns)
+        .expect("no stale block after the kill");
+    let e = (s..comp.len())
+        .find(|&k| !is_stale(k))
+        .unwrap_or(comp.len());
+    let stale_before_kill = (0..s).filter(|&k| is_stale(k)).count();
     assert!(e < comp.len(), "the compensation never recovered");
     let before = &comp[s - 1].1;
     let first = &comp[s].1;
@@ -627,7 +672,11 @@ fn a_killed_estimator_turns_the_compensation_stale_until_up_restarts_it() {
             "input {}",
             b.input_seq
         );
-        assert_eq!(estimate_end_ns(b), last_estimate_end, "the last estimate held");
+        assert_eq!(
+            estimate_end_ns(b),
+            last_estimate_end,
+            "the last estimate held"
+        );
         for k in 0..b.count as usize {
             assert_eq!(b.a4_g[k], b.a2_g[k], "main error only: a4 = a2");
             assert_eq!((b.det_g[k], b.rand_g[k]), ([0.0; 3], [0.0; 3]));
@@ -649,16 +698,6 @@ fn a_killed_estimator_turns_the_compensation_stale_until_up_restarts_it() {
         "at least 1 s of data compensated after the recovery"
     );
 
-    // Figures. The kill on the data time base: the last /vib block received before it.
-    let kill_data_ns = recs
-        .iter()
-        .filter(|r| &*r.topic == "/vib" && r.log_time_ns <= killed_ns)
-        .filter_map(|r| match &r.message {
-            Message::VibBlock(v) => Some(v.t0_ns),
-            _ => None,
-        })
-        .max()
-        .unwrap();
     let t0 = comp[0].1.t0_ns as f64;
     let data_s = |ns: f64| (ns - t0) * 1e-9;
     eprintln!(
@@ -666,7 +705,8 @@ fn a_killed_estimator_turns_the_compensation_stale_until_up_restarts_it() {
          last estimate ends at {:.2} s; first stale block ends at {:.2} s (age {:.3} s, \
          {:.0} ms of data after the limit); stale blocks {} ({:.2} s of data); full \
          compensation again at data {:.2} s; up respawned the estimator after {:.3} s, its \
-         first heartbeat after {:.3} s (wall); dead node seen before the restart: {seen_dead}",
+         first heartbeat after {:.3} s (wall); dead node seen before the restart: {seen_dead}; \
+         stale blocks before the kill: {stale_before_kill}",
         data_s(kill_data_ns as f64),
         data_s(last_estimate_end as f64),
         data_s(block_end_ns(first) as f64),
@@ -723,12 +763,12 @@ fn a_killed_compensator_leaves_a_visible_gap_in_the_recording() {
         }),
         "up did not restart the compensator"
     );
-    // The new process's first heartbeat (its uptime is short; `received` from 0).
-    hb.wait_for(Duration::from_secs(30), |h| {
-        h.publish_ns > killed_ns && h.uptime_ns < 5_000_000_000
-    });
+    // The new process's first heartbeat: stamped after `up` had reaped the killed one.
+    let dead_ns = now_ns();
+    hb.wait_for(Duration::from_secs(30), |h| h.publish_ns > dead_ns);
     let restart_s = killed.elapsed().as_secs_f64();
     let restarted_ns = now_ns();
+    assert_nodes_cleaned(victim, replacement);
 
     let r = replay_done(replay, Duration::from_secs(60));
     let (accel_sent, vib_sent) = (
@@ -738,22 +778,7 @@ fn a_killed_compensator_leaves_a_visible_gap_in_the_recording() {
     assert_eq!((accel_sent, vib_sent), (200, 400), "{r}");
     assert_eq!(r["undelivered"], 0, "{r}");
     // The restarted compensator has taken the last block.
-    let last_beat = hb.wait_for(Duration::from_secs(20), |h| {
-        h.publish_ns > restarted_ns && h.uptime_ns < 60_000_000_000 && h.received > 0 && {
-            // Its count covers every block published after it came up.
-            true
-        }
-    });
-    let _ = last_beat;
-    let mut settled = None;
-    poll(Duration::from_secs(20), || {
-        while let Some(h) = hb.sub.receive().unwrap() {
-            settled = Some(*h);
-        }
-        // Idle: every block sent is either taken by the new process or was lost with
-        // the old one; the heartbeat's `received` stops moving.
-        settled.is_some_and(|h: Heartbeat| h.publish_ns > restarted_ns + 1_500_000_000)
-    });
+    hb.wait_drained(now_ns(), Duration::from_secs(20));
     let (status, out) = up.stop(libc::SIGINT, Duration::from_secs(30));
     assert!(status.success(), "up: {status}");
     let report = json_in(&out);
@@ -798,8 +823,15 @@ fn a_killed_compensator_leaves_a_visible_gap_in_the_recording() {
     assert_eq!(comp[0].1.input_seq, 0);
     assert_eq!(comp[comp.len() - 1].1.input_seq, accel_sent - 1);
     let (last_old, first_new) = (&comp[k - 1].1, &comp[k].1);
-    assert_eq!(last_old.seq, k as u64 - 1, "the old process numbered from 0");
-    assert_eq!(first_new.seq, 0, "the restarted compensator numbers from 0 again");
+    assert_eq!(
+        last_old.seq,
+        k as u64 - 1,
+        "the old process numbered from 0"
+    );
+    assert_eq!(
+        first_new.seq, 0,
+        "the restarted compensator numbers from 0 again"
+    );
     let missing: Vec<u64> = (last_old.input_seq + 1..first_new.input_seq).collect();
     assert!(!missing.is_empty());
     assert_eq!(comp.len() as u64 + missing.len() as u64, accel_sent);
@@ -830,7 +862,10 @@ fn a_killed_compensator_leaves_a_visible_gap_in_the_recording() {
         .iter()
         .take_while(|(_, b)| b.flags & cf::ESTIMATE_MISSING != 0)
         .count();
-    assert!(waiting <= 25, "{waiting} blocks without an estimate after the restart");
+    assert!(
+        waiting <= 25,
+        "{waiting} blocks without an estimate after the restart"
+    );
     assert!(new_blocks[waiting..]
         .iter()
         .all(|(_, b)| b.flags & cf::MAIN_ONLY == 0));
@@ -863,33 +898,32 @@ fn a_killed_recorder_loses_at_most_the_last_second() {
     let p = prefix("r");
     let services_log = dir.path("services.log");
     let (killed_path, clean_path) = (dir.path("killed.mcap"), dir.path("clean.mcap"));
-    // Two recorders of the same streams; no services: the recorders are the replay's
-    // subscribers.
-    let mut victim = Kid::role(
-        &spec(&p, Some(killed_path.clone()), None),
-        Role::Recorder,
-        &services_log,
-    );
-    let mut clean = Kid::role(
-        &spec(&p, Some(clean_path.clone()), None),
-        Role::Recorder,
-        &services_log,
-    );
+    // Two recorders of the rig streams; no services: the recorders are the replay's
+    // subscribers. Each is up once it has published a heartbeat (after subscribing),
+    // told apart by its uptime.
     let hb = Heartbeats::new(&p, ServiceId::Recorder);
-    let mut ready = 0;
-    assert!(poll(Duration::from_secs(30), || {
-        assert!(victim.check_alive().is_ok() && clean.check_alive().is_ok());
-        while hb.sub.receive().unwrap().is_some() {
-            ready += 1;
-        }
-        ready >= 2
-    }));
+    let recorder = |path: &Path| {
+        let mut cmd = spec(&p, Some(path.to_path_buf()), None)
+            .command(Role::Recorder)
+            .unwrap();
+        cmd.args(["--topics", "/vib,/accel,/truth"]);
+        let spawned = Instant::now();
+        let kid = Kid::spawn(cmd, "recorder", &services_log);
+        hb.wait_for(Duration::from_secs(30), |h| {
+            h.uptime_ns < spawned.elapsed().as_nanos() as u64
+        });
+        kid
+    };
+    let mut victim = recorder(&killed_path);
+    let clean = recorder(&clean_path);
     drop(hb);
     // Real time: about 0.7 MB/s, so chunks are closed by the 1 s flush timer rather
     // than by their 1 MiB size.
     let started = Instant::now();
     let replay = replay(&p, &log, &["--rate", "1"], &services_log);
     std::thread::sleep(Duration::from_millis(3500));
+    victim.check_alive().unwrap();
+    let killed_at_s = started.elapsed().as_secs_f64();
     let killed_ns = now_ns();
     victim.signal(libc::SIGKILL);
     let (status, _) = victim.wait(Duration::from_secs(10));
@@ -912,11 +946,12 @@ fn a_killed_recorder_loses_at_most_the_last_second() {
     assert_eq!(clean_info.lost, 0);
     // The dead subscriber's full buffer made the replay wait once (1 s), then the
     // replay removed the dead node and went on at its pace.
+    // (Without that clean-up every later /vib message waited 1 s: 70 s here.)
     let undelivered = u64_at(&r, &["undelivered"]);
-    assert!(undelivered <= 3, "{r}");
+    assert!(undelivered <= 1, "{r}");
     let span = r["log_span_s"].as_f64().unwrap();
     assert!(
-        r["elapsed_s"].as_f64().unwrap() < span + 1.0 + undelivered as f64,
+        r["elapsed_s"].as_f64().unwrap() < span + 2.0,
         "the replay was held up by the dead recorder: {r}"
     );
 
@@ -954,32 +989,29 @@ fn a_killed_recorder_loses_at_most_the_last_second() {
     // What the kill cost: the messages received before it that did not make it.
     let lost_before: Vec<u64> = reference
         .iter()
-        .filter(|(k, &t)| t < killed_ns && !recovered.contains(*k) && k.0 != "/heartbeat/recorder")
+        .filter(|(k, &t)| t < killed_ns && !recovered.contains(*k))
         .map(|(_, &t)| t)
         .collect();
     let lost_span_s = lost_before
         .iter()
         .min()
         .map_or(0.0, |&t| (killed_ns - t) as f64 * 1e-9);
-    let received_before = reference
-        .iter()
-        .filter(|(k, &t)| t < killed_ns && k.0 != "/heartbeat/recorder")
-        .count();
+    let received_before = reference.values().filter(|&&t| t < killed_ns).count();
     assert!(
         lost_span_s <= 1.5,
         "{} messages of the last {lost_span_s:.3} s before the kill are missing",
         lost_before.len()
     );
     eprintln!(
-        "FIGURES recorder-kill: rate 1x, killed {:.1} s into the replay; recovered {} \
-         messages in {} chunks ({} of {} input bytes valid); missing from before the kill: {} \
+        "FIGURES recorder-kill: rate 1x, killed {killed_at_s:.1} s into the replay; recovered {} \
+         messages in {} chunks ({} of {} input bytes valid, {:?}); missing from before the kill: {} \
          of {} messages, the last {lost_span_s:.3} s; clean stop: {} messages, lost 0; replay \
          undelivered {undelivered}, took {replay_s:.2} s for {span:.2} s of log",
-        (killed_ns as f64 - (now_ns() as f64 - started.elapsed().as_nanos() as f64)) * 1e-9,
         rep.messages_recovered,
         rep.chunks_recovered,
         rep.valid_prefix_bytes,
         rep.input_bytes,
+        rep.stop_reason,
         lost_before.len(),
         received_before,
         clean_info.messages,
@@ -1031,7 +1063,10 @@ fn a_subscriber_that_does_not_read_costs_one_timeout_per_block_and_is_reported()
     );
     let accel_sent = u64_at(&r, &["topics", "/accel"]);
     assert_eq!(accel_sent, 260, "{r}");
-    assert_eq!(r["undelivered"], 0, "the back-pressure did not reach the replay: {r}");
+    assert_eq!(
+        r["undelivered"], 0,
+        "the back-pressure did not reach the replay: {r}"
+    );
     let buffer = stream_config(Stream::Compensated).subscriber_buffer as u64;
     let expected_undelivered = accel_sent - buffer;
     // 4 blocks at 1 s each after the replay: wait for the compensator to finish.
@@ -1069,7 +1104,11 @@ fn a_subscriber_that_does_not_read_costs_one_timeout_per_block_and_is_reported()
     let recs = records(&session);
     let comp_blocks = compensated(&recs);
     let seqs: Vec<u64> = comp_blocks.iter().map(|(_, b)| b.input_seq).collect();
-    assert_eq!(seqs, (0..accel_sent).collect::<Vec<_>>(), "the recorder got every block");
+    assert_eq!(
+        seqs,
+        (0..accel_sent).collect::<Vec<_>>(),
+        "the recorder got every block"
+    );
     // Each block past the full buffer waited the timeout (1 s), no more.
     let waits_s: Vec<f64> = comp_blocks[buffer as usize - 1..]
         .windows(2)
@@ -1169,6 +1208,7 @@ fn soak_at_ten_times_real_time_loses_nothing_and_memory_stays_flat() {
     }
     stop.store(true, Ordering::Release);
     let samples = sampler.join().unwrap();
+    let cpu = pids.map(|pid| cpu_s(pid).unwrap_or(0.0));
     replay.signal(libc::SIGINT);
     let r = replay_done(replay, Duration::from_secs(30));
     let (accel_sent, vib_sent) = (
@@ -1256,7 +1296,7 @@ fn soak_at_ten_times_real_time_loses_nothing_and_memory_stays_flat() {
         "FIGURES soak: {soak_s} s at 10x ({} passes, {accel_sent} accel + {vib_sent} vib \
          blocks, real-time factor {:.2}); lost 0; RSS at {t_warm:.0} s -> {t_last:.0} s: {}; \
          compensator latency p50 {} us, p99 {} us, max {} us; estimator latency p50 {} us, \
-         p99 {} us; recording {} MB",
+         p99 {} us; recording {} MB; CPU s (estimator, compensator, recorder) {cpu:.1?}",
         r["passes"],
         r["real_time_factor"].as_f64().unwrap_or(0.0),
         figures.join(", "),

@@ -195,7 +195,11 @@ pub fn recover(damaged: impl AsRef<Path>, out: impl AsRef<Path>) -> Result<Recov
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_emit_chunks(true)
-            .with_skip_end_magic(true),
+            .with_skip_end_magic(true)
+            // No record is longer than the file. A crash leaves the open chunk with
+            // the length the writer had not yet patched (u64::MAX), and without a
+            // limit mcap 0.26 panics adding the opcode and length sizes to it.
+            .with_record_length_limit(usize::try_from(input_bytes).unwrap_or(usize::MAX)),
     );
     // The header comes first; the new file's header copies its profile.
     let mut copier: Option<Copier> = None;
