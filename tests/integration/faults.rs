@@ -19,12 +19,13 @@
 //! docs/reliability.md.
 
 use crate::common::{bin, repo_path};
+use crate::processes::{children, flight_log, prefix, Dir};
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::{CallbackProgression, Config, Node, NodeState};
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
 use vibro_ipc::{create_node, now_ns, stream_config, Ipc, StreamSubscriber};
@@ -34,8 +35,6 @@ use vibro_msgs::{
     CompensatedBlock, Heartbeat, ServiceId, ServiceNames, ServiceState, Stream, VibEstimate,
 };
 use vibrocomp::system::{wait_for_heartbeats, Role, SystemSpec};
-
-static NEXT: AtomicU32 = AtomicU32::new(0);
 
 /// The soak needs both cores to itself: it takes this lock for writing, the other
 /// tests of this module for reading (they may run two at a time).
@@ -47,54 +46,6 @@ fn shared_load() -> RwLockReadGuard<'static, ()> {
 
 fn exclusive_load() -> RwLockWriteGuard<'static, ()> {
     LOAD.write().unwrap_or_else(|e| e.into_inner())
-}
-
-/// A unique, short prefix per test (tests run in parallel).
-fn prefix(tag: &str) -> String {
-    format!(
-        "vct-f{tag}-{}-{}/",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::Relaxed)
-    )
-}
-
-struct Dir(PathBuf);
-impl Dir {
-    fn new(tag: &str) -> Self {
-        let d = std::env::temp_dir().join(format!(
-            "vibrocomp-faults-{tag}-{}-{}",
-            std::process::id(),
-            NEXT.fetch_add(1, Ordering::Relaxed)
-        ));
-        std::fs::create_dir_all(&d).unwrap();
-        Self(d)
-    }
-    fn path(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-impl Drop for Dir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-/// A short simulated flight log (the demo's scenario, `seconds` long): 50 vibration
-/// blocks (512 samples at 25.6 kHz) and 25 accelerometer blocks (32 samples at 800 Hz)
-/// per second of data.
-fn flight_log(dir: &Dir, seconds: &str) -> PathBuf {
-    let out = dir.path("flight.mcap");
-    let status = bin()
-        .args(["sim", "cyclone-4-short", "--duration-s", seconds, "--out"])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        status.status.success(),
-        "{}",
-        String::from_utf8_lossy(&status.stderr)
-    );
-    out
 }
 
 /// A compensator configuration: the shipped model, with `max_estimate_age_s` and the
@@ -332,26 +283,6 @@ fn poll(timeout: Duration, mut done: impl FnMut() -> bool) -> bool {
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-}
-
-/// The children of a process, with their command lines (from /proc).
-fn children(pid: u32) -> Vec<(u32, String)> {
-    let mut out = Vec::new();
-    let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
-        return out;
-    };
-    for t in tasks.flatten() {
-        let list = std::fs::read_to_string(t.path().join("children")).unwrap_or_default();
-        for c in list
-            .split_whitespace()
-            .filter_map(|s| s.parse::<u32>().ok())
-        {
-            let cmd = std::fs::read(format!("/proc/{c}/cmdline")).unwrap_or_default();
-            let cmd = String::from_utf8_lossy(&cmd).replace('\0', " ");
-            out.push((c, cmd));
-        }
-    }
-    out
 }
 
 /// The pid of `up`'s child whose command line contains `what`, other than `not`.

@@ -7,6 +7,7 @@ mod identify;
 mod latency;
 mod log;
 mod model;
+mod processes;
 mod python_client;
 mod replay;
 mod sim;

@@ -10,70 +10,15 @@
 //! - the recordings decode with the Python `mcap` reader (CRCs checked).
 
 use crate::common::{bin, repo_path};
+use crate::processes::{children, flight_log, prefix, Dir};
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Duration;
 use vibro_dsp::{Estimator, SampleBlock};
 use vibro_mcap::{Message, Reader};
 use vibro_msgs::compensation_flags::INPUT_GAP;
 use vibro_msgs::{CompensatedBlock, ServiceId, ServiceNames, VibEstimate};
 use vibrocomp::system::{wait_for_heartbeats, Process, Role, SystemSpec};
-
-static NEXT: AtomicU32 = AtomicU32::new(0);
-
-/// A unique, short prefix per test (tests run in parallel).
-fn prefix(tag: &str) -> String {
-    format!(
-        "vct-rp{tag}-{}-{}/",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::Relaxed)
-    )
-}
-
-struct Dir(PathBuf);
-impl Dir {
-    fn new(tag: &str) -> Self {
-        let d = std::env::temp_dir().join(format!(
-            "vibrocomp-replay-{tag}-{}-{}",
-            std::process::id(),
-            NEXT.fetch_add(1, Ordering::Relaxed)
-        ));
-        std::fs::create_dir_all(&d).unwrap();
-        Self(d)
-    }
-    fn path(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-impl Drop for Dir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-/// A short simulated flight log (the demo's scenario, `seconds` long).
-fn flight_log(dir: &Dir, seconds: &str) -> PathBuf {
-    let out = dir.path("flight.mcap");
-    let status = bin()
-        .args([
-            "sim",
-            "cyclone-4-short",
-            "--duration-s",
-            seconds,
-            "--json",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(
-        status.status.success(),
-        "{}",
-        String::from_utf8_lossy(&status.stderr)
-    );
-    out
-}
 
 fn spec(prefix: &str, record: Option<PathBuf>) -> SystemSpec {
     SystemSpec {
@@ -445,24 +390,6 @@ fn the_demo_cuts_the_error_tenfold_and_loses_nothing() {
     );
     // Everything recorded reads back in Python.
     python_check(&dir.path("demo/session.mcap"));
-}
-
-/// The children of a process, with their command lines.
-fn children(pid: u32) -> Vec<(u32, String)> {
-    let mut out = Vec::new();
-    let tasks = std::fs::read_dir(format!("/proc/{pid}/task")).unwrap();
-    for t in tasks.flatten() {
-        let list = std::fs::read_to_string(t.path().join("children")).unwrap_or_default();
-        for c in list
-            .split_whitespace()
-            .filter_map(|s| s.parse::<u32>().ok())
-        {
-            let cmd = std::fs::read(format!("/proc/{c}/cmdline")).unwrap_or_default();
-            let cmd = String::from_utf8_lossy(&cmd).replace('\0', " ");
-            out.push((c, cmd));
-        }
-    }
-    out
 }
 
 /// `vibrocomp up`: a killed compensator is started again, and Ctrl-C stops everything
