@@ -301,8 +301,3 @@ impl Drop for Process {
 pub fn private_prefix(what: &str) -> String {
     format!("{what}-{}/", std::process::id())
 }
-
-/// `path` relative to the working directory, for messages.
-pub fn shown(path: &Path) -> String {
-    path.display().to_string()
-}

@@ -99,9 +99,6 @@ pub enum Error {
         sent: u64,
         waited_s: f64,
     },
-    /// The recorder could not keep a message after shutdown was requested.
-    #[error("recorder queue still full at shutdown: {topic} sequence {sequence} not recorded")]
-    NotRecorded { topic: String, sequence: u64 },
 }
 
 /// `Result` with this crate's [`Error`].
