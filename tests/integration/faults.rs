@@ -1239,3 +1239,142 @@ fn soak_at_ten_times_real_time_loses_nothing_and_memory_stays_flat() {
         info.file_bytes / 1_000_000,
     );
 }
+
+/// `text` without its terminal colour codes (`ESC [ ... m`).
+fn strip_ansi(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut chars = text.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            for c in chars.by_ref() {
+                if c == 'm' {
+                    break;
+                }
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+/// Whether process `pid` has ended (gone, or a zombie waiting for its new parent).
+fn ended(pid: u32) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        Err(_) => true,
+        // The state follows the command name in parentheses, which may contain spaces.
+        Ok(stat) => stat
+            .rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().next())
+            .is_some_and(|state| state == "Z" || state == "X"),
+    }
+}
+
+/// `vibrocomp up --record` killed with SIGKILL cannot stop its children itself; the
+/// kernel sends them SIGTERM as their parent dies (`PR_SET_PDEATHSIG`), so they stop as on
+/// Ctrl-C (their log shows the signal taken and their final summary, the recording is
+/// finished) instead of running on without a supervisor.
+#[test]
+fn a_supervisor_killed_with_sigkill_takes_its_services_with_it() {
+    let _load = shared_load();
+    let dir = Dir::new("fk");
+    let p = prefix("fk");
+    let rec = dir.path("session.mcap");
+    let mut up = bin()
+        .args(["up", "--json", "--prefix", &p, "--record"])
+        .arg(&rec)
+        .arg("--estimator-config")
+        .arg(repo_path("config/services/estimator.toml"))
+        .arg("--compensator-config")
+        .arg(repo_path("config/services/compensator.toml"))
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(dir.path("up.log")).unwrap())
+        .spawn()
+        .unwrap();
+    let names = ServiceNames::new(&p).unwrap();
+    let all = [
+        ServiceId::Estimator,
+        ServiceId::Compensator,
+        ServiceId::Recorder,
+    ];
+    wait_for_heartbeats(&names, &all, Duration::from_secs(30), || Ok(())).unwrap();
+    let kids = children(up.id());
+    assert_eq!(
+        kids.len(),
+        3,
+        "{kids:?}\nup: {}",
+        std::fs::read_to_string(dir.path("up.log")).unwrap_or_default()
+    );
+    kill(up.id(), libc::SIGKILL);
+    up.wait().unwrap();
+    let all_ended = poll(Duration::from_secs(10), || {
+        kids.iter().all(|(pid, _)| ended(*pid))
+    });
+    if !all_ended {
+        for (pid, _) in &kids {
+            kill(*pid, libc::SIGKILL);
+        }
+        panic!("children still running 10 s after their supervisor was killed: {kids:?}");
+    }
+    // Their clean shutdown, in the log they inherited: the signal taken, the final
+    // summary line of each.
+    let log = std::fs::read_to_string(dir.path("up.log")).unwrap();
+    for line in [
+        "estimator stopped",
+        "compensator stopped",
+        "shutting down (a second signal exits at once) signal=15",
+    ] {
+        assert!(
+            strip_ansi(&log).contains(line),
+            "no {line:?} in the log:\n{log}"
+        );
+    }
+    // The recorder finished its log (`info` refuses a log without its footer).
+    let info = vibro_mcap::info(&rec).unwrap_or_else(|e| panic!("{e}\nlog:\n{log}"));
+    assert!(info
+        .channels
+        .iter()
+        .any(|c| c.topic == "/heartbeat/estimator"));
+    for (pid, cmd) in &kids {
+        let (alive, dead) = nodes_of(*pid);
+        assert!(
+            alive.is_empty() && dead.is_empty(),
+            "{cmd}: nodes left {alive:?} {dead:?}"
+        );
+    }
+}
+
+/// Ctrl-C in a terminal sends SIGINT to the whole process group: `up` and its
+/// children; `up` then sends its own SIGTERM to each child. The children take the two
+/// as one request (not as "a second signal: exit at once") and stop cleanly.
+#[test]
+fn ctrl_c_to_the_process_group_stops_every_process_cleanly() {
+    use std::os::unix::process::CommandExt;
+    let _load = shared_load();
+    let p = prefix("fg");
+    let up = bin()
+        .args(["up", "--json", "--prefix", &p])
+        .arg("--estimator-config")
+        .arg(repo_path("config/services/estimator.toml"))
+        .arg("--compensator-config")
+        .arg(repo_path("config/services/compensator.toml"))
+        .process_group(0)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let names = ServiceNames::new(&p).unwrap();
+    let both = [ServiceId::Estimator, ServiceId::Compensator];
+    wait_for_heartbeats(&names, &both, Duration::from_secs(30), || Ok(())).unwrap();
+    // SAFETY: signalling the process group this test created (`up` and its children).
+    unsafe { libc::kill(-(up.id() as libc::pid_t), libc::SIGINT) };
+    let out = up.wait_with_output().unwrap();
+    assert!(out.status.success(), "up exited with {}", out.status);
+    let v = json_in(&String::from_utf8_lossy(&out.stdout));
+    for r in v["processes"].as_array().unwrap() {
+        assert_eq!(r["last_exit"], "exit status: 0", "{v}");
+        assert_eq!(r["crashes"], 0, "{v}");
+    }
+}

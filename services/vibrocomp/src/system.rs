@@ -119,7 +119,33 @@ impl SystemSpec {
         };
         let mut c = Command::new(exe);
         c.args(self.args(role));
+        stop_with_parent(&mut c);
         Ok(c)
+    }
+}
+
+/// Makes the child receive SIGTERM when the thread that starts it ends, so that a
+/// supervisor killed with SIGKILL (which cannot clean up) does not leave its services
+/// running: they stop as on Ctrl-C, releasing their ports (Linux
+/// `PR_SET_PDEATHSIG`). The signal follows the *thread* that forked: `up` starts its
+/// children from tokio worker threads, which live as long as the runtime, and `demo`
+/// and `latency` from the main thread. A parent that died before the child set the
+/// signal is caught by comparing the parent's pid.
+fn stop_with_parent(c: &mut Command) {
+    use std::os::unix::process::CommandExt;
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: the closure runs in the child between fork and exec and calls only
+    // async-signal-safe functions (prctl, getppid, _exit); it allocates nothing.
+    unsafe {
+        c.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM as libc::c_ulong) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            if libc::getppid() != parent {
+                libc::_exit(0);
+            }
+            Ok(())
+        });
     }
 }
 

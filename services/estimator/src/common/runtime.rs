@@ -16,9 +16,14 @@ pub fn init_tracing() {
         .try_init();
 }
 
+/// How long after the first stop signal further signals are taken as repeats of it.
+pub const SAME_REQUEST: std::time::Duration = std::time::Duration::from_secs(1);
+
 /// Runs `service(shutdown)` on a tokio runtime with SIGINT and SIGTERM handled: the first
 /// signal triggers `shutdown` (the service stops its loop, releases its ports and
-/// returns), a second one exits at once with 128 + the signal number.
+/// returns), a second one exits at once with 128 + the signal number. Signals within
+/// [`SAME_REQUEST`] of the first count as the same request (a terminal's Ctrl-C and a
+/// supervisor's SIGTERM arrive together).
 ///
 /// The handlers are installed before `service` starts, so a signal can never hit the
 /// default action (process death without releasing shared memory) once this runs.
@@ -42,22 +47,35 @@ where
         let signals = tokio::spawn({
             let shutdown = shutdown.clone();
             async move {
-                let mut first = true;
+                let mut first_at: Option<std::time::Instant> = None;
                 loop {
                     let number = tokio::select! {
                         _ = interrupt.recv() => libc::SIGINT,
                         _ = terminate.recv() => libc::SIGTERM,
                     };
-                    if first {
-                        tracing::info!(
-                            signal = number,
-                            "shutting down (a second signal exits at once)"
-                        );
-                        shutdown.trigger();
-                        first = false;
-                    } else {
-                        tracing::warn!(signal = number, "second signal: exiting without cleanup");
-                        std::process::exit(128 + number);
+                    match first_at {
+                        None => {
+                            tracing::info!(
+                                signal = number,
+                                "shutting down (a second signal exits at once)"
+                            );
+                            shutdown.trigger();
+                            first_at = Some(std::time::Instant::now());
+                        }
+                        // One request delivered more than once: Ctrl-C in a terminal
+                        // reaches the whole process group and `vibrocomp up` then sends
+                        // SIGTERM too; a dying parent's `PR_SET_PDEATHSIG` arrives once
+                        // per reparenting.
+                        Some(at) if at.elapsed() < SAME_REQUEST => {
+                            tracing::debug!(signal = number, "signal repeated: already stopping");
+                        }
+                        Some(_) => {
+                            tracing::warn!(
+                                signal = number,
+                                "second signal: exiting without cleanup"
+                            );
+                            std::process::exit(128 + number);
+                        }
                     }
                 }
             }
