@@ -255,6 +255,10 @@ pub struct TriadCompensator {
     units: [UnitCompensator; 3],
     /// `[unit][0 = OA, 1 = PA]`.
     cross: [[CrossSource; 2]; 3],
+    /// The same as rows over the three IA accelerations: `cross_rows[i][k][j]` is
+    /// `sign` where unit `i`'s cross axis `k` is unit `j`'s IA, else 0. The kernel
+    /// multiplies by them, with no index look-ups.
+    cross_rows: [[[f64; 3]; 2]; 3],
     /// Exact mode, tracking: the corrections `a(1) - a(s+1)` of the last sample,
     /// `[stage][unit]`, the starting point of the next sample's Newton iteration.
     last_correction_g: Option<[[f64; 3]; 3]>,
@@ -282,10 +286,18 @@ impl TriadCompensator {
                 find(u.pa.body_index, u.pa.sign),
             ]
         });
+        let cross_rows = cross.map(|sources| {
+            sources.map(|src| {
+                let mut row = [0.0; 3];
+                row[src.source] = src.sign;
+                row
+            })
+        });
         Self {
             axes,
             units: passports.map(|p| UnitCompensator::new(p, mode)),
             cross,
+            cross_rows,
             last_correction_g: None,
         }
     }
@@ -413,14 +425,15 @@ impl TriadCompensator {
                 let mut curvature = 0.0f64;
                 let mut slope_min = f64::INFINITY;
                 for i in 0..3 {
-                    let cross = self.cross_of(i, xs);
+                    let [oa, pa] = &self.cross_rows[i];
+                    let cross = [dot3(oa, xs), dot3(pa, xs)];
                     let (value, grad, curv) = self.units[i].models[stage]
                         .mean_output_with_derivatives_g([cross[0], cross[1], xs[i]]);
                     residual[i] = value - readings_g[i];
-                    jacobian[i][i] += grad[2];
-                    for (k, src) in self.cross[i].iter().enumerate() {
-                        jacobian[i][src.source] += grad[k] * src.sign;
+                    for j in 0..3 {
+                        jacobian[i][j] = grad[0] * oa[j] + grad[1] * pa[j];
                     }
+                    jacobian[i][i] += grad[2];
                     curvature = curvature.max(curv);
                     slope_min = slope_min.min(grad[2].abs());
                 }
@@ -452,6 +465,11 @@ impl TriadCompensator {
             iterations,
         }
     }
+}
+
+#[inline(always)]
+fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// The inverse of a 3x3 matrix by its adjugate. `J` is within 1e-2 of `k1 * I` for any

@@ -75,6 +75,27 @@ pub struct MeanModel {
     moments: [f64; 6],
     cross_g2: [f64; 2],
     abs: AbsMean,
+    /// Constants of [`Self::mean_output_with_derivatives_g`], kept by
+    /// [`Self::update_poly`] so that the kernel does not recompute them per sample.
+    hot: HotTerms,
+}
+
+/// The parts of `E[aF]` that do not depend on the flight acceleration.
+#[derive(Debug, Clone, Copy, Default)]
+struct HotTerms {
+    /// `a0 + poly[0] + m31 E[v1 v3] + m32 E[v2 v3]`.
+    offset_g: f64,
+    /// `k1 + poly[1]`: the slope of the linear terms in `aL3`.
+    linear: f64,
+    /// `poly[2..=5]` and the coefficients of their first and second derivatives.
+    poly: [f64; 4],
+    slope: [f64; 4],
+    curvature: [f64; 4],
+    /// `0.5 k1 d1A` and its magnitude.
+    half_asym: f64,
+    half_asym_abs: f64,
+    /// `|m31| + |m32|`: the mixed terms' part of the second-derivative bound.
+    mixed_curvature: f64,
 }
 
 impl MeanModel {
@@ -86,6 +107,7 @@ impl MeanModel {
             moments: [1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
             cross_g2: [0.0; 2],
             abs: AbsMean::new(),
+            hot: HotTerms::default(),
         };
         m.update_poly();
         m
@@ -128,6 +150,20 @@ impl MeanModel {
                 self.poly[p] += k[n] * BINOMIAL[n][n - p] * self.moments[n - p];
             }
         }
+        let (p, c) = (&self.passport, &self.poly);
+        self.hot = HotTerms {
+            offset_g: p.a0_g
+                + c[0]
+                + p.m31_per_g * self.cross_g2[0]
+                + p.m32_per_g * self.cross_g2[1],
+            linear: p.k1 + c[1],
+            poly: [c[2], c[3], c[4], c[5]],
+            slope: [2.0 * c[2], 3.0 * c[3], 4.0 * c[4], 5.0 * c[5]],
+            curvature: [2.0 * c[2], 6.0 * c[3], 12.0 * c[4], 20.0 * c[5]],
+            half_asym: 0.5 * p.k1 * p.d1a,
+            half_asym_abs: (0.5 * p.k1 * p.d1a).abs(),
+            mixed_curvature: p.m31_per_g.abs() + p.m32_per_g.abs(),
+        };
     }
 
     /// `E[aF]` at the flight acceleration `a_l_g = [aL1, aL2, aL3]`, and its slope
@@ -152,34 +188,28 @@ impl MeanModel {
     #[inline(always)]
     pub fn mean_output_with_derivatives_g(&self, a_l_g: [f64; 3]) -> (f64, [f64; 3], f64) {
         let p = &self.passport;
+        let h = &self.hot;
         let [a1, a2, a] = a_l_g;
-        let c = &self.poly;
-        let poly = c[0] + a * (c[1] + a * (c[2] + a * (c[3] + a * (c[4] + a * c[5]))));
-        let poly_slope =
-            c[1] + a * (2.0 * c[2] + a * (3.0 * c[3] + a * (4.0 * c[4] + a * 5.0 * c[5])));
-        let poly_curv = 2.0 * c[2] + a * (6.0 * c[3] + a * (12.0 * c[4] + a * 20.0 * c[5]));
+        // poly[0] and poly[1] aL3 are in `offset_g` and `linear`; Horner on the rest.
+        let (c, d, e) = (&h.poly, &h.slope, &h.curvature);
+        let poly_high = a * a * (c[0] + a * (c[1] + a * (c[2] + a * c[3])));
+        let poly_slope = a * (d[0] + a * (d[1] + a * (d[2] + a * d[3])));
+        let poly_curv = e[0] + a * (e[1] + a * (e[2] + a * e[3]));
         let (abs, abs_slope) = self.abs.eval(a);
-        let half_asym = 0.5 * p.k1 * p.d1a;
         let cross_slope = p.m31_per_g * a1 + p.m32_per_g * a2;
-        let value = p.a0_g
-            + p.k1 * a
-            + half_asym * abs
-            + poly
+        let value = h.offset_g
+            + h.linear * a
+            + h.half_asym * abs
+            + poly_high
             + p.m1 * a1
             + p.m2 * a2
-            + a * cross_slope
-            + p.m31_per_g * self.cross_g2[0]
-            + p.m32_per_g * self.cross_g2[1];
+            + a * cross_slope;
         let gradient = [
             p.m1 + p.m31_per_g * a,
             p.m2 + p.m32_per_g * a,
-            p.k1 + half_asym * abs_slope + poly_slope + cross_slope,
+            h.linear + h.half_asym * abs_slope + poly_slope + cross_slope,
         ];
-        (
-            value,
-            gradient,
-            poly_curv.abs() + p.m31_per_g.abs() + p.m32_per_g.abs(),
-        )
+        (value, gradient, poly_curv.abs() + h.mixed_curvature)
     }
 
     /// A bound on the change of the asymmetry term's linearisation after a Newton
@@ -187,8 +217,7 @@ impl MeanModel {
     /// for the convex `E|aL3 + v3|` (see [`AbsMean::slope_change_bound`]).
     #[inline(always)]
     pub fn asymmetry_step_error_bound_g(&self, a3_g: f64, step_g: f64) -> f64 {
-        let p = &self.passport;
-        0.5 * (p.k1 * p.d1a).abs() * step_g.abs() * self.abs.slope_change_bound(a3_g, step_g)
+        self.hot.half_asym_abs * step_g.abs() * self.abs.slope_change_bound(a3_g, step_g)
     }
 
     /// The exact VE components at `a_l_g`. The additive part `d0(1)` holds the
