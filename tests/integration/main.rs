@@ -1,5 +1,6 @@
 //! Integration tests of vibrocomp: one binary, a module per topic.
 
+mod bad_input;
 mod common;
 mod estimate;
 mod faults;

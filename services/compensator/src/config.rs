@@ -44,6 +44,11 @@ pub struct RawConfig {
     /// stale: the block is compensated for the main error only.
     #[serde(default = "default_max_estimate_age_s")]
     pub max_estimate_age_s: f64,
+    /// An estimate whose window ends more than this after a block's last sample is
+    /// dated ahead of the block (the streams' clocks disagree): it is not used for that
+    /// block (main error only, `ESTIMATE_AHEAD`).
+    #[serde(default = "default_max_estimate_lead_s")]
+    pub max_estimate_lead_s: f64,
     /// How often the model files are checked for changes; 0 disables hot reload.
     #[serde(default = "default_reload_poll_s")]
     pub reload_poll_s: f64,
@@ -55,6 +60,11 @@ pub struct RawConfig {
 
 fn default_max_estimate_age_s() -> f64 {
     2.0
+}
+/// Well above what the two streams' block lengths and latencies put between them
+/// (tens of ms), well below any clock offset worth flagging.
+fn default_max_estimate_lead_s() -> f64 {
+    0.5
 }
 fn default_reload_poll_s() -> f64 {
     0.5
@@ -110,6 +120,8 @@ pub struct Model {
     pub triad: TriadConfig,
     /// `max_estimate_age_s` in ns.
     pub max_estimate_age_ns: u64,
+    /// `max_estimate_lead_s` in ns.
+    pub max_estimate_lead_ns: u64,
     pub estimate: EstimateMapping,
 }
 
@@ -274,6 +286,15 @@ impl Config {
             ));
             None
         };
+        let lead_s = raw.max_estimate_lead_s;
+        let max_lead = if lead_s.is_finite() && (0.0..=3600.0).contains(&lead_s) {
+            Some((lead_s * 1e9).round() as u64)
+        } else {
+            problems.push(format!(
+                "max_estimate_lead_s = {lead_s}: must be finite and 0 <= s <= 3600"
+            ));
+            None
+        };
         let reload_poll = if raw.reload_poll_s == 0.0 {
             Some(None)
         } else {
@@ -305,13 +326,23 @@ impl Config {
             ));
         }
 
-        match (names, service, mode, triad, max_age, reload_poll, kurtosis) {
+        match (
+            names,
+            service,
+            mode,
+            triad,
+            max_age,
+            max_lead,
+            reload_poll,
+            kurtosis,
+        ) {
             (
                 Some(names),
                 Some(service),
                 Some(mode),
                 Some(triad),
                 Some(max_age),
+                Some(max_lead),
                 Some(reload_poll),
                 Some(kurtosis),
             ) if problems.is_empty() => Ok(Self {
@@ -322,6 +353,7 @@ impl Config {
                     mode,
                     triad,
                     max_estimate_age_ns: max_age,
+                    max_estimate_lead_ns: max_lead,
                     estimate: EstimateMapping {
                         use_tones: e.use_tones,
                         use_random: e.use_random,
@@ -416,6 +448,7 @@ mod tests {
         assert_eq!(c.names.prefix(), "vibrocomp/");
         assert_eq!(c.model.mode, Mode::Exact);
         assert_eq!(c.model.max_estimate_age_ns, 2_000_000_000);
+        assert_eq!(c.model.max_estimate_lead_ns, 500_000_000);
         assert_eq!(c.model.triad.id, "default");
         assert_eq!(c.model.estimate, EstimateMapping::default());
         assert_eq!(c.reload_poll, Some(Duration::from_millis(500)));
@@ -437,7 +470,10 @@ mod tests {
         let text = EMBEDDED_CONFIG
             .replace("mode = \"exact\"", "mode = \"fast\"")
             .replace("triad = \"default\"", "triad = \"nowhere.toml\"")
-            .replace("max_estimate_age_s = 2.0", "max_estimate_age_s = -1.0")
+            .replace(
+                "max_estimate_age_s = 2.0",
+                "max_estimate_age_s = -1.0\nmax_estimate_lead_s = inf",
+            )
             .replace("kurtosis = \"estimated\"", "kurtosis = \"normal\"")
             .replace("max_tones = 8", "max_tones = 9");
         let e = Config::parse(&text, ConfigSource::File("c.toml".into())).unwrap_err();
@@ -447,12 +483,13 @@ mod tests {
             "mode = \"fast\": must be one of",
             "triad = \"nowhere.toml\": \"nowhere.toml\" is neither a readable file nor a known triad id",
             "max_estimate_age_s = -1: must be finite and 0 < s <= 3600",
+            "max_estimate_lead_s = inf: must be finite and 0 <= s <= 3600",
             "estimate.kurtosis = \"normal\"",
             "estimate.max_tones = 9: must be 1..=8",
         ] {
             assert!(msg.contains(needle), "{needle:?} missing from {msg}");
         }
-        assert_eq!(e.problems.len(), 5, "{msg}");
+        assert_eq!(e.problems.len(), 6, "{msg}");
         let e = Config::parse(
             &format!("{EMBEDDED_CONFIG}\nspeed = 1\n"),
             ConfigSource::File("c.toml".into()),

@@ -15,7 +15,13 @@
 //!   axes ([`mapping`]) and given to the compensator once per estimate. An estimate
 //!   whose window ended more than `max_estimate_age_s` before a block's last sample is
 //!   stale: that block is compensated for the main error only and flagged, as are
-//!   blocks before the first estimate.
+//!   blocks before the first estimate and blocks the estimate is dated more than
+//!   `max_estimate_lead_s` ahead of (`ESTIMATE_AHEAD`: the streams' clocks disagree).
+//! - Bad input is flagged on the block concerned and never stops the service: lost
+//!   data (`INPUT_GAP`), non-finite readings, a producer's `SATURATED` block
+//!   (`INPUT_SATURATED`), a timestamp off the stream's timing by more than half a
+//!   sample period (`TIME_JUMP`), a new `sample_period_ns` (`RATE_CHANGE`: the
+//!   estimate is mapped to the new output interval, the kernel starts afresh).
 //! - The model files are reloaded while running (a tokio task polls them).
 //!
 //! ```no_run

@@ -77,6 +77,7 @@ pub(crate) async fn watch(
                     triad = %config.model.triad.id,
                     passports = ?config.model.triad.passports.map(|p| p.id().to_string()),
                     max_estimate_age_s = config.model.max_estimate_age_ns as f64 * 1e-9,
+                    max_estimate_lead_s = config.model.max_estimate_lead_ns as f64 * 1e-9,
                     "model reloaded"
                 );
                 let update = ModelUpdate {

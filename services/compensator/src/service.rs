@@ -63,6 +63,15 @@ pub struct Summary {
     pub missing_blocks: u64,
     /// Blocks published with `ESTIMATE_FLAGGED`.
     pub flagged_estimate_blocks: u64,
+    /// Blocks published with `ESTIMATE_AHEAD` (an estimate dated beyond the lead limit
+    /// after the block: not used).
+    pub ahead_blocks: u64,
+    /// Blocks published with `RATE_CHANGE`.
+    pub rate_change_blocks: u64,
+    /// Blocks published with `TIME_JUMP`.
+    pub time_jump_blocks: u64,
+    /// Blocks published with `INPUT_SATURATED`.
+    pub saturated_blocks: u64,
     /// Blocks a subscriber's full buffer did not take (after the back-pressure timeout).
     pub undelivered: u64,
     /// Other publish failures (loan, send): those blocks were not published.
@@ -99,6 +108,10 @@ impl Summary {
             .u64("stale_blocks", self.stale_blocks)
             .u64("missing_blocks", self.missing_blocks)
             .u64("flagged_estimate_blocks", self.flagged_estimate_blocks)
+            .u64("ahead_blocks", self.ahead_blocks)
+            .u64("rate_change_blocks", self.rate_change_blocks)
+            .u64("time_jump_blocks", self.time_jump_blocks)
+            .u64("saturated_blocks", self.saturated_blocks)
             .u64("undelivered", self.undelivered)
             .u64("publish_errors", self.publish_errors)
             .u64("receive_errors", self.receive_errors)
@@ -235,6 +248,40 @@ struct Latest {
     flagged: bool,
 }
 
+/// Where the accelerometer stream's last accepted block put its samples: the next
+/// block's `t0_ns` is checked against it.
+#[derive(Debug, Clone, Copy)]
+struct AccelTiming {
+    /// End of the block's last sample interval, `t0 + (count - 1) T` (one period
+    /// before `t0` for an empty block), ns; wide, so that no input overflows it.
+    last_end_ns: i128,
+    /// Sample index after the block's last sample.
+    next_index: u64,
+}
+
+impl AccelTiming {
+    fn after(block: &AccelBlock) -> Self {
+        let period = i128::from(block.sample_period_ns);
+        Self {
+            last_end_ns: i128::from(block.t0_ns) + (i128::from(block.count) - 1) * period,
+            next_index: block
+                .first_sample_index
+                .wrapping_add(u64::from(block.count)),
+        }
+    }
+
+    /// The block's `t0_ns` is more than half its sample period away from where this
+    /// timing and the sample index put it: sample 0's interval starts where the last
+    /// known sample's ended, one period per sample lost in between (at the block's
+    /// own period, so a rate change alone is no jump).
+    fn jumped(&self, block: &AccelBlock) -> bool {
+        let period = i128::from(block.sample_period_ns);
+        let skipped = i128::from(block.first_sample_index) - i128::from(self.next_index);
+        let expected_ns = self.last_end_ns + (1 + skipped) * period;
+        2 * (i128::from(block.t0_ns) - expected_ns).abs() > period
+    }
+}
+
 /// The hot loop's state. Nothing in it allocates per block or per sample.
 struct Compensation {
     model: Model,
@@ -247,6 +294,10 @@ struct Compensation {
     /// The accelerometer stream's sample period (each output is the mean over it), s;
     /// 0 before the first block.
     output_interval_s: f64,
+    /// The accelerometer stream's `sample_period_ns`; `None` before the first block.
+    period_ns: Option<u64>,
+    /// The last accepted block's timing; `None` before the first block.
+    timing: Option<AccelTiming>,
     accel_continuity: Continuity,
     estimate_continuity: Continuity,
     /// A dropped (malformed) block: the next output is flagged `INPUT_GAP`.
@@ -267,6 +318,8 @@ impl Compensation {
             latest: None,
             applied: None,
             output_interval_s: 0.0,
+            period_ns: None,
+            timing: None,
             accel_continuity: Continuity::new(),
             estimate_continuity: Continuity::new(),
             pending_gap: false,
@@ -288,6 +341,10 @@ impl Compensation {
                 stale_blocks: 0,
                 missing_blocks: 0,
                 flagged_estimate_blocks: 0,
+                ahead_blocks: 0,
+                rate_change_blocks: 0,
+                time_jump_blocks: 0,
+                saturated_blocks: 0,
                 undelivered: 0,
                 publish_errors: 0,
                 receive_errors: 0,
@@ -444,6 +501,17 @@ impl Compensation {
             self.output_interval_s = interval_s;
             self.remap_latest();
         }
+        let rate_change = self.period_ns.is_some_and(|p| p != block.sample_period_ns);
+        self.period_ns = Some(block.sample_period_ns);
+        if rate_change {
+            // The stream was reconfigured: start the kernel afresh, so that what
+            // follows is compensated as by a compensator started on the new rate.
+            self.compensator.reset_tracking();
+        }
+        // After a restart the stream's earlier timing no longer applies.
+        let time_jump =
+            !arrival.restarted && self.timing.is_some_and(|timing| timing.jumped(block));
+        self.timing = Some(AccelTiming::after(block));
         if arrival.restarted {
             // The producer started again (a new replay, a restarted rig): the stream
             // history no longer applies, and an estimate dated after this block
@@ -462,9 +530,22 @@ impl Compensation {
             flags |= cf::INPUT_GAP;
         }
         self.pending_gap = false;
+        if block.flags & accel_flags::SATURATED != 0 {
+            // Which readings are clipped the block does not say: all are compensated
+            // as read, and the output carries the producer's warning.
+            flags |= cf::INPUT_SATURATED;
+        }
+        if rate_change {
+            flags |= cf::RATE_CHANGE;
+        }
+        if time_jump {
+            flags |= cf::TIME_JUMP;
+        }
 
         // Staleness: the estimate's window end against the end of the block's last
-        // sample interval (both on the producers' clock).
+        // sample interval (both on the producers' clock, taken as given even after a
+        // TIME_JUMP). Too old: stale. Too new (the clocks disagree, or the block was
+        // dated back): not usable either, ESTIMATE_AHEAD.
         let (mut want, mut estimate_seq, mut age_ns) = (None, 0u64, 0i64);
         // `want`: the estimate whose vibration this block needs; `None`: main error only.
         match &self.latest {
@@ -475,6 +556,9 @@ impl Compensation {
                 estimate_seq = l.estimate.seq;
                 if age > i128::from(self.model.max_estimate_age_ns) {
                     flags |= cf::VIBRATION_ESTIMATE_STALE | cf::MAIN_ONLY;
+                } else if age < -i128::from(self.model.max_estimate_lead_ns) {
+                    // Kept: the stream may catch up with it.
+                    flags |= cf::ESTIMATE_AHEAD | cf::MAIN_ONLY;
                 } else {
                     want = Some(l.generation);
                     if l.flagged {
@@ -583,6 +667,10 @@ impl Compensation {
         self.s.stale_blocks += u64::from(flags & cf::VIBRATION_ESTIMATE_STALE != 0);
         self.s.missing_blocks += u64::from(flags & cf::ESTIMATE_MISSING != 0);
         self.s.flagged_estimate_blocks += u64::from(flags & cf::ESTIMATE_FLAGGED != 0);
+        self.s.ahead_blocks += u64::from(flags & cf::ESTIMATE_AHEAD != 0);
+        self.s.rate_change_blocks += u64::from(rate_change);
+        self.s.time_jump_blocks += u64::from(time_jump);
+        self.s.saturated_blocks += u64::from(flags & cf::INPUT_SATURATED != 0);
         self.latency.record(publish_ns.saturating_sub(recv_ns));
     }
 
@@ -592,7 +680,7 @@ impl Compensation {
             published: self.s.published,
             // A dropped malformed block shows as a missing seq: counted once.
             lost: self.s.accel.lost_messages,
-            stale: self.s.stale_blocks + self.s.missing_blocks,
+            stale: self.s.stale_blocks + self.s.missing_blocks + self.s.ahead_blocks,
             latency: self.latency.period(),
             state,
         }
@@ -750,7 +838,7 @@ fn hot_loop(
                 received: st.s.accel.received,
                 published: st.s.published,
                 lost: st.s.accel.lost_messages,
-                stale: st.s.stale_blocks + st.s.missing_blocks,
+                stale: st.s.stale_blocks + st.s.missing_blocks + st.s.ahead_blocks,
                 latency: Quantiles::default(),
                 state: ServiceState::Running,
             };
@@ -774,7 +862,9 @@ fn hot_loop(
             let s = &st.s;
             let degraded = s.accel.lost_messages + s.accel.lost_samples + s.accel.malformed
                 > last.accel.lost_messages + last.accel.lost_samples + last.accel.malformed
-                || s.stale_blocks + s.missing_blocks > last.stale_blocks + last.missing_blocks
+                || s.stale_blocks + s.missing_blocks + s.ahead_blocks
+                    > last.stale_blocks + last.missing_blocks + last.ahead_blocks
+                || s.time_jump_blocks > last.time_jump_blocks
                 || s.undelivered > last.undelivered;
             let state = if s.accel.received == 0 {
                 ServiceState::Starting
@@ -793,7 +883,7 @@ fn hot_loop(
             let q = st.latency.period();
             let s = &st.s;
             info!(
-                "compensator ({}): {:.1} blocks/s, {} estimates ({} rejected), lost {} blocks / {} samples, stale {} missing {} blocks, undelivered {}, latency p50 {:.1} us p99 {:.1} us",
+                "compensator ({}): {:.1} blocks/s, {} estimates ({} rejected), lost {} blocks / {} samples, stale {} missing {} ahead {} blocks, rate changes {}, time jumps {}, saturated {}, undelivered {}, latency p50 {:.1} us p99 {:.1} us",
                 s.mode,
                 (s.accel.received - last.accel.received) as f64 / dt_s,
                 s.estimates.received - last.estimates.received,
@@ -802,6 +892,10 @@ fn hot_loop(
                 s.accel.lost_samples - last.accel.lost_samples,
                 s.stale_blocks - last.stale_blocks,
                 s.missing_blocks - last.missing_blocks,
+                s.ahead_blocks - last.ahead_blocks,
+                s.rate_change_blocks - last.rate_change_blocks,
+                s.time_jump_blocks - last.time_jump_blocks,
+                s.saturated_blocks - last.saturated_blocks,
                 s.undelivered - last.undelivered,
                 q.p50_ns as f64 * 1e-3,
                 q.p99_ns as f64 * 1e-3,

@@ -9,7 +9,9 @@
 //! The receive → estimate → publish loop runs on its own thread and never awaits
 //! (iceoryx2 has no async API); tokio owns signals and supervision. Every input gap
 //! (by `seq` and by `first_sample_index`) is counted; the estimates it affects carry
-//! the estimator's `GAP` flag.
+//! the estimator's `GAP` flag. A block whose `sample_period_ns` disagrees with the
+//! configured `sample_rate_hz` is kept out (its samples become a gap) and the estimates
+//! whose windows overlap it carry `RATE_MISMATCH`; an empty block only advances `seq`.
 //!
 //! The crate also holds [`common`], the plumbing the compensator shares.
 //!

@@ -25,7 +25,9 @@ pub struct Summary {
     /// The `{prefix}vib` stream: received, lost (by `seq` and by `first_sample_index`),
     /// out of order, restarts, malformed.
     pub vib: StreamCounters,
-    /// Blocks whose `sample_period_ns` disagrees with the configured rate by more than 1 ns.
+    /// Blocks whose `sample_period_ns` disagrees with the configured rate by more than
+    /// 1 ns: their samples were kept out (a gap), the estimates over them flagged
+    /// `RATE_MISMATCH`.
     pub rate_mismatches: u64,
     /// Blocks flagged `GAP_BEFORE` or `SATURATED` by their producer.
     pub producer_flagged: u64,
@@ -34,7 +36,7 @@ pub struct Summary {
     /// Estimates published on `{prefix}estimate`.
     pub estimates_published: u64,
     /// Estimates published with a quality flag other than `TONE_FREE` (gap, non-finite,
-    /// out of order, insufficient data, saturation).
+    /// out of order, insufficient data, saturation, rate mismatch).
     pub estimates_flagged: u64,
     /// Estimates a subscriber's full buffer did not take (after the back-pressure timeout).
     pub undelivered: u64,
@@ -237,12 +239,21 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
     };
     let mut estimate_seq = 0u64;
     let mut fatal: Option<vibro_dsp::Error> = None;
+    // The time span `[from, to)` of the blocks dropped for their rate since the last
+    // estimate that started after them: the estimates whose windows overlap it are
+    // flagged RATE_MISMATCH.
+    let mut mismatch_span: Option<(u64, u64)> = None;
 
     let heartbeat_ns = config.service.heartbeat_period.as_nanos() as u64;
     let summary_ns = config.service.summary_period.as_nanos() as u64;
     let mut next_heartbeat_ns = started_ns;
     let mut next_summary_ns = started_ns.saturating_add(summary_ns);
-    let mut last_period = (c.vib, c.estimates_published, c.estimates_flagged);
+    let mut last_period = (
+        c.vib,
+        c.estimates_published,
+        c.estimates_flagged,
+        c.rate_mismatches,
+    );
     let mut period_start_ns = started_ns;
 
     info!(
@@ -302,32 +313,68 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
                 // The producer started again (a new replay, a restarted rig): a new
                 // time base, so a new window rather than "out of order" blocks.
                 estimator.reset();
+                mismatch_span = None;
             }
             if block.flags & vib_flags::ALL != 0 {
                 c.producer_flagged += 1;
             }
-            if block.sample_period_ns != 0
-                && (block.sample_period_ns as f64 - expected_period_ns).abs() > 1.0
-                && count_first(&mut c.rate_mismatches)
-            {
-                warn!(
-                    sample_period_ns = block.sample_period_ns,
-                    expected_ns = expected_period_ns,
-                    "vibration blocks do not match estimator.sample_rate_hz"
+            // A block at another rate than the estimator's: its samples would sit at the
+            // wrong times in the window, so they are kept out. (0: the producer does not
+            // say; an empty block has no samples at any rate.)
+            let rate_mismatch = block.count > 0
+                && block.sample_period_ns != 0
+                && (block.sample_period_ns as f64 - expected_period_ns).abs() > 1.0;
+            let samples_raw = if rate_mismatch {
+                if count_first(&mut c.rate_mismatches) {
+                    warn!(
+                        seq = block.seq,
+                        sample_period_ns = block.sample_period_ns,
+                        expected_ns = expected_period_ns,
+                        "vibration blocks do not match estimator.sample_rate_hz: their samples \
+                         are kept out of the estimates (further ones are counted)"
+                    );
+                }
+                let from = block.t0_ns;
+                let to = from.saturating_add(
+                    block
+                        .sample_period_ns
+                        .saturating_mul(u64::from(block.count)),
                 );
-            }
+                mismatch_span = Some(match mismatch_span {
+                    Some((f, t)) => (f.min(from), t.max(to)),
+                    None => (from, to),
+                });
+                // Handed over empty: the estimator takes its seq (no false sequence
+                // gap), and the next block's timestamp shows the samples missing.
+                &[][..]
+            } else {
+                block.samples_v()
+            };
             // Out-of-order blocks go to the estimator too: it drops them by their
             // timestamps and flags the next estimate OUT_OF_ORDER.
             let input = SampleBlock {
                 seq: block.seq,
                 t0_ns: block.t0_ns,
-                samples_raw: block.samples_v(),
+                samples_raw,
             };
             let source_seq = block.seq;
             let pushed = estimator.push_block(&input, |e| {
+                let over_mismatch = match mismatch_span {
+                    Some((from, to)) => {
+                        if e.start_ns >= to {
+                            // Estimates come in time order: none will overlap it again.
+                            mismatch_span = None;
+                        }
+                        e.start_ns < to && e.end_ns > from
+                    }
+                    None => false,
+                };
                 let mut publish_ns = 0;
                 let result = estimates.publish_with(|m| {
                     mirror_estimate(e, m);
+                    if over_mismatch {
+                        m.flags |= estimate_flags::RATE_MISMATCH;
+                    }
                     m.seq = estimate_seq;
                     m.source_seq = source_seq;
                     publish_ns = now_ns();
@@ -351,6 +398,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
                     || f.out_of_order
                     || f.insufficient_data
                     || f.saturated.contains(&true)
+                    || over_mismatch
                 {
                     c.estimates_flagged += 1;
                 }
@@ -397,7 +445,10 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
                 last_period.0.lost_messages + last_period.0.lost_samples + last_period.0.malformed;
             let state = if c.vib.received == 0 {
                 ServiceState::Starting
-            } else if lost_now > lost_before || c.estimates_flagged > last_period.2 {
+            } else if lost_now > lost_before
+                || c.estimates_flagged > last_period.2
+                || c.rate_mismatches > last_period.3
+            {
                 ServiceState::Degraded
             } else {
                 ServiceState::Running
@@ -419,19 +470,25 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
             let dt_s = (now.saturating_sub(period_start_ns)) as f64 * 1e-9;
             let q = latency.period();
             info!(
-                "estimator: {:.1} blocks/s, {} estimates ({} flagged), lost {} blocks / {} samples, latency p50 {:.1} us p99 {:.1} us, dsp gap samples {}, non-finite {}",
+                "estimator: {:.1} blocks/s, {} estimates ({} flagged), lost {} blocks / {} samples, rate mismatches {}, latency p50 {:.1} us p99 {:.1} us, dsp gap samples {}, non-finite {}",
                 (c.vib.received - last_period.0.received) as f64 / dt_s.max(1e-9),
                 c.estimates_published - last_period.1,
                 c.estimates_flagged - last_period.2,
                 c.vib.lost_messages - last_period.0.lost_messages,
                 c.vib.lost_samples - last_period.0.lost_samples,
+                c.rate_mismatches - last_period.3,
                 q.p50_ns as f64 * 1e-3,
                 q.p99_ns as f64 * 1e-3,
                 estimator.counters().gap_samples,
                 estimator.counters().non_finite_samples,
             );
             latency.reset_period();
-            last_period = (c.vib, c.estimates_published, c.estimates_flagged);
+            last_period = (
+                c.vib,
+                c.estimates_published,
+                c.estimates_flagged,
+                c.rate_mismatches,
+            );
             period_start_ns = now;
             let cleaned = cleanup_dead_nodes(&node);
             if cleaned > 0 {

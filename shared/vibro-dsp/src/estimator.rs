@@ -214,6 +214,11 @@ impl Estimator {
     /// as a gap. `on_estimate` is called for every window that fills, possibly several
     /// times for a long block.
     ///
+    /// An empty block places no sample, so its timestamp is not looked at (producers
+    /// may leave it zero): only its sequence number counts, a jump flagging a gap and
+    /// an older one being dropped as out of order, like any block's. The window is
+    /// untouched, so empty blocks anywhere in a stream leave its estimates as they are.
+    ///
     /// Errors only on an internal FFT failure (buffer sizes are fixed at build, so
     /// this would be a bug); input problems are flagged, never errors.
     pub fn push_block<F: FnMut(&Estimate)>(
@@ -221,6 +226,9 @@ impl Estimator {
         block: &SampleBlock<'_>,
         mut on_estimate: F,
     ) -> Result<BlockStatus> {
+        if block.samples_raw.is_empty() {
+            return Ok(self.take_empty(block.seq));
+        }
         let mut status = BlockStatus::default();
         let period_ns = self.intake.period_ns;
         let tolerance_ns = self.intake.tolerance_ns;
@@ -300,6 +308,29 @@ impl Estimator {
             block.t0_ns.saturating_add(self.intake.offset_ns(len)),
         ));
         Ok(status)
+    }
+
+    /// An empty block: its sequence number only (see [`Self::push_block`]).
+    fn take_empty(&mut self, seq: u64) -> BlockStatus {
+        let mut status = BlockStatus::default();
+        if let Some((last_seq, next_t_ns)) = self.intake.last {
+            if seq <= last_seq {
+                status.out_of_order = true;
+                self.intake.pending_out_of_order = true;
+                self.counters.blocks_dropped += 1;
+                return status;
+            }
+            if seq > last_seq.saturating_add(1) {
+                status.sequence_gap = true;
+                self.counters.sequence_gaps += 1;
+                self.intake.pending_gap = true;
+            }
+            // The next sample is still expected where the last non-empty block said.
+            self.intake.last = Some((seq, next_t_ns));
+        }
+        status.accepted = true;
+        self.counters.blocks_accepted += 1;
+        status
     }
 
     /// Drops the partial window after a discontinuity; the next estimate says so.

@@ -263,6 +263,43 @@ fn block_size_does_not_change_the_estimates() {
     };
     let status = est.push_block(&empty, |_| panic!("no window")).unwrap();
     assert!(status.accepted);
+
+    // Between regular blocks too, whatever their timestamp says (none of their samples
+    // sits anywhere): an empty block after every regular one, dated 0, now or never.
+    let mut est = estimator(cfg());
+    let mut d = Vec::new();
+    for (k, chunk) in x.chunks(BLOCK).enumerate() {
+        let seq = 2 * k as u64;
+        let block = SampleBlock {
+            seq,
+            t0_ns: block_t0_ns(k),
+            samples_raw: chunk,
+        };
+        let status = est.push_block(&block, |e| d.push(*e)).unwrap();
+        assert!(status.accepted && !status.sequence_gap && !status.restarted);
+        let empty = SampleBlock {
+            seq: seq + 1,
+            t0_ns: [0, block_t0_ns(k + 1), u64::MAX][k % 3],
+            samples_raw: &[],
+        };
+        let status = est.push_block(&empty, |_| panic!("no window")).unwrap();
+        assert_eq!(
+            status,
+            vibro_dsp::BlockStatus {
+                accepted: true,
+                ..Default::default()
+            }
+        );
+    }
+    assert_eq!(d, a, "estimates, flags and times all equal");
+    let c = est.counters();
+    assert_eq!((c.sequence_gaps, c.restarts, c.blocks_dropped), (0, 0, 0));
+    // An empty block that skips a seq flags the gap; an older one is dropped.
+    let skip = SampleBlock { seq: 1000, ..empty };
+    assert!(est.push_block(&skip, |_| {}).unwrap().sequence_gap);
+    let old = SampleBlock { seq: 3, ..empty };
+    let status = est.push_block(&old, |_| {}).unwrap();
+    assert!(!status.accepted && status.out_of_order);
 }
 
 #[test]

@@ -17,6 +17,12 @@
 //!   its loop, so ports are released by `Drop`.
 //! - **Dead peers** are cleaned up with [`cleanup_dead_nodes`], which the services
 //!   call at start-up and periodically.
+//! - **Refusals say why.** A service that exists with another payload type (another
+//!   version of the message contracts), other quality of service, another iceoryx2
+//!   version, or that belongs to another user is refused with an [`Error`] naming the
+//!   service, what this process expected and what it found, instead of iceoryx2's bare
+//!   error code. [`create_node`] refuses an iceoryx2 root directory of another user
+//!   (README, "Who can publish and read: shared-memory permissions").
 //!
 //! ```no_run
 //! use vibro_ipc::{create_node, StreamConfig, StreamPublisher, StreamSubscriber};
@@ -35,6 +41,7 @@
 //! across the workspace and the Python client.
 
 use core::fmt::Debug;
+use std::os::unix::fs::MetadataExt;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -46,7 +53,12 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::BackpressureAction;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
+use iceoryx2::service::builder::event::{EventCreateError, EventOpenError, EventOpenOrCreateError};
+use iceoryx2::service::builder::publish_subscribe::{
+    PublishSubscribeCreateError, PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+};
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory as PubSubFactory;
+use iceoryx2::service::static_config::messaging_pattern::MessagingPattern as StaticPattern;
 
 /// The clock of every `*_ns` stamp in the messages: `CLOCK_MONOTONIC`, which on Linux
 /// is one clock for all processes, so a latency between two processes' stamps is
@@ -94,7 +106,50 @@ pub enum Error {
         timeout_ms: u128,
         sent: u64,
     },
+    /// The service exists with another payload type (type name, size or alignment):
+    /// the two sides were built against different versions of the message contracts,
+    /// or the other side is not vibrocomp's. iceoryx2 refuses to connect them.
+    #[error("{service:?} carries {found}, but this process uses {expected}: one of the two was built against an incompatible version of the message contracts (this build's is version {schema}; docs/messages.md, \"Type names and versions\"). Rebuild the other side against the same version, or stop it")]
+    IncompatibleType {
+        service: String,
+        /// This process's payload: type name, size and alignment.
+        expected: String,
+        /// The existing service's payload, as far as it could be read.
+        found: String,
+        schema: u32,
+    },
+    /// The service exists with quality-of-service settings this process cannot work with.
+    #[error("{service:?} exists with other settings than this process needs (iceoryx2: {problem}): it has {found}; this process needs {needed}. Another program, or another version of vibrocomp, created it: stop that, or use another prefix")]
+    IncompatibleSettings {
+        service: String,
+        problem: String,
+        found: String,
+        needed: String,
+    },
+    /// The service was created by a process using another iceoryx2 version.
+    #[error("{service:?} was created with another iceoryx2 version than this process's {ours}: every participant (services, recorder, replay, rig bridges, the Python client) must use iceoryx2 {ours}")]
+    IceoryxVersion { service: String, ours: &'static str },
+    /// The iceoryx2 root directory belongs to another user: this process could not
+    /// (another user) or must not (root, whose files the owner could not open) join
+    /// the services there.
+    #[error("{path}: the iceoryx2 resources here belong to {owner}, and this process runs as {me}: a process can publish into or read from only the services its own user started (iceoryx2 gives its files and shared memory to their owner alone). Run it as {owner}, or give each user an iceoryx2 root of its own (`root-path` in config/iceoryx2.toml); README, \"Who can publish and read: shared-memory permissions\"")]
+    OtherUser {
+        path: String,
+        owner: String,
+        me: String,
+    },
+    /// iceoryx2 was denied access to a service's files.
+    #[error("{operation} on {service:?}: permission denied ({detail}): the service belongs to another user; README, \"Who can publish and read: shared-memory permissions\"")]
+    Permission {
+        operation: &'static str,
+        service: String,
+        detail: String,
+    },
 }
+
+/// The iceoryx2 version every participant must use (pinned `=0.10.0` in the workspace
+/// and in the Python client's requirements).
+pub const ICEORYX2_VERSION: &str = "0.10.0";
 
 /// Result of the transport.
 pub type Result<T> = std::result::Result<T, Error>;
@@ -159,11 +214,89 @@ pub fn create_node(name: &str) -> Result<IpcNode> {
         name: name.to_owned(),
         reason: format!("{e:?}"),
     })?;
+    let config = Config::global_config();
+    check_owner(config)?;
     NodeBuilder::new()
         .name(&node_name)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
-        .map_err(|e| iox("create node", name, e))
+        .map_err(|e| node_error(config, name, e))
+}
+
+/// The directory under which iceoryx2 keeps its files (`/tmp/iceoryx2/` unless an
+/// iceoryx2 config file, e.g. `config/iceoryx2.toml` in the working directory, says
+/// otherwise).
+fn iceoryx_root(config: &Config) -> String {
+    config.global.root_path().to_string()
+}
+
+/// `name (uid N)` of a user id, or `uid N` if it has no name.
+fn user(uid: u32) -> String {
+    // SAFETY: `passwd` is a C struct of integers and pointers, for which all-zero
+    // bytes are a valid value; getpwuid_r fills it in.
+    let mut pwd: libc::passwd = unsafe { std::mem::zeroed() };
+    let mut buf = vec![0 as libc::c_char; 4096];
+    let mut found: *mut libc::passwd = std::ptr::null_mut();
+    // SAFETY: getpwuid_r writes into `pwd` and `buf` (whose length is passed) only,
+    // and `found` points at `pwd` or is null; the name is read before `buf` is freed.
+    let rc = unsafe { libc::getpwuid_r(uid, &mut pwd, buf.as_mut_ptr(), buf.len(), &mut found) };
+    if rc == 0 && !found.is_null() && !pwd.pw_name.is_null() {
+        // SAFETY: on success `pw_name` is a NUL-terminated string inside `buf`.
+        let name = unsafe { std::ffi::CStr::from_ptr(pwd.pw_name) };
+        return format!("{} (uid {uid})", name.to_string_lossy());
+    }
+    format!("uid {uid}")
+}
+
+fn effective_uid() -> u32 {
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    unsafe { libc::geteuid() }
+}
+
+/// iceoryx2 0.10 (without its `dev_permissions` feature) creates its root directory
+/// (mode 0750) and every file in it and in /dev/shm (0600, static configs 0400) for the
+/// user of the first process. Another user, even one in the owner's group, cannot
+/// create a node there (iceoryx2 says `InternalError`); root can, but the owner's
+/// processes then cannot open what root creates, so messages between them are lost
+/// while root's publisher counts them delivered (measured). Either way: refuse, and
+/// say whose the system is.
+fn check_owner(config: &Config) -> Result<()> {
+    let root = iceoryx_root(config);
+    // Not there yet: this process creates it and owns it.
+    let Ok(meta) = std::fs::metadata(&root) else {
+        return Ok(());
+    };
+    let me = effective_uid();
+    if meta.uid() != me {
+        return Err(Error::OtherUser {
+            path: root,
+            owner: user(meta.uid()),
+            me: user(me),
+        });
+    }
+    Ok(())
+}
+
+fn node_error(config: &Config, name: &str, e: iceoryx2::node::NodeCreationFailure) -> Error {
+    let root = iceoryx_root(config);
+    let path = std::ffi::CString::new(root.trim_end_matches('/')).unwrap_or_default();
+    // SAFETY: `path` is a valid NUL-terminated string; access only reads it.
+    let writable = unsafe { libc::access(path.as_ptr(), libc::W_OK | libc::X_OK) } == 0;
+    let reason = if writable {
+        format!("{e:?}")
+    } else {
+        // Read errno before anything else can change it.
+        let why = std::io::Error::last_os_error();
+        format!(
+            "{e:?}: {root} is not writable for {} ({why})",
+            user(effective_uid())
+        )
+    };
+    Error::Iceoryx {
+        operation: "create node",
+        service: name.to_owned(),
+        reason,
+    }
 }
 
 /// iceoryx2 logs at `Warn` by default, and warns on every start that no config file was
@@ -200,7 +333,8 @@ fn open_pubsub<T: ZeroCopySend + Debug + 'static>(
     name: &str,
     config: &StreamConfig,
 ) -> Result<PubSubFactory<Ipc, T, ()>> {
-    node.service_builder(&service_name(name)?)
+    let service = service_name(name)?;
+    node.service_builder(&service)
         .publish_subscribe::<T>()
         .enable_safe_overflow(false)
         .subscriber_max_buffer_size(config.subscriber_buffer)
@@ -209,7 +343,121 @@ fn open_pubsub<T: ZeroCopySend + Debug + 'static>(
         .max_subscribers(config.max_subscribers)
         .max_nodes(config.max_nodes)
         .open_or_create()
-        .map_err(|e| iox("open publish-subscribe service", name, e))
+        .map_err(|e| pubsub_error::<T>(node, name, &service, config, e))
+}
+
+/// What a payload type is to iceoryx2: its type name, size and alignment.
+fn payload_of<T: ZeroCopySend>() -> String {
+    // SAFETY: `type_name` is unsafe only for implementors, who must keep it unique;
+    // reading it has no precondition.
+    let type_name = unsafe { <T as ZeroCopySend>::type_name() };
+    format!(
+        "{type_name} ({} bytes, alignment {})",
+        size_of::<T>(),
+        align_of::<T>()
+    )
+}
+
+/// The static configuration of an existing service, if it can be read.
+fn existing(
+    node: &IpcNode,
+    service: &ServiceName,
+    pattern: MessagingPattern,
+) -> Option<iceoryx2::service::static_config::StaticConfig> {
+    Ipc::details(service, node.config(), pattern)
+        .ok()
+        .flatten()
+        .map(|d| d.static_details)
+}
+
+fn pubsub_error<T: ZeroCopySend>(
+    node: &IpcNode,
+    name: &str,
+    service: &ServiceName,
+    config: &StreamConfig,
+    e: PublishSubscribeOpenOrCreateError,
+) -> Error {
+    use PublishSubscribeOpenError as O;
+    const OPERATION: &str = "open publish-subscribe service";
+    let static_config = || {
+        existing(node, service, MessagingPattern::PublishSubscribe)
+            .filter(|c| matches!(c.messaging_pattern(), StaticPattern::PublishSubscribe(_)))
+    };
+    let open = match e {
+        PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(o) => o,
+        PublishSubscribeOpenOrCreateError::PublishSubscribeCreateError(
+            PublishSubscribeCreateError::InsufficientPermissions,
+        ) => return permission(OPERATION, name, "cannot create it"),
+        other => return iox(OPERATION, name, other),
+    };
+    match open {
+        O::IncompatibleTypes => Error::IncompatibleType {
+            service: name.to_owned(),
+            expected: payload_of::<T>(),
+            found: static_config().map_or_else(
+                || "another payload type".to_string(),
+                |c| {
+                    let p = &c.publish_subscribe().message_type_details().payload;
+                    format!(
+                        "{} ({} bytes, alignment {})",
+                        p.type_name(),
+                        p.size(),
+                        p.alignment()
+                    )
+                },
+            ),
+            schema: vibro_msgs::SCHEMA_VERSION,
+        },
+        O::IncompatibleOverflowBehavior
+        | O::IncompatibleAttributes
+        | O::IncompatibleMessagingPattern
+        | O::DoesNotSupportRequestedMinBufferSize
+        | O::DoesNotSupportRequestedMinHistorySize
+        | O::DoesNotSupportRequestedMinSubscriberBorrowedSamples
+        | O::DoesNotSupportRequestedAmountOfPublishers
+        | O::DoesNotSupportRequestedAmountOfSubscribers
+        | O::DoesNotSupportRequestedAmountOfNodes => Error::IncompatibleSettings {
+            service: name.to_owned(),
+            problem: format!("{open:?}"),
+            found: static_config().map_or_else(
+                || "settings that could not be read".to_string(),
+                |c| {
+                    let p = c.publish_subscribe();
+                    format!(
+                        "subscriber buffer {}, history {}, safe overflow {}, max publishers {}, max subscribers {}, max nodes {}",
+                        p.subscriber_max_buffer_size(),
+                        p.history_size(),
+                        if p.has_safe_overflow() { "on" } else { "off" },
+                        p.max_publishers(),
+                        p.max_subscribers(),
+                        p.max_nodes()
+                    )
+                },
+            ),
+            needed: format!(
+                "subscriber buffer >= {}, history >= {}, safe overflow off, max publishers >= {}, max subscribers >= {}, max nodes >= {}",
+                config.subscriber_buffer,
+                config.history,
+                config.max_publishers,
+                config.max_subscribers,
+                config.max_nodes
+            ),
+        },
+        O::VersionMismatch => Error::IceoryxVersion {
+            service: name.to_owned(),
+            ours: ICEORYX2_VERSION,
+        },
+        O::InsufficientPermissions => permission(OPERATION, name, "cannot open it"),
+        other => iox(OPERATION, name, other),
+    }
+}
+
+fn permission(operation: &'static str, service: &str, what: &str) -> Error {
+    Error::Permission {
+        operation,
+        service: service.to_owned(),
+        detail: format!("{} {what}", user(effective_uid())),
+    }
 }
 
 fn open_event(
@@ -217,13 +465,73 @@ fn open_event(
     name: &str,
     config: &StreamConfig,
 ) -> Result<iceoryx2::service::port_factory::event::PortFactory<Ipc>> {
-    node.service_builder(&service_name(name)?)
+    let service = service_name(name)?;
+    node.service_builder(&service)
         .event()
         .max_nodes(config.max_nodes)
         .max_notifiers(config.max_publishers + 2)
         .max_listeners(config.max_subscribers + 2)
         .open_or_create()
-        .map_err(|e| iox("open event service", name, e))
+        .map_err(|e| event_error(node, name, &service, config, e))
+}
+
+fn event_error(
+    node: &IpcNode,
+    name: &str,
+    service: &ServiceName,
+    config: &StreamConfig,
+    e: EventOpenOrCreateError,
+) -> Error {
+    use EventOpenError as O;
+    const OPERATION: &str = "open event service";
+    let open = match e {
+        EventOpenOrCreateError::EventOpenError(o) => o,
+        EventOpenOrCreateError::EventCreateError(EventCreateError::InsufficientPermissions) => {
+            return permission(OPERATION, name, "cannot create it")
+        }
+        other => return iox(OPERATION, name, other),
+    };
+    match open {
+        O::IncompatibleMessagingPattern
+        | O::IncompatibleAttributes
+        | O::IncompatibleDeadline
+        | O::IncompatibleNotifierCreatedEvent
+        | O::IncompatibleNotifierDroppedEvent
+        | O::IncompatibleNotifierDeadEvent
+        | O::DoesNotSupportRequestedAmountOfNotifiers
+        | O::DoesNotSupportRequestedAmountOfListeners
+        | O::DoesNotSupportRequestedMaxEventId
+        | O::DoesNotSupportRequestedAmountOfNodes => Error::IncompatibleSettings {
+            service: name.to_owned(),
+            problem: format!("{open:?}"),
+            found: existing(node, service, MessagingPattern::Event)
+                .filter(|c| matches!(c.messaging_pattern(), StaticPattern::Event(_)))
+                .map_or_else(
+                    || "settings that could not be read".to_string(),
+                    |c| {
+                        let ev = c.event();
+                        format!(
+                            "max notifiers {}, max listeners {}, max nodes {}",
+                            ev.max_notifiers(),
+                            ev.max_listeners(),
+                            ev.max_nodes()
+                        )
+                    },
+                ),
+            needed: format!(
+                "max notifiers >= {}, max listeners >= {}, max nodes >= {}",
+                config.max_publishers + 2,
+                config.max_subscribers + 2,
+                config.max_nodes
+            ),
+        },
+        O::VersionMismatch => Error::IceoryxVersion {
+            service: name.to_owned(),
+            ours: ICEORYX2_VERSION,
+        },
+        O::InsufficientPermissions => permission(OPERATION, name, "cannot open it"),
+        other => iox(OPERATION, name, other),
+    }
 }
 
 /// The sending end of a stream.
@@ -504,6 +812,57 @@ mod tests {
             assert_eq!(*subscriber.receive().unwrap().unwrap(), k);
         }
         assert!(subscriber.receive().unwrap().is_none());
+    }
+
+    /// A service opened with another payload type names both types; iceoryx2 alone
+    /// says `IncompatibleTypes`.
+    #[test]
+    fn a_foreign_payload_type_is_refused_naming_both_types() {
+        let p = prefix("type");
+        let node = create_node("ipc-type").unwrap();
+        let config = StreamConfig::default();
+        let (data, event) = (format!("{p}n"), format!("{p}n/event"));
+        let _ours = StreamPublisher::<u64>::create(&node, &data, &event, &config).unwrap();
+        let err = StreamSubscriber::<[u32; 4]>::create(&node, &data, &event, &config)
+            .err()
+            .expect("refused");
+        assert!(matches!(err, Error::IncompatibleType { .. }), "{err}");
+        let text = err.to_string();
+        for wanted in [
+            data.as_str(),
+            "carries u64 (8 bytes, alignment 8)",
+            "this process uses [u32; 4] (16 bytes, alignment 4)",
+            "incompatible version of the message contracts",
+        ] {
+            assert!(text.contains(wanted), "{wanted:?} not in: {text}");
+        }
+    }
+
+    /// A service created with a smaller buffer than vibrocomp needs says what it has
+    /// and what is needed.
+    #[test]
+    fn other_settings_are_refused_naming_what_exists_and_what_is_needed() {
+        let p = prefix("qos");
+        let node = create_node("ipc-qos").unwrap();
+        let (data, event) = (format!("{p}n"), format!("{p}n/event"));
+        let small = StreamConfig {
+            subscriber_buffer: 4,
+            ..StreamConfig::default()
+        };
+        let _theirs = StreamPublisher::<u64>::create(&node, &data, &event, &small).unwrap();
+        let err = StreamSubscriber::<u64>::create(&node, &data, &event, &StreamConfig::default())
+            .err()
+            .expect("refused");
+        assert!(matches!(err, Error::IncompatibleSettings { .. }), "{err}");
+        let text = err.to_string();
+        for wanted in [
+            data.as_str(),
+            "DoesNotSupportRequestedMinBufferSize",
+            "it has subscriber buffer 4,",
+            "needs subscriber buffer >= 256",
+        ] {
+            assert!(text.contains(wanted), "{wanted:?} not in: {text}");
+        }
     }
 
     #[test]

@@ -1,8 +1,9 @@
 //! What a recording holds: one pass over every record, chunk CRCs checked.
 
+use crate::guard;
 use crate::schema::kind_of_schema;
 use crate::{Error, Result};
-use mcap::records::Record as McapRecord;
+use mcap::records::{op, Record as McapRecord};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
@@ -112,20 +113,33 @@ fn span_s(first: Option<u64>, last: Option<u64>) -> f64 {
 /// A truncated file is [`Error::Truncated`]: recover it first.
 pub fn info(path: impl AsRef<Path>) -> Result<LogInfo> {
     let path = path.as_ref();
-    let mut file = File::open(path).map_err(|e| Error::io("open", path, e))?;
+    let file = File::open(path).map_err(|e| Error::io("open", path, e))?;
     let file_bytes = file
         .metadata()
         .map_err(|e| Error::io("stat", path, e))?
         .len();
+    info_from_reader(file, path, file_bytes)
+}
+
+/// [`info`] of a recording read from `source` (a file, or bytes in memory) of
+/// `file_bytes` bytes; `name` stands for the file in the summary and in errors.
+pub fn info_from_reader(
+    mut source: impl Read,
+    name: impl AsRef<Path>,
+    file_bytes: u64,
+) -> Result<LogInfo> {
+    let path = name.as_ref();
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
-            .with_validate_chunk_crcs(true)
+            .with_emit_chunks(true)
             .with_validate_data_section_crc(true)
-            .with_validate_summary_section_crc(true),
+            .with_validate_summary_section_crc(true)
+            // No record is longer than the file: without a limit, a corrupt length
+            // field makes mcap 0.26 allocate that many bytes (up to 2^64) and abort.
+            .with_record_length_limit(usize::try_from(file_bytes).unwrap_or(usize::MAX)),
     );
-    let mut schemas: HashMap<u16, String> = HashMap::new();
-    let mut channels: BTreeMap<u16, ChannelInfo> = BTreeMap::new();
-    let mut out = LogInfo {
+    let mut chunk_buf = Vec::new();
+    let out = LogInfo {
         path: path.to_path_buf(),
         file_bytes,
         profile: String::new(),
@@ -140,77 +154,42 @@ pub fn info(path: impl AsRef<Path>) -> Result<LogInfo> {
         metadata: Vec::new(),
         attachments: Vec::new(),
     };
+    let mut summary = Summary {
+        path,
+        schemas: HashMap::new(),
+        channels: BTreeMap::new(),
+        out,
+    };
     while let Some(event) = reader.next_event() {
         match event.map_err(|e| Error::mcap(path, e))? {
             LinearReadEvent::ReadRequest(need) => {
-                let n = file
+                let n = source
                     .read(reader.insert(need))
                     .map_err(|e| Error::io("read", path, e))?;
                 reader.notify_read(n);
             }
             LinearReadEvent::Record { opcode, data } => {
-                match mcap::parse_record(opcode, data).map_err(|e| Error::mcap(path, e))? {
-                    McapRecord::Header(h) => {
-                        out.profile = h.profile;
-                        out.library = h.library;
-                    }
-                    McapRecord::Schema { header, .. } => {
-                        schemas.insert(header.id, header.name);
-                    }
-                    McapRecord::Channel(c) => {
-                        let message_type = schemas.get(&c.schema_id).cloned().unwrap_or_default();
-                        let kind = kind_of_schema(&message_type).map(|k| k.name().to_string());
-                        channels.entry(c.id).or_insert(ChannelInfo {
-                            id: c.id,
-                            topic: c.topic,
-                            message_type,
-                            kind,
-                            message_encoding: c.message_encoding,
-                            messages: 0,
-                            first_log_time_ns: None,
-                            last_log_time_ns: None,
-                            span_s: 0.0,
-                            first_sequence: None,
-                            last_sequence: None,
-                            lost: 0,
-                            gaps: 0,
-                            out_of_order: 0,
-                        });
-                    }
-                    McapRecord::Message { header, .. } => {
-                        let Some(c) = channels.get_mut(&header.channel_id) else {
-                            return Err(Error::Mcap {
-                                path: path.to_path_buf(),
-                                source: mcap::McapError::UnknownChannel(
-                                    header.sequence,
-                                    header.channel_id,
-                                ),
-                            });
-                        };
-                        c.messages += 1;
-                        let t = header.log_time;
-                        c.first_log_time_ns = Some(c.first_log_time_ns.map_or(t, |f| f.min(t)));
-                        c.last_log_time_ns = Some(c.last_log_time_ns.map_or(t, |l| l.max(t)));
-                        track_sequence(c, header.sequence);
-                    }
-                    McapRecord::Attachment { header, data, .. } => {
-                        out.attachments.push(AttachmentInfo {
-                            name: header.name,
-                            media_type: header.media_type,
-                            bytes: data.len() as u64,
-                            log_time_ns: header.log_time,
-                        });
-                    }
-                    McapRecord::Metadata(m) => out.metadata.push(MetadataInfo {
-                        name: m.name,
-                        entries: m.metadata,
-                    }),
-                    McapRecord::Statistics(s) => out.chunks = Some(s.chunk_count.into()),
-                    _ => {}
+                if opcode != op::CHUNK {
+                    summarise(guard::parse(path, opcode, data)?, &mut summary)?;
+                    continue;
+                }
+                // Chunks are cut into records here, not by mcap (see `guard`).
+                let McapRecord::Chunk { header, data } = guard::parse(path, opcode, data)? else {
+                    continue;
+                };
+                let records = guard::chunk(&header, &data, &mut chunk_buf)
+                    .map_err(|e| Error::chunk(path, e))?;
+                for (opcode, body) in records {
+                    summarise(guard::parse(path, opcode, body)?, &mut summary)?;
                 }
             }
         }
     }
+    let Summary {
+        mut out,
+        mut channels,
+        ..
+    } = summary;
     for c in channels.values_mut() {
         c.span_s = span_s(c.first_log_time_ns, c.last_log_time_ns);
     }
@@ -225,6 +204,81 @@ pub fn info(path: impl AsRef<Path>) -> Result<LogInfo> {
     out.last_log_time_ns = out.channels.iter().filter_map(|c| c.last_log_time_ns).max();
     out.duration_s = span_s(out.first_log_time_ns, out.last_log_time_ns);
     Ok(out)
+}
+
+/// What [`info`] has gathered so far.
+struct Summary<'p> {
+    path: &'p Path,
+    schemas: HashMap<u16, String>,
+    channels: BTreeMap<u16, ChannelInfo>,
+    out: LogInfo,
+}
+
+/// Adds one record to the summary.
+fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
+    let Summary {
+        path,
+        schemas,
+        channels,
+        out,
+    } = summary;
+    match record {
+        McapRecord::Header(h) => {
+            out.profile = h.profile;
+            out.library = h.library;
+        }
+        McapRecord::Schema { header, .. } => {
+            schemas.insert(header.id, header.name);
+        }
+        McapRecord::Channel(c) => {
+            let message_type = schemas.get(&c.schema_id).cloned().unwrap_or_default();
+            let kind = kind_of_schema(&message_type).map(|k| k.name().to_string());
+            channels.entry(c.id).or_insert(ChannelInfo {
+                id: c.id,
+                topic: c.topic,
+                message_type,
+                kind,
+                message_encoding: c.message_encoding,
+                messages: 0,
+                first_log_time_ns: None,
+                last_log_time_ns: None,
+                span_s: 0.0,
+                first_sequence: None,
+                last_sequence: None,
+                lost: 0,
+                gaps: 0,
+                out_of_order: 0,
+            });
+        }
+        McapRecord::Message { header, .. } => {
+            let Some(c) = channels.get_mut(&header.channel_id) else {
+                return Err(Error::Mcap {
+                    path: path.to_path_buf(),
+                    source: mcap::McapError::UnknownChannel(header.sequence, header.channel_id),
+                });
+            };
+            c.messages += 1;
+            let t = header.log_time;
+            c.first_log_time_ns = Some(c.first_log_time_ns.map_or(t, |f| f.min(t)));
+            c.last_log_time_ns = Some(c.last_log_time_ns.map_or(t, |l| l.max(t)));
+            track_sequence(c, header.sequence);
+        }
+        McapRecord::Attachment { header, data, .. } => {
+            out.attachments.push(AttachmentInfo {
+                name: header.name,
+                media_type: header.media_type,
+                bytes: data.len() as u64,
+                log_time_ns: header.log_time,
+            });
+        }
+        McapRecord::Metadata(m) => out.metadata.push(MetadataInfo {
+            name: m.name,
+            entries: m.metadata,
+        }),
+        McapRecord::Statistics(s) => out.chunks = Some(s.chunk_count.into()),
+        _ => {}
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -248,6 +302,17 @@ mod tests {
             gaps: 0,
             out_of_order: 0,
         }
+    }
+
+    #[test]
+    fn a_record_longer_than_the_file_is_an_error_not_an_abort() {
+        // fuzz/regressions/mcap_read/info-record-length-7e17: the magic, then a record
+        // (opcode 0) whose length field claims 0x0A0D_0000_0000_0000 bytes.
+        let mut bytes = mcap::MAGIC.to_vec();
+        bytes.push(0);
+        bytes.extend_from_slice(&0x0A0D_0000_0000_0000u64.to_le_bytes());
+        let e = info_from_reader(bytes.as_slice(), "huge.mcap", bytes.len() as u64).unwrap_err();
+        assert!(e.to_string().starts_with("huge.mcap: "), "{e}");
     }
 
     #[test]

@@ -57,6 +57,7 @@
 //! - `docs/messages.md`: the wire types, their fields and units.
 
 mod convert;
+mod guard;
 mod info;
 mod reader;
 mod recorder;
@@ -71,12 +72,12 @@ pub mod proto {
 }
 
 pub use convert::Message;
-pub use info::{info, AttachmentInfo, ChannelInfo, LogInfo, MetadataInfo};
+pub use info::{info, info_from_reader, AttachmentInfo, ChannelInfo, LogInfo, MetadataInfo};
 pub use reader::{Reader, Record};
 pub use recorder::{
     ChannelId, Compression, Recorder, RecorderOptions, RecorderStats, RecordingSummary,
 };
-pub use recover::{recover, RecoverReport};
+pub use recover::{recover, recover_from_reader, RecoverReport};
 pub use schema::{
     kind_of_schema, schema, Schema, MESSAGE_ENCODING, PROTO_PACKAGE, SCHEMA_ENCODING,
 };
@@ -103,6 +104,10 @@ pub enum Error {
         saved: u32,
         calculated: u32,
     },
+    /// A record or chunk is malformed: a length beyond its record, a record beyond its
+    /// chunk, a chunk too large or not decompressible (see `guard.rs`).
+    #[error("{path}: {reason}")]
+    Malformed { path: PathBuf, reason: String },
     /// The file ends in the middle of a record (a crash, or a copy in progress).
     #[error("{path}: file ends in the middle of a record; `vibro_mcap::recover` rewrites it up to its last complete chunk")]
     Truncated { path: PathBuf },
@@ -205,6 +210,21 @@ impl Error {
             source => Error::Mcap {
                 path: path.to_path_buf(),
                 source,
+            },
+        }
+    }
+
+    /// A chunk that [`guard::chunk`] refused.
+    pub(crate) fn chunk(path: &std::path::Path, e: guard::ChunkError) -> Error {
+        match e {
+            guard::ChunkError::Crc { saved, calculated } => Error::ChunkCrc {
+                path: path.to_path_buf(),
+                saved,
+                calculated,
+            },
+            guard::ChunkError::Invalid(reason) => Error::Malformed {
+                path: path.to_path_buf(),
+                reason,
             },
         }
     }

@@ -8,10 +8,11 @@
 //! chunks that overlap. Each chunk's CRC is checked when it is read (`mcap`'s chunk
 //! reader), before any of its messages is yielded.
 
+use crate::guard;
 use crate::schema::{kind_of_schema, MESSAGE_ENCODING, SCHEMA_ENCODING};
 use crate::{Error, Message, Result};
 use mcap::records::{op, ChunkIndex, Record as McapRecord};
-use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader};
+use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
 use std::cmp::{Ordering, Reverse};
 use std::collections::{BTreeMap, BinaryHeap, HashMap};
 use std::fs::File;
@@ -19,6 +20,10 @@ use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use vibro_msgs::MessageKind;
+
+/// What a [`Reader`] reads from: a file, or a recording held in memory.
+trait Source: Read + Seek + Send + Sync {}
+impl<T: Read + Seek + Send + Sync> Source for T {}
 
 /// One decoded message with its MCAP header fields.
 #[derive(Clone, Debug, PartialEq)]
@@ -76,7 +81,8 @@ struct ChannelEntry {
 /// message are skipped (see [`Reader::foreign_topics`]).
 pub struct Reader {
     path: PathBuf,
-    file: File,
+    file: Box<dyn Source>,
+    file_bytes: u64,
     channels: HashMap<u16, ChannelEntry>,
     foreign_topics: Vec<String>,
     chunks: Vec<ChunkIndex>,
@@ -84,6 +90,8 @@ pub struct Reader {
     pending: BinaryHeap<Reverse<Pending>>,
     next_order: u64,
     chunk_buf: Vec<u8>,
+    /// A zstd chunk's records.
+    decompressed: Vec<u8>,
     summary: mcap::Summary,
     failed: bool,
 }
@@ -92,12 +100,28 @@ impl Reader {
     /// Opens `path` and reads its summary section. A file without one (a crash, see
     /// [`crate::recover`]) is [`Error::NotFinished`].
     pub fn open(path: impl AsRef<Path>) -> Result<Reader> {
-        let path = path.as_ref().to_path_buf();
-        let mut file = File::open(&path).map_err(|e| Error::io("open", &path, e))?;
-        let summary = read_summary(&path, &mut file)?.ok_or_else(|| Error::NotFinished {
-            path: path.clone(),
-            what: "no summary section",
-        })?;
+        let path = path.as_ref();
+        let file = File::open(path).map_err(|e| Error::io("open", path, e))?;
+        Reader::from_reader(file, path)
+    }
+
+    /// Reads a recording from `source` (a file, or a `Cursor` over bytes in memory);
+    /// `name` stands for the file in errors. As [`Reader::open`] otherwise.
+    pub fn from_reader(
+        source: impl Read + Seek + Send + Sync + 'static,
+        name: impl AsRef<Path>,
+    ) -> Result<Reader> {
+        let path = name.as_ref().to_path_buf();
+        let mut file: Box<dyn Source> = Box::new(source);
+        let file_bytes = file
+            .seek(SeekFrom::End(0))
+            .map_err(|e| Error::io("seek in", &path, e))?;
+        check_summary(&path, &mut file, file_bytes)?;
+        let summary =
+            read_summary(&path, &mut file, file_bytes)?.ok_or_else(|| Error::NotFinished {
+                path: path.clone(),
+                what: "no summary section",
+            })?;
         let message_count = summary.stats.as_ref().map_or(0, |s| s.message_count);
         if summary.chunk_indexes.is_empty() && message_count > 0 {
             return Err(Error::NotFinished {
@@ -133,6 +157,7 @@ impl Reader {
         Ok(Reader {
             path,
             file,
+            file_bytes,
             channels,
             foreign_topics,
             chunks,
@@ -140,6 +165,7 @@ impl Reader {
             pending: BinaryHeap::new(),
             next_order: 0,
             chunk_buf: Vec::new(),
+            decompressed: Vec::new(),
             summary,
             failed: false,
         })
@@ -195,16 +221,15 @@ impl Reader {
         let read = read_record(
             &self.path,
             &mut self.file,
+            self.file_bytes,
             &mut buf,
             index.offset,
             index.length,
             op::ATTACHMENT,
         );
-        let parsed = read.and_then(|body| {
-            mcap::parse_record(op::ATTACHMENT, body)
-                .map(McapRecord::into_owned)
-                .map_err(|e| Error::mcap(&self.path, e))
-        });
+        let parsed = read
+            .and_then(|body| guard::parse(&self.path, op::ATTACHMENT, body))
+            .map(McapRecord::into_owned);
         self.chunk_buf = buf;
         match parsed? {
             McapRecord::Attachment { data, .. } => Ok(Some(data.into_owned())),
@@ -221,16 +246,15 @@ impl Reader {
             let read = read_record(
                 &self.path,
                 &mut self.file,
+                self.file_bytes,
                 &mut buf,
                 index.offset,
                 index.length,
                 op::METADATA,
             );
-            let parsed = read.and_then(|body| {
-                mcap::parse_record(op::METADATA, body)
-                    .map(McapRecord::into_owned)
-                    .map_err(|e| Error::mcap(&self.path, e))
-            });
+            let parsed = read
+                .and_then(|body| guard::parse(&self.path, op::METADATA, body))
+                .map(McapRecord::into_owned);
             match parsed {
                 Ok(McapRecord::Metadata(m)) => out.push((m.name, m.metadata)),
                 Ok(_) => {}
@@ -261,35 +285,37 @@ impl Reader {
         let body = read_record(
             &path,
             &mut self.file,
+            self.file_bytes,
             buf,
             index.chunk_start_offset,
             index.chunk_length,
             op::CHUNK,
         )?;
-        let (header, data) =
-            match mcap::parse_record(op::CHUNK, body).map_err(|e| Error::mcap(&path, e))? {
-                McapRecord::Chunk { header, data } => (header, data),
-                _ => {
-                    return Err(Error::Mcap {
-                        path,
-                        source: mcap::McapError::BadIndex,
-                    })
-                }
-            };
-        // Read the whole chunk first: its CRC is checked at its end, and nothing of a
-        // corrupt chunk may be yielded.
+        let (header, data) = match guard::parse(&path, op::CHUNK, body)? {
+            McapRecord::Chunk { header, data } => (header, data),
+            _ => {
+                return Err(Error::Mcap {
+                    path,
+                    source: mcap::McapError::BadIndex,
+                })
+            }
+        };
+        // The whole chunk is checked first (CRC, framing: `guard::chunk`), and nothing
+        // of a corrupt chunk may be yielded.
         let mut messages = Vec::new();
-        for record in
-            mcap::read::ChunkReader::new(header, &data).map_err(|e| Error::mcap(&path, e))?
-        {
-            if let McapRecord::Message { header, data } =
-                record.map_err(|e| Error::mcap(&path, e))?
-            {
+        let mut decompressed = std::mem::take(&mut self.decompressed);
+        let records = guard::chunk(&header, &data, &mut decompressed);
+        for (opcode, body) in records.map_err(|e| Error::chunk(&path, e))? {
+            if opcode != op::MESSAGE {
+                continue;
+            }
+            if let McapRecord::Message { header, data } = guard::parse(&path, opcode, body)? {
                 if self.channels.contains_key(&header.channel_id) {
                     messages.push((header, data.into_owned()));
                 }
             }
         }
+        self.decompressed = decompressed;
         for (header, data) in messages {
             self.pending.push(Reverse(Pending {
                 log_time_ns: header.log_time,
@@ -362,7 +388,8 @@ impl Iterator for Reader {
 /// into `buf`, checks its opcode, and returns its body.
 fn read_record<'b>(
     path: &Path,
-    file: &mut File,
+    file: &mut dyn Source,
+    file_bytes: u64,
     buf: &'b mut Vec<u8>,
     offset: u64,
     length: u64,
@@ -375,6 +402,15 @@ fn read_record<'b>(
     let len = usize::try_from(length).map_err(|_| bad_index())?;
     if len < 9 {
         return Err(bad_index());
+    }
+    // A corrupt index must not become an allocation: nothing lies past the end.
+    if offset
+        .checked_add(length)
+        .is_none_or(|end| end > file_bytes)
+    {
+        return Err(Error::Truncated {
+            path: path.to_path_buf(),
+        });
     }
     buf.resize(len, 0);
     file.seek(SeekFrom::Start(offset))
@@ -392,8 +428,14 @@ fn read_record<'b>(
 }
 
 /// Reads the summary section through `mcap`'s sans-io summary reader.
-fn read_summary(path: &Path, file: &mut File) -> Result<Option<mcap::Summary>> {
-    let mut reader = SummaryReader::new();
+fn read_summary(
+    path: &Path,
+    file: &mut dyn Source,
+    file_bytes: u64,
+) -> Result<Option<mcap::Summary>> {
+    // With the file size, mcap clamps every read to the bytes that can still exist.
+    let mut reader =
+        SummaryReader::new_with_options(SummaryReaderOptions::default().with_file_size(file_bytes));
     while let Some(event) = reader.next_event() {
         let event = event.map_err(|e| match e {
             // No footer at the end: the writer never finished.
@@ -417,4 +459,73 @@ fn read_summary(path: &Path, file: &mut File) -> Result<Option<mcap::Summary>> {
         }
     }
     Ok(reader.finish())
+}
+
+/// Checks the records of the summary section (`guard::records`) before mcap's summary
+/// reader parses them. A file without a readable footer is left to that reader, which
+/// says what is missing.
+fn check_summary(path: &Path, file: &mut dyn Source, file_bytes: u64) -> Result<()> {
+    // Footer record: opcode, length (20), summary start, summary offset start, CRC;
+    // then the closing magic.
+    const FOOTER_BYTES: u64 = 1 + 8 + 20;
+    let Some(footer_at) = file_bytes.checked_sub(FOOTER_BYTES + mcap::MAGIC.len() as u64) else {
+        return Ok(());
+    };
+    let mut footer = [0u8; FOOTER_BYTES as usize];
+    file.seek(SeekFrom::Start(footer_at))
+        .and_then(|_| file.read_exact(&mut footer))
+        .map_err(|e| Error::io("read", path, e))?;
+    let summary_start = u64::from_le_bytes(footer[9..17].try_into().unwrap_or([0; 8]));
+    if footer[0] != op::FOOTER || summary_start == 0 || summary_start >= footer_at {
+        return Ok(());
+    }
+    // Within the file: summary_start < footer_at.
+    let mut summary = vec![0u8; usize::try_from(footer_at - summary_start).unwrap_or(0)];
+    file.seek(SeekFrom::Start(summary_start))
+        .and_then(|_| file.read_exact(&mut summary))
+        .map_err(|e| Error::io("read", path, e))?;
+    crate::guard::records(&summary).map_err(|reason| Error::Malformed {
+        path: path.to_path_buf(),
+        reason: format!("summary section: {reason}"),
+    })?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Cursor;
+
+    #[test]
+    fn an_index_past_the_end_of_the_file_is_truncation_not_an_allocation() {
+        // Found by the fuzz target mcap_read: a chunk index whose length claims
+        // exabytes; the record was allocated before it was read.
+        let mut file = Cursor::new(vec![0u8; 100]);
+        let mut buf = Vec::new();
+        for (offset, length) in [(10, 1 << 60), (u64::MAX - 5, 20), (90, 11)] {
+            let e = read_record(
+                Path::new("x.mcap"),
+                &mut file,
+                100,
+                &mut buf,
+                offset,
+                length,
+                op::CHUNK,
+            )
+            .unwrap_err();
+            assert!(matches!(e, Error::Truncated { .. }), "{e}");
+        }
+        assert!(buf.capacity() < 100);
+        file.get_mut()[10] = op::CHUNK;
+        let body = read_record(
+            Path::new("x.mcap"),
+            &mut file,
+            100,
+            &mut buf,
+            10,
+            90,
+            op::CHUNK,
+        );
+        assert_eq!(body.unwrap().len(), 81);
+    }
 }

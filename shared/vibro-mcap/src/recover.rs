@@ -9,13 +9,13 @@
 //! of a complete file. A chunk that is complete but corrupt (CRC or decompression error)
 //! is skipped and counted, and reading goes on: the records after it are still framed.
 
-use crate::{Error, Result};
+use crate::{guard, Error, Result};
 use mcap::records::Record as McapRecord;
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
-use std::io::{BufWriter, Read};
+use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 /// What [`recover`] found and wrote.
@@ -46,30 +46,27 @@ pub struct RecoverReport {
     pub output_bytes: u64,
 }
 
-struct Copier {
+struct Copier<W: Write + Seek> {
     out_path: PathBuf,
-    writer: mcap::Writer<BufWriter<File>>,
+    writer: mcap::Writer<W>,
     schemas: HashMap<u16, u16>,
     channels: HashMap<u16, String>,
     report: RecoverReport,
 }
 
-impl Copier {
+impl<W: Write + Seek> Copier<W> {
     fn new(
         input: &Path,
         input_bytes: u64,
         out_path: &Path,
-        out_file: &File,
+        out: W,
         profile: String,
-    ) -> Result<Copier> {
-        let out_file = out_file
-            .try_clone()
-            .map_err(|e| Error::io("open", out_path, e))?;
+    ) -> Result<Copier<W>> {
         let writer = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Zstd))
             .compression_threads(0)
             .profile(profile)
-            .create(BufWriter::new(out_file))
+            .create(out)
             .map_err(|e| Error::mcap(out_path, e))?;
         Ok(Copier {
             out_path: out_path.to_path_buf(),
@@ -161,21 +158,26 @@ impl Copier {
         Ok(true)
     }
 
-    /// Copies a whole chunk if it decompresses and its CRC checks out.
+    /// Copies a whole chunk if it decompresses, its CRC checks out and its records
+    /// parse (cut into records by `guard::chunk`, not by mcap).
     fn copy_chunk(&mut self, header: mcap::records::ChunkHeader, data: &[u8]) -> Result<()> {
-        let records: std::result::Result<Vec<McapRecord<'static>>, mcap::McapError> =
-            match mcap::read::ChunkReader::new(header, data) {
-                Ok(reader) => reader.map(|r| r.map(McapRecord::into_owned)).collect(),
-                Err(e) => Err(e),
-            };
+        let mut buf = Vec::new();
+        let records = guard::chunk(&header, data, &mut buf)
+            .ok()
+            .and_then(|records| {
+                records
+                    .into_iter()
+                    .map(|(opcode, body)| mcap::parse_record(opcode, body).ok())
+                    .collect::<Option<Vec<_>>>()
+            });
         match records {
-            Ok(records) => {
+            Some(records) => {
                 for record in records {
                     self.copy(record)?;
                 }
                 self.report.chunks_recovered += 1;
             }
-            Err(_) => self.report.chunks_skipped += 1,
+            None => self.report.chunks_skipped += 1,
         }
         Ok(())
     }
@@ -185,12 +187,33 @@ impl Copier {
 pub fn recover(damaged: impl AsRef<Path>, out: impl AsRef<Path>) -> Result<RecoverReport> {
     let input = damaged.as_ref();
     let out_path = out.as_ref();
-    let mut file = File::open(input).map_err(|e| Error::io("open", input, e))?;
+    let file = File::open(input).map_err(|e| Error::io("open", input, e))?;
     let input_bytes = file
         .metadata()
         .map_err(|e| Error::io("stat", input, e))?
         .len();
     let out_file = File::create(out_path).map_err(|e| Error::io("create", out_path, e))?;
+    let (report, out) =
+        recover_from_reader(file, input, input_bytes, BufWriter::new(out_file), out_path)?;
+    let file = out
+        .into_inner()
+        .map_err(|e| Error::io("write", out_path, e.into_error()))?;
+    file.sync_all()
+        .map_err(|e| Error::io("sync", out_path, e))?;
+    Ok(report)
+}
+
+/// [`recover`] from `damaged` (a file, or bytes in memory) of `input_bytes` bytes into
+/// `out`, which is returned after the new file's footer; `input` and `out_path` stand
+/// for the files in the report and in errors.
+pub fn recover_from_reader<W: Write + Seek>(
+    mut damaged: impl Read,
+    input: &Path,
+    input_bytes: u64,
+    out: W,
+    out_path: &Path,
+) -> Result<(RecoverReport, W)> {
+    let mut out = Some(out);
 
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
@@ -202,7 +225,7 @@ pub fn recover(damaged: impl AsRef<Path>, out: impl AsRef<Path>) -> Result<Recov
             .with_record_length_limit(usize::try_from(input_bytes).unwrap_or(usize::MAX)),
     );
     // The header comes first; the new file's header copies its profile.
-    let mut copier: Option<Copier> = None;
+    let mut copier: Option<Copier<W>> = None;
     let mut valid_prefix_bytes = mcap::MAGIC.len() as u64;
     let mut input_complete = false;
     let mut stop_reason = None;
@@ -230,7 +253,7 @@ pub fn recover(damaged: impl AsRef<Path>, out: impl AsRef<Path>) -> Result<Recov
         };
         match event {
             LinearReadEvent::ReadRequest(need) => {
-                let n = file
+                let n = damaged
                     .read(reader.insert(need))
                     .map_err(|e| Error::io("read", input, e))?;
                 reader.notify_read(n);
@@ -238,7 +261,9 @@ pub fn recover(damaged: impl AsRef<Path>, out: impl AsRef<Path>) -> Result<Recov
             LinearReadEvent::Record { opcode, data } => {
                 let record_start = valid_prefix_bytes;
                 valid_prefix_bytes += 1 + 8 + data.len() as u64;
-                let record = match mcap::parse_record(opcode, data) {
+                let parsed = guard::record(opcode, data)
+                    .and_then(|()| mcap::parse_record(opcode, data).map_err(|e| e.to_string()));
+                let record = match parsed {
                     Ok(r) => r,
                     Err(e) => {
                         valid_prefix_bytes = record_start;
@@ -254,13 +279,11 @@ pub fn recover(damaged: impl AsRef<Path>, out: impl AsRef<Path>) -> Result<Recov
                             source: mcap::McapError::BadMagic,
                         });
                     };
-                    copier = Some(Copier::new(
-                        input,
-                        input_bytes,
-                        out_path,
-                        &out_file,
-                        h.profile,
-                    )?);
+                    // Taken once: there is no copier only until the header.
+                    let Some(out) = out.take() else {
+                        continue;
+                    };
+                    copier = Some(Copier::new(input, input_bytes, out_path, out, h.profile)?);
                     continue;
                 };
                 if let McapRecord::Chunk { header, data } = record {
@@ -287,20 +310,13 @@ pub fn recover(damaged: impl AsRef<Path>, out: impl AsRef<Path>) -> Result<Recov
         .writer
         .finish()
         .map_err(|e| Error::mcap(out_path, e))?;
-    let file = copier
-        .writer
-        .into_inner()
-        .into_inner()
-        .map_err(|e| Error::io("write", out_path, e.into_error()))?;
-    file.sync_all()
-        .map_err(|e| Error::io("sync", out_path, e))?;
+    let mut out = copier.writer.into_inner();
     let mut report = copier.report;
-    report.output_bytes = file
-        .metadata()
-        .map_err(|e| Error::io("stat", out_path, e))?
-        .len();
+    report.output_bytes = out
+        .seek(SeekFrom::End(0))
+        .map_err(|e| Error::io("seek in", out_path, e))?;
     report.valid_prefix_bytes = valid_prefix_bytes;
     report.input_complete = input_complete;
     report.stop_reason = stop_reason;
-    Ok(report)
+    Ok((report, out))
 }

@@ -260,10 +260,11 @@ mod tests {
     fn flag_sets_are_disjoint_bits() {
         assert_eq!(
             compensation_flags::ALL.count_ones(),
-            6,
-            "six distinct compensation flags"
+            10,
+            "ten distinct compensation flags"
         );
-        assert_eq!(estimate_flags::ALL.count_ones(), 8);
+        assert_eq!(compensation_flags::ALL, 0x3ff, "bits 0..9, no hole");
+        assert_eq!(estimate_flags::ALL.count_ones(), 9);
         assert_eq!(accel_flags::ALL, 0b11);
         assert_eq!(vib_flags::ALL, 0b11);
         assert_eq!(truth_flags::ALL, 0b11);

@@ -31,8 +31,8 @@ pub mod vib_flags {
     pub const ALL: u32 = GAP_BEFORE | SATURATED;
 }
 
-/// Flag bits of [`VibEstimate::flags`], mirroring `vibro_dsp::Flags`. Bits not listed are
-/// reserved and zero.
+/// Flag bits of [`VibEstimate::flags`], mirroring `vibro_dsp::Flags` (plus the estimator
+/// service's `RATE_MISMATCH`). Bits not listed are reserved and zero.
 pub mod estimate_flags {
     /// No tone passed the detection threshold.
     pub const TONE_FREE: u32 = 1 << 0;
@@ -44,6 +44,11 @@ pub mod estimate_flags {
     pub const OUT_OF_ORDER: u32 = 1 << 3;
     /// Too few valid samples or Welch segments: some values are NaN.
     pub const INSUFFICIENT_DATA: u32 = 1 << 4;
+    /// The window spans vibration blocks the estimator service dropped because their
+    /// `sample_period_ns` disagreed with its configured `sample_rate_hz`: their samples
+    /// were kept out (missing from the window, so `GAP` is normally set too). Set by the
+    /// service, not by `vibro_dsp`, which never sees those samples.
+    pub const RATE_MISMATCH: u32 = 1 << 5;
     /// Axis 0 had samples at or over full scale; axis `i` is `SATURATED_AXIS0 << i`.
     pub const SATURATED_AXIS0: u32 = 1 << 8;
     /// Every defined bit.
@@ -52,6 +57,7 @@ pub mod estimate_flags {
         | NON_FINITE
         | OUT_OF_ORDER
         | INSUFFICIENT_DATA
+        | RATE_MISMATCH
         | SATURATED_AXIS0
         | (SATURATED_AXIS0 << 1)
         | (SATURATED_AXIS0 << 2);
@@ -72,13 +78,32 @@ pub mod compensation_flags {
     pub const NON_FINITE_INPUT: u32 = 1 << 4;
     /// The estimate used carried quality flags (gap, non-finite, insufficient data, ...).
     pub const ESTIMATE_FLAGGED: u32 = 1 << 5;
+    /// The input's `sample_period_ns` differs from the previous block's: the estimate was
+    /// mapped to the new output interval and the stream kernel started afresh.
+    pub const RATE_CHANGE: u32 = 1 << 6;
+    /// The input's `t0_ns` is more than half a sample period away from where the
+    /// previous block's timing and the sample index put it: the accelerometer clock
+    /// stepped (back or forward) or the timestamp is corrupt. The timestamp is used as
+    /// given (staleness, output).
+    pub const TIME_JUMP: u32 = 1 << 7;
+    /// The latest estimate's window ends more than the compensator's lead limit after
+    /// the block's last sample (the two streams' clocks disagree): it was not used, the
+    /// block is compensated for the main error only (`MAIN_ONLY`).
+    pub const ESTIMATE_AHEAD: u32 = 1 << 8;
+    /// The input block was flagged `SATURATED` by its producer: some readings are clipped
+    /// and their compensated values are wrong by the clipped amount.
+    pub const INPUT_SATURATED: u32 = 1 << 9;
     /// Every defined bit.
     pub const ALL: u32 = VIBRATION_ESTIMATE_STALE
         | ESTIMATE_MISSING
         | MAIN_ONLY
         | INPUT_GAP
         | NON_FINITE_INPUT
-        | ESTIMATE_FLAGGED;
+        | ESTIMATE_FLAGGED
+        | RATE_CHANGE
+        | TIME_JUMP
+        | ESTIMATE_AHEAD
+        | INPUT_SATURATED;
 }
 
 /// Flag bits of [`TruthBlock::flags`]. Bits not listed are reserved and zero.

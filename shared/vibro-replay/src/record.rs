@@ -1,7 +1,7 @@
 //! Recording live streams into an MCAP file.
 
 use crate::topics::topic;
-use crate::Result;
+use crate::{Error, Result};
 use iceoryx2::prelude::CallbackProgression;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -271,6 +271,11 @@ fn totals(states: &[State]) -> (u64, u64, u64) {
 ///
 /// Runs on the calling thread, which it never gives back to an async runtime: call it
 /// from a thread of its own.
+///
+/// A file that cannot be created or written (a missing or read-only folder, a full
+/// disk) is [`Error::Output`] with the operating system's reason: the recording stops
+/// at once, its subscribers are released first (the publishers are never held up by a
+/// recorder that cannot write), and the file keeps what was flushed before.
 pub fn record(
     path: &Path,
     options: &RecordOptions,
@@ -278,7 +283,82 @@ pub fn record(
     ready: impl FnOnce(),
 ) -> Result<RecordSummary> {
     let started_ns = now_ns();
-    let mut recorder = Recorder::create(path, options.recorder.clone())?;
+    let mut recorder = Recorder::create(path, options.recorder.clone())
+        .map_err(|e| output_error("create", path, e, None))?;
+    let states = match record_into(&mut recorder, path, options, stop, ready, started_ns) {
+        Ok(states) => states,
+        Err(e) => {
+            // The loop only sees that the writer thread stopped; `finish` says why.
+            let stopped = matches!(e, Error::Mcap(vibro_mcap::Error::RecorderStopped { .. }));
+            let written = recorder.stats().written;
+            return Err(match recorder.finish() {
+                Err(cause) if stopped => output_error("write", path, cause, Some(written)),
+                _ => e,
+            });
+        }
+    };
+    let topics: BTreeMap<String, TopicCounts> =
+        states.into_iter().map(|c| (c.topic, c.counts)).collect();
+    let written = recorder.stats().written;
+    let finished = recorder
+        .finish()
+        .map_err(|e| output_error("write", path, e, Some(written)))?;
+    let summary = RecordSummary {
+        path: path.to_path_buf(),
+        prefix: options.names.prefix().to_string(),
+        messages: finished.messages,
+        lost: topics.values().map(|t| t.lost).sum(),
+        topics,
+        chunks: finished.chunks,
+        bytes: finished.bytes,
+        duration_s: now_ns().saturating_sub(started_ns) as f64 * 1e-9,
+    };
+    info!(
+        messages = summary.messages,
+        lost = summary.lost,
+        bytes = summary.bytes,
+        "recording finished"
+    );
+    Ok(summary)
+}
+
+/// An error of the MCAP writer on `path`: with the operating system's reason when it
+/// is an I/O error (`written`: messages the writer had taken when it failed).
+fn output_error(
+    action: &'static str,
+    path: &Path,
+    e: vibro_mcap::Error,
+    written: Option<u64>,
+) -> Error {
+    let Some(io) = crate::io_cause(&e) else {
+        return Error::Mcap(e);
+    };
+    let what_is_kept = match written {
+        None => String::new(),
+        Some(0) => "; nothing was recorded".to_string(),
+        Some(n) => format!(
+            "; of the {n} messages taken, the file keeps those of its complete chunks: `vibrocomp log recover {} OUT.mcap` restores them",
+            path.display()
+        ),
+    };
+    Error::Output {
+        action,
+        path: path.to_path_buf(),
+        reason: io.to_string(),
+        what_is_kept,
+    }
+}
+
+/// Subscribes, writes the header records and records until `stop`; returns the
+/// counters. Every port is released when it returns, whatever the outcome.
+fn record_into(
+    recorder: &mut Recorder,
+    path: &Path,
+    options: &RecordOptions,
+    stop: &AtomicBool,
+    ready: impl FnOnce(),
+    started_ns: u64,
+) -> Result<Vec<State>> {
     let node = create_node("vibrocomp-recorder")?;
     let cleaned = cleanup_dead_nodes(&node);
     if cleaned > 0 {
@@ -287,7 +367,7 @@ pub fn record(
     let mut channels = Vec::with_capacity(options.streams.len());
     let mut states = Vec::with_capacity(options.streams.len());
     for &stream in &options.streams {
-        let (channel, state) = open_stream(&node, &options.names, stream, &mut recorder)?;
+        let (channel, state) = open_stream(&node, &options.names, stream, recorder)?;
         channels.push(channel);
         states.push(state);
     }
@@ -355,7 +435,7 @@ pub fn record(
         }
         let mut taken = 0;
         for (c, st) in channels.iter().zip(&mut states) {
-            taken += c.drain(&recorder, st)?;
+            taken += c.drain(recorder, st)?;
         }
         let (received, recorded, lost) = totals(&states);
         if taken > 0 {
@@ -380,24 +460,5 @@ pub fn record(
     status.heartbeat(received, recorded, lost, ServiceState::Stopping);
     drop(guards);
     drop(channels);
-    let topics: BTreeMap<String, TopicCounts> =
-        states.into_iter().map(|c| (c.topic, c.counts)).collect();
-    let finished = recorder.finish()?;
-    let summary = RecordSummary {
-        path: path.to_path_buf(),
-        prefix: options.names.prefix().to_string(),
-        messages: finished.messages,
-        lost: topics.values().map(|t| t.lost).sum(),
-        topics,
-        chunks: finished.chunks,
-        bytes: finished.bytes,
-        duration_s: now_ns().saturating_sub(started_ns) as f64 * 1e-9,
-    };
-    info!(
-        messages = summary.messages,
-        lost = summary.lost,
-        bytes = summary.bytes,
-        "recording finished"
-    );
-    Ok(summary)
+    Ok(states)
 }

@@ -3,10 +3,11 @@
 use crate::topics::{known_topics, rig_streams, stream_of_topic, topic};
 use crate::{Error, Result};
 use std::collections::BTreeMap;
+use std::io::Read as _;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
-use tracing::{debug, info};
+use tracing::{debug, info, warn};
 use vibro_ipc::{
     cleanup_dead_nodes, create_node, now_ns, IpcNode, StreamPublisher, StreamSubscriber,
 };
@@ -110,6 +111,198 @@ pub struct ReplaySummary {
     pub lockstep_waits: u64,
     pub lockstep_wait_s: f64,
     pub lockstepped: bool,
+    /// Channels of the log that were not replayed, each with the reason: foreign
+    /// schemas, topics that are not streams of the system.
+    pub skipped_topics: Vec<String>,
+}
+
+/// Every MCAP file starts (and ends) with these 8 bytes.
+const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+
+/// A finished MCAP file holds at least its opening magic, a footer record (opcode,
+/// length, 20 bytes) and the closing magic.
+const MIN_FINISHED_BYTES: u64 = 8 + 29 + 8;
+
+fn bad(path: &Path, problem: impl Into<String>) -> Error {
+    Error::BadLog {
+        path: path.to_path_buf(),
+        problem: problem.into(),
+    }
+}
+
+fn recover_hint(path: &Path) -> String {
+    format!(
+        "; `vibrocomp log recover {} OUT.mcap` keeps every complete chunk, and OUT.mcap replays",
+        path.display()
+    )
+}
+
+/// What is wrong with a log, in words, and whether `vibrocomp log recover` helps.
+fn log_problem(e: &vibro_mcap::Error) -> (String, bool) {
+    use vibro_mcap::Error as E;
+    match e {
+        E::NotFinished { what, .. } => (
+            format!(
+                "damaged: not finished ({what}); the recorder or simulator did not close it (a crash, a full disk, or a copy still in progress)"
+            ),
+            true,
+        ),
+        E::Truncated { .. } => ("damaged: it ends in the middle of a record (truncated)".to_string(), true),
+        E::ChunkCrc {
+            saved, calculated, ..
+        } => (
+            format!("damaged: a chunk fails its CRC (expected {saved:08X}, got {calculated:08X})"),
+            true,
+        ),
+        E::Mcap { source, .. } => (
+            format!("damaged: {}", crate::describe(source)),
+            true,
+        ),
+        E::Io { action, source, .. } => (format!("cannot {action} it: {source}"), false),
+        E::Decode { .. }
+        | E::FieldLength { .. }
+        | E::ValueOutOfRange { .. }
+        | E::Invalid(_) => (format!("a malformed message: {}", crate::describe(e)), false),
+        other => (crate::describe(other), false),
+    }
+}
+
+fn bad_log(path: &Path, e: &vibro_mcap::Error) -> Error {
+    let (problem, recoverable) = log_problem(e);
+    let hint = if recoverable {
+        recover_hint(path)
+    } else {
+        String::new()
+    };
+    bad(path, format!("{problem}{hint}"))
+}
+
+/// The topics of `streams`, for messages.
+fn topic_list(streams: &[Stream]) -> String {
+    streams
+        .iter()
+        .map(|&s| topic(s))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// A log opened for replay, with its rig streams and what it holds that is not
+/// replayed.
+struct Log {
+    reader: Reader,
+    rig: Vec<Stream>,
+    skipped: Vec<String>,
+}
+
+/// Opens the log at `path` and checks, before anything is published, that it is an
+/// MCAP file, finished, and that its rig topics carry their own message types.
+fn open_log(path: &Path) -> Result<Log> {
+    let meta = std::fs::metadata(path).map_err(|e| bad(path, format!("cannot open it: {e}")))?;
+    if meta.is_dir() {
+        return Err(bad(path, "is a directory, not a log file"));
+    }
+    if !meta.is_file() {
+        return Err(bad(
+            path,
+            "is not a regular file (a log is read from its end first: it must be a file)",
+        ));
+    }
+    if meta.len() == 0 {
+        return Err(bad(path, "empty file (0 bytes), not an MCAP log"));
+    }
+    let mut head = Vec::with_capacity(MCAP_MAGIC.len());
+    std::fs::File::open(path)
+        .and_then(|f| f.take(MCAP_MAGIC.len() as u64).read_to_end(&mut head))
+        .map_err(|e| bad(path, format!("cannot read it: {e}")))?;
+    if !MCAP_MAGIC.starts_with(&head) {
+        return Err(bad(
+            path,
+            "not an MCAP log: it does not start with the MCAP magic bytes 89 4D 43 41 50 30 0D 0A",
+        ));
+    }
+    if head.len() < MCAP_MAGIC.len() {
+        return Err(bad(
+            path,
+            format!(
+                "damaged: {} bytes, it ends inside the MCAP magic (truncated); nothing to recover",
+                head.len()
+            ),
+        ));
+    }
+    if meta.len() < MIN_FINISHED_BYTES {
+        return Err(bad(
+            path,
+            format!(
+                "damaged: {} bytes, too short for a finished MCAP log (its magic, footer and closing magic alone take {MIN_FINISHED_BYTES}): truncated{}",
+                meta.len(),
+                recover_hint(path)
+            ),
+        ));
+    }
+    let reader = Reader::open(path).map_err(|e| bad_log(path, &e))?;
+    let mut skipped: Vec<String> = reader
+        .foreign_topics()
+        .iter()
+        .map(|t| format!("{t} (not a vibrocomp.v1 schema)"))
+        .collect();
+    let mut rig = Vec::new();
+    for (t, kind) in reader.channels() {
+        match stream_of_topic(&t) {
+            None => skipped.push(format!("{t} ({kind}, not a stream of the system)")),
+            Some(stream) if rig_streams().contains(&stream) => {
+                if stream.kind() != kind {
+                    return Err(bad(
+                        path,
+                        format!(
+                            "topic {t} carries {kind} messages, but the system's {t} carries {}: the log was written wrongly",
+                            stream.kind()
+                        ),
+                    ));
+                }
+                if !rig.contains(&stream) {
+                    rig.push(stream);
+                }
+            }
+            // The services' outputs (/estimate, /compensated, heartbeats): a replay
+            // never publishes them, the services make them anew.
+            Some(_) => {}
+        }
+    }
+    Ok(Log {
+        reader,
+        rig,
+        skipped,
+    })
+}
+
+/// The rig streams a replay publishes when not told: all the log has, if that makes
+/// sense for the services.
+fn default_selection(path: &Path, in_log: &[Stream], skipped: &[String]) -> Result<Vec<Stream>> {
+    let has = |s: Stream| in_log.contains(&s);
+    if !has(Stream::Vib) && !has(Stream::Accel) {
+        let mut what = format!(
+            "nothing to replay: no /vib or /accel channel (the services' inputs){}",
+            if has(Stream::Truth) {
+                "; it has /truth only"
+            } else {
+                ""
+            }
+        );
+        if !skipped.is_empty() {
+            what.push_str(&format!("; not replayable: {}", skipped.join(", ")));
+        }
+        return Err(Error::Empty {
+            path: path.to_path_buf(),
+            what,
+        });
+    }
+    if has(Stream::Accel) && !has(Stream::Vib) {
+        return Err(bad(
+            path,
+            "has /accel but no /vib: the estimator would get no vibration, and the compensator would publish main-only readings flagged ESTIMATE_MISSING; select the topics (--topics /accel) to replay it anyway",
+        ));
+    }
+    Ok(in_log.to_vec())
 }
 
 /// The consumer of one stream, followed through its progress messages.
@@ -290,6 +483,14 @@ macro_rules! shifted {
 /// Replays the rig streams of the log at `path` under `options.names`. `progress`
 /// receives (messages published, messages in one pass) now and then. Stops early,
 /// cleanly, when `stop` is set.
+///
+/// The log is checked before any service is opened: [`Error::BadLog`] for a file that
+/// is not a finished MCAP log or whose rig topics carry other types, or that has
+/// `/accel` without `/vib` (unless `options.topics` names them), [`Error::Empty`] for
+/// one with nothing to replay. Foreign channels are skipped and listed in
+/// [`ReplaySummary::skipped_topics`]. A chunk that turns out damaged stops the replay
+/// where it is ([`Error::DamagedPartWay`]), and so does a pass that publishes nothing
+/// (a window past the end), which `passes = 0` would otherwise repeat for ever.
 pub fn replay(
     path: &Path,
     options: &ReplayOptions,
@@ -297,15 +498,13 @@ pub fn replay(
     mut progress: impl FnMut(u64, u64),
 ) -> Result<ReplaySummary> {
     options.check()?;
-    let reader = Reader::open(path)?;
-    let in_log: Vec<Stream> = reader
-        .channels()
-        .iter()
-        .filter_map(|(t, _)| stream_of_topic(t))
-        .filter(|s| rig_streams().contains(s))
-        .collect();
+    let log = open_log(path)?;
+    let (reader, in_log, skipped_topics) = (log.reader, log.rig, log.skipped);
+    if !skipped_topics.is_empty() {
+        warn!(path = %path.display(), skipped = %skipped_topics.join("; "), "not replaying some channels of the log");
+    }
     let selected: Vec<Stream> = match &options.topics {
-        None => in_log.clone(),
+        None => default_selection(path, &in_log, &skipped_topics)?,
         Some(topics) => {
             let mut v = Vec::new();
             for t in topics {
@@ -337,10 +536,13 @@ pub fn replay(
             v
         }
     };
-    if selected.is_empty() {
+    if reader.message_count() == Some(0) {
         return Err(Error::Empty {
             path: path.to_path_buf(),
-            what: "no rig stream (/vib, /accel, /truth) to replay".to_string(),
+            what: format!(
+                "no messages: a valid MCAP log, but its channels ({}) hold nothing to replay",
+                topic_list(&in_log)
+            ),
         });
     }
     let per_pass = reader.message_count().unwrap_or(0);
@@ -421,12 +623,28 @@ pub fn replay(
     let started = Instant::now();
     let mut pass_start_ns = 0u64; // wall-clock offset of the current pass (Rate pace)
     'passes: loop {
-        let reader = Reader::open(path)?;
+        let reader = Reader::open(path).map_err(|e| bad_log(path, &e))?;
         let mut first_log_ns: Option<u64> = None;
         let mut window: Option<(u64, u64)> = None;
         let mut last_due_ns = 0u64;
+        let mut last_log_ns = 0u64;
+        let published_before = messages;
         for record in reader {
-            let record = record?;
+            let record = record.map_err(|e| {
+                let (problem, recoverable) = log_problem(&e);
+                Error::DamagedPartWay {
+                    path: path.to_path_buf(),
+                    problem,
+                    published: messages,
+                    log_time_s: last_log_ns.saturating_sub(first_log_ns.unwrap_or(0)) as f64 * 1e-9,
+                    hint: if recoverable {
+                        recover_hint(path)
+                    } else {
+                        String::new()
+                    },
+                }
+            })?;
+            last_log_ns = record.log_time_ns;
             if stop.load(Ordering::Acquire) {
                 break 'passes;
             }
@@ -529,6 +747,21 @@ pub fn replay(
                 progress(messages, per_pass);
             }
         }
+        // A pass that published nothing would loop for ever with `passes = 0`.
+        if messages == published_before && !stop.load(Ordering::Acquire) {
+            return Err(Error::Empty {
+                path: path.to_path_buf(),
+                what: format!(
+                    "no message of {} from {} s into the log{} (the log has {} messages in all)",
+                    topic_list(&selected),
+                    options.start_s,
+                    options
+                        .duration_s
+                        .map_or_else(String::new, |d| format!(" for {d} s")),
+                    per_pass
+                ),
+            });
+        }
         passes += 1;
         progress(messages, per_pass);
         if options.passes != 0 && passes >= options.passes {
@@ -568,6 +801,7 @@ pub fn replay(
         lockstep_waits: waits,
         lockstep_wait_s: wait_s,
         lockstepped: lockstep,
+        skipped_topics,
     };
     info!(
         messages,

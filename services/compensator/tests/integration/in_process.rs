@@ -258,11 +258,16 @@ fn missing_and_stale_estimates_give_flagged_main_only_outputs() {
     rig.send_estimate(&broken);
     let out = rig.roundtrip(&block(6));
     assert_eq!((out.flags, out.estimate_seq), (cf::ESTIMATE_FLAGGED, 2));
-    // ...until it is stale: 2 s after its window end.
+    // ...until it is stale: 2 s after its window end. (The block is dated 1.5 s after
+    // where its sample index puts it, a clock jump: flagged, and its timestamp is what
+    // the staleness rule uses.)
     let mut late = block(7);
     late.t0_ns = gappy.end_ns + 2_000_000_001 - 31 * 1_000_000;
     let out = rig.roundtrip(&late);
-    assert_eq!(out.flags, cf::VIBRATION_ESTIMATE_STALE | cf::MAIN_ONLY);
+    assert_eq!(
+        out.flags,
+        cf::VIBRATION_ESTIMATE_STALE | cf::MAIN_ONLY | cf::TIME_JUMP
+    );
     assert_eq!(out.estimate_age_ns, 2_000_000_001);
     main_only(&out);
 
@@ -273,6 +278,7 @@ fn missing_and_stale_estimates_give_flagged_main_only_outputs() {
         (3, 1)
     );
     assert_eq!(summary.flagged_estimate_blocks, 2);
+    assert_eq!(summary.time_jump_blocks, 1);
     assert_eq!(summary.estimates.received, 4);
     // none -> (stale: still none) -> 1 -> 2 -> (rejected: 2 kept) -> stale: none.
     assert_eq!(summary.vibration_updates, 3);

@@ -5,6 +5,7 @@
 // Per-axis and per-unit index loops mirror the formulas' subscripts.
 #![allow(clippy::needless_range_loop)]
 
+mod bad_input;
 mod faults;
 mod in_process;
 mod process;

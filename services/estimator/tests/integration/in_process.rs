@@ -15,17 +15,17 @@ use vibro_msgs::{
     estimate_flags, Heartbeat, ServiceId, ServiceNames, Stream, VibBlock, VibEstimate,
 };
 
-const FS_HZ: f64 = 4096.0;
-const BLOCK: usize = 256;
-const SENSITIVITY_V_PER_G: f64 = 0.1;
-const TONE_HZ: f64 = 97.3;
-const TONE_G: [f64; 3] = [0.8, 0.5, 1.2];
-const TONE_PHASE_RAD: [f64; 3] = [0.3, 1.0, -0.5];
+pub const FS_HZ: f64 = 4096.0;
+pub const BLOCK: usize = 256;
+pub const SENSITIVITY_V_PER_G: f64 = 0.1;
+pub const TONE_HZ: f64 = 97.3;
+pub const TONE_G: [f64; 3] = [0.8, 0.5, 1.2];
+pub const TONE_PHASE_RAD: [f64; 3] = [0.3, 1.0, -0.5];
 /// White noise over 0..fs/2, per axis.
-const NOISE_G: f64 = 0.2;
-const BAND_HZ: [f64; 2] = [20.0, 1000.0];
+pub const NOISE_G: f64 = 0.2;
+pub const BAND_HZ: [f64; 2] = [20.0, 1000.0];
 
-fn config(prefix: &str) -> Config {
+pub fn config(prefix: &str) -> Config {
     let mut estimator = EstimatorConfigRaw::new(FS_HZ, [SENSITIVITY_V_PER_G; 3]);
     estimator.broadband_band_hz = BAND_HZ;
     Config::try_from(RawConfig {
@@ -59,7 +59,7 @@ fn block(k: u64, noise: &mut Gaussian) -> VibBlock {
     b
 }
 
-fn within(what: &str, got: f64, want: f64, u: f64, k: f64) {
+pub fn within(what: &str, got: f64, want: f64, u: f64, k: f64) {
     assert!(
         u.is_finite() && u > 0.0 && (got - want).abs() <= k * u,
         "{what}: {got} vs truth {want}, |error| = {:.3e} > {k} u = {:.3e}",

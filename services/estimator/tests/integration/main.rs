@@ -6,6 +6,7 @@
 // arrays at once); iterator chains would hide the indices.
 #![allow(clippy::needless_range_loop)]
 
+mod bad_input;
 mod in_process;
 mod process;
 mod support;

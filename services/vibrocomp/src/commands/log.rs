@@ -19,7 +19,7 @@ use serde::Serialize;
 use vibro_mcap::{LogInfo, RecoverReport};
 
 use crate::output::print_json;
-pub use import::ImportArgs;
+pub use import::{read_csv_blocks, ImportArgs, ImportKind};
 
 /// Inspect, repair and import MCAP logs.
 #[derive(Debug, Subcommand)]
@@ -104,6 +104,17 @@ fn check_output(out: &Path, inputs: &[&Path], force: bool) -> anyhow::Result<()>
     if out.is_dir() {
         bail!("output {}: is a directory, not a file", out.display());
     }
+    let folder = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    if !folder.is_dir() {
+        bail!(
+            "output {}: its folder {} does not exist",
+            out.display(),
+            folder.display()
+        );
+    }
     if out.exists() && !force {
         bail!(
             "output {}: exists; pass --force to overwrite it",
@@ -151,10 +162,36 @@ impl Drop for PartFile {
 }
 
 /// Reads a log's summary; a damaged one gets the command that repairs it.
-fn read_info(path: &Path) -> anyhow::Result<LogInfo> {
-    if std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.len() == 0) {
+/// Every MCAP file starts with these 8 bytes.
+const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+
+/// Refuses what is not an MCAP log at all (a missing file, a folder, an empty or
+/// foreign file) with the reason, before the MCAP reader's terser errors.
+fn check_mcap_file(path: &Path) -> anyhow::Result<u64> {
+    use std::io::Read as _;
+    let meta =
+        std::fs::metadata(path).with_context(|| format!("{}: cannot open it", path.display()))?;
+    if meta.is_dir() {
+        bail!("{}: is a directory, not an MCAP log", path.display());
+    }
+    if meta.len() == 0 {
         bail!("{}: empty file (0 bytes), not an MCAP log", path.display());
     }
+    let mut head = Vec::with_capacity(MCAP_MAGIC.len());
+    std::fs::File::open(path)
+        .and_then(|f| f.take(MCAP_MAGIC.len() as u64).read_to_end(&mut head))
+        .with_context(|| format!("{}: cannot read it", path.display()))?;
+    if !MCAP_MAGIC.starts_with(&head) {
+        bail!(
+            "{}: not an MCAP log: it does not start with the MCAP magic bytes 89 4D 43 41 50 30 0D 0A",
+            path.display()
+        );
+    }
+    Ok(meta.len())
+}
+
+fn read_info(path: &Path) -> anyhow::Result<LogInfo> {
+    check_mcap_file(path)?;
     vibro_mcap::info(path).map_err(|e| {
         let damaged = matches!(
             e,
@@ -337,16 +374,21 @@ struct RecoverOutput {
 }
 
 fn recover(args: &RecoverArgs) -> anyhow::Result<()> {
-    if !args.damaged.is_file() {
-        bail!(
-            "{}: no such file (the damaged log to recover)",
-            args.damaged.display()
-        );
-    }
+    let input_bytes = check_mcap_file(&args.damaged).context("the damaged log to recover")?;
     check_output(&args.out, &[&args.damaged], args.force)?;
     let part = PartFile::beside(&args.out);
-    let mut report = vibro_mcap::recover(&args.damaged, &part.path)
-        .with_context(|| format!("recovering {}", args.damaged.display()))?;
+    let mut report = match vibro_mcap::recover(&args.damaged, &part.path) {
+        Ok(report) => report,
+        // Without a complete header there is no profile, schema or chunk to keep.
+        Err(vibro_mcap::Error::Truncated { .. }) => bail!(
+            "{}: nothing to recover: it ends before its MCAP header record is complete ({input_bytes} bytes)",
+            args.damaged.display()
+        ),
+        Err(e) => {
+            return Err(anyhow::Error::new(e))
+                .with_context(|| format!("recovering {}", args.damaged.display()))
+        }
+    };
     part.commit(&args.out)?;
     report.output = args.out.clone();
     let kept = read_info(&args.out).context("reading back the recovered log")?;

@@ -29,7 +29,8 @@ pub struct ReplayArgs {
     /// Replay only this many seconds of the log.
     #[arg(long = "duration-s")]
     pub duration_s: Option<f64>,
-    /// Topics to publish, comma-separated: /vib, /accel, /truth [default: those the log has].
+    /// Topics to publish, comma-separated: /vib, /accel, /truth [default: those the log
+    /// has; a log with /accel but no /vib is refused unless /accel is named here].
     #[arg(long, value_delimiter = ',')]
     pub topics: Vec<String>,
     /// Replay again and again (sequence numbers, sample indices and times continue)
@@ -156,6 +157,9 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
     );
     for (topic, n) in &summary.topics {
         println!("  {topic:<10} {n:>9}");
+    }
+    for skipped in &summary.skipped_topics {
+        println!("  skipped {skipped}");
     }
     Ok(())
 }

@@ -86,8 +86,10 @@ pub struct ImportArgs {
 /// Which stream a CSV file holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
-enum ImportKind {
+pub enum ImportKind {
+    /// Accelerometer outputs (`--accel`): `/accel`, AccelBlock.
     Accel,
+    /// Vibration-sensor outputs (`--vib`): `/vib`, VibBlock.
     Vib,
 }
 
@@ -714,14 +716,27 @@ impl Timeline {
                     self.tolerance, fmt_sig(self.period_s), self.period_source
                 )
             });
-            // `whole` >= 2 here: a finite count of periods that fits the u64 index.
+            // `whole` >= 2 here; `as` saturates a count beyond u64 (a gap of more
+            // periods than the index holds), which the index check below reports.
             let missing = whole as u64 - 1;
             (Step::Gap { missing }, rule)
         };
-        self.index += match step {
-            Step::Gap { missing } => missing + 1,
+        let advance = match step {
+            Step::Gap { missing } => missing.saturating_add(1),
             _ => 1,
         };
+        let Some(index) = self.index.checked_add(advance) else {
+            // The file is refused (this is one of its problems), so the index that
+            // stops here never reaches a block.
+            self.index = u64::MAX;
+            let overflow = format!(
+                "{periods:.4e} periods after line {prev_line} ({prev_s}): the sample index passes 2^64 - 1; period {} s ({})",
+                fmt_sig(self.period_s),
+                self.period_source
+            );
+            return (self.index, step, Some(overflow));
+        };
+        self.index = index;
         (self.index, step, rule)
     }
 }
@@ -1233,6 +1248,63 @@ fn write_block(rec: &Recorder, topic: &str, msg: RigMessage<'_>) -> anyhow::Resu
     }
 }
 
+/// The blocks that `log import` makes of one CSV file, without writing a log: the
+/// first pass (every row validated, the rate measured, the gaps found), then the second
+/// (rows cut into blocks of `block_samples`, each row checked against the time grid),
+/// each complete block handed to `each`. Returns the number of blocks. The options are
+/// those of `log import` (`rate_hz` for `--*-rate-hz`, `tolerance` for
+/// `--period-tolerance`) and are checked as it checks them; problems in the file are
+/// one error listing them all, as `log import` reports them. The command's parsing
+/// core, public for the fuzz targets (`fuzz/`).
+pub fn read_csv_blocks(
+    kind: ImportKind,
+    file: &Path,
+    rate_hz: Option<f64>,
+    block_samples: usize,
+    tolerance: f64,
+    mut each: impl FnMut(RigMessage<'_>),
+) -> anyhow::Result<u64> {
+    if let Some(r) = rate_hz {
+        if !(r.is_finite() && r > 0.0 && r <= 1e9) {
+            bail!(
+                "{} = {r}: must be finite, > 0 and at most 1e9 Hz",
+                kind.rate_flag()
+            );
+        }
+    }
+    if !(1..=kind.max_block()).contains(&block_samples) {
+        bail!(
+            "block samples = {block_samples}: must be 1..={} (the wire type's capacity)",
+            kind.max_block()
+        );
+    }
+    if !(tolerance.is_finite() && tolerance > 0.0 && tolerance < 0.5) {
+        bail!("--period-tolerance = {tolerance}: must be > 0 and < 0.5 (of a period)");
+    }
+    let spec = StreamSpec {
+        kind,
+        file: file.to_path_buf(),
+        rate_hz,
+        block_samples,
+    };
+    let scan = match scan(&spec, tolerance, &Progress::new(0))? {
+        Ok(scan) => scan,
+        Err(mut p) => bail!("problem(s) in the CSV input:\n  {}", p.lines().join("\n  ")),
+    };
+    let mut maker = BlockMaker::new(&spec, &scan, tolerance, 1)?;
+    while maker.fill()? {
+        each(maker.block.message());
+    }
+    maker.report_off_grid();
+    if !maker.problems.is_empty() {
+        bail!(
+            "problem(s) in the CSV input:\n  {}",
+            maker.problems.lines().join("\n  ")
+        );
+    }
+    Ok(maker.seq)
+}
+
 // ---------------------------------------------------------------------------------
 // progress and report
 
@@ -1584,6 +1656,22 @@ mod tests {
         let (_, step, rule) = tl.step(4, 0.0038);
         assert!(matches!(step, Step::Gap { .. }));
         assert!(rule.is_some_and(|r| r.contains("whole number")));
+    }
+
+    #[test]
+    fn a_gap_beyond_the_u64_index_is_a_problem_not_an_overflow() {
+        // fuzz/regressions/csv_import/subnormal-period: rows 5e-324 s apart, then a
+        // row at 1 s: 2e323 periods, and the index (u64) overflowed.
+        let mut tl = Timeline::new(5e-324, 0.1, "median".into());
+        tl.step(2, 0.0);
+        tl.step(3, 5e-324);
+        let (index, step, rule) = tl.step(4, 1.0);
+        assert_eq!(index, u64::MAX);
+        assert!(matches!(step, Step::Gap { .. }));
+        assert!(rule.is_some_and(|r| r.contains("passes 2^64 - 1")));
+        let (index, _, rule) = tl.step(5, 2.0);
+        assert_eq!(index, u64::MAX);
+        assert!(rule.is_some());
     }
 
     #[test]
