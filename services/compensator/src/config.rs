@@ -470,10 +470,8 @@ mod tests {
         let text = EMBEDDED_CONFIG
             .replace("mode = \"exact\"", "mode = \"fast\"")
             .replace("triad = \"default\"", "triad = \"nowhere.toml\"")
-            .replace(
-                "max_estimate_age_s = 2.0",
-                "max_estimate_age_s = -1.0\nmax_estimate_lead_s = inf",
-            )
+            .replace("max_estimate_age_s = 2.0", "max_estimate_age_s = -1.0")
+            .replace("max_estimate_lead_s = 0.5", "max_estimate_lead_s = inf")
             .replace("kurtosis = \"estimated\"", "kurtosis = \"normal\"")
             .replace("max_tones = 8", "max_tones = 9");
         let e = Config::parse(&text, ConfigSource::File("c.toml".into())).unwrap_err();
