@@ -50,14 +50,7 @@ pub const TARGETS: [(&str, Target); 4] = [
 ];
 
 /// Every message kind, in the order a selector byte picks them.
-const KINDS: [MessageKind; 6] = [
-    MessageKind::AccelBlock,
-    MessageKind::VibBlock,
-    MessageKind::VibEstimate,
-    MessageKind::CompensatedBlock,
-    MessageKind::TruthBlock,
-    MessageKind::Heartbeat,
-];
+const KINDS: [MessageKind; 6] = MessageKind::ALL;
 
 /// An error must say something.
 fn check_error(what: &str, e: &impl Display) {
