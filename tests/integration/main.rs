@@ -5,6 +5,7 @@ mod common;
 mod estimate;
 mod faults;
 mod identify;
+mod lab;
 mod latency;
 mod log;
 mod model;

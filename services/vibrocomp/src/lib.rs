@@ -35,6 +35,10 @@ pub enum Command {
     Identify(commands::identify::IdentifyCommand),
     /// Allowed moduli of the passport coefficients for a VE budget (MODEL.md section 10).
     Require(commands::require::RequireArgs),
+    /// The model lab: compare the VE model with a campaign, find the missing physical
+    /// effect, fit it and add it to the model (docs/lab.md).
+    #[command(subcommand)]
+    Lab(commands::lab::LabCommand),
     /// Estimate vibration parameters (tones, band RMS, covariance) from a recorded stream.
     Estimate(commands::estimate::EstimateArgs),
     /// Simulate a rig: flights to MCAP or live over iceoryx2, shake-table campaigns to CSV.
@@ -93,6 +97,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Identify(cmd) => commands::identify::run(cmd),
         Command::Require(args) => commands::require::run(args),
         Command::Estimate(args) => commands::estimate::run(args),
+        Command::Lab(cmd) => commands::lab::run(&cmd),
         Command::Sim(args) => commands::sim::run(&args),
         Command::Log(cmd) => commands::log::run(cmd),
         Command::Service(cmd) => commands::service::run(&cmd),

@@ -14,6 +14,17 @@ pub fn print_json<T: Serialize>(value: &T) -> anyhow::Result<()> {
     }
 }
 
+/// Prints text on stdout; a closed pipe (`vibrocomp ... | head`) ends the output
+/// quietly instead of panicking.
+pub fn print_text(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => Ok(other?),
+    }
+}
+
 /// Formats an acceleration in g with an engineering prefix chosen for readability
 /// (g, mg, ug), keeping four significant digits.
 pub fn fmt_g(value_g: f64) -> String {

@@ -231,6 +231,7 @@ pub fn run_condition_records(
     let rates = scenario.rates;
     let still = (campaign.still_s * rates.output_hz).round() as u64;
     let vib = (campaign.vibrating_s * rates.output_hz).round() as u64;
+    let settle = (campaign.settle_s * rates.output_hz).round() as u64;
     let mut records: [Vec<f64>; 3] = [
         Vec::with_capacity(still as usize),
         Vec::with_capacity(vib as usize),
@@ -253,7 +254,11 @@ pub fn run_condition_records(
             } else {
                 2
             };
-            records[r].push(row[0]);
+            // The settling time after each switch is left out (campaign.settle_s).
+            let settling = (r == 1 && j < still + settle) || (r == 2 && j < still + vib + settle);
+            if !settling {
+                records[r].push(row[0]);
+            }
         }
         for (k, row) in chunk.sensor_v().iter().enumerate() {
             let s = chunk.sensor_first_index() + k as u64;

@@ -3,6 +3,7 @@
 pub mod demo;
 pub mod estimate;
 pub mod identify;
+pub mod lab;
 pub mod latency;
 pub mod log;
 pub mod model;

@@ -213,6 +213,10 @@ pub struct VeArgs {
     /// [P2 (19)] lives in the compensation algorithm only.
     #[arg(long, value_enum, default_value = "exact")]
     pub mode: ModeArg,
+    /// An extended model (`vibrocomp lab add --out`): its base mode (which replaces
+    /// `--mode`) plus its effects, each effect's VE change listed (docs/lab.md).
+    #[arg(long)]
+    pub model: Option<std::path::PathBuf>,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -297,9 +301,80 @@ fn ve_components(
     })
 }
 
+#[derive(Serialize)]
+struct ExtendedVeReport<'a> {
+    passport: &'a str,
+    model: String,
+    mode: &'static str,
+    a_l_g: [f64; 3],
+    base_ve_g: f64,
+    sensor_rms_factor: f64,
+    effects: Vec<EffectVe>,
+    ve_g: f64,
+}
+
+#[derive(Serialize)]
+struct EffectVe {
+    kind: String,
+    ve_g: f64,
+}
+
+/// `model ve --model`: the extended model's VE (vibro_lab::predict, steady state).
+fn extended_ve(
+    path: &std::path::Path,
+    p: &Passport,
+    a_l: [f64; 3],
+    vib: &Vibration,
+    json: bool,
+) -> anyhow::Result<()> {
+    let model = vibro_lab::LabModel::load(path)?;
+    let flat = vibro_lab::predict::flat_passport(p)?;
+    let effects = model.build_effects(&flat)?;
+    let pred = vibro_lab::predict_ve(model.mode, &effects, &flat, a_l, vib, &[], f64::INFINITY)?;
+    let report = ExtendedVeReport {
+        passport: p.id(),
+        model: path.display().to_string(),
+        mode: model.mode.name(),
+        a_l_g: a_l,
+        base_ve_g: pred.base_ve_g,
+        sensor_rms_factor: pred.sensor_rms_factor,
+        effects: pred
+            .effects
+            .iter()
+            .map(|(kind, ve_g)| EffectVe {
+                kind: kind.clone(),
+                ve_g: *ve_g,
+            })
+            .collect(),
+        ve_g: pred.ve_g,
+    };
+    if json {
+        return print_json(&report);
+    }
+    println!(
+        "Vibration error of {} at aL3 = {} g, extended model {} ({} base)",
+        report.passport, a_l[2], report.model, report.mode
+    );
+    println!("  base model             {}", fmt_g(report.base_ve_g));
+    if report.sensor_rms_factor != 1.0 {
+        println!(
+            "  (sensor RMS factor {:.6}: the IA vibration divided by it)",
+            report.sensor_rms_factor
+        );
+    }
+    for e in &report.effects {
+        println!("  + {:<20} {}", e.kind, fmt_g(e.ve_g));
+    }
+    println!("  total                  {}", fmt_g(report.ve_g));
+    Ok(())
+}
+
 fn ve(args: VeArgs) -> anyhow::Result<()> {
     let (p, vib) = args.vibration.resolve()?;
     let a_l = args.flight.a_l_g()?;
+    if let Some(path) = &args.model {
+        return extended_ve(path, &p, a_l, &vib, args.json);
+    }
     let mode = Mode::from(args.mode);
     let ve = ve_components(&p, a_l, &vib, mode)?;
     if args.json {

@@ -34,7 +34,7 @@ pub use vibro_replay::topic;
 pub struct SimArgs {
     /// Scenario: a TOML file or a shipped id (cyclone-4, cyclone-4-short,
     /// tactical-100s, tactical-300s, section8-grid, random-runs, ten-positions,
-    /// compensation-experiment-al1m, compensation-experiment-aks05).
+    /// compensation-experiment-al1m, compensation-experiment-aks05, lab-walkthrough).
     #[arg(required_unless_present = "list_effects")]
     pub scenario: Option<String>,
     /// Replaces the scenario's seed.
@@ -65,6 +65,13 @@ pub struct SimArgs {
     /// Campaign: writes the per-condition summary table (CSV).
     #[arg(long = "summary-csv")]
     pub summary_csv: Option<PathBuf>,
+    /// Campaign: writes the campaign table of the model lab (docs/lab.md) for `vibrocomp lab`.
+    #[arg(long = "lab-csv")]
+    pub lab_csv: Option<PathBuf>,
+    /// Campaign: resolution of the VE measurement written to `--lab-csv` as the
+    /// uncertainty's floor, g (a noise-free simulation measures to 1e-16 g).
+    #[arg(long = "ve-resolution-g", default_value_t = 1e-9)]
+    pub ve_resolution_g: f64,
     /// Campaign: writes the conditions as test positions for `identify positions`.
     #[arg(long = "positions-csv")]
     pub positions_csv: Option<PathBuf>,
@@ -656,6 +663,7 @@ struct CampaignReport {
     elapsed_s: f64,
     conditions: Vec<ConditionReport>,
     summary_csv: Option<String>,
+    lab_csv: Option<String>,
     positions_csv: Option<String>,
 }
 
@@ -697,6 +705,31 @@ fn run_campaign(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
     if let Some(p) = &args.positions_csv {
         write(p, true)?;
     }
+    if let Some(p) = &args.lab_csv {
+        if !(args.ve_resolution_g.is_finite() && args.ve_resolution_g >= 0.0) {
+            bail!(
+                "--ve-resolution-g = {}: must be finite and >= 0 g",
+                args.ve_resolution_g
+            );
+        }
+        let table =
+            vibro_lab::CampaignTable::from_campaign(p, scenario, &summaries, args.ve_resolution_g)?;
+        let file =
+            std::fs::File::create(p).with_context(|| format!("{}: cannot create", p.display()))?;
+        let mut w = std::io::BufWriter::new(file);
+        use std::io::Write as _;
+        writeln!(
+            w,
+            "# campaign table of the model lab (docs/lab.md): vibrocomp sim {} (seed {}{})",
+            scenario.name,
+            scenario.seed,
+            effect_labels(scenario)
+                .iter()
+                .map(|e| format!(", effect {e}"))
+                .collect::<String>()
+        )?;
+        table.write_csv(w)?;
+    }
     let conditions: Vec<ConditionReport> = summaries
         .iter()
         .map(|s| ConditionReport {
@@ -724,6 +757,7 @@ fn run_campaign(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
         elapsed_s: started.elapsed().as_secs_f64(),
         conditions,
         summary_csv: args.summary_csv.as_ref().map(|p| p.display().to_string()),
+        lab_csv: args.lab_csv.as_ref().map(|p| p.display().to_string()),
         positions_csv: args.positions_csv.as_ref().map(|p| p.display().to_string()),
     };
     if args.json {

@@ -60,7 +60,7 @@ pub const EMBEDDED_PSD_TABLES: [(&str, &str, &str); 2] = [
 ];
 
 /// The scenarios shipped in `config/scenarios/`: (id, file, text).
-pub const EMBEDDED_SCENARIOS: [(&str, &str, &str); 9] = [
+pub const EMBEDDED_SCENARIOS: [(&str, &str, &str); 10] = [
     (
         "cyclone-4",
         "config/scenarios/cyclone-4.toml",
@@ -105,6 +105,11 @@ pub const EMBEDDED_SCENARIOS: [(&str, &str, &str); 9] = [
         "compensation-experiment-aks05",
         "config/scenarios/compensation-experiment-aks05.toml",
         include_str!("../../../../config/scenarios/compensation-experiment-aks05.toml"),
+    ),
+    (
+        "lab-walkthrough",
+        "config/scenarios/lab-walkthrough.toml",
+        include_str!("../../../../config/scenarios/lab-walkthrough.toml"),
     ),
 ];
 
@@ -306,6 +311,10 @@ pub struct Campaign {
     pub vibrating_s: f64,
     pub batches: usize,
     pub tilt_limit_rad: f64,
+    /// Left out of the measurement at the start of the vibrating record and of the
+    /// second still record (the transients of switching the vibration on and off),
+    /// s. A whole number of output intervals.
+    pub settle_s: f64,
     pub conditions: Vec<Condition>,
 }
 
@@ -334,6 +343,9 @@ pub enum Direction {
     IaOa45,
     /// At 45 deg between IA and PA (TP10).
     IaPa45,
+    /// At 45 deg between OA and PA, IA still (the unit turned with IA normal to the
+    /// shaker axis): the only direction that vibrates OA and PA together.
+    OaPa45,
 }
 
 impl Direction {
@@ -342,6 +354,7 @@ impl Direction {
             Direction::Ia => "ia",
             Direction::IaOa45 => "ia-oa-45",
             Direction::IaPa45 => "ia-pa-45",
+            Direction::OaPa45 => "oa-pa-45",
         }
     }
 
@@ -350,6 +363,7 @@ impl Direction {
             "ia" => Some(Direction::Ia),
             "ia-oa-45" => Some(Direction::IaOa45),
             "ia-pa-45" => Some(Direction::IaPa45),
+            "oa-pa-45" => Some(Direction::OaPa45),
             _ => None,
         }
     }
@@ -368,6 +382,7 @@ impl Direction {
             Direction::Ia => [0.0, 0.0, 1.0],
             Direction::IaOa45 => [s, 0.0, s],
             Direction::IaPa45 => [0.0, s, s],
+            Direction::OaPa45 => [s, s, 0.0],
         }
     }
 }
@@ -1241,6 +1256,31 @@ fn validate_campaign(
             );
         }
     }
+    let settle_s = c.settle_s.unwrap_or(0.0);
+    let settle_out = settle_s * rates.output_hz;
+    if !(settle_s.is_finite() && settle_s >= 0.0 && (settle_out - settle_out.round()).abs() < 1e-6)
+    {
+        p.push(
+            "campaign.settle_s",
+            settle_s,
+            "must be finite, >= 0 and a whole number of output intervals",
+        );
+    } else {
+        for (key, len) in [
+            ("campaign.still_s", c.still_s),
+            ("campaign.vibrating_s", c.vibrating_s),
+        ] {
+            if ((len - settle_s) * rates.output_hz).round() < batches as f64 {
+                p.push(
+                    key,
+                    len,
+                    format!(
+                        "must hold at least {batches} output samples after settle_s = {settle_s}"
+                    ),
+                );
+            }
+        }
+    }
     let tilt_limit_rad = c.tilt_limit_rad.unwrap_or(DEFAULT_TILT_LIMIT_RAD);
     if !(tilt_limit_rad.is_finite() && tilt_limit_rad > 0.0) {
         p.push(
@@ -1263,6 +1303,7 @@ fn validate_campaign(
         vibrating_s: c.vibrating_s,
         batches,
         tilt_limit_rad,
+        settle_s,
         conditions,
     })
 }

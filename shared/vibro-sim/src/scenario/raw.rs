@@ -164,6 +164,10 @@ pub struct CampaignRaw {
     /// Tilt limit of the still-drift check, rad; default 1e-4 (\[P2\]).
     #[serde(default)]
     pub tilt_limit_rad: Option<f64>,
+    /// Settling time left out of the measurement at the start of the vibrating record
+    /// and of the second still record, s; default 0.
+    #[serde(default)]
+    pub settle_s: Option<f64>,
     /// `[[campaign.grid]]`: each a product of its lists, expanded in file order.
     pub grid: Vec<GridRaw>,
 }

@@ -1,0 +1,425 @@
+//! `vibrocomp lab`: compare the VE model with a campaign, find the missing physical
+//! effect, fit it and add it to the model (`vibro_lab`, docs/lab.md).
+
+use crate::output::{print_json, print_text};
+use std::fmt::Write as _;
+
+/// Appends a line to the output text (printed at once at the end, so that a closed
+/// pipe ends it quietly).
+macro_rules! p {
+    ($o:expr) => {{
+        let _ = writeln!($o);
+    }};
+    ($o:expr, $($arg:tt)*) => {{
+        let _ = writeln!($o, $($arg)*);
+    }};
+}
+use anyhow::{bail, Context};
+use clap::{Args, Subcommand};
+use std::path::{Path, PathBuf};
+use vibro_lab::diagnose::{Diagnosis, Verdict};
+use vibro_lab::{BaseMode, CampaignTable, Comparison, DiagnoseOptions, LabModel};
+
+#[derive(Debug, Subcommand)]
+pub enum LabCommand {
+    /// Measured against predicted VE per condition, the residual, chi-square, and the
+    /// residual grouped by each condition variable.
+    Compare(CompareArgs),
+    /// Where the model fails, and which effect of the library is missing.
+    Diagnose(DiagnoseArgs),
+    /// Fit an effect to the campaign and write the extended model.
+    Add(AddArgs),
+}
+
+/// The input and the model, shared by the lab's commands.
+#[derive(Debug, Args)]
+pub struct Input {
+    /// The campaign table (CSV, docs/lab.md), e.g. from `vibrocomp sim CAMPAIGN --lab-csv`.
+    pub input: PathBuf,
+    /// The model to compare: an extended model file (`lab add --out`); default the
+    /// model of MODEL.md, exact mode.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    #[command(flatten)]
+    pub input: Input,
+    /// Print every condition (default: the 10 largest residuals).
+    #[arg(long)]
+    pub all: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct DiagnoseArgs {
+    #[command(flatten)]
+    pub input: Input,
+    /// Only these candidates (comma-separated kinds; default the whole library).
+    #[arg(long, value_delimiter = ',')]
+    pub effects: Vec<String>,
+}
+
+#[derive(Debug, Args)]
+pub struct AddArgs {
+    /// The effect to fit and add (a kind of the lab's library, see `lab diagnose`).
+    pub effect: String,
+    /// The campaign table to fit it to.
+    #[arg(long)]
+    pub from: PathBuf,
+    /// The model to extend (default the model of MODEL.md, exact mode).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Where to write the extended model.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(cmd: &LabCommand) -> anyhow::Result<()> {
+    match cmd {
+        LabCommand::Compare(a) => compare(a),
+        LabCommand::Diagnose(a) => diagnose(a),
+        LabCommand::Add(a) => add(a),
+    }
+}
+
+fn load(input: &Path, model: Option<&Path>) -> anyhow::Result<(LabModel, CampaignTable)> {
+    let model = match model {
+        Some(p) => LabModel::load(p)?,
+        None => LabModel::base(BaseMode::Exact),
+    };
+    let is_mcap = input
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
+    if is_mcap {
+        bail!(
+            "{}: the lab reads campaign tables (CSV, docs/lab.md); an MCAP log must first be \
+             turned into one (not supported yet)",
+            input.display()
+        );
+    }
+    let table = CampaignTable::load(input, &model)?;
+    Ok((model, table))
+}
+
+fn g(x: f64) -> String {
+    format!("{x:>11.3e}")
+}
+
+fn print_comparison(o: &mut String, c: &Comparison, all: bool) {
+    let s = &c.summary;
+    let effects = if c.effects.is_empty() {
+        "none".to_string()
+    } else {
+        c.effects.join(", ")
+    };
+    p!(
+        o,
+        "{}: {} conditions; model {} mode, effects: {}",
+        c.table,
+        s.n,
+        c.mode,
+        effects
+    );
+    p!(
+        o,
+        "residual RMS {:.3e} g (max {:.3e} g), measured VE RMS {:.3e} g, noise floor {:.3e} g",
+        s.rms_residual_g,
+        s.max_abs_residual_g,
+        s.rms_measured_g,
+        s.noise_floor_g
+    );
+    p!(
+        o,
+        "chi2 {:.4} for {} dof: {:.4} per dof, p = {:.3e}",
+        s.chi2,
+        s.dof,
+        s.chi2_per_dof,
+        s.p_value
+    );
+    let mut rows: Vec<_> = c.rows.iter().collect();
+    if !all {
+        rows.sort_by(|a, b| b.z.abs().total_cmp(&a.z.abs()));
+        rows.truncate(10);
+        p!(o, "\nlargest residuals (--all for every condition):");
+    } else {
+        p!(o);
+    }
+    p!(
+        o,
+        "{:<10} {:>5} {:>11} {:>11} {:>11} {:>11} {:>10}",
+        "run_id",
+        "line",
+        "measured_g",
+        "u_g",
+        "predicted_g",
+        "residual_g",
+        "z"
+    );
+    for r in rows {
+        p!(
+            o,
+            "{:<10} {:>5} {} {} {} {} {:>10.2}",
+            r.run_id,
+            r.line,
+            g(r.measured_g),
+            g(r.uncertainty_g),
+            g(r.predicted_g),
+            g(r.residual_g),
+            r.z
+        );
+    }
+    p!(
+        o,
+        "\nresidual by condition variable (RMS residual per group, g):"
+    );
+    for v in &c.by_variable {
+        let groups: Vec<String> = v
+            .groups
+            .iter()
+            .map(|gr| format!("{} ({}): {:.2e}", gr.label, gr.n, gr.rms_residual_g))
+            .collect();
+        p!(o, "  {:<12} {}", v.variable, groups.join("; "));
+    }
+}
+
+fn compare(a: &CompareArgs) -> anyhow::Result<()> {
+    let (model, table) = load(&a.input.input, a.input.model.as_deref())?;
+    let c = vibro_lab::compare(&model, &table)?;
+    if a.input.json {
+        return print_json(&c);
+    }
+    let mut o = String::new();
+    print_comparison(&mut o, &c, a.all);
+    print_text(&o)
+}
+
+fn params_text(params: &[vibro_lab::fit::FittedParam]) -> String {
+    params
+        .iter()
+        .map(|p| {
+            if p.sigma.is_finite() {
+                format!("{} = {:.6e} +- {:.2e}", p.name, p.value, p.sigma)
+            } else {
+                format!(
+                    "{} = {:.6e} (not determined by this table)",
+                    p.name, p.value
+                )
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+fn print_diagnosis(o: &mut String, d: &Diagnosis) {
+    let s = &d.comparison.summary;
+    p!(
+            o,
+        "{}: {} conditions; residual RMS {:.3e} g against a noise floor of {:.3e} g; chi2 per dof {:.4}, p = {:.3e}",
+        d.comparison.table, s.n, s.rms_residual_g, s.noise_floor_g, s.chi2_per_dof, s.p_value
+    );
+    p!(
+        o,
+        "\nwhere the residual goes (weighted quadratic in each variable, F-test):"
+    );
+    for t in d.trends.iter().take(8) {
+        p!(
+            o,
+            "  {:<12} explains {:>6.1} % of the residual, p = {:.2e} ({} values)",
+            t.variable,
+            100.0 * t.explained_fraction,
+            t.p_value,
+            t.distinct_values
+        );
+    }
+    if let Some(l) = &d.lack_of_fit {
+        p!(
+            o,
+            "lack of fit over {} repeated conditions: F = {:.3}, p = {:.3e}; pure error chi2 per dof {:.3}",
+            l.repeated_groups, l.f, l.p_value, l.pure_error_chi2_per_dof
+        );
+    }
+    p!(o, "\ncandidates, best first (delta BIC < -10: supported):");
+    p!(
+        o,
+        "  {:<24} {:>14} {:>12} {:>12}  parameters",
+        "effect",
+        "delta_bic",
+        "rms_after_g",
+        "chi2/dof"
+    );
+    for c in &d.candidates {
+        match &c.fit {
+            Some(f) => p!(
+                o,
+                "  {:<24} {:>14.1} {} {:>12.3}  {}",
+                c.kind,
+                f.delta_bic,
+                g(f.rms_residual_after_g),
+                f.chi2_per_dof_after,
+                params_text(&f.params)
+            ),
+            None => p!(
+                o,
+                "  {:<24} not applicable: {}",
+                c.kind,
+                c.not_applicable.as_deref().unwrap_or("")
+            ),
+        }
+    }
+    p!(o);
+    match &d.verdict {
+        Verdict::Noise {
+            p_value,
+            chi2_per_dof,
+        } => p!(
+            o,
+            "Verdict: the model agrees with the measurements within their uncertainty \
+             (chi2 per dof {chi2_per_dof:.3}, p = {p_value:.3}): no effect is missing that this \
+             campaign can see."
+        ),
+        Verdict::Effect {
+            kind,
+            params,
+            delta_bic,
+            rms_residual_before_g,
+            rms_residual_after_g,
+            physics,
+        } => {
+            p!(
+                o,
+                "Verdict: missing effect `{kind}` (delta BIC {delta_bic:.1})."
+            );
+            p!(o, "  fitted: {}", params_text(params));
+            p!(
+            o,
+                "  residual RMS {rms_residual_before_g:.3e} g -> {rms_residual_after_g:.3e} g with it"
+            );
+            p!(o, "  physics: {physics}");
+            p!(
+                o,
+                "  add it: vibrocomp lab add {kind} --from {} --out model.toml",
+                d.comparison.table
+            );
+        }
+        Verdict::Confounded {
+            kinds,
+            correlation,
+            suggestions,
+        } => {
+            p!(
+                o,
+                "Verdict: confounded. {} explain the residual equally well (their fitted VE \
+                 changes correlate at {correlation:.4} over this campaign): this campaign \
+                 cannot tell them apart.",
+                kinds.join(" and ")
+            );
+            p!(o, "  add conditions where they differ most:");
+            for s in suggestions {
+                let preds: Vec<String> = s
+                    .predictions_g
+                    .iter()
+                    .map(|(k, v)| format!("{k} {v:.3e} g"))
+                    .collect();
+                p!(
+                    o,
+                    "  - {}: {} ({:.0} sigma apart)",
+                    s.description,
+                    preds.join(", "),
+                    s.separation_sigma
+                );
+            }
+        }
+        Verdict::Unexplained {
+            chi2_per_dof,
+            variables,
+            best,
+            best_explained_fraction,
+        } => {
+            p!(
+                o,
+                "Verdict: unexplained structure (chi2 per dof {chi2_per_dof:.3}): no effect of \
+                 the library explains it."
+            );
+            if !variables.is_empty() {
+                p!(o, "  the residual follows: {}", variables.join(", "));
+            }
+            if let Some(b) = best {
+                p!(
+                    o,
+                    "  the best candidate, {b}, would explain only {:.1} % of the chi-square: \
+                     not attributed",
+                    100.0 * best_explained_fraction
+                );
+            }
+        }
+    }
+}
+
+fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
+    let (model, table) = load(&a.input.input, a.input.model.as_deref())?;
+    let opts = DiagnoseOptions {
+        candidates: a.effects.clone(),
+        ..DiagnoseOptions::default()
+    };
+    let d = vibro_lab::diagnose(&model, &table, &opts)?;
+    if a.input.json {
+        return print_json(&d);
+    }
+    let mut o = String::new();
+    print_diagnosis(&mut o, &d);
+    print_text(&o)
+}
+
+#[derive(serde::Serialize)]
+struct AddReport<'a> {
+    out: String,
+    effects: Vec<String>,
+    fit: &'a vibro_lab::EffectFit,
+}
+
+fn add(a: &AddArgs) -> anyhow::Result<()> {
+    let (model, table) = load(&a.from, a.model.as_deref())?;
+    let (extended, fit) = vibro_lab::add_effect(&model, &table, &a.effect)?;
+    extended
+        .save(&a.out)
+        .with_context(|| format!("{}: cannot write the extended model", a.out.display()))?;
+    if a.json {
+        return print_json(&AddReport {
+            out: a.out.display().to_string(),
+            effects: extended.effect_kinds(),
+            fit: &fit,
+        });
+    }
+    let mut o = String::new();
+    p!(
+        o,
+        "{} fitted to {} ({} conditions): {}",
+        fit.kind,
+        table.path.display(),
+        fit.n,
+        params_text(&fit.params)
+    );
+    p!(
+        o,
+        "residual RMS {:.3e} g -> {:.3e} g, chi2 per dof {:.4} -> {:.4}, delta BIC {:.1}",
+        fit.rms_residual_before_g,
+        fit.rms_residual_after_g,
+        fit.chi2_before / fit.n as f64,
+        fit.chi2_per_dof_after,
+        fit.delta_bic
+    );
+    p!(
+        o,
+        "wrote {} (effects: {})",
+        a.out.display(),
+        extended.effect_kinds().join(", ")
+    );
+    print_text(&o)
+}

@@ -1,0 +1,853 @@
+//! Where the model fails and which effect is missing.
+//!
+//! - [`compare`]: per condition the measured and predicted VE, the residual and its
+//!   normalised value `z = r/u`; the summary (RMS and largest residual, `chi2` with
+//!   `n` degrees of freedom, its p-value, the noise floor = RMS of the
+//!   uncertainties), and the residual grouped by each condition variable.
+//! - [`diagnose`]: the comparison; the residual against each variable (a weighted fit
+//!   of `r` on `1, x, x^2` against the constant, F-test); the lack-of-fit test where
+//!   conditions repeat (lack-of-fit against pure-error mean squares, F-test); every
+//!   candidate of the library fitted ([`crate::fit`]) and ranked by `delta_bic`; and a
+//!   verdict ([`Verdict`]):
+//!   1. `noise`: the model as is passes the chi-square test (p >= `alpha_noise`,
+//!      default 0.01): nothing is attributed;
+//!   2. otherwise a candidate is *supported* when `delta_bic <= -10` (very strong
+//!      evidence, Kass & Raftery 1995) and it *explains* the residual when its fit
+//!      passes the chi-square test (p >= `alpha_fit`, default 0.001), or when it
+//!      leaves at most `model_tolerance` (default 1 %) of the residual's RMS: an
+//!      effect's mean formula is a model too, and a large effect's last per-mille
+//!      is not evidence of another effect;
+//!   3. `confounded`: two or more candidates explain it, within 10 of each other in
+//!      BIC, with fitted VE changes nearly collinear over the table (weighted
+//!      correlation >= 0.98): the table cannot tell them apart; the conditions where
+//!      their fitted predictions differ most are suggested;
+//!   4. `effect`: exactly one candidate explains it, or the best one is more than 10
+//!      below every other that does;
+//!   5. `unexplained`: no candidate explains it: the structure, the variables it
+//!      follows, and how much the best candidate would explain.
+
+use crate::fit::{chi2_sf, fit_prepared, EffectFit, Prepared};
+use crate::library::{self, Candidate, LIBRARY};
+use crate::model::{FitRecord, LabModel};
+use crate::table::{CampaignTable, Condition, RandomCondition, ToneCondition};
+use crate::{Error, Result};
+use serde::Serialize;
+use statrs::distribution::{ContinuousCDF, FisherSnedecor};
+use std::collections::BTreeMap;
+
+/// Options of [`diagnose`].
+#[derive(Debug, Clone, Serialize)]
+pub struct DiagnoseOptions {
+    /// The model as is is "noise" when its chi2 p-value is at least this.
+    pub alpha_noise: f64,
+    /// A fit explains the residual when its chi2 p-value is at least this.
+    pub alpha_fit: f64,
+    /// A candidate is supported when its `delta_bic` is at most this.
+    pub bic_support: f64,
+    /// A fit explains the residual when it leaves at most this fraction of its RMS.
+    pub model_tolerance: f64,
+    /// Candidates within this BIC of the best are not told apart by the table.
+    pub bic_tie: f64,
+    /// Fitted VE changes with a weighted correlation at least this are collinear.
+    pub collinear: f64,
+    /// The candidates to try (all of the library when empty).
+    pub candidates: Vec<String>,
+    /// Threads fitting candidates at once.
+    pub threads: usize,
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> Self {
+        Self {
+            alpha_noise: 0.01,
+            alpha_fit: 1e-3,
+            bic_support: -10.0,
+            model_tolerance: 0.01,
+            bic_tie: 10.0,
+            collinear: 0.98,
+            candidates: Vec::new(),
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        }
+    }
+}
+
+/// One condition compared.
+#[derive(Debug, Clone, Serialize)]
+pub struct RowComparison {
+    pub run_id: String,
+    pub line: usize,
+    pub measured_g: f64,
+    pub uncertainty_g: f64,
+    pub predicted_g: f64,
+    pub residual_g: f64,
+    pub z: f64,
+}
+
+/// The whole table compared.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub n: usize,
+    pub rms_residual_g: f64,
+    pub max_abs_residual_g: f64,
+    pub rms_measured_g: f64,
+    pub chi2: f64,
+    pub dof: usize,
+    pub chi2_per_dof: f64,
+    pub p_value: f64,
+    /// RMS of the uncertainties: the smallest RMS residual a right model can have.
+    pub noise_floor_g: f64,
+}
+
+/// The residual over one group of conditions.
+#[derive(Debug, Clone, Serialize)]
+pub struct Group {
+    pub label: String,
+    pub n: usize,
+    pub mean_residual_g: f64,
+    pub rms_residual_g: f64,
+    pub chi2_per_dof: f64,
+}
+
+/// The residual grouped by one variable.
+#[derive(Debug, Clone, Serialize)]
+pub struct ByVariable {
+    pub variable: String,
+    pub groups: Vec<Group>,
+}
+
+/// [`compare`]'s result.
+#[derive(Debug, Clone, Serialize)]
+pub struct Comparison {
+    pub table: String,
+    pub mode: String,
+    pub effects: Vec<String>,
+    pub rows: Vec<RowComparison>,
+    pub summary: Summary,
+    pub by_variable: Vec<ByVariable>,
+}
+
+/// The residual against one variable.
+#[derive(Debug, Clone, Serialize)]
+pub struct Trend {
+    pub variable: String,
+    pub distinct_values: usize,
+    /// Fraction of the residual's chi2 (about its weighted mean) that a weighted
+    /// quadratic in the variable explains.
+    pub explained_fraction: f64,
+    /// F-test of the quadratic against the constant.
+    pub p_value: f64,
+}
+
+/// The lack-of-fit test over repeated conditions.
+#[derive(Debug, Clone, Serialize)]
+pub struct LackOfFit {
+    pub repeated_groups: usize,
+    pub lack_of_fit_chi2: f64,
+    pub lack_of_fit_dof: usize,
+    pub pure_error_chi2: f64,
+    pub pure_error_dof: usize,
+    /// `(chi2_lof/dof_lof) / (chi2_pe/dof_pe)`.
+    pub f: f64,
+    pub p_value: f64,
+    /// Pure-error chi2 per dof: about 1 when the stated uncertainties are right.
+    pub pure_error_chi2_per_dof: f64,
+}
+
+/// A candidate's place in the ranking.
+#[derive(Debug, Clone, Serialize)]
+pub struct RankedCandidate {
+    pub kind: String,
+    pub physics: String,
+    pub signature: String,
+    /// The fit, or why the candidate could not be fitted to this table.
+    pub fit: Option<EffectFit>,
+    pub not_applicable: Option<String>,
+    pub supported: bool,
+    pub explains: bool,
+}
+
+/// A condition to add to tell confounded candidates apart.
+#[derive(Debug, Clone, Serialize)]
+pub struct Suggestion {
+    pub description: String,
+    /// Each candidate's fitted VE change there, g.
+    pub predictions_g: Vec<(String, f64)>,
+    /// Largest difference between two of them over the table's median uncertainty.
+    pub separation_sigma: f64,
+}
+
+/// The conclusion.
+#[derive(Debug, Clone, Serialize)]
+#[serde(tag = "verdict", rename_all = "snake_case")]
+pub enum Verdict {
+    Noise {
+        p_value: f64,
+        chi2_per_dof: f64,
+    },
+    Effect {
+        kind: String,
+        params: Vec<crate::fit::FittedParam>,
+        delta_bic: f64,
+        rms_residual_before_g: f64,
+        rms_residual_after_g: f64,
+        physics: String,
+    },
+    Confounded {
+        kinds: Vec<String>,
+        correlation: f64,
+        suggestions: Vec<Suggestion>,
+    },
+    Unexplained {
+        chi2_per_dof: f64,
+        variables: Vec<String>,
+        best: Option<String>,
+        best_explained_fraction: f64,
+    },
+}
+
+/// [`diagnose`]'s result.
+#[derive(Debug, Clone, Serialize)]
+pub struct Diagnosis {
+    pub comparison: Comparison,
+    pub trends: Vec<Trend>,
+    pub lack_of_fit: Option<LackOfFit>,
+    pub candidates: Vec<RankedCandidate>,
+    pub verdict: Verdict,
+    pub options: DiagnoseOptions,
+}
+
+fn rms(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
+    (s / n.max(1) as f64).sqrt()
+}
+
+/// A label for a value in a group: 4 significant digits (a measured amplitude of
+/// 2.99998 g is the 3 g condition).
+fn label(x: f64) -> String {
+    if x.is_nan() {
+        "-".into()
+    } else if x == 0.0 {
+        "0".into()
+    } else {
+        let digits = 3 - x.abs().log10().floor() as i32;
+        let scale = 10f64.powi(digits);
+        format!("{}", (x * scale).round() / scale)
+    }
+}
+
+/// Numeric order of group labels (`-` last, ranges by their lower end).
+fn label_order(a: &str, b: &str) -> std::cmp::Ordering {
+    let v = |s: &str| {
+        s.split("..")
+            .next()
+            .and_then(|x| x.parse::<f64>().ok())
+            .unwrap_or(f64::INFINITY)
+    };
+    v(a).total_cmp(&v(b)).then_with(|| a.cmp(b))
+}
+
+fn groups_of(rows: &[RowComparison], keys: &[String]) -> Vec<Group> {
+    let mut by: BTreeMap<&str, Vec<usize>> = BTreeMap::new();
+    for (i, k) in keys.iter().enumerate() {
+        by.entry(k.as_str()).or_default().push(i);
+    }
+    let mut by: Vec<(&str, Vec<usize>)> = by.into_iter().collect();
+    by.sort_by(|a, b| label_order(a.0, b.0));
+    by.into_iter()
+        .map(|(k, idx)| {
+            let n = idx.len();
+            Group {
+                label: k.to_string(),
+                n,
+                mean_residual_g: idx.iter().map(|&i| rows[i].residual_g).sum::<f64>() / n as f64,
+                rms_residual_g: rms(idx.iter().map(|&i| rows[i].residual_g)),
+                chi2_per_dof: idx.iter().map(|&i| rows[i].z * rows[i].z).sum::<f64>() / n as f64,
+            }
+        })
+        .collect()
+}
+
+/// Compares `model` with `table`.
+pub fn compare(model: &LabModel, table: &CampaignTable) -> Result<Comparison> {
+    let prep = Prepared::new(model, table)?;
+    Ok(comparison_of(model, table, &prep.predicted_g))
+}
+
+fn comparison_of(model: &LabModel, table: &CampaignTable, predicted_g: &[f64]) -> Comparison {
+    let rows: Vec<RowComparison> = table
+        .conditions
+        .iter()
+        .zip(predicted_g)
+        .map(|(c, p)| {
+            let r = c.ve_measured_g - p;
+            RowComparison {
+                run_id: c.run_id.clone(),
+                line: c.line,
+                measured_g: c.ve_measured_g,
+                uncertainty_g: c.ve_uncertainty_g,
+                predicted_g: *p,
+                residual_g: r,
+                z: r / c.ve_uncertainty_g,
+            }
+        })
+        .collect();
+    let n = rows.len();
+    let chi2: f64 = rows.iter().map(|r| r.z * r.z).sum();
+    let summary = Summary {
+        n,
+        rms_residual_g: rms(rows.iter().map(|r| r.residual_g)),
+        max_abs_residual_g: rows.iter().map(|r| r.residual_g.abs()).fold(0.0, f64::max),
+        rms_measured_g: rms(rows.iter().map(|r| r.measured_g)),
+        chi2,
+        dof: n,
+        chi2_per_dof: chi2 / n.max(1) as f64,
+        p_value: chi2_sf(chi2, n),
+        noise_floor_g: rms(rows.iter().map(|r| r.uncertainty_g)),
+    };
+    let mut by_variable = Vec::new();
+    let direction: Vec<String> = table.conditions.iter().map(Condition::direction).collect();
+    by_variable.push(ByVariable {
+        variable: "direction".into(),
+        groups: groups_of(&rows, &direction),
+    });
+    let names: Vec<String> = table.conditions[0]
+        .variables()
+        .into_iter()
+        .map(|(n, _)| n)
+        .collect();
+    for (j, name) in names.iter().enumerate() {
+        let xs: Vec<f64> = table
+            .conditions
+            .iter()
+            .map(|c| c.variables()[j].1)
+            .collect();
+        let keys: Vec<String> = xs.iter().map(|x| label(*x)).collect();
+        let distinct = keys.iter().collect::<std::collections::BTreeSet<_>>().len();
+        if distinct < 2 {
+            continue;
+        }
+        let keys = if distinct > 8 {
+            // Quantile bins of the finite values.
+            let mut sorted: Vec<f64> = xs.iter().copied().filter(|x| x.is_finite()).collect();
+            sorted.sort_by(f64::total_cmp);
+            let edges: Vec<f64> = (1..6).map(|q| sorted[q * (sorted.len() - 1) / 6]).collect();
+            xs.iter()
+                .map(|x| {
+                    if !x.is_finite() {
+                        return "-".to_string();
+                    }
+                    let b = edges.iter().filter(|e| *x > **e).count();
+                    let lo = if b == 0 { sorted[0] } else { edges[b - 1] };
+                    let hi = if b == edges.len() {
+                        sorted[sorted.len() - 1]
+                    } else {
+                        edges[b]
+                    };
+                    format!("{}..{}", label(lo), label(hi))
+                })
+                .collect()
+        } else {
+            keys
+        };
+        by_variable.push(ByVariable {
+            variable: name.clone(),
+            groups: groups_of(&rows, &keys),
+        });
+    }
+    Comparison {
+        table: table.path.display().to_string(),
+        mode: model.mode.name().into(),
+        effects: model.effect_kinds(),
+        rows,
+        summary,
+        by_variable,
+    }
+}
+
+/// Weighted least squares of `y` on the columns of `x` (weights `w`): the chi2 left.
+fn wls_chi2(x: &[Vec<f64>], y: &[f64], w: &[f64]) -> Option<f64> {
+    let n = y.len();
+    let k = x.len();
+    let a = nalgebra::DMatrix::from_fn(n, k, |i, j| x[j][i] * w[i].sqrt());
+    let b = nalgebra::DVector::from_fn(n, |i, _| y[i] * w[i].sqrt());
+    let sol = a.clone().svd(true, true).solve(&b, 1e-12).ok()?;
+    Some((a * sol - b).norm_squared())
+}
+
+fn trends(table: &CampaignTable, residual_g: &[f64], u_g: &[f64]) -> Vec<Trend> {
+    let names: Vec<String> = table.conditions[0]
+        .variables()
+        .into_iter()
+        .map(|(n, _)| n)
+        .collect();
+    let mut out = Vec::new();
+    for (j, name) in names.iter().enumerate() {
+        let pts: Vec<(f64, f64, f64)> = table
+            .conditions
+            .iter()
+            .zip(residual_g)
+            .zip(u_g)
+            .map(|((c, r), u)| (c.variables()[j].1, *r, *u))
+            .filter(|(x, _, _)| x.is_finite())
+            .collect();
+        let distinct = pts
+            .iter()
+            .map(|p| label(p.0))
+            .collect::<std::collections::BTreeSet<_>>()
+            .len();
+        if distinct < 3 || pts.len() < 5 {
+            continue;
+        }
+        let (mean, sd) = {
+            let m = pts.iter().map(|p| p.0).sum::<f64>() / pts.len() as f64;
+            let s = (pts.iter().map(|p| (p.0 - m).powi(2)).sum::<f64>() / pts.len() as f64).sqrt();
+            (m, s.max(1e-300))
+        };
+        let xs: Vec<f64> = pts.iter().map(|p| (p.0 - mean) / sd).collect();
+        let y: Vec<f64> = pts.iter().map(|p| p.1).collect();
+        let w: Vec<f64> = pts.iter().map(|p| 1.0 / (p.2 * p.2)).collect();
+        let ones = vec![1.0; xs.len()];
+        let sq: Vec<f64> = xs.iter().map(|x| x * x).collect();
+        let (Some(c0), Some(c2)) = (
+            wls_chi2(std::slice::from_ref(&ones), &y, &w),
+            wls_chi2(&[ones.clone(), xs.clone(), sq], &y, &w),
+        ) else {
+            continue;
+        };
+        let dof2 = pts.len() - 3;
+        let f = ((c0 - c2) / 2.0) / (c2 / dof2 as f64).max(1e-300);
+        let p = FisherSnedecor::new(2.0, dof2 as f64).map_or(f64::NAN, |d| d.sf(f.max(0.0)));
+        out.push(Trend {
+            variable: name.clone(),
+            distinct_values: distinct,
+            explained_fraction: if c0 > 0.0 { (c0 - c2) / c0 } else { 0.0 },
+            p_value: p,
+        });
+    }
+    out.sort_by(|a, b| a.p_value.total_cmp(&b.p_value));
+    out
+}
+
+/// The key of a condition for repeats: everything but the measurement.
+fn condition_key(c: &Condition) -> String {
+    let mut k = format!(
+        "{}|{:?}|{:?}|{:?}",
+        c.passport_ref, c.a_l_g, c.tone, c.random
+    );
+    for (n, x) in &c.extra {
+        if n != "tp" {
+            k.push_str(&format!("|{n}={x}"));
+        }
+    }
+    k
+}
+
+fn lack_of_fit(table: &CampaignTable, residual_g: &[f64], u_g: &[f64]) -> Option<LackOfFit> {
+    let mut groups: BTreeMap<String, Vec<usize>> = BTreeMap::new();
+    for (i, c) in table.conditions.iter().enumerate() {
+        groups.entry(condition_key(c)).or_default().push(i);
+    }
+    let repeated = groups.values().filter(|g| g.len() > 1).count();
+    if repeated == 0 {
+        return None;
+    }
+    let (mut lof, mut pe, mut pe_dof) = (0.0, 0.0, 0usize);
+    for idx in groups.values() {
+        let w: f64 = idx.iter().map(|&i| 1.0 / (u_g[i] * u_g[i])).sum();
+        let mean = idx
+            .iter()
+            .map(|&i| residual_g[i] / (u_g[i] * u_g[i]))
+            .sum::<f64>()
+            / w;
+        lof += w * mean * mean;
+        pe += idx
+            .iter()
+            .map(|&i| ((residual_g[i] - mean) / u_g[i]).powi(2))
+            .sum::<f64>();
+        pe_dof += idx.len() - 1;
+    }
+    let lof_dof = groups.len();
+    let f = (lof / lof_dof as f64) / (pe / pe_dof as f64).max(1e-300);
+    Some(LackOfFit {
+        repeated_groups: repeated,
+        lack_of_fit_chi2: lof,
+        lack_of_fit_dof: lof_dof,
+        pure_error_chi2: pe,
+        pure_error_dof: pe_dof,
+        f,
+        p_value: FisherSnedecor::new(lof_dof as f64, pe_dof as f64).map_or(f64::NAN, |d| d.sf(f)),
+        pure_error_chi2_per_dof: pe / pe_dof as f64,
+    })
+}
+
+fn selected(opts: &DiagnoseOptions) -> Result<Vec<&'static Candidate>> {
+    if opts.candidates.is_empty() {
+        return Ok(LIBRARY.iter().collect());
+    }
+    opts.candidates
+        .iter()
+        .map(|k| {
+            library::candidate(k).ok_or_else(|| {
+                Error::Invalid(format!(
+                    "effect {k:?}: not in the lab's library ({})",
+                    library::kinds().join(", ")
+                ))
+            })
+        })
+        .collect()
+}
+
+fn fit_all(
+    model: &LabModel,
+    table: &CampaignTable,
+    prep: &Prepared,
+    cands: &[&'static Candidate],
+    threads: usize,
+) -> Vec<(&'static Candidate, Result<EffectFit>)> {
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results = std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..threads.clamp(1, cands.len().max(1)) {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(c) = cands.get(i) else { break };
+                let r = fit_prepared(model, table, prep, c);
+                if let Ok(mut v) = results.lock() {
+                    v.push((i, *c, r));
+                }
+            });
+        }
+    });
+    let mut v = results.into_inner().unwrap_or_default();
+    v.sort_by_key(|(i, _, _)| *i);
+    v.into_iter().map(|(_, c, r)| (c, r)).collect()
+}
+
+/// Weighted correlation of two fitted VE changes (weights `1/u^2`, about zero: the
+/// changes are compared as shapes through the origin).
+fn correlation(a: &[f64], b: &[f64], u: &[f64]) -> f64 {
+    let (mut ab, mut aa, mut bb) = (0.0, 0.0, 0.0);
+    for i in 0..a.len() {
+        let w = 1.0 / (u[i] * u[i]);
+        ab += w * a[i] * b[i];
+        aa += w * a[i] * a[i];
+        bb += w * b[i] * b[i];
+    }
+    ab / (aa * bb).sqrt().max(1e-300)
+}
+
+/// Conditions not in the table where the fitted candidates differ most: every tested
+/// condition with the tone frequency x 0.25, 0.5, 2, 4, the amplitudes x 0.5, 2, the
+/// flight acceleration on IA at -1, 0, +1 g (the unit turned), and the vibration on
+/// IA alone or with OA and PA at the IA amplitude.
+fn suggestions(model: &LabModel, table: &CampaignTable, fits: &[&EffectFit]) -> Vec<Suggestion> {
+    let mut u: Vec<f64> = table
+        .conditions
+        .iter()
+        .map(|c| c.ve_uncertainty_g)
+        .collect();
+    u.sort_by(f64::total_cmp);
+    let u_med = u[u.len() / 2];
+    let mut variants: Vec<(String, Condition)> = Vec::new();
+    let mut seen = std::collections::BTreeSet::new();
+    for c in &table.conditions {
+        let mut push = |what: String, v: Condition| {
+            if seen.insert(condition_key(&v)) {
+                variants.push((what, v));
+            }
+        };
+        if let Some(t) = c.tone {
+            for f in [0.25, 0.5, 2.0, 4.0] {
+                let mut v = c.clone();
+                v.tone = Some(ToneCondition {
+                    freq_hz: t.freq_hz * f,
+                    ..t
+                });
+                push(
+                    format!("as {} with the tone at {:.4} Hz", c.run_id, t.freq_hz * f),
+                    v,
+                );
+            }
+            for f in [0.5, 2.0] {
+                let mut v = c.clone();
+                v.tone = Some(ToneCondition {
+                    a_b_g: t.a_b_g.map(|a| a * f),
+                    ..t
+                });
+                push(format!("as {} with the tone amplitudes x {f}", c.run_id), v);
+            }
+            let mut v = c.clone();
+            v.tone = Some(ToneCondition {
+                a_b_g: [t.a_b_g[2]; 3],
+                ..t
+            });
+            push(
+                format!("as {} with {:.3} g on OA, PA and IA", c.run_id, t.a_b_g[2]),
+                v,
+            );
+        }
+        if let Some(r) = c.random {
+            for f in [0.5, 2.0] {
+                let mut v = c.clone();
+                v.random = Some(RandomCondition {
+                    sigma_g: r.sigma_g.map(|s| s * f),
+                    cov31_g2: r.cov31_g2 * f * f,
+                    cov32_g2: r.cov32_g2 * f * f,
+                    ..r
+                });
+                push(format!("as {} with the random RMS x {f}", c.run_id), v);
+            }
+        }
+        for a in [-1.0, 0.0, 1.0] {
+            let mut v = c.clone();
+            v.a_l_g = [0.0, 0.0, a];
+            push(
+                format!(
+                    "as {} with aL3 = {a} g (IA along gravity: TP turned)",
+                    c.run_id
+                ),
+                v,
+            );
+        }
+    }
+    let mut out = Vec::new();
+    for (what, v) in variants {
+        let probe = CampaignTable {
+            path: table.path.clone(),
+            conditions: vec![v],
+            extra_columns: table.extra_columns.clone(),
+        };
+        let Ok(prep) = Prepared::new(model, &probe) else {
+            continue;
+        };
+        let mut preds = Vec::new();
+        for f in fits {
+            let Some(cand) = library::candidate(&f.kind) else {
+                continue;
+            };
+            let theta: Vec<f64> = f.params.iter().map(|p| p.value).collect();
+            if let Ok(s) = crate::fit::shifts_g(model, &probe, &prep, cand, &theta) {
+                preds.push((f.kind.clone(), s[0]));
+            }
+        }
+        if preds.len() != fits.len() {
+            continue;
+        }
+        let max = preds.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max);
+        let min = preds.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
+        out.push(Suggestion {
+            description: what,
+            predictions_g: preds,
+            separation_sigma: (max - min) / u_med,
+        });
+    }
+    out.sort_by(|a, b| b.separation_sigma.total_cmp(&a.separation_sigma));
+    out.truncate(5);
+    out
+}
+
+/// Where `model` fails on `table` and which effect is missing (module doc).
+pub fn diagnose(
+    model: &LabModel,
+    table: &CampaignTable,
+    opts: &DiagnoseOptions,
+) -> Result<Diagnosis> {
+    let cands = selected(opts)?;
+    let prep = Prepared::new(model, table)?;
+    let comparison = comparison_of(model, table, &prep.predicted_g);
+    let residual_g = prep.residual_g();
+    let trends = trends(table, &residual_g, &prep.uncertainty_g);
+    let lack_of_fit = lack_of_fit(table, &residual_g, &prep.uncertainty_g);
+    let mut candidates: Vec<RankedCandidate> = fit_all(model, table, &prep, &cands, opts.threads)
+        .into_iter()
+        .map(|(c, r)| {
+            let (fit, not_applicable) = match r {
+                Ok(f) => (Some(f), None),
+                Err(e) => (None, Some(e.to_string())),
+            };
+            let supported = fit
+                .as_ref()
+                .is_some_and(|f| f.delta_bic <= opts.bic_support);
+            let explains = supported
+                && fit.as_ref().is_some_and(|f| {
+                    f.p_value_after >= opts.alpha_fit
+                        || f.rms_residual_after_g <= opts.model_tolerance * f.rms_residual_before_g
+                });
+            RankedCandidate {
+                kind: c.kind.into(),
+                physics: c.physics.into(),
+                signature: c.signature.into(),
+                fit,
+                not_applicable,
+                supported,
+                explains,
+            }
+        })
+        .collect();
+    candidates.sort_by(|a, b| {
+        let key = |c: &RankedCandidate| c.fit.as_ref().map_or(f64::INFINITY, |f| f.delta_bic);
+        key(a).total_cmp(&key(b))
+    });
+    let s = &comparison.summary;
+    let verdict = if s.p_value >= opts.alpha_noise {
+        Verdict::Noise {
+            p_value: s.p_value,
+            chi2_per_dof: s.chi2_per_dof,
+        }
+    } else {
+        let explaining: Vec<&EffectFit> = candidates
+            .iter()
+            .filter(|c| c.explains)
+            .filter_map(|c| c.fit.as_ref())
+            .collect();
+        match explaining.first() {
+            None => {
+                let best = candidates.first().and_then(|c| c.fit.as_ref());
+                Verdict::Unexplained {
+                    chi2_per_dof: s.chi2_per_dof,
+                    variables: trends
+                        .iter()
+                        .filter(|t| t.p_value < 1e-3)
+                        .map(|t| t.variable.clone())
+                        .collect(),
+                    best: best.map(|b| b.kind.clone()),
+                    best_explained_fraction: best
+                        .map_or(0.0, |b| 1.0 - b.chi2_after / b.chi2_before.max(1e-300)),
+                }
+            }
+            Some(first) => {
+                let u = &prep.uncertainty_g;
+                let tied: Vec<&EffectFit> = explaining
+                    .iter()
+                    .copied()
+                    .filter(|f| {
+                        f.kind == first.kind
+                            || (f.delta_bic - first.delta_bic <= opts.bic_tie
+                                && correlation(&f.shift_g, &first.shift_g, u) >= opts.collinear)
+                    })
+                    .collect();
+                if tied.len() > 1 {
+                    let correlation = tied[1..]
+                        .iter()
+                        .map(|f| correlation(&f.shift_g, &first.shift_g, u))
+                        .fold(1.0, f64::min);
+                    Verdict::Confounded {
+                        kinds: tied.iter().map(|f| f.kind.clone()).collect(),
+                        correlation,
+                        suggestions: suggestions(model, table, &tied),
+                    }
+                } else {
+                    Verdict::Effect {
+                        kind: first.kind.clone(),
+                        params: first.params.clone(),
+                        delta_bic: first.delta_bic,
+                        rms_residual_before_g: first.rms_residual_before_g,
+                        rms_residual_after_g: first.rms_residual_after_g,
+                        physics: library::candidate(&first.kind)
+                            .map_or(String::new(), |c| c.physics.into()),
+                    }
+                }
+            }
+        }
+    };
+    Ok(Diagnosis {
+        comparison,
+        trends,
+        lack_of_fit,
+        candidates,
+        verdict,
+        options: opts.clone(),
+    })
+}
+
+/// Fits one candidate of the library to the residual of `model` on `table`.
+pub fn fit_effect(model: &LabModel, table: &CampaignTable, kind: &str) -> Result<EffectFit> {
+    let cand = library::candidate(kind).ok_or_else(|| {
+        Error::Invalid(format!(
+            "effect {kind:?}: not in the lab's library ({})",
+            library::kinds().join(", ")
+        ))
+    })?;
+    let prep = Prepared::new(model, table)?;
+    fit_prepared(model, table, &prep, cand)
+}
+
+/// `model` with `kind` fitted to `table` added, and the fit.
+pub fn add_effect(
+    model: &LabModel,
+    table: &CampaignTable,
+    kind: &str,
+) -> Result<(LabModel, EffectFit)> {
+    let fit = fit_effect(model, table, kind)?;
+    let record = FitRecord {
+        kind: fit.kind.clone(),
+        table: table.path.display().to_string(),
+        params: fit
+            .params
+            .iter()
+            .map(|p| (p.name.clone(), p.value))
+            .collect(),
+        sigma: fit
+            .params
+            .iter()
+            .map(|p| {
+                (
+                    p.name.clone(),
+                    if p.sigma.is_finite() {
+                        p.sigma
+                    } else {
+                        f64::MAX
+                    },
+                )
+            })
+            .collect(),
+        rms_residual_before_g: fit.rms_residual_before_g,
+        rms_residual_after_g: fit.rms_residual_after_g,
+        delta_bic: fit.delta_bic,
+    };
+    Ok((model.with_effect(fit.table.clone(), Some(record)), fit))
+}
+
+/// One step of [`error_ladder`].
+#[derive(Debug, Clone, Serialize)]
+pub struct LadderStep {
+    /// The effects of the model at this step.
+    pub effects: Vec<String>,
+    pub rms_residual_g: f64,
+    pub chi2_per_dof: f64,
+}
+
+/// The model as is, then with the best supported candidate added, and so on while a
+/// candidate is supported (at most `max_steps` additions).
+pub fn error_ladder(
+    model: &LabModel,
+    table: &CampaignTable,
+    opts: &DiagnoseOptions,
+    max_steps: usize,
+) -> Result<Vec<LadderStep>> {
+    let mut m = model.clone();
+    let mut steps = Vec::new();
+    for step in 0..=max_steps {
+        let d = diagnose(&m, table, opts)?;
+        steps.push(LadderStep {
+            effects: m.effect_kinds(),
+            rms_residual_g: d.comparison.summary.rms_residual_g,
+            chi2_per_dof: d.comparison.summary.chi2_per_dof,
+        });
+        let next = match &d.verdict {
+            Verdict::Effect { kind, .. } => Some(kind.clone()),
+            Verdict::Confounded { kinds, .. } => kinds.first().cloned(),
+            Verdict::Unexplained { .. } => d
+                .candidates
+                .iter()
+                .find(|c| c.supported)
+                .map(|c| c.kind.clone()),
+            Verdict::Noise { .. } => None,
+        };
+        match next {
+            Some(kind) if step < max_steps => m = add_effect(&m, table, &kind)?.0,
+            _ => break,
+        }
+    }
+    Ok(steps)
+}

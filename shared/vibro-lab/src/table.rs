@@ -1,0 +1,671 @@
+//! The campaign table: one row per test condition (docs/lab.md).
+//!
+//! Required columns ([`REQUIRED_COLUMNS`]), in the unit's axes (1 = OA, 2 = PA,
+//! 3 = IA, MODEL.md section 1): `run_id`, `passport` (an id such as `AL-15`, or a
+//! passport file relative to the table's folder; empty: the model's `passport`), the
+//! flight (or gravity) acceleration `aL1_g..aL3_g`, the tone `freq_hz`, `aB1_g..aB3_g`,
+//! `phase31_deg = phi3 - phi1`, `phase32_deg = phi3 - phi2` (all empty: no tone), the
+//! random part `sigma1_g..sigma3_g`, `cov31_g2`, `cov32_g2`, `kurtosis3` (all empty:
+//! no random part), the measured VE and its standard uncertainty. Any other column is
+//! an extra numeric variable (empty cells are NaN); the lab understands
+//! `vibrating_s` (length of the vibrating record, for heating; default 300 s) and
+//! `band_lo_hz`, `band_hi_hz` (the random part as a flat band, which the filtering
+//! effects need). Lines starting with `#` are comments.
+
+use crate::model::LabModel;
+use crate::predict::flat_passport;
+use crate::{Error, Result};
+use serde::Serialize;
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+use vibro_physics::passport::Passport;
+use vibro_physics::vibration::{PsdBand, Tone, Vibration};
+
+/// The columns every table must have, in the documented order.
+pub const REQUIRED_COLUMNS: [&str; 19] = [
+    "run_id",
+    "passport",
+    "aL1_g",
+    "aL2_g",
+    "aL3_g",
+    "freq_hz",
+    "aB1_g",
+    "aB2_g",
+    "aB3_g",
+    "phase31_deg",
+    "phase32_deg",
+    "sigma1_g",
+    "sigma2_g",
+    "sigma3_g",
+    "cov31_g2",
+    "cov32_g2",
+    "kurtosis3",
+    "ve_measured_g",
+    "ve_uncertainty_g",
+];
+
+const TONE_COLUMNS: [&str; 6] = [
+    "freq_hz",
+    "aB1_g",
+    "aB2_g",
+    "aB3_g",
+    "phase31_deg",
+    "phase32_deg",
+];
+const RANDOM_COLUMNS: [&str; 6] = [
+    "sigma1_g",
+    "sigma2_g",
+    "sigma3_g",
+    "cov31_g2",
+    "cov32_g2",
+    "kurtosis3",
+];
+
+/// Default length of the vibrating record when the table has no `vibrating_s`: the
+/// papers' 5 minutes (MODEL.md section 8), s.
+pub const DEFAULT_VIBRATING_S: f64 = 300.0;
+
+/// The deterministic part of a condition.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ToneCondition {
+    pub freq_hz: f64,
+    /// `[aB1, aB2, aB3]`, amplitude, g.
+    pub a_b_g: [f64; 3],
+    pub phase31_deg: f64,
+    pub phase32_deg: f64,
+}
+
+/// The broadband random part of a condition.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RandomCondition {
+    pub sigma_g: [f64; 3],
+    pub cov31_g2: f64,
+    pub cov32_g2: f64,
+    pub kurtosis3: f64,
+}
+
+/// One row of the table.
+#[derive(Debug, Clone, Serialize)]
+pub struct Condition {
+    pub run_id: String,
+    /// Line of the file (1-based), for messages.
+    pub line: usize,
+    /// The passport cell as written (the model's default when it was empty).
+    pub passport_ref: String,
+    /// The resolved passport, `lambda(w)` dropped (`predict::flat_passport`).
+    #[serde(skip)]
+    pub passport: Passport,
+    /// `[aL1, aL2, aL3]`, g.
+    pub a_l_g: [f64; 3],
+    pub tone: Option<ToneCondition>,
+    pub random: Option<RandomCondition>,
+    pub ve_measured_g: f64,
+    pub ve_uncertainty_g: f64,
+    /// Extra numeric columns by name (NaN where empty).
+    pub extra: BTreeMap<String, f64>,
+}
+
+impl Condition {
+    /// The vibration at the unit as measured, in its axes `[OA, PA, IA]`: the tone with
+    /// `phi3 = 0`, `phi1 = -phase31`, `phi2 = -phase32`; the random part's covariance.
+    pub fn vibration(&self) -> Vibration {
+        let mut v = Vibration::none();
+        if let Some(t) = &self.tone {
+            let _ = v.push_tone(Tone {
+                freq_hz: t.freq_hz,
+                amplitude_g: t.a_b_g,
+                phase_rad: [
+                    -t.phase31_deg.to_radians(),
+                    -t.phase32_deg.to_radians(),
+                    0.0,
+                ],
+            });
+        }
+        if let Some(r) = &self.random {
+            for i in 0..3 {
+                v.covariance_g2[i][i] = r.sigma_g[i] * r.sigma_g[i];
+            }
+            v.covariance_g2[2][0] = r.cov31_g2;
+            v.covariance_g2[0][2] = r.cov31_g2;
+            v.covariance_g2[2][1] = r.cov32_g2;
+            v.covariance_g2[1][2] = r.cov32_g2;
+            v.kurtosis[2] = r.kurtosis3;
+        }
+        v
+    }
+
+    /// The random part as a flat band (`band_lo_hz`, `band_hi_hz`), when given.
+    pub fn psd(&self) -> Vec<PsdBand> {
+        let (Some(r), Some(lo), Some(hi)) = (
+            &self.random,
+            self.extra
+                .get("band_lo_hz")
+                .copied()
+                .filter(|x| x.is_finite()),
+            self.extra
+                .get("band_hi_hz")
+                .copied()
+                .filter(|x| x.is_finite()),
+        ) else {
+            return Vec::new();
+        };
+        if hi <= lo {
+            return Vec::new();
+        }
+        vec![PsdBand {
+            f_lo_hz: lo,
+            f_hi_hz: hi,
+            psd_g2_per_hz: r.sigma_g.map(|s| s * s / (hi - lo)),
+        }]
+    }
+
+    /// Length of the vibrating record, s.
+    pub fn vibrating_s(&self) -> f64 {
+        self.extra
+            .get("vibrating_s")
+            .copied()
+            .filter(|x| x.is_finite() && *x > 0.0)
+            .unwrap_or(DEFAULT_VIBRATING_S)
+    }
+
+    /// The vibration direction in words, from which axes vibrate: `IA`, `IA+OA`, ...
+    pub fn direction(&self) -> String {
+        let mut on = [false; 3];
+        if let Some(t) = &self.tone {
+            for i in 0..3 {
+                on[i] |= t.a_b_g[i] != 0.0;
+            }
+        }
+        if let Some(r) = &self.random {
+            for i in 0..3 {
+                on[i] |= r.sigma_g[i] != 0.0;
+            }
+        }
+        let names = ["OA", "PA", "IA"];
+        let mut parts: Vec<&str> = [2, 0, 1]
+            .iter()
+            .filter(|&&i| on[i])
+            .map(|&i| names[i])
+            .collect();
+        if parts.is_empty() {
+            parts.push("none");
+        }
+        parts.join("+")
+    }
+
+    /// The condition variables the lab looks at the residual against, by name (NaN
+    /// where a variable does not apply).
+    pub fn variables(&self) -> Vec<(String, f64)> {
+        let nan = f64::NAN;
+        let t = self.tone;
+        let r = self.random;
+        let mut v = vec![
+            ("aL1_g".to_string(), self.a_l_g[0]),
+            ("aL2_g".to_string(), self.a_l_g[1]),
+            ("aL3_g".to_string(), self.a_l_g[2]),
+            ("freq_hz".to_string(), t.map_or(nan, |t| t.freq_hz)),
+            ("aB1_g".to_string(), t.map_or(nan, |t| t.a_b_g[0])),
+            ("aB2_g".to_string(), t.map_or(nan, |t| t.a_b_g[1])),
+            ("aB3_g".to_string(), t.map_or(nan, |t| t.a_b_g[2])),
+            ("phase31_deg".to_string(), t.map_or(nan, |t| t.phase31_deg)),
+            ("phase32_deg".to_string(), t.map_or(nan, |t| t.phase32_deg)),
+            ("sigma1_g".to_string(), r.map_or(nan, |r| r.sigma_g[0])),
+            ("sigma2_g".to_string(), r.map_or(nan, |r| r.sigma_g[1])),
+            ("sigma3_g".to_string(), r.map_or(nan, |r| r.sigma_g[2])),
+            ("kurtosis3".to_string(), r.map_or(nan, |r| r.kurtosis3)),
+        ];
+        for (k, x) in &self.extra {
+            v.push((k.clone(), *x));
+        }
+        v
+    }
+}
+
+/// A campaign table.
+#[derive(Debug, Clone, Serialize)]
+pub struct CampaignTable {
+    pub path: PathBuf,
+    pub conditions: Vec<Condition>,
+    pub extra_columns: Vec<String>,
+}
+
+impl CampaignTable {
+    /// Reads and validates a table; rows with an empty passport take `model.passport`.
+    pub fn load(path: &Path, model: &LabModel) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        Self::parse(&text, path, dir, model)
+    }
+
+    /// Parses table text; `path` names it in errors, `dir` resolves passport files.
+    pub fn parse(text: &str, path: &Path, dir: &Path, model: &LabModel) -> Result<Self> {
+        let name = path.display().to_string();
+        let fail = |problems: Vec<String>| Error::Table {
+            path: name.clone(),
+            problems,
+        };
+        let mut reader = csv::ReaderBuilder::new()
+            .comment(Some(b'#'))
+            .trim(csv::Trim::All)
+            .flexible(false)
+            .from_reader(text.as_bytes());
+        let header: Vec<String> = reader
+            .headers()
+            .map_err(|e| fail(vec![format!("header: {e}")]))?
+            .iter()
+            .map(str::to_string)
+            .collect();
+        let missing: Vec<&str> = REQUIRED_COLUMNS
+            .iter()
+            .copied()
+            .filter(|c| !header.iter().any(|h| h == c))
+            .collect();
+        if !missing.is_empty() {
+            return Err(fail(vec![format!(
+                "missing required column(s) {}; a table needs {}",
+                missing.join(", "),
+                REQUIRED_COLUMNS.join(", ")
+            )]));
+        }
+        let mut seen = HashMap::new();
+        for h in &header {
+            if seen.insert(h.as_str(), ()).is_some() {
+                return Err(fail(vec![format!("column {h:?} appears twice")]));
+            }
+        }
+        let col = |n: &str| header.iter().position(|h| h == n).unwrap_or(usize::MAX);
+        let extra_columns: Vec<String> = header
+            .iter()
+            .filter(|h| !REQUIRED_COLUMNS.contains(&h.as_str()))
+            .cloned()
+            .collect();
+        let mut passports: HashMap<String, std::result::Result<Passport, String>> = HashMap::new();
+        let mut problems = Vec::new();
+        let mut conditions = Vec::new();
+        for record in reader.records() {
+            let record = match record {
+                Ok(r) => r,
+                Err(e) => {
+                    problems.push(e.to_string());
+                    continue;
+                }
+            };
+            let line = record.position().map_or(0, |p| p.line() as usize);
+            let before = problems.len();
+            let cell = |n: &str| record.get(col(n)).unwrap_or("");
+            let num = |n: &str, problems: &mut Vec<String>| -> Option<f64> {
+                let s = cell(n);
+                if s.is_empty() {
+                    return None;
+                }
+                match s.parse::<f64>() {
+                    Ok(x) if x.is_finite() => Some(x),
+                    _ => {
+                        problems.push(format!(
+                            "line {line}, column {n} = {s:?}: must be a finite number"
+                        ));
+                        None
+                    }
+                }
+            };
+            let required = |n: &str, problems: &mut Vec<String>| -> f64 {
+                if cell(n).is_empty() {
+                    problems.push(format!(
+                        "line {line}, column {n}: empty; a value is required"
+                    ));
+                    return f64::NAN;
+                }
+                num(n, problems).unwrap_or(f64::NAN)
+            };
+            let run_id = cell("run_id").to_string();
+            if run_id.is_empty() {
+                problems.push(format!(
+                    "line {line}, column run_id: empty; a value is required"
+                ));
+            }
+            let a_l_g = [
+                required("aL1_g", &mut problems),
+                required("aL2_g", &mut problems),
+                required("aL3_g", &mut problems),
+            ];
+            let ve_measured_g = required("ve_measured_g", &mut problems);
+            let ve_uncertainty_g = required("ve_uncertainty_g", &mut problems);
+            if ve_uncertainty_g.is_finite() && ve_uncertainty_g <= 0.0 {
+                problems.push(format!(
+                    "line {line}, column ve_uncertainty_g = {ve_uncertainty_g}: must be > 0 (a standard uncertainty)"
+                ));
+            }
+            // A group is present when any of its cells is filled; its key cell must be.
+            let tone = if TONE_COLUMNS.iter().any(|c| !cell(c).is_empty()) {
+                let f = required("freq_hz", &mut problems);
+                if f.is_finite() && f <= 0.0 {
+                    problems.push(format!("line {line}, column freq_hz = {f}: must be > 0"));
+                }
+                let mut g = |n: &str| num(n, &mut problems).unwrap_or(0.0);
+                Some(ToneCondition {
+                    freq_hz: f,
+                    a_b_g: [g("aB1_g"), g("aB2_g"), g("aB3_g")],
+                    phase31_deg: g("phase31_deg"),
+                    phase32_deg: g("phase32_deg"),
+                })
+            } else {
+                None
+            };
+            let random = if RANDOM_COLUMNS.iter().any(|c| !cell(c).is_empty()) {
+                let mut g = |n: &str, default: f64| num(n, &mut problems).unwrap_or(default);
+                let r = RandomCondition {
+                    sigma_g: [g("sigma1_g", 0.0), g("sigma2_g", 0.0), g("sigma3_g", 0.0)],
+                    cov31_g2: g("cov31_g2", 0.0),
+                    cov32_g2: g("cov32_g2", 0.0),
+                    kurtosis3: g("kurtosis3", 3.0),
+                };
+                for (i, s) in r.sigma_g.iter().enumerate() {
+                    if *s < 0.0 {
+                        problems.push(format!(
+                            "line {line}, column sigma{}_g = {s}: must be >= 0 (an RMS)",
+                            i + 1
+                        ));
+                    }
+                }
+                if r.kurtosis3 < 1.0 {
+                    problems.push(format!(
+                        "line {line}, column kurtosis3 = {}: must be >= 1 (E[x^4]/sigma^4)",
+                        r.kurtosis3
+                    ));
+                }
+                Some(r)
+            } else {
+                None
+            };
+            let mut extra = BTreeMap::new();
+            for c in &extra_columns {
+                extra.insert(c.clone(), num(c, &mut problems).unwrap_or(f64::NAN));
+            }
+            let passport_ref = match (cell("passport"), &model.passport) {
+                ("", Some(p)) => p.clone(),
+                ("", None) => {
+                    problems.push(format!(
+                        "line {line}, column passport: empty, and the model names no default passport"
+                    ));
+                    String::new()
+                }
+                (p, _) => p.to_string(),
+            };
+            let passport = if passport_ref.is_empty() {
+                None
+            } else {
+                let resolved = passports.entry(passport_ref.clone()).or_insert_with(|| {
+                    let file = dir.join(&passport_ref);
+                    let arg = if file.is_file() {
+                        file.display().to_string()
+                    } else {
+                        passport_ref.clone()
+                    };
+                    vibro_config::resolve_passport(&arg)
+                        .map_err(|e| e.to_string())
+                        .and_then(|p| flat_passport(&p).map_err(|e| e.to_string()))
+                });
+                match resolved {
+                    Ok(p) => Some(*p),
+                    Err(e) => {
+                        problems.push(format!(
+                            "line {line}, column passport = {passport_ref:?}: {e}"
+                        ));
+                        None
+                    }
+                }
+            };
+            if problems.len() > before {
+                continue;
+            }
+            let Some(passport) = passport else { continue };
+            let c = Condition {
+                run_id,
+                line,
+                passport_ref,
+                passport,
+                a_l_g,
+                tone,
+                random,
+                ve_measured_g,
+                ve_uncertainty_g,
+                extra,
+            };
+            if let Err(e) = c.vibration().validate() {
+                problems.push(format!("line {line}: the vibration is not valid: {e}"));
+                continue;
+            }
+            conditions.push(c);
+        }
+        if !problems.is_empty() {
+            return Err(fail(problems));
+        }
+        if conditions.is_empty() {
+            return Err(fail(vec!["no condition rows".into()]));
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            conditions,
+            extra_columns,
+        })
+    }
+
+    /// Writes the table as CSV (required columns, then the extra ones).
+    pub fn write_csv<W: std::io::Write>(&self, w: W) -> Result<()> {
+        let io = |e: csv::Error| Error::Io {
+            path: self.path.display().to_string(),
+            source: std::io::Error::other(e.to_string()),
+        };
+        let mut out = csv::Writer::from_writer(w);
+        let mut header: Vec<&str> = REQUIRED_COLUMNS.to_vec();
+        header.extend(self.extra_columns.iter().map(String::as_str));
+        out.write_record(&header).map_err(io)?;
+        let f = |x: f64| format!("{x:e}");
+        for c in &self.conditions {
+            let mut row = vec![c.run_id.clone(), c.passport_ref.clone()];
+            row.extend(c.a_l_g.map(f));
+            match &c.tone {
+                Some(t) => {
+                    row.push(f(t.freq_hz));
+                    row.extend(t.a_b_g.map(f));
+                    row.push(f(t.phase31_deg));
+                    row.push(f(t.phase32_deg));
+                }
+                None => row.extend(std::iter::repeat_n(String::new(), 6)),
+            }
+            match &c.random {
+                Some(r) => {
+                    row.extend(r.sigma_g.map(f));
+                    row.push(f(r.cov31_g2));
+                    row.push(f(r.cov32_g2));
+                    row.push(f(r.kurtosis3));
+                }
+                None => row.extend(std::iter::repeat_n(String::new(), 6)),
+            }
+            row.push(f(c.ve_measured_g));
+            row.push(f(c.ve_uncertainty_g));
+            for e in &self.extra_columns {
+                let x = c.extra.get(e).copied().unwrap_or(f64::NAN);
+                row.push(if x.is_finite() { f(x) } else { String::new() });
+            }
+            out.write_record(&row).map_err(io)?;
+        }
+        out.flush().map_err(|source| Error::Io {
+            path: self.path.display().to_string(),
+            source,
+        })
+    }
+
+    /// The table of a simulated campaign (`vibro_sim::run_campaign`): per condition
+    /// the shaker's controlled amplitudes on OA and PA, the unit's vibration sensor's
+    /// measurement on IA (tone amplitude by lock-in, RMS with the tone removed), the
+    /// realised random covariance, the section-8 measured VE and its uncertainty
+    /// combined with `resolution_g`, the resolution of the VE measurement (at least
+    /// `vibro_sim::campaign::Z_FLOOR_G`: a noise-free simulation's batch means scatter
+    /// by 1e-16 g, which no real rig reaches); extra columns `tp`, `angle_deg`,
+    /// `vibrating_s`.
+    pub fn from_campaign(
+        path: &Path,
+        scenario: &vibro_sim::Scenario,
+        summaries: &[vibro_sim::ConditionSummary],
+        resolution_g: f64,
+    ) -> Result<Self> {
+        let floor_g = resolution_g.max(vibro_sim::campaign::Z_FLOOR_G);
+        let vibrating_s = scenario
+            .campaign()
+            .map_or(DEFAULT_VIBRATING_S, |c| c.vibrating_s);
+        let mut conditions = Vec::new();
+        for (k, s) in summaries.iter().enumerate() {
+            let c = &s.condition;
+            let v = &s.vibration_unit;
+            let tone = c.tone.map(|t| ToneCondition {
+                freq_hz: t.freq_hz,
+                a_b_g: [
+                    t.amplitude_g[0],
+                    t.amplitude_g[1],
+                    s.sensor.tone_amplitude3_g.unwrap_or(t.amplitude_g[2]),
+                ],
+                phase31_deg: 0.0,
+                phase32_deg: 0.0,
+            });
+            let sigma = s.sigma_unit_g();
+            let random = (sigma.iter().any(|x| *x > 0.0)).then(|| RandomCondition {
+                sigma_g: [
+                    sigma[0],
+                    sigma[1],
+                    if tone.is_some() {
+                        sigma[2]
+                    } else {
+                        s.sensor.sigma3_g
+                    },
+                ],
+                cov31_g2: v.covariance_g2[2][0],
+                cov32_g2: v.covariance_g2[2][1],
+                kurtosis3: v.kurtosis[2],
+            });
+            let mut extra = BTreeMap::new();
+            extra.insert("tp".to_string(), c.tp as f64);
+            extra.insert("angle_deg".to_string(), c.angle_deg);
+            extra.insert("vibrating_s".to_string(), vibrating_s);
+            let passport = vibro_config::resolve_passport(&s.passport_id)
+                .map_err(|e| e.to_string())
+                .and_then(|p| flat_passport(&p).map_err(|e| e.to_string()))
+                .map_err(|e| Error::Invalid(format!("condition {}: passport: {e}", c.id)))?;
+            conditions.push(Condition {
+                run_id: c.id.clone(),
+                line: k + 2,
+                passport_ref: s.passport_id.clone(),
+                passport,
+                a_l_g: c.a_l_unit_g,
+                tone,
+                random,
+                ve_measured_g: s.measurement.ve_g,
+                ve_uncertainty_g: s.measurement.ve_sigma_g.hypot(floor_g),
+                extra,
+            });
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            conditions,
+            extra_columns: ["tp", "angle_deg", "vibrating_s"]
+                .map(String::from)
+                .to_vec(),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::BaseMode;
+
+    const HEADER: &str = "run_id,passport,aL1_g,aL2_g,aL3_g,freq_hz,aB1_g,aB2_g,aB3_g,phase31_deg,phase32_deg,sigma1_g,sigma2_g,sigma3_g,cov31_g2,cov32_g2,kurtosis3,ve_measured_g,ve_uncertainty_g";
+
+    fn parse(text: &str) -> Result<CampaignTable> {
+        CampaignTable::parse(
+            text,
+            Path::new("c.csv"),
+            Path::new("."),
+            &LabModel::base(BaseMode::Exact),
+        )
+    }
+
+    #[test]
+    fn rows_parse_into_tones_random_parts_and_extras() {
+        let t = parse(&format!(
+            "# a comment\n{HEADER},temperature_c\n\
+             R1,AL-15,0,0,1,30,0,0,0.42,,,,,,,,,1.3e-5,1e-7,21.5\n\
+             R2,AL-15,0,0,-1,,,,,,,0.5,0.5,2,0.1,0,6,2e-4,3e-6,\n"
+        ))
+        .unwrap();
+        assert_eq!(t.conditions.len(), 2);
+        assert_eq!(t.extra_columns, ["temperature_c"]);
+        let r1 = &t.conditions[0];
+        assert_eq!(r1.tone.unwrap().a_b_g, [0.0, 0.0, 0.42]);
+        assert!(r1.random.is_none());
+        assert_eq!(r1.extra["temperature_c"], 21.5);
+        assert_eq!(r1.line, 3);
+        let r2 = &t.conditions[1];
+        assert!(r2.tone.is_none());
+        let v = r2.vibration();
+        assert_eq!(v.covariance_g2[2][2], 4.0);
+        assert_eq!(v.covariance_g2[0][2], 0.1);
+        assert_eq!(v.kurtosis[2], 6.0);
+        assert!(r2.extra["temperature_c"].is_nan());
+        assert_eq!(r2.direction(), "IA+OA+PA");
+        assert_eq!(r1.direction(), "IA");
+    }
+
+    #[test]
+    fn bad_tables_name_line_column_value_and_rule_all_at_once() {
+        let e = parse("run_id,passport,aL1_g\nR1,AL-15,0\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("c.csv: missing required column(s) aL2_g, aL3_g"),
+            "{e}"
+        );
+        let e = parse(&format!(
+            "{HEADER}\n\
+             R1,AL-15,0,0,x,30,0,0,0.42,,,,,,,,,1e-5,1e-7\n\
+             R2,XX-9,0,0,1,30,0,0,0.42,,,,,,,,,1e-5,0\n\
+             R3,AL-15,0,0,1,,,,0.4,,,,,,,,,inf,1e-7\n\
+             R4,AL-15,0,0,1,,,,,,,-1,,,,,0.5,1e-5,1e-7\n\
+             ,,0,0,1,,,,,,,,,,,,,1e-5,1e-7\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        for needle in [
+            "line 2, column aL3_g = \"x\": must be a finite number",
+            "line 3, column ve_uncertainty_g = 0: must be > 0",
+            "line 3, column passport = \"XX-9\"",
+            "line 4, column freq_hz: empty; a value is required",
+            "line 4, column ve_measured_g = \"inf\": must be a finite number",
+            "line 5, column sigma1_g = -1: must be >= 0",
+            "line 5, column kurtosis3 = 0.5: must be >= 1",
+            "line 6, column run_id: empty",
+            "line 6, column passport: empty, and the model names no default passport",
+        ] {
+            assert!(e.contains(needle), "{needle:?} missing from {e}");
+        }
+    }
+
+    #[test]
+    fn a_table_survives_its_own_writer() {
+        let t = parse(&format!(
+            "{HEADER},vibrating_s\nR1,AL-15,0.5,0,0.8,30,1.2,0,0.42,10,,,,,,,,1.3e-5,1e-7,4\n"
+        ))
+        .unwrap();
+        let mut out = Vec::new();
+        t.write_csv(&mut out).unwrap();
+        let back = parse(std::str::from_utf8(&out).unwrap()).unwrap();
+        let (a, b) = (&t.conditions[0], &back.conditions[0]);
+        assert_eq!(a.a_l_g, b.a_l_g);
+        assert_eq!(a.tone, b.tone);
+        assert_eq!(a.ve_measured_g, b.ve_measured_g);
+        assert_eq!(b.vibrating_s(), 4.0);
+    }
+}

@@ -1,0 +1,192 @@
+//! `vibrocomp lab` end to end through the binary, on the shipped walkthrough scenario
+//! (`config/scenarios/lab-walkthrough.toml`: an AL-15 campaign with RIG.md's 48 Hz,
+//! q = 1.56 mount resonance hidden from the model): the model fails, the lab names
+//! the missing effect, `lab add` fits it and the residual falls; bad input is refused
+//! naming the file, line, column and rule.
+
+use crate::common::{num, run_failing, run_json};
+use crate::processes::Dir;
+
+fn s(p: &std::path::Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+#[test]
+fn the_walkthrough_finds_the_hidden_resonance_and_the_error_falls() {
+    let dir = Dir::new("lab");
+    let table = dir.path("campaign.csv");
+    let model = dir.path("model.toml");
+    let sim = run_json(&[
+        "sim",
+        "lab-walkthrough",
+        "--threads",
+        "2",
+        "--lab-csv",
+        s(&table),
+        "--ve-resolution-g",
+        "1e-6",
+        "--json",
+    ]);
+    assert_eq!(sim["conditions"].as_array().map(Vec::len), Some(189));
+
+    let before = run_json(&["lab", "compare", s(&table), "--json"]);
+    let b = &before["summary"];
+    println!("FIGURES lab before: {b}");
+    assert_eq!(num(b, "n"), 189.0);
+    // Every uncertainty is the 1 ug resolution (the simulated batch means scatter by
+    // 1e-16 g), so their RMS is 1 ug to rounding.
+    assert!((num(b, "noise_floor_g") - 1e-6).abs() < 1e-15, "{b}");
+    // The model of MODEL.md misses the resonance by milli-g: far beyond the floor.
+    assert!(
+        num(b, "rms_residual_g") > 100.0 * num(b, "noise_floor_g"),
+        "{b}"
+    );
+    assert!(num(b, "p_value") < 1e-6);
+
+    let d = run_json(&["lab", "diagnose", s(&table), "--json"]);
+    assert_eq!(d["verdict"]["verdict"], "effect", "{}", d["verdict"]);
+    assert_eq!(d["verdict"]["kind"], "mount_resonance");
+    assert_eq!(d["candidates"][0]["kind"], "mount_resonance");
+    let params = d["verdict"]["params"].as_array().expect("params");
+    let value = |name: &str| {
+        params
+            .iter()
+            .find(|p| p["name"] == name)
+            .map(|p| (num(p, "value"), num(p, "sigma")))
+            .expect("param")
+    };
+    let (f_hz, f_sigma) = value("freq_hz");
+    let (q, q_sigma) = value("q");
+    println!("FIGURES lab fit: freq {f_hz} +- {f_sigma} Hz, q {q} +- {q_sigma}");
+    // The scenario's truth, within 0.1 %.
+    assert!((f_hz - 48.0).abs() < 0.048, "{f_hz}");
+    assert!((q - 1.56).abs() < 1.56e-3, "{q}");
+
+    let add = run_json(&[
+        "lab",
+        "add",
+        "mount_resonance",
+        "--from",
+        s(&table),
+        "--out",
+        s(&model),
+        "--json",
+    ]);
+    assert_eq!(add["effects"][0], "mount_resonance");
+    let after = run_json(&["lab", "compare", s(&table), "--model", s(&model), "--json"]);
+    let a = &after["summary"];
+    println!("FIGURES lab after: {a}");
+    let limit = (num(b, "rms_residual_g") / 10.0).max(2.0 * num(b, "noise_floor_g"));
+    assert!(num(a, "rms_residual_g") <= limit, "{a}");
+    // With the effect the model passes the chi-square test, and the lab says so.
+    let d2 = run_json(&["lab", "diagnose", s(&table), "--model", s(&model), "--json"]);
+    assert_eq!(d2["verdict"]["verdict"], "noise", "{}", d2["verdict"]);
+}
+
+const HEADER: &str = "run_id,passport,aL1_g,aL2_g,aL3_g,freq_hz,aB1_g,aB2_g,aB3_g,phase31_deg,phase32_deg,sigma1_g,sigma2_g,sigma3_g,cov31_g2,cov32_g2,kurtosis3,ve_measured_g,ve_uncertainty_g";
+
+#[test]
+fn bad_tables_models_and_effects_are_refused_naming_file_line_column_and_rule() {
+    let dir = Dir::new("lab-bad");
+    let stderr = |args: &[&str]| {
+        let out = run_failing(args);
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        String::from_utf8_lossy(&out.stderr).to_string()
+    };
+    let missing = dir.path("missing.csv");
+    std::fs::write(&missing, "run_id,passport,aL3_g\nR1,AL-15,1\n").unwrap();
+    let e = stderr(&["lab", "compare", s(&missing)]);
+    assert!(
+        e.contains("missing.csv: missing required column(s) aL1_g, aL2_g"),
+        "{e}"
+    );
+
+    let bad = dir.path("bad.csv");
+    std::fs::write(
+        &bad,
+        format!("{HEADER}\nR1,AL-15,0,0,1,30,0,0,zero,,,,,,,,,1e-5,1e-6\n"),
+    )
+    .unwrap();
+    let e = stderr(&["lab", "diagnose", s(&bad)]);
+    assert!(
+        e.contains("bad.csv: line 2, column aB3_g = \"zero\": must be a finite number"),
+        "{e}"
+    );
+
+    let good = dir.path("good.csv");
+    std::fs::write(
+        &good,
+        format!("{HEADER}\nR1,AL-15,0,0,1,30,0,0,0.42,,,,,,,,,1.3e-5,1e-6\n"),
+    )
+    .unwrap();
+    let e = stderr(&[
+        "lab",
+        "add",
+        "warp_drive",
+        "--from",
+        s(&good),
+        "--out",
+        s(&dir.path("m.toml")),
+    ]);
+    assert!(
+        e.contains("effect \"warp_drive\": not in the lab's library (mount_resonance"),
+        "{e}"
+    );
+
+    let model = dir.path("model.toml");
+    std::fs::write(
+        &model,
+        "mode = \"fast\"\n[[effect]]\nkind = \"mount_resonance\"\nfreq_hz = -1.0\nq = 1.0\n",
+    )
+    .unwrap();
+    let e = stderr(&["lab", "compare", s(&good), "--model", s(&model)]);
+    assert!(
+        e.contains("model.toml: mode = \"fast\": must be one of"),
+        "{e}"
+    );
+    assert!(e.contains("effect[0]: "), "{e}");
+    assert!(e.contains("freq_hz"), "{e}");
+}
+
+/// `model ve --model`: the base VE of `model ve` plus each effect's closed form; here
+/// the anisoelastic term `k_ae E[v1 v2] = k_ae 0.5 aB1 aB2` (docs/effects.md; the
+/// static `k_ae aL1 aL2` is main error, not VE).
+#[test]
+fn model_ve_with_an_extended_model_adds_each_effect_to_the_base() {
+    let dir = Dir::new("lab-ve");
+    let model = dir.path("m.toml");
+    std::fs::write(
+        &model,
+        "mode = \"exact\"\n[[effect]]\nkind = \"anisoelastic\"\nk_ae_per_g = 2.0e-5\n",
+    )
+    .unwrap();
+    let common = [
+        "model",
+        "ve",
+        "--passport",
+        "AL-15",
+        "--aL3-g",
+        "2",
+        "--aL1-g",
+        "0.5",
+        "--aB3-g",
+        "0.5",
+        "--aB1-g",
+        "1.2",
+        "--aB2-g",
+        "0.8",
+    ];
+    let base = run_json(&[&common[..], &["--json"]].concat());
+    let ext = run_json(&[&common[..], &["--model", s(&model), "--json"]].concat());
+    let want = 2.0e-5 * 0.5 * 1.2 * 0.8;
+    assert_eq!(ext["effects"][0]["kind"], "anisoelastic");
+    assert!(
+        (num(&ext["effects"][0], "ve_g") - want).abs() < 1e-18,
+        "{ext}"
+    );
+    assert!(
+        (num(&ext, "base_ve_g") - num(&base, "total_g")).abs() < 1e-15,
+        "{ext} {base}"
+    );
+    assert!((num(&ext, "ve_g") - num(&base, "total_g") - want).abs() < 1e-15);
+}
