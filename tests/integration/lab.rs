@@ -81,6 +81,101 @@ fn the_walkthrough_finds_the_hidden_resonance_and_the_error_falls() {
     // With the effect the model passes the chi-square test, and the lab says so.
     let d2 = run_json(&["lab", "diagnose", s(&table), "--model", s(&model), "--json"]);
     assert_eq!(d2["verdict"]["verdict"], "noise", "{}", d2["verdict"]);
+
+    // The report: the lab adds the resonance by itself (its ladder), and a real
+    // browser renders the plots.
+    let report_dir = dir.path("report");
+    let rep = run_json(&[
+        "lab",
+        "report",
+        s(&table),
+        "--out",
+        s(&report_dir),
+        "--json",
+    ]);
+    assert_eq!(rep["effects_added"][0], "mount_resonance", "{rep}");
+    assert!(num(&rep, "rms_after_g") <= limit, "{rep}");
+    assert_eq!(rep["ladder"].as_array().map(Vec::len), Some(2), "{rep}");
+    let html = std::fs::read_to_string(report_dir.join("index.html")).unwrap();
+    assert_eq!(html.matches("<svg").count() as f64, num(&rep, "plots"));
+    screenshot_shows_the_plots(&report_dir.join("index.html"), &dir.path("report.png"));
+}
+
+/// The browser: Debian's `chromium` (installed by `.ci/run`), or `VIBROCOMP_CHROMIUM`.
+fn chromium() -> std::path::PathBuf {
+    if let Some(p) = std::env::var_os("VIBROCOMP_CHROMIUM") {
+        return p.into();
+    }
+    for p in [
+        "/usr/bin/chromium",
+        "/usr/bin/chromium-browser",
+        "/usr/bin/google-chrome",
+    ] {
+        if std::path::Path::new(p).exists() {
+            return p.into();
+        }
+    }
+    panic!(
+        "no Chromium for the report's browser test: install Debian's `chromium` \
+         (.ci/run does) or set VIBROCOMP_CHROMIUM"
+    );
+}
+
+/// Takes a headless-Chromium screenshot of `html` and checks the plots are drawn:
+/// the page has the window's size, and both the "before" red and the "after" blue of
+/// the plots' points and bars cover hundreds of pixels (the page's text is black
+/// on white; only the SVG plots use those colours).
+fn screenshot_shows_the_plots(html: &std::path::Path, png: &std::path::Path) {
+    let profile = png.with_extension("profile");
+    let out = std::process::Command::new(chromium())
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--hide-scrollbars",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg("--window-size=1400,2600")
+        .arg(format!("--screenshot={}", png.display()))
+        .arg(format!("file://{}", html.display()))
+        .output()
+        .expect("chromium runs");
+    assert!(
+        out.status.success() && png.exists(),
+        "chromium failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(png).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!((info.width, info.height), (1400, 2600));
+    let channels = info.color_type.samples();
+    let near = |px: &[u8], c: [u8; 3]| (0..3).all(|i| (px[i] as i32 - c[i] as i32).abs() <= 30);
+    let (mut red, mut blue, mut ink) = (0usize, 0usize, 0usize);
+    for px in buf[..info.buffer_size()].chunks(channels) {
+        if near(px, [214, 39, 40]) {
+            red += 1;
+        }
+        if near(px, [31, 119, 180]) {
+            blue += 1;
+        }
+        if px[..3].iter().any(|&v| v < 200) {
+            ink += 1;
+        }
+    }
+    println!(
+        "FIGURES report screenshot: red {red} px, blue {blue} px, ink {ink} px of {}",
+        1400 * 2600
+    );
+    assert!(red > 2000, "before points: {red} px");
+    assert!(blue > 2000, "after points and bars: {blue} px");
+    assert!(ink > 100_000, "{ink} px drawn");
 }
 
 const HEADER: &str = "run_id,passport,aL1_g,aL2_g,aL3_g,freq_hz,aB1_g,aB2_g,aB3_g,phase31_deg,phase32_deg,sigma1_g,sigma2_g,sigma3_g,cov31_g2,cov32_g2,kurtosis3,ve_measured_g,ve_uncertainty_g";

@@ -817,37 +817,61 @@ pub struct LadderStep {
     pub chi2_per_dof: f64,
 }
 
+/// The effect the ladder adds after diagnosis `d`: the verdict's effect, the first of
+/// confounded ones, or the best supported candidate when the structure is not fully
+/// explained; none when the residual is noise.
+pub fn next_effect(d: &Diagnosis) -> Option<String> {
+    match &d.verdict {
+        Verdict::Effect { kind, .. } => Some(kind.clone()),
+        Verdict::Confounded { kinds, .. } => kinds.first().cloned(),
+        Verdict::Unexplained { .. } => d
+            .candidates
+            .iter()
+            .find(|c| c.supported)
+            .map(|c| c.kind.clone()),
+        Verdict::Noise { .. } => None,
+    }
+}
+
+fn step_of(m: &LabModel, d: &Diagnosis) -> LadderStep {
+    LadderStep {
+        effects: m.effect_kinds(),
+        rms_residual_g: d.comparison.summary.rms_residual_g,
+        chi2_per_dof: d.comparison.summary.chi2_per_dof,
+    }
+}
+
 /// The model as is, then with the best supported candidate added, and so on while a
-/// candidate is supported (at most `max_steps` additions).
+/// candidate is supported (at most `max_steps` additions). `first` is the diagnosis
+/// of `model` when already made. Returns the steps and the last model.
+pub fn ladder_from(
+    model: &LabModel,
+    table: &CampaignTable,
+    opts: &DiagnoseOptions,
+    max_steps: usize,
+    first: Option<&Diagnosis>,
+) -> Result<(Vec<LadderStep>, LabModel)> {
+    let mut m = model.clone();
+    let mut d = match first {
+        Some(d) => d.clone(),
+        None => diagnose(&m, table, opts)?,
+    };
+    let mut steps = vec![step_of(&m, &d)];
+    for _ in 0..max_steps {
+        let Some(kind) = next_effect(&d) else { break };
+        m = add_effect(&m, table, &kind)?.0;
+        d = diagnose(&m, table, opts)?;
+        steps.push(step_of(&m, &d));
+    }
+    Ok((steps, m))
+}
+
+/// [`ladder_from`]'s steps.
 pub fn error_ladder(
     model: &LabModel,
     table: &CampaignTable,
     opts: &DiagnoseOptions,
     max_steps: usize,
 ) -> Result<Vec<LadderStep>> {
-    let mut m = model.clone();
-    let mut steps = Vec::new();
-    for step in 0..=max_steps {
-        let d = diagnose(&m, table, opts)?;
-        steps.push(LadderStep {
-            effects: m.effect_kinds(),
-            rms_residual_g: d.comparison.summary.rms_residual_g,
-            chi2_per_dof: d.comparison.summary.chi2_per_dof,
-        });
-        let next = match &d.verdict {
-            Verdict::Effect { kind, .. } => Some(kind.clone()),
-            Verdict::Confounded { kinds, .. } => kinds.first().cloned(),
-            Verdict::Unexplained { .. } => d
-                .candidates
-                .iter()
-                .find(|c| c.supported)
-                .map(|c| c.kind.clone()),
-            Verdict::Noise { .. } => None,
-        };
-        match next {
-            Some(kind) if step < max_steps => m = add_effect(&m, table, &kind)?.0,
-            _ => break,
-        }
-    }
-    Ok(steps)
+    Ok(ladder_from(model, table, opts, max_steps, None)?.0)
 }

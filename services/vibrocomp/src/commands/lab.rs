@@ -29,6 +29,21 @@ pub enum LabCommand {
     Diagnose(DiagnoseArgs),
     /// Fit an effect to the campaign and write the extended model.
     Add(AddArgs),
+    /// A self-contained HTML report with plots: the residuals before and after the
+    /// effects the lab adds, the candidates' ranking, the error falling.
+    Report(ReportArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ReportArgs {
+    #[command(flatten)]
+    pub input: Input,
+    /// The folder to write `index.html` (and the plots as SVG files) into.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// At most this many effects added, one at a time while one is supported.
+    #[arg(long, default_value_t = 3)]
+    pub max_effects: usize,
 }
 
 /// The input and the model, shared by the lab's commands.
@@ -86,6 +101,7 @@ pub fn run(cmd: &LabCommand) -> anyhow::Result<()> {
         LabCommand::Compare(a) => compare(a),
         LabCommand::Diagnose(a) => diagnose(a),
         LabCommand::Add(a) => add(a),
+        LabCommand::Report(a) => report(a),
     }
 }
 
@@ -420,6 +436,38 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
         "wrote {} (effects: {})",
         a.out.display(),
         extended.effect_kinds().join(", ")
+    );
+    print_text(&o)
+}
+
+fn report(a: &ReportArgs) -> anyhow::Result<()> {
+    let (model, table) = load(&a.input.input, a.input.model.as_deref())?;
+    let opts = DiagnoseOptions::default();
+    let diagnosis = vibro_lab::diagnose(&model, &table, &opts)?;
+    let mut text = String::new();
+    print_diagnosis(&mut text, &diagnosis);
+    let (ladder, extended) =
+        vibro_lab::diagnose::ladder_from(&model, &table, &opts, a.max_effects, Some(&diagnosis))?;
+    let after = vibro_lab::compare(&extended, &table)?;
+    let summary = super::lab_report::write(
+        &a.out, &table, &model, &diagnosis, &text, &ladder, &extended, &after,
+    )?;
+    if a.input.json {
+        return print_json(&summary);
+    }
+    let mut o = String::new();
+    p!(
+        o,
+        "wrote {} ({} plots); residual RMS {:.3e} g -> {:.3e} g with {}",
+        summary.html,
+        summary.plots,
+        summary.rms_before_g,
+        summary.rms_after_g,
+        if summary.effects_added.is_empty() {
+            "no effect added".to_string()
+        } else {
+            summary.effects_added.join(" + ")
+        }
     );
     print_text(&o)
 }
