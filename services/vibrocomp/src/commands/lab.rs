@@ -450,7 +450,16 @@ fn report(a: &ReportArgs) -> anyhow::Result<()> {
         vibro_lab::diagnose::ladder_from(&model, &table, &opts, a.max_effects, Some(&diagnosis))?;
     let after = vibro_lab::compare(&extended, &table)?;
     let summary = super::lab_report::write(
-        &a.out, &table, &model, &diagnosis, &text, &ladder, &extended, &after,
+        &a.out,
+        &super::lab_report::ReportInput {
+            table: &table,
+            model: &model,
+            diagnosis: &diagnosis,
+            diagnosis_text: &text,
+            ladder: &ladder,
+            final_model: &extended,
+            after: &after,
+        },
     )?;
     if a.input.json {
         return print_json(&summary);

@@ -239,17 +239,32 @@ pub struct ReportSummary {
     pub effects_added: Vec<String>,
 }
 
+/// What the report shows.
+pub struct ReportInput<'a> {
+    pub table: &'a CampaignTable,
+    /// The model as given.
+    pub model: &'a LabModel,
+    /// Its diagnosis, and the diagnosis as text.
+    pub diagnosis: &'a Diagnosis,
+    pub diagnosis_text: &'a str,
+    /// The steps of the lab adding effects, and the model they end with.
+    pub ladder: &'a [LadderStep],
+    pub final_model: &'a LabModel,
+    /// The comparison of the final model.
+    pub after: &'a Comparison,
+}
+
 /// Writes `dir/index.html` (and each plot as an SVG file beside it).
-pub fn write(
-    dir: &Path,
-    table: &CampaignTable,
-    model: &LabModel,
-    diagnosis: &Diagnosis,
-    diagnosis_text: &str,
-    ladder: &[LadderStep],
-    final_model: &LabModel,
-    after: &Comparison,
-) -> anyhow::Result<ReportSummary> {
+pub fn write(dir: &Path, r: &ReportInput<'_>) -> anyhow::Result<ReportSummary> {
+    let ReportInput {
+        table,
+        model,
+        diagnosis,
+        diagnosis_text,
+        ladder,
+        final_model,
+        after,
+    } = *r;
     std::fs::create_dir_all(dir)
         .map_err(|e| anyhow::anyhow!("{}: cannot create: {e}", dir.display()))?;
     let before = &diagnosis.comparison;
