@@ -52,6 +52,10 @@ pub struct RawConfig {
     /// How often the model files are checked for changes; 0 disables hot reload.
     #[serde(default = "default_reload_poll_s")]
     pub reload_poll_s: f64,
+    /// An extended model (`vibrocomp lab add --out`, docs/lab.md): its effects' VE is
+    /// removed after stage (20). Its `mode` must be this file's `mode`.
+    #[serde(default)]
+    pub model: Option<String>,
     #[serde(default)]
     pub estimate: EstimateMappingRaw,
     #[serde(default)]
@@ -123,6 +127,8 @@ pub struct Model {
     /// `max_estimate_lead_s` in ns.
     pub max_estimate_lead_ns: u64,
     pub estimate: EstimateMapping,
+    /// The extended model's effects (`model = ...`), with the file they came from.
+    pub effects: Option<(PathBuf, vibro_lab::LabModel)>,
 }
 
 impl Model {
@@ -308,6 +314,38 @@ impl Config {
             .map(Some)
         };
 
+        let effects = match &raw.model {
+            None => Some(None),
+            Some(value) => {
+                let (arg, file) = locate(value, base_dir);
+                watched.extend(file);
+                match vibro_lab::LabModel::load(Path::new(&arg)) {
+                    Ok(m) => {
+                        let agree = matches!(
+                            (m.mode, mode),
+                            (vibro_lab::BaseMode::Exact, Some(Mode::Exact))
+                                | (vibro_lab::BaseMode::Paper, Some(Mode::Paper))
+                                | (vibro_lab::BaseMode::AsPublished, Some(Mode::AsPublished))
+                        );
+                        if agree || mode.is_none() {
+                            Some(Some((PathBuf::from(arg), m)))
+                        } else {
+                            problems.push(format!(
+                                "model = {value:?}: its mode {:?} is not this file's mode = {:?} (the effects were fitted on top of that base model)",
+                                m.mode.name(),
+                                raw.mode
+                            ));
+                            None
+                        }
+                    }
+                    Err(e) => {
+                        problems.push(format!("model = {value:?}: {e}"));
+                        None
+                    }
+                }
+            }
+        };
+
         let e = &raw.estimate;
         let kurtosis = match e.kurtosis.as_str() {
             "estimated" => Some(KurtosisUse::Estimated),
@@ -335,6 +373,7 @@ impl Config {
             max_lead,
             reload_poll,
             kurtosis,
+            effects,
         ) {
             (
                 Some(names),
@@ -345,6 +384,7 @@ impl Config {
                 Some(max_lead),
                 Some(reload_poll),
                 Some(kurtosis),
+                Some(effects),
             ) if problems.is_empty() => Ok(Self {
                 source: ConfigSource::Inline,
                 as_written: (names.prefix().to_string(), service),
@@ -362,6 +402,7 @@ impl Config {
                         max_tones: e.max_tones,
                         within_output_interval: e.within_output_interval,
                     },
+                    effects,
                 },
                 service,
                 reload_poll,

@@ -25,7 +25,7 @@ use vibro_msgs::{
     ServiceState, Stream, VibEstimate, WireMessage,
 };
 use vibro_physics::compensation::TriadCompensator;
-use vibro_physics::vibration::Vibration;
+use vibro_physics::vibration::{PsdBand, Vibration};
 
 /// Readings beyond this magnitude are treated like NaN: no accelerometer measures them,
 /// and the model's fifth powers would overflow.
@@ -72,6 +72,9 @@ pub struct Summary {
     pub time_jump_blocks: u64,
     /// Blocks published with `INPUT_SATURATED`.
     pub saturated_blocks: u64,
+    /// Estimates for which the extended model's effects could not be evaluated (the
+    /// base model was applied without them).
+    pub model_effect_errors: u64,
     /// Blocks a subscriber's full buffer did not take (after the back-pressure timeout).
     pub undelivered: u64,
     /// Other publish failures (loan, send): those blocks were not published.
@@ -112,6 +115,7 @@ impl Summary {
             .u64("rate_change_blocks", self.rate_change_blocks)
             .u64("time_jump_blocks", self.time_jump_blocks)
             .u64("saturated_blocks", self.saturated_blocks)
+            .u64("model_effect_errors", self.model_effect_errors)
             .u64("undelivered", self.undelivered)
             .u64("publish_errors", self.publish_errors)
             .u64("receive_errors", self.receive_errors)
@@ -282,11 +286,67 @@ impl AccelTiming {
     }
 }
 
+/// Nodes of an [`EffectGrid`]: 17 nodes 0.25 g apart cover +-2 g around the reading
+/// the grid was built at.
+const EFFECT_GRID_NODES: usize = 17;
+const EFFECT_GRID_STEP_G: f64 = 0.25;
+
+/// One unit's extended-model correction (the effects' VE change, docs/lab.md) as a
+/// function of its flight acceleration `a(1)`, tabulated when the vibration changes
+/// (per estimate, or when the reading leaves the grid): the effects' mean formulas
+/// run quadratures and build exact-model tables, far too slow per sample. Per sample,
+/// a cubic interpolation; beyond the grid, the end value.
+#[derive(Debug, Clone, Copy)]
+struct EffectGrid {
+    a0_g: f64,
+    ve_g: [f64; EFFECT_GRID_NODES],
+}
+
+impl EffectGrid {
+    /// The grid centred on `center_g`, from the VE change at each node.
+    fn build(
+        center_g: f64,
+        mut ve_at: impl FnMut(f64) -> vibro_lab::Result<f64>,
+    ) -> vibro_lab::Result<Self> {
+        let a0_g = center_g - EFFECT_GRID_STEP_G * (EFFECT_GRID_NODES / 2) as f64;
+        let mut ve_g = [0.0; EFFECT_GRID_NODES];
+        for (j, v) in ve_g.iter_mut().enumerate() {
+            *v = ve_at(a0_g + EFFECT_GRID_STEP_G * j as f64)?;
+        }
+        Ok(Self { a0_g, ve_g })
+    }
+
+    fn covers(&self, a_g: f64) -> bool {
+        let x = (a_g - self.a0_g) / EFFECT_GRID_STEP_G;
+        x >= 1.0 && x <= (EFFECT_GRID_NODES - 2) as f64
+    }
+
+    /// Cubic (4-point Lagrange) interpolation at `a_g`, clamped to the grid: exact for
+    /// cubics; for a smooth `E`, error at most `|E''''| h^4 9/384` (h = 0.25 g).
+    fn at(&self, a_g: f64) -> f64 {
+        let last = (EFFECT_GRID_NODES - 1) as f64;
+        let x = ((a_g - self.a0_g) / EFFECT_GRID_STEP_G).clamp(0.0, last);
+        // Nodes j-1, j, j+1, j+2 around x, kept inside the grid.
+        let j = (x.floor() as usize).clamp(1, EFFECT_GRID_NODES - 3);
+        let t = x - j as f64;
+        let y = |k: usize| self.ve_g[j + k - 1];
+        let (p0, p1, p2, p3) = (y(0), y(1), y(2), y(3));
+        -t * (t - 1.0) * (t - 2.0) / 6.0 * p0 + (t + 1.0) * (t - 1.0) * (t - 2.0) / 2.0 * p1
+            - (t + 1.0) * t * (t - 2.0) / 2.0 * p2
+            + (t + 1.0) * t * (t - 1.0) / 6.0 * p3
+    }
+}
+
 /// The hot loop's state. Nothing in it allocates per block or per sample.
 struct Compensation {
     model: Model,
     compensator: TriadCompensator,
     k1_v_per_g: [f64; 3],
+    /// The extended model's correction per unit, for the vibration the compensator
+    /// holds; `None` without `model = ...` or without vibration.
+    effect_grids: Option<[EffectGrid; 3]>,
+    /// The first reading (U/K1) of the block the grids were wanted for, g.
+    effect_center_g: [f64; 3],
     latest: Option<Latest>,
     /// `generation` of the estimate whose vibration the compensator holds; `None`: no
     /// vibration.
@@ -313,6 +373,8 @@ impl Compensation {
         let mode = model.wire_mode();
         Ok(Compensation {
             k1_v_per_g: model.k1_v_per_g(),
+            effect_grids: None,
+            effect_center_g: [0.0; 3],
             model,
             compensator,
             latest: None,
@@ -345,6 +407,7 @@ impl Compensation {
                 rate_change_blocks: 0,
                 time_jump_blocks: 0,
                 saturated_blocks: 0,
+                model_effect_errors: 0,
                 undelivered: 0,
                 publish_errors: 0,
                 receive_errors: 0,
@@ -443,15 +506,47 @@ impl Compensation {
     /// never per sample: `set_vibration` rebuilds the exact model's tables (~1 ms).
     fn apply(&mut self, want: Option<u64>) -> bool {
         self.s.vibration_updates += 1;
+        self.effect_grids = None;
         let ok = match (want, &self.latest) {
-            (Some(_), Some(l)) => (0..3).all(|i| {
-                self.compensator
-                    .set_vibration(i, &l.vibrations.units[i])
-                    .is_ok()
-            }),
+            (Some(_), Some(l)) => match &self.model.effects {
+                None => (0..3).all(|i| {
+                    self.compensator
+                        .set_vibration(i, &l.vibrations.units[i])
+                        .is_ok()
+                }),
+                Some((_, lab)) => {
+                    let units = l.vibrations.units;
+                    let band_hz = [l.estimate.broadband_f_lo_hz, l.estimate.broadband_f_hi_hz];
+                    match effect_grids(
+                        lab,
+                        &self.model.triad.passports,
+                        &units,
+                        band_hz,
+                        self.effect_center_g,
+                    ) {
+                        Ok((grids, true_vibrations)) => {
+                            self.effect_grids = Some(grids);
+                            (0..3).all(|i| {
+                                self.compensator
+                                    .set_vibration(i, &true_vibrations[i])
+                                    .is_ok()
+                            })
+                        }
+                        Err(e) => {
+                            // The base model still applies: compensate without the
+                            // effects (no MODEL_EFFECTS) rather than not at all.
+                            if count_first(&mut self.s.model_effect_errors) {
+                                warn!("the extended model cannot evaluate its effects ({e}); compensating with the base model, further failures counted");
+                            }
+                            (0..3).all(|i| self.compensator.set_vibration(i, &units[i]).is_ok())
+                        }
+                    }
+                }
+            },
             _ => true,
         };
         if want.is_none() || !ok {
+            self.effect_grids = None;
             for i in 0..3 {
                 // `Vibration::none()` always validates.
                 let _ = self.compensator.set_vibration(i, &Vibration::none());
@@ -567,6 +662,20 @@ impl Compensation {
                 }
             }
         }
+        if self.model.effects.is_some() && block.count > 0 {
+            let u_v = block.samples_v()[0];
+            let first_g = [0, 1, 2].map(|i| u_v[i] / self.k1_v_per_g[i]);
+            let outside = self
+                .effect_grids
+                .is_some_and(|g| (0..3).any(|i| !g[i].covers(first_g[i])));
+            if want != self.applied || outside {
+                self.effect_center_g = first_g;
+            }
+            if outside && want == self.applied {
+                // The flight acceleration left the grid: tabulate again around it.
+                self.applied = None;
+            }
+        }
         if want != self.applied && !self.apply(want) {
             warn!(
                 seq = estimate_seq,
@@ -583,6 +692,10 @@ impl Compensation {
         self.out_seq += 1;
         let mode = self.model.wire_mode().code();
         let k1 = self.k1_v_per_g;
+        let grids = if main_only { None } else { self.effect_grids };
+        if grids.is_some() {
+            flags |= cf::MODEL_EFFECTS;
+        }
         let compensator = &mut self.compensator;
         let mut non_finite = 0u64;
         let mut publish_ns = 0u64;
@@ -629,10 +742,14 @@ impl Compensation {
                         m.a3_g[k][i] = s.a2_g;
                         m.a4_g[k][i] = s.a2_g;
                     } else {
+                        // The extended model's effects at a(1), removed after (20)
+                        // and carried in `rand` so that a4 = a3 - rand (first order:
+                        // the effects' VE changes slowly with the acceleration).
+                        let effects_g = grids.map_or(0.0, |g| g[i].at(s.a1_g));
                         m.a3_g[k][i] = s.a3_g;
-                        m.a4_g[k][i] = s.a4_g;
+                        m.a4_g[k][i] = s.a4_g - effects_g;
                         m.det_g[k][i] = s.det_g;
-                        m.rand_g[k][i] = s.rand_g;
+                        m.rand_g[k][i] = s.rand_g + effects_g;
                     }
                 }
             }
@@ -689,6 +806,65 @@ impl Compensation {
 
 /// Takes every pending estimate (the newest wins); returns whether there was one.
 /// On an empty stream this is one shared-memory poll, no system call.
+/// Per unit: the vibration it really sees (the sensor effects' RMS factor removed from
+/// the measured IA vibration, vibro_lab::predict) and the grid of its effects' VE
+/// change around `center_g[i]` (MODEL.md section 11, docs/lab.md), for a steady
+/// vibration (`duration = inf`), with the cross-axis flight acceleration taken as 0.
+fn effect_grids(
+    lab: &vibro_lab::LabModel,
+    passports: &[vibro_physics::passport::Passport; 3],
+    measured: &[Vibration; 3],
+    band_hz: [f64; 2],
+    center_g: [f64; 3],
+) -> vibro_lab::Result<([EffectGrid; 3], [Vibration; 3])> {
+    let mut grids = [EffectGrid {
+        a0_g: 0.0,
+        ve_g: [0.0; EFFECT_GRID_NODES],
+    }; 3];
+    let mut true_vib = *measured;
+    for i in 0..3 {
+        let flat = vibro_lab::predict::flat_passport(&passports[i])?;
+        let effects = lab.build_effects(&flat)?;
+        let f = vibro_lab::predict::sensor_rms_factor(
+            &effects,
+            &flat,
+            [0.0, 0.0, center_g[i]],
+            &measured[i],
+            &[],
+        );
+        true_vib[i] = vibro_lab::predict::scaled_vibration(&measured[i], f);
+        // The random part as a flat spectrum over the estimate's broadband band (the
+        // filtering effects need a spectrum; the estimate carries band RMS, not a PSD
+        // in the unit frame).
+        let c = &true_vib[i].covariance_g2;
+        let psd: Vec<PsdBand> =
+            if band_hz[1] > band_hz[0] && band_hz[0] >= 0.0 && (0..3).any(|a| c[a][a] > 0.0) {
+                let width = band_hz[1] - band_hz[0];
+                vec![PsdBand {
+                    f_lo_hz: band_hz[0],
+                    f_hi_hz: band_hz[1],
+                    psd_g2_per_hz: [0, 1, 2].map(|a| c[a][a] / width),
+                }]
+            } else {
+                Vec::new()
+            };
+        grids[i] = EffectGrid::build(center_g[i], |a_g| {
+            Ok(vibro_lab::predict::effect_shifts_g(
+                &effects,
+                &flat,
+                [0.0, 0.0, a_g],
+                &true_vib[i],
+                &psd,
+                f64::INFINITY,
+            )?
+            .iter()
+            .map(|(_, v)| v)
+            .sum())
+        })?;
+    }
+    Ok((grids, true_vib))
+}
+
 fn drain_estimates(estimates: &StreamSubscriber<VibEstimate>, st: &mut Compensation) -> bool {
     let mut any = false;
     loop {

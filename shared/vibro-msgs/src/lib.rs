@@ -260,10 +260,10 @@ mod tests {
     fn flag_sets_are_disjoint_bits() {
         assert_eq!(
             compensation_flags::ALL.count_ones(),
-            10,
-            "ten distinct compensation flags"
+            11,
+            "eleven distinct compensation flags"
         );
-        assert_eq!(compensation_flags::ALL, 0x3ff, "bits 0..9, no hole");
+        assert_eq!(compensation_flags::ALL, 0x7ff, "bits 0..10, no hole");
         assert_eq!(estimate_flags::ALL.count_ones(), 9);
         assert_eq!(accel_flags::ALL, 0b11);
         assert_eq!(vib_flags::ALL, 0b11);

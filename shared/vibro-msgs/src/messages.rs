@@ -93,6 +93,10 @@ pub mod compensation_flags {
     /// The input block was flagged `SATURATED` by its producer: some readings are clipped
     /// and their compensated values are wrong by the clipped amount.
     pub const INPUT_SATURATED: u32 = 1 << 9;
+    /// The compensator's extended model (`model = ...`, docs/lab.md) also removed its
+    /// effects' VE: `rand_g` holds the random VE plus the effects', so that
+    /// `a4 = a3 - rand` still holds.
+    pub const MODEL_EFFECTS: u32 = 1 << 10;
     /// Every defined bit.
     pub const ALL: u32 = VIBRATION_ESTIMATE_STALE
         | ESTIMATE_MISSING
@@ -103,7 +107,8 @@ pub mod compensation_flags {
         | RATE_CHANGE
         | TIME_JUMP
         | ESTIMATE_AHEAD
-        | INPUT_SATURATED;
+        | INPUT_SATURATED
+        | MODEL_EFFECTS;
 }
 
 /// Flag bits of [`TruthBlock::flags`]. Bits not listed are reserved and zero.

@@ -6,6 +6,7 @@
 #![allow(clippy::needless_range_loop)]
 
 mod bad_input;
+mod extended_model;
 mod faults;
 mod in_process;
 mod process;
