@@ -285,3 +285,45 @@ fn model_ve_with_an_extended_model_adds_each_effect_to_the_base() {
     );
     assert!((num(&ext, "ve_g") - num(&base, "total_g") - want).abs() < 1e-15);
 }
+
+/// `model compensate --model`: a(4) as without the model (no sensor effect), and the
+/// effect's closed form removed after it.
+#[test]
+fn model_compensate_with_an_extended_model_removes_each_effect() {
+    let dir = Dir::new("lab-comp");
+    let model = dir.path("m.toml");
+    std::fs::write(
+        &model,
+        "mode = \"exact\"\n[[effect]]\nkind = \"anisoelastic\"\nk_ae_per_g = 2.0e-5\n",
+    )
+    .unwrap();
+    let common = [
+        "model",
+        "compensate",
+        "--passport",
+        "AL-15",
+        "--reading-g",
+        "2.01",
+        "--reading1-g",
+        "0.5",
+        "--aB3-g",
+        "0.5",
+        "--aB1-g",
+        "1.2",
+        "--aB2-g",
+        "0.8",
+    ];
+    let base = run_json(&[&common[..], &["--json"]].concat());
+    let ext = run_json(&[&common[..], &["--model", s(&model), "--json"]].concat());
+    let want = 2.0e-5 * 0.5 * 1.2 * 0.8;
+    let a4 = num(&base, "a4_g");
+    assert_eq!(num(&ext, "a4_g"), a4);
+    assert!(
+        (num(&ext["effects"][0], "ve_g") - want).abs() < 1e-18,
+        "{ext}"
+    );
+    assert!(
+        (num(&ext, "a4_extended_g") - (a4 - want)).abs() < 1e-15,
+        "{ext}"
+    );
+}

@@ -246,6 +246,11 @@ pub struct CompensateArgs {
     /// Compensation mode.
     #[arg(long, value_enum, default_value = "exact")]
     pub mode: ModeArg,
+    /// An extended model (`vibrocomp lab add --out`): its mode replaces `--mode`, the
+    /// sensor effects scale the IA vibration, and the other effects' VE at a(1) is
+    /// removed after (20), as the compensator service does (docs/services.md).
+    #[arg(long)]
+    pub model: Option<std::path::PathBuf>,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -435,13 +440,94 @@ struct CompensateReport<'a> {
     stages: Stages,
 }
 
-fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
+#[derive(Serialize)]
+struct ExtendedCompensateReport<'a> {
+    passport: &'a str,
+    model: String,
+    mode: &'static str,
+    reading_g: f64,
+    #[serde(flatten)]
+    stages: Stages,
+    sensor_rms_factor: f64,
+    effects: Vec<EffectVe>,
+    /// a(4) with the extended model's effects removed too.
+    a4_extended_g: f64,
+}
+
+fn compensate_extended(args: &CompensateArgs, path: &std::path::Path) -> anyhow::Result<()> {
     let (p, vib) = args.vibration.resolve()?;
+    let lab = vibro_lab::LabModel::load(path)?;
+    let mode = match lab.mode {
+        vibro_lab::BaseMode::Exact => Mode::Exact,
+        vibro_lab::BaseMode::Paper => Mode::Paper,
+        vibro_lab::BaseMode::AsPublished => Mode::AsPublished,
+    };
+    let flat = vibro_lab::predict::flat_passport(&p)?;
+    let effects = lab.build_effects(&flat)?;
+    let cross = [args.reading1_g, args.reading2_g];
+    let factor = vibro_lab::predict::sensor_rms_factor(
+        &effects,
+        &flat,
+        [cross[0], cross[1], args.reading_g],
+        &vib,
+        &[],
+    );
+    let vib_true = vibro_lab::predict::scaled_vibration(&vib, factor);
+    let mut unit = UnitCompensator::new(p, mode);
+    unit.set_vibration(&vib_true)?;
+    let stages = unit.compensate(args.reading_g, cross);
+    let parts = vibro_lab::predict::effect_shifts_g(
+        &effects,
+        &flat,
+        [cross[0], cross[1], stages.a1_g],
+        &vib_true,
+        &[],
+        f64::INFINITY,
+    )?;
+    let total: f64 = parts.iter().map(|(_, v)| v).sum();
+    let report = ExtendedCompensateReport {
+        passport: p.id(),
+        model: path.display().to_string(),
+        mode: mode.name(),
+        reading_g: args.reading_g,
+        stages,
+        sensor_rms_factor: factor,
+        effects: parts
+            .into_iter()
+            .map(|(kind, ve_g)| EffectVe { kind, ve_g })
+            .collect(),
+        a4_extended_g: stages.a4_g - total,
+    };
+    if args.json {
+        return print_json(&report);
+    }
+    println!(
+        "Compensation of {} (extended model {}, {} base), reading U/K1 = {} g",
+        report.passport, report.model, report.mode, args.reading_g
+    );
+    let s = &report.stages;
+    println!("  {:<36}{:>+.9} g", "a(1) first approximation (17)", s.a1_g);
+    println!("  {:<36}{:>+.9} g", "a(4) random VE removed (20)", s.a4_g);
+    for e in &report.effects {
+        println!("    effect {:<27} {}", e.kind, fmt_g(e.ve_g));
+    }
+    println!(
+        "  {:<36}{:>+.9} g",
+        "a(4) with the effects removed", report.a4_extended_g
+    );
+    Ok(())
+}
+
+fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
     ensure_finite(&[
         ("--reading-g", args.reading_g),
         ("--reading1-g", args.reading1_g),
         ("--reading2-g", args.reading2_g),
     ])?;
+    if let Some(path) = &args.model {
+        return compensate_extended(&args, path);
+    }
+    let (p, vib) = args.vibration.resolve()?;
     let mode = Mode::from(args.mode);
     let mut unit = UnitCompensator::new(p, mode);
     unit.set_vibration(&vib)?;
