@@ -106,6 +106,25 @@ pub(crate) fn scaled_psd(psd: &[PsdBand], factor: f64) -> Vec<PsdBand> {
         .collect()
 }
 
+/// The context an effect's mean formula is evaluated in: unit 0 of the lab's frame.
+fn context<'a>(
+    passport: &'a Passport,
+    a_l_unit_g: [f64; 3],
+    vibration_unit: &'a Vibration,
+    psd_unit: &'a [PsdBand],
+    duration_s: f64,
+) -> MeanContext<'a> {
+    MeanContext {
+        unit: 0,
+        passport,
+        a_l_unit_g,
+        vibration_unit,
+        psd_unit,
+        internal_rate_hz: INTERNAL_RATE_HZ,
+        duration_s,
+    }
+}
+
 /// Product of the sensor effects' RMS factors under the measured vibration.
 pub fn sensor_rms_factor(
     effects: &[Box<dyn Effect>],
@@ -114,15 +133,13 @@ pub fn sensor_rms_factor(
     vibration_unit: &Vibration,
     psd_unit: &[PsdBand],
 ) -> f64 {
-    let ctx = MeanContext {
-        unit: 0,
+    let ctx = context(
         passport,
         a_l_unit_g,
         vibration_unit,
         psd_unit,
-        internal_rate_hz: INTERNAL_RATE_HZ,
-        duration_s: f64::INFINITY,
-    };
+        f64::INFINITY,
+    );
     effects
         .iter()
         .filter_map(|e| e.sensor_rms_factor(&ctx))
@@ -139,17 +156,8 @@ pub fn effect_shifts_g(
     duration_s: f64,
 ) -> Result<Vec<(String, f64)>> {
     let none = Vibration::none();
-    let ctx = |vibration_unit, psd_unit| MeanContext {
-        unit: 0,
-        passport,
-        a_l_unit_g,
-        vibration_unit,
-        psd_unit,
-        internal_rate_hz: INTERNAL_RATE_HZ,
-        duration_s,
-    };
-    let on = ctx(vib_true, psd_true);
-    let off = ctx(&none, &[]);
+    let on = context(passport, a_l_unit_g, vib_true, psd_true, duration_s);
+    let off = context(passport, a_l_unit_g, &none, &[], duration_s);
     let mut out = Vec::new();
     for e in effects {
         if e.sensor_rms_factor(&on).is_some() {

@@ -62,6 +62,16 @@ fn campaign(effect: &str, grid_filter: Option<&str>) -> CampaignTable {
     table
 }
 
+/// The diagnosis of `table` by the model of MODEL.md alone, exact mode.
+fn diagnose_base(table: &CampaignTable) -> vibro_lab::Diagnosis {
+    diagnose(
+        &LabModel::base(BaseMode::Exact),
+        table,
+        &DiagnoseOptions::default(),
+    )
+    .expect("diagnose")
+}
+
 struct Found {
     rms_before_g: f64,
     rms_after_g: f64,
@@ -219,12 +229,7 @@ fn a_sensor_gain_error_is_found_and_its_error_removed() {
 #[test]
 fn without_a_hidden_effect_nothing_is_reported() {
     let table = campaign("", None);
-    let d = diagnose(
-        &LabModel::base(BaseMode::Exact),
-        &table,
-        &DiagnoseOptions::default(),
-    )
-    .unwrap();
+    let d = diagnose_base(&table);
     let s = &d.comparison.summary;
     println!(
         "FIGURES none: n {} rms {:.3e} g chi2/dof {:.3} p {:.3} best {} {:.1}",
@@ -259,12 +264,7 @@ fn an_effect_outside_the_library_is_unexplained_not_misattributed() {
         &effect("kind = \"scale_factor_frequency\"\ncorner_hz = 60.0\nlambda_hf = 1.5"),
         None,
     );
-    let d = diagnose(
-        &LabModel::base(BaseMode::Exact),
-        &table,
-        &DiagnoseOptions::default(),
-    )
-    .unwrap();
+    let d = diagnose_base(&table);
     let s = &d.comparison.summary;
     println!(
         "FIGURES outside: n {} rms {:.3e} g chi2/dof {:.1} verdict {:?}",
@@ -292,12 +292,7 @@ fn a_design_that_cannot_tell_two_effects_apart_is_called_confounded() {
         &effect("kind = \"mount_resonance\"\nfreq_hz = 48.0\nq = 1.56"),
         Some(&narrow),
     );
-    let d = diagnose(
-        &LabModel::base(BaseMode::Exact),
-        &table,
-        &DiagnoseOptions::default(),
-    )
-    .unwrap();
+    let d = diagnose_base(&table);
     println!(
         "FIGURES confounded: n {} verdict {:?}",
         table.conditions.len(),
