@@ -804,8 +804,6 @@ impl Compensation {
     }
 }
 
-/// Takes every pending estimate (the newest wins); returns whether there was one.
-/// On an empty stream this is one shared-memory poll, no system call.
 /// Per unit: the vibration it really sees (the sensor effects' RMS factor removed from
 /// the measured IA vibration, vibro_lab::predict) and the grid of its effects' VE
 /// change around `center_g[i]` (MODEL.md section 11, docs/lab.md), for a steady
@@ -865,6 +863,8 @@ fn effect_grids(
     Ok((grids, true_vib))
 }
 
+/// Takes every pending estimate (the newest wins); returns whether there was one.
+/// On an empty stream this is one shared-memory poll, no system call.
 fn drain_estimates(estimates: &StreamSubscriber<VibEstimate>, st: &mut Compensation) -> bool {
     let mut any = false;
     loop {
