@@ -556,6 +556,31 @@ impl Compensation {
         ok
     }
 
+    /// The extended model's grids again, around `effect_center_g`, for the vibration
+    /// the compensator holds; without grids (base model) when they cannot be built.
+    fn retabulate(&mut self) {
+        let (Some((_, lab)), Some(l)) = (&self.model.effects, &self.latest) else {
+            return;
+        };
+        let band_hz = [l.estimate.broadband_f_lo_hz, l.estimate.broadband_f_hi_hz];
+        let passports = &self.model.triad.passports;
+        match effect_grids(
+            lab,
+            passports,
+            &l.vibrations.units,
+            band_hz,
+            self.effect_center_g,
+        ) {
+            Ok((grids, _)) => self.effect_grids = Some(grids),
+            Err(e) => {
+                self.effect_grids = None;
+                if count_first(&mut self.s.model_effect_errors) {
+                    warn!("the extended model cannot evaluate its effects ({e}); compensating with the base model, further failures counted");
+                }
+            }
+        }
+    }
+
     fn on_accel(&mut self, block: &AccelBlock, recv_ns: u64, out: &mut impl OutputSink) {
         self.s.accel.received += 1;
         if let Err(e) = block.validate() {
@@ -672,8 +697,9 @@ impl Compensation {
                 self.effect_center_g = first_g;
             }
             if outside && want == self.applied {
-                // The flight acceleration left the grid: tabulate again around it.
-                self.applied = None;
+                // The flight acceleration left the grid: tabulate again around it (the
+                // compensator's vibration stays as it is).
+                self.retabulate();
             }
         }
         if want != self.applied && !self.apply(want) {
@@ -719,15 +745,7 @@ impl Compensation {
                     // The units are coupled through the cross terms: a bad reading
                     // spoils the whole triad sample.
                     non_finite += 1;
-                    for a in [
-                        &mut m.a1_g,
-                        &mut m.a2_g,
-                        &mut m.a3_g,
-                        &mut m.a4_g,
-                        &mut m.main_g,
-                        &mut m.det_g,
-                        &mut m.rand_g,
-                    ] {
+                    for a in m.stages_mut() {
                         a[k] = [f64::NAN; 3];
                     }
                     continue;
@@ -823,14 +841,14 @@ fn effect_grids(
     for i in 0..3 {
         let flat = vibro_lab::predict::flat_passport(&passports[i])?;
         let effects = lab.build_effects(&flat)?;
-        let f = vibro_lab::predict::sensor_rms_factor(
+        true_vib[i] = vibro_lab::predict::true_vibration(
             &effects,
             &flat,
             [0.0, 0.0, center_g[i]],
             &measured[i],
             &[],
-        );
-        true_vib[i] = vibro_lab::predict::scaled_vibration(&measured[i], f);
+        )?
+        .vibration;
         // The random part as a flat spectrum over the estimate's broadband band (the
         // filtering effects need a spectrum; the estimate carries band RMS, not a PSD
         // in the unit frame).

@@ -418,15 +418,7 @@ impl Normalise for CompensatedBlock {
     fn normalised(&self) -> Self {
         let mut m = *self;
         let n = m.count as usize;
-        for stage in [
-            &mut m.a1_g,
-            &mut m.a2_g,
-            &mut m.a3_g,
-            &mut m.a4_g,
-            &mut m.main_g,
-            &mut m.det_g,
-            &mut m.rand_g,
-        ] {
+        for stage in m.stages_mut() {
             stage[n..].fill([0.0; 3]);
         }
         m._pad = [0; 3];

@@ -310,17 +310,7 @@ fn comparison_of(model: &LabModel, table: &CampaignTable, predicted_g: &[f64]) -
         variable: "direction".into(),
         groups: groups_of(&rows, &direction),
     });
-    let names: Vec<String> = table.conditions[0]
-        .variables()
-        .into_iter()
-        .map(|(n, _)| n)
-        .collect();
-    for (j, name) in names.iter().enumerate() {
-        let xs: Vec<f64> = table
-            .conditions
-            .iter()
-            .map(|c| c.variables()[j].1)
-            .collect();
+    for (name, xs) in table.variable_columns() {
         let keys: Vec<String> = xs.iter().map(|x| label(*x)).collect();
         let distinct = keys.iter().collect::<std::collections::BTreeSet<_>>().len();
         if distinct < 2 {
@@ -375,19 +365,13 @@ fn wls_chi2(x: &[Vec<f64>], y: &[f64], w: &[f64]) -> Option<f64> {
 }
 
 fn trends(table: &CampaignTable, residual_g: &[f64], u_g: &[f64]) -> Vec<Trend> {
-    let names: Vec<String> = table.conditions[0]
-        .variables()
-        .into_iter()
-        .map(|(n, _)| n)
-        .collect();
     let mut out = Vec::new();
-    for (j, name) in names.iter().enumerate() {
-        let pts: Vec<(f64, f64, f64)> = table
-            .conditions
+    for (name, xs) in table.variable_columns() {
+        let pts: Vec<(f64, f64, f64)> = xs
             .iter()
             .zip(residual_g)
             .zip(u_g)
-            .map(|((c, r), u)| (c.variables()[j].1, *r, *u))
+            .map(|((x, r), u)| (*x, *r, *u))
             .filter(|(x, _, _)| x.is_finite())
             .collect();
         let distinct = pts

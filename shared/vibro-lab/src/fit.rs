@@ -20,13 +20,12 @@
 
 use crate::library::{Candidate, Search};
 use crate::model::{build_effects, LabModel};
-use crate::predict::{self, effect_shifts_g, scaled_vibration};
+use crate::predict::{self, effect_shifts_g};
 use crate::table::CampaignTable;
 use crate::{Error, Result};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
-use vibro_physics::vibration::{PsdBand, Vibration};
 
 /// One fitted parameter.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -72,9 +71,7 @@ pub(crate) struct Prepared {
     pub(crate) measured_g: Vec<f64>,
     pub(crate) uncertainty_g: Vec<f64>,
     pub(crate) predicted_g: Vec<f64>,
-    vib_true: Vec<Vibration>,
-    psd_true: Vec<Vec<PsdBand>>,
-    sensor_factor: Vec<f64>,
+    truth: Vec<predict::TrueVibration>,
 }
 
 impl Prepared {
@@ -83,34 +80,30 @@ impl Prepared {
             measured_g: Vec::new(),
             uncertainty_g: Vec::new(),
             predicted_g: Vec::new(),
-            vib_true: Vec::new(),
-            psd_true: Vec::new(),
-            sensor_factor: Vec::new(),
+            truth: Vec::new(),
         };
         for c in &table.conditions {
             let effects = build_effects(&model.effects, &c.passport)?;
-            let vib = c.vibration();
-            let psd = c.psd();
-            let pred = predict::predict_ve(
+            let row = |e: Error| Error::Predict {
+                what: format!("{} (line {}, {})", table.path.display(), c.line, c.run_id),
+                reason: e.to_string(),
+            };
+            let truth =
+                predict::true_vibration(&effects, &c.passport, c.a_l_g, &c.vibration(), &c.psd())
+                    .map_err(row)?;
+            let pred = predict::predict_ve_true(
                 model.mode,
                 &effects,
                 &c.passport,
                 c.a_l_g,
-                &vib,
-                &psd,
+                &truth,
                 c.vibrating_s(),
             )
-            .map_err(|e| Error::Predict {
-                what: format!("{} (line {}, {})", table.path.display(), c.line, c.run_id),
-                reason: e.to_string(),
-            })?;
-            let f = pred.sensor_rms_factor;
+            .map_err(row)?;
             p.measured_g.push(c.ve_measured_g);
             p.uncertainty_g.push(c.ve_uncertainty_g);
             p.predicted_g.push(pred.ve_g);
-            p.vib_true.push(scaled_vibration(&vib, f));
-            p.psd_true.push(predict::scaled_psd(&psd, f));
-            p.sensor_factor.push(f);
+            p.truth.push(truth);
         }
         Ok(p)
     }
@@ -143,24 +136,37 @@ pub(crate) fn shifts_g(
     theta: &[f64],
 ) -> Result<Vec<f64>> {
     let t = effect_table(cand, theta);
+    // The candidate built once per passport of the table (most tables have one), not
+    // once per row: building parses and validates the effect's table.
+    let mut built: Vec<(&str, Vec<Box<dyn vibro_sim::Effect>>)> = Vec::new();
     let mut out = Vec::with_capacity(table.conditions.len());
     for (i, c) in table.conditions.iter().enumerate() {
-        let one = build_effects(std::slice::from_ref(&t), &c.passport)?;
+        let k = match built.iter().position(|(r, _)| *r == c.passport_ref) {
+            Some(k) => k,
+            None => {
+                built.push((
+                    &c.passport_ref,
+                    build_effects(std::slice::from_ref(&t), &c.passport)?,
+                ));
+                built.len() - 1
+            }
+        };
+        let one = &built[k].1;
         let row = |e: Error| Error::Predict {
             what: format!("{} on line {} ({})", cand.kind, c.line, c.run_id),
             reason: e.to_string(),
         };
         let f = predict::sensor_rms_factor(
-            &one,
+            one,
             &c.passport,
             c.a_l_g,
-            &prep.vib_true[i],
-            &prep.psd_true[i],
+            &prep.truth[i].vibration,
+            &prep.truth[i].psd,
         );
         let shift = if f != 1.0 {
             // A sensor effect changes the vibration the whole model sees.
             let mut all = build_effects(&model.effects, &c.passport)?;
-            all.extend(one);
+            all.extend(build_effects(std::slice::from_ref(&t), &c.passport)?);
             predict::predict_ve(
                 model.mode,
                 &all,
@@ -175,11 +181,11 @@ pub(crate) fn shifts_g(
                 - prep.predicted_g[i]
         } else {
             effect_shifts_g(
-                &one,
+                one,
                 &c.passport,
                 c.a_l_g,
-                &prep.vib_true[i],
-                &prep.psd_true[i],
+                &prep.truth[i].vibration,
+                &prep.truth[i].psd,
                 c.vibrating_s(),
             )
             .map_err(row)?
@@ -206,11 +212,10 @@ fn starts(cand: &Candidate, table: &CampaignTable) -> Vec<Vec<f64>> {
                 points,
             } => {
                 let xs: Vec<f64> = table
-                    .conditions
-                    .iter()
-                    .flat_map(|c| c.variables())
-                    .filter(|(n, x)| n == variable && x.is_finite() && *x > 0.0)
-                    .map(|(_, x)| x)
+                    .variable_column(variable)
+                    .unwrap_or_default()
+                    .into_iter()
+                    .filter(|x| x.is_finite() && *x > 0.0)
                     .collect();
                 let min = xs.iter().copied().fold(f64::INFINITY, f64::min);
                 let max = xs.iter().copied().fold(0.0, f64::max);

@@ -173,25 +173,63 @@ pub fn effect_shifts_g(
     Ok(out)
 }
 
-/// The sum of the non-sensor effects' VE changes, with the measured vibration turned
-/// into the true one first (for the compensator: it removes this after stage (20)).
-pub fn effects_ve_shift_g(
+/// The vibration the unit really sees: the measured one with the sensor effects'
+/// RMS factor taken out (module doc).
+#[derive(Debug, Clone)]
+pub struct TrueVibration {
+    /// Product of the sensor effects' RMS factors (1 without any).
+    pub sensor_rms_factor: f64,
+    pub vibration: Vibration,
+    pub psd: Vec<PsdBand>,
+}
+
+/// [`TrueVibration`] of a measured vibration under `effects`.
+pub fn true_vibration(
     effects: &[Box<dyn Effect>],
     passport: &Passport,
     a_l_unit_g: [f64; 3],
     vibration_unit: &Vibration,
     psd_unit: &[PsdBand],
+) -> Result<TrueVibration> {
+    let factor = sensor_rms_factor(effects, passport, a_l_unit_g, vibration_unit, psd_unit);
+    if !(factor.is_finite() && factor > 0.0) {
+        return Err(Error::Predict {
+            what: "sensor effects".into(),
+            reason: format!("RMS factor {factor}: must be finite and > 0"),
+        });
+    }
+    Ok(TrueVibration {
+        sensor_rms_factor: factor,
+        vibration: scaled_vibration(vibration_unit, factor),
+        psd: scaled_psd(psd_unit, factor),
+    })
+}
+
+/// The extended model's VE for one unit under the true vibration `truth`.
+pub fn predict_ve_true(
+    mode: BaseMode,
+    effects: &[Box<dyn Effect>],
+    passport: &Passport,
+    a_l_unit_g: [f64; 3],
+    truth: &TrueVibration,
     duration_s: f64,
-) -> Result<f64> {
-    let f = sensor_rms_factor(effects, passport, a_l_unit_g, vibration_unit, psd_unit);
-    let v = scaled_vibration(vibration_unit, f);
-    let psd = scaled_psd(psd_unit, f);
-    Ok(
-        effect_shifts_g(effects, passport, a_l_unit_g, &v, &psd, duration_s)?
-            .iter()
-            .map(|(_, s)| s)
-            .sum(),
-    )
+) -> Result<Prediction> {
+    let base_ve_g = base_ve_g(mode, passport, a_l_unit_g, &truth.vibration)?;
+    let effects = effect_shifts_g(
+        effects,
+        passport,
+        a_l_unit_g,
+        &truth.vibration,
+        &truth.psd,
+        duration_s,
+    )?;
+    let ve_g = base_ve_g + effects.iter().map(|(_, s)| s).sum::<f64>();
+    Ok(Prediction {
+        base_ve_g,
+        effects,
+        sensor_rms_factor: truth.sensor_rms_factor,
+        ve_g,
+    })
 }
 
 /// The extended model's VE for one unit (module doc). `passport` should be flat
@@ -205,24 +243,8 @@ pub fn predict_ve(
     psd_unit: &[PsdBand],
     duration_s: f64,
 ) -> Result<Prediction> {
-    let factor = sensor_rms_factor(effects, passport, a_l_unit_g, vibration_unit, psd_unit);
-    if !(factor.is_finite() && factor > 0.0) {
-        return Err(Error::Predict {
-            what: "sensor effects".into(),
-            reason: format!("RMS factor {factor}: must be finite and > 0"),
-        });
-    }
-    let v = scaled_vibration(vibration_unit, factor);
-    let psd = scaled_psd(psd_unit, factor);
-    let base_ve_g = base_ve_g(mode, passport, a_l_unit_g, &v)?;
-    let effects = effect_shifts_g(effects, passport, a_l_unit_g, &v, &psd, duration_s)?;
-    let ve_g = base_ve_g + effects.iter().map(|(_, s)| s).sum::<f64>();
-    Ok(Prediction {
-        base_ve_g,
-        effects,
-        sensor_rms_factor: factor,
-        ve_g,
-    })
+    let truth = true_vibration(effects, passport, a_l_unit_g, vibration_unit, psd_unit)?;
+    predict_ve_true(mode, effects, passport, a_l_unit_g, &truth, duration_s)
 }
 
 #[cfg(test)]

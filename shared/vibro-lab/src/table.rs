@@ -44,22 +44,10 @@ pub const REQUIRED_COLUMNS: [&str; 19] = [
     "ve_uncertainty_g",
 ];
 
-const TONE_COLUMNS: [&str; 6] = [
-    "freq_hz",
-    "aB1_g",
-    "aB2_g",
-    "aB3_g",
-    "phase31_deg",
-    "phase32_deg",
-];
-const RANDOM_COLUMNS: [&str; 6] = [
-    "sigma1_g",
-    "sigma2_g",
-    "sigma3_g",
-    "cov31_g2",
-    "cov32_g2",
-    "kurtosis3",
-];
+/// The tone's group of [`REQUIRED_COLUMNS`]: `freq_hz` .. `phase32_deg`.
+const TONE_COLUMNS: &[&str] = REQUIRED_COLUMNS.split_at(5).1.split_at(6).0;
+/// The random part's group: `sigma1_g` .. `kurtosis3`.
+const RANDOM_COLUMNS: &[&str] = REQUIRED_COLUMNS.split_at(11).1.split_at(6).0;
 
 /// Default length of the vibrating record when the table has no `vibrating_s`: the
 /// papers' 5 minutes (MODEL.md section 8), s.
@@ -230,6 +218,29 @@ pub struct CampaignTable {
 }
 
 impl CampaignTable {
+    /// Every condition variable ([`Condition::variables`]) as a column over the
+    /// conditions, in the variables' order (NaN where one does not apply).
+    pub fn variable_columns(&self) -> Vec<(String, Vec<f64>)> {
+        let rows: Vec<Vec<(String, f64)>> =
+            self.conditions.iter().map(Condition::variables).collect();
+        let Some(first) = rows.first() else {
+            return Vec::new();
+        };
+        first
+            .iter()
+            .enumerate()
+            .map(|(j, (name, _))| (name.clone(), rows.iter().map(|r| r[j].1).collect()))
+            .collect()
+    }
+
+    /// The column of variable `name`, if the table has it.
+    pub fn variable_column(&self, name: &str) -> Option<Vec<f64>> {
+        self.variable_columns()
+            .into_iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, xs)| xs)
+    }
+
     /// Reads and validates a table; rows with an empty passport take `model.passport`.
     pub fn load(path: &Path, model: &LabModel) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|source| Error::Io {

@@ -567,6 +567,20 @@ impl VibEstimate {
 }
 
 impl CompensatedBlock {
+    /// Every per-sample array: the stages `a1..a4` and the corrections `main`, `det`,
+    /// `rand`, `[sample][unit]`.
+    pub fn stages_mut(&mut self) -> [&mut [[f64; UNITS]; ACCEL_BLOCK_MAX]; 7] {
+        [
+            &mut self.a1_g,
+            &mut self.a2_g,
+            &mut self.a3_g,
+            &mut self.a4_g,
+            &mut self.main_g,
+            &mut self.det_g,
+            &mut self.rand_g,
+        ]
+    }
+
     fn validate_counts(&self) -> Result<()> {
         check_count("CompensatedBlock.count", self.count, ACCEL_BLOCK_MAX)
     }

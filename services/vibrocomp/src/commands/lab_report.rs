@@ -59,16 +59,9 @@ fn residual_plot(
     before: &Comparison,
     after: &Comparison,
 ) -> anyhow::Result<String> {
-    let j = table.conditions[0]
-        .variables()
-        .iter()
-        .position(|(n, _)| n == variable)
+    let xs = table
+        .variable_column(variable)
         .ok_or_else(|| anyhow::anyhow!("no variable {variable}"))?;
-    let xs: Vec<f64> = table
-        .conditions
-        .iter()
-        .map(|c| c.variables()[j].1)
-        .collect();
     let pts = |c: &Comparison| -> Vec<(f64, f64, f64)> {
         xs.iter()
             .zip(&c.rows)
@@ -280,11 +273,11 @@ pub fn write(dir: &Path, r: &ReportInput<'_>) -> anyhow::Result<ReportSummary> {
             variables.push(v.into());
         }
     }
+    let columns = table.variable_columns();
     variables.retain(|v| {
-        table
-            .conditions
+        columns
             .iter()
-            .any(|c| c.variables().iter().any(|(n, x)| n == v && x.is_finite()))
+            .any(|(n, xs)| n == v && xs.iter().any(|x| x.is_finite()))
     });
     variables.truncate(6);
     let mut plots: Vec<(String, String)> = Vec::new();

@@ -465,14 +465,14 @@ fn compensate_extended(args: &CompensateArgs, path: &std::path::Path) -> anyhow:
     let flat = vibro_lab::predict::flat_passport(&p)?;
     let effects = lab.build_effects(&flat)?;
     let cross = [args.reading1_g, args.reading2_g];
-    let factor = vibro_lab::predict::sensor_rms_factor(
+    let truth = vibro_lab::predict::true_vibration(
         &effects,
         &flat,
         [cross[0], cross[1], args.reading_g],
         &vib,
         &[],
-    );
-    let vib_true = vibro_lab::predict::scaled_vibration(&vib, factor);
+    )?;
+    let (factor, vib_true) = (truth.sensor_rms_factor, truth.vibration);
     let mut unit = UnitCompensator::new(p, mode);
     unit.set_vibration(&vib_true)?;
     let stages = unit.compensate(args.reading_g, cross);
