@@ -327,3 +327,21 @@ fn model_compensate_with_an_extended_model_removes_each_effect() {
         "{ext}"
     );
 }
+
+/// `--mode paper`: the prediction is MODEL.md section 5's VE; for the AL-15 at
+/// aL3 = 10 g under 0.42 g along IA it is [P1 Table 4]'s components without the cross
+/// terms: 13.39 ug + 0.2307 mg + 0.5292 mg + 0.7938 mg = 1.5671 mg.
+#[test]
+fn compare_in_paper_mode_gives_the_papers_ve() {
+    let dir = Dir::new("lab-paper");
+    let table = dir.path("t.csv");
+    std::fs::write(
+        &table,
+        format!("{HEADER}\nT4,AL-15,0,0,10,30,0,0,0.42,,,,,,,,,1.5671e-3,1e-6\n"),
+    )
+    .unwrap();
+    let c = run_json(&["lab", "compare", s(&table), "--mode", "paper", "--json"]);
+    assert_eq!(c["mode"], "paper");
+    let predicted = num(&c["rows"][0], "predicted_g");
+    assert!((predicted - 1.5671e-3).abs() < 1e-7, "{predicted:e}");
+}

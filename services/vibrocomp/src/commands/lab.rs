@@ -55,6 +55,10 @@ pub struct Input {
     /// model of MODEL.md, exact mode.
     #[arg(long)]
     pub model: Option<PathBuf>,
+    /// Without `--model`: the base model's mode (MODEL.md 6 exact, 5 paper or
+    /// as-published). A model file sets its own.
+    #[arg(long, value_enum, default_value = "exact", conflicts_with = "model")]
+    pub mode: super::model::ModeArg,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -96,6 +100,15 @@ pub struct AddArgs {
     pub json: bool,
 }
 
+fn base_mode(m: super::model::ModeArg) -> BaseMode {
+    use super::model::ModeArg;
+    match m {
+        ModeArg::Exact => BaseMode::Exact,
+        ModeArg::Paper => BaseMode::Paper,
+        ModeArg::AsPublished => BaseMode::AsPublished,
+    }
+}
+
 pub fn run(cmd: &LabCommand) -> anyhow::Result<()> {
     match cmd {
         LabCommand::Compare(a) => compare(a),
@@ -105,10 +118,14 @@ pub fn run(cmd: &LabCommand) -> anyhow::Result<()> {
     }
 }
 
-fn load(input: &Path, model: Option<&Path>) -> anyhow::Result<(LabModel, CampaignTable)> {
+fn load(
+    input: &Path,
+    model: Option<&Path>,
+    mode: BaseMode,
+) -> anyhow::Result<(LabModel, CampaignTable)> {
     let model = match model {
         Some(p) => LabModel::load(p)?,
-        None => LabModel::base(BaseMode::Exact),
+        None => LabModel::base(mode),
     };
     let is_mcap = input
         .extension()
@@ -206,7 +223,11 @@ fn print_comparison(o: &mut String, c: &Comparison, all: bool) {
 }
 
 fn compare(a: &CompareArgs) -> anyhow::Result<()> {
-    let (model, table) = load(&a.input.input, a.input.model.as_deref())?;
+    let (model, table) = load(
+        &a.input.input,
+        a.input.model.as_deref(),
+        base_mode(a.input.mode),
+    )?;
     let c = vibro_lab::compare(&model, &table)?;
     if a.input.json {
         return print_json(&c);
@@ -379,7 +400,11 @@ fn print_diagnosis(o: &mut String, d: &Diagnosis) {
 }
 
 fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
-    let (model, table) = load(&a.input.input, a.input.model.as_deref())?;
+    let (model, table) = load(
+        &a.input.input,
+        a.input.model.as_deref(),
+        base_mode(a.input.mode),
+    )?;
     let opts = DiagnoseOptions {
         candidates: a.effects.clone(),
         ..DiagnoseOptions::default()
@@ -401,7 +426,7 @@ struct AddReport<'a> {
 }
 
 fn add(a: &AddArgs) -> anyhow::Result<()> {
-    let (model, table) = load(&a.from, a.model.as_deref())?;
+    let (model, table) = load(&a.from, a.model.as_deref(), BaseMode::Exact)?;
     let (extended, fit) = vibro_lab::add_effect(&model, &table, &a.effect)?;
     extended
         .save(&a.out)
@@ -441,7 +466,11 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
 }
 
 fn report(a: &ReportArgs) -> anyhow::Result<()> {
-    let (model, table) = load(&a.input.input, a.input.model.as_deref())?;
+    let (model, table) = load(
+        &a.input.input,
+        a.input.model.as_deref(),
+        base_mode(a.input.mode),
+    )?;
     let opts = DiagnoseOptions::default();
     let diagnosis = vibro_lab::diagnose(&model, &table, &opts)?;
     let mut text = String::new();
