@@ -13,9 +13,14 @@
 //! the limit of large N), and the amplitude follows from the window's kernel
 //! `|W(delta)| = |sinc(delta) / (1 - delta^2)|`.
 //!
-//! The floor is the median of the periodogram over each block of 64 bins, divided by
-//! ln 2 (a noise bin's power is exponentially distributed, and its median is
-//! ln 2 times its mean): tones take up a few bins and barely move a median.
+//! The floor is a running median of the periodogram: the median of the 32 bins around
+//! every 8th bin, linearly interpolated between, divided by ln 2 (a noise bin's power
+//! is exponentially distributed, and its median is ln 2 times its mean): tones take up
+//! a few bins and barely move a median. It must be local: a tone beside a band of
+//! random vibration is measured against the floor under it, not the band's. With the
+//! fixed 64-bin blocks used before, the first block of a 1 s window (0-63 Hz) took the
+//! Cyclone-4's random band (from 20 Hz) as the floor of its 8-16 Hz tones, and their
+//! 1.2 g went undetected in most windows (`tone_below_a_random_band_is_detected`).
 //!
 //! False alarms: a noise-only bin's "tone SNR" (see [`crate::ToneEstimate::snr_db`])
 //! is 1.5 x Exp(1) at a bin centre and at most 2.1 x Exp(1) with scalloping, so a 20 dB
@@ -28,7 +33,10 @@ use realfft::{RealFftPlanner, RealToComplex};
 use std::f64::consts::PI;
 use std::sync::Arc;
 
-const FLOOR_BLOCK_BINS: usize = 64;
+/// Bins in each median of the floor.
+const FLOOR_SPAN_BINS: usize = 32;
+/// Bins between the medians (the floor is interpolated between them).
+const FLOOR_HOP_BINS: usize = 8;
 const MAX_CANDIDATES: usize = 4 * MAX_TONES;
 /// Tone SNR of a peak bin relative to its power-to-floor ratio, at worst scalloping
 /// (Hann: 1.5 at a bin centre, / 0.72 at half a bin).
@@ -65,7 +73,7 @@ pub(crate) struct Detector {
     /// Mean periodogram power of the broadband floor, per bin.
     floor: [Vec<f64>; 3],
     median_scratch: Vec<f64>,
-    block_floor: Vec<f64>,
+    node_floor: Vec<f64>,
     /// Per bin: sum over the axes of power / floor, and its largest term.
     ratio_sum: Vec<f64>,
     ratio_max: Vec<f64>,
@@ -98,8 +106,8 @@ impl Detector {
             window_sq_sum: window_sq_sum_all,
             power: std::array::from_fn(|_| vec![0.0; bins]),
             floor: std::array::from_fn(|_| vec![0.0; bins]),
-            median_scratch: vec![0.0; FLOOR_BLOCK_BINS],
-            block_floor: vec![0.0; bins.div_ceil(FLOOR_BLOCK_BINS)],
+            median_scratch: vec![0.0; FLOOR_SPAN_BINS],
+            node_floor: vec![0.0; floor_nodes(bins)],
             ratio_sum: vec![0.0; bins],
             ratio_max: vec![0.0; bins],
             candidates: [(0.0, 0); MAX_CANDIDATES],
@@ -149,7 +157,7 @@ impl Detector {
                 &self.power[a],
                 &mut self.floor[a],
                 &mut self.median_scratch,
-                &mut self.block_floor,
+                &mut self.node_floor,
             );
         }
         if max_tones == 0 || tone_bins[0] > tone_bins[1] || self.window_sum <= 0.0 {
@@ -324,27 +332,41 @@ fn hann_kernel(delta: f64) -> f64 {
     (x.sin() / x / (1.0 - delta * delta)).abs()
 }
 
-/// Median-based floor (see the module docs), linearly interpolated between the
-/// centres of the blocks. `block_floor` holds one value per block.
-fn estimate_floor(power: &[f64], floor: &mut [f64], scratch: &mut [f64], block_floor: &mut [f64]) {
+/// Number of running-median nodes for `bins` bins: every `FLOOR_HOP_BINS`-th bin and
+/// the last.
+fn floor_nodes(bins: usize) -> usize {
+    bins.saturating_sub(1).div_ceil(FLOOR_HOP_BINS) + 1
+}
+
+/// Running-median floor (see the module docs). `node_floor` holds one value per node
+/// ([`floor_nodes`]), `scratch` at least `FLOOR_SPAN_BINS` values.
+fn estimate_floor(power: &[f64], floor: &mut [f64], scratch: &mut [f64], node_floor: &mut [f64]) {
     let bins = power.len();
-    let blocks = bins.div_ceil(FLOOR_BLOCK_BINS).min(block_floor.len());
-    for (b, bf) in block_floor[..blocks].iter_mut().enumerate() {
-        let lo = b * FLOOR_BLOCK_BINS;
-        let hi = ((b + 1) * FLOOR_BLOCK_BINS).min(bins);
-        let s = &mut scratch[..hi - lo];
-        s.copy_from_slice(&power[lo..hi]);
-        let mid = s.len() / 2;
-        let (_, median, _) = s.select_nth_unstable_by(mid, f64::total_cmp);
-        *bf = *median / std::f64::consts::LN_2;
+    if bins == 0 {
+        return;
     }
-    let first_centre = (FLOOR_BLOCK_BINS as f64 - 1.0) / 2.0;
+    let span = FLOOR_SPAN_BINS.min(bins);
+    let nodes = floor_nodes(bins).min(node_floor.len());
+    for (n, nf) in node_floor[..nodes].iter_mut().enumerate() {
+        let centre = (n * FLOOR_HOP_BINS).min(bins - 1);
+        // A full span around the centre, shifted inwards at the ends.
+        let lo = centre.saturating_sub(span / 2).min(bins - span);
+        let s = &mut scratch[..span];
+        s.copy_from_slice(&power[lo..lo + span]);
+        let mid = span / 2;
+        let (_, median, _) = s.select_nth_unstable_by(mid, f64::total_cmp);
+        *nf = *median / std::f64::consts::LN_2;
+    }
     for (k, f) in floor.iter_mut().enumerate() {
-        let p = ((k as f64 - first_centre) / FLOOR_BLOCK_BINS as f64).max(0.0);
-        let i = (p.floor() as usize).min(blocks - 1);
-        let j = (i + 1).min(blocks - 1);
-        let t = (p - i as f64).min(1.0);
-        *f = block_floor[i] * (1.0 - t) + block_floor[j] * t;
+        let i = (k / FLOOR_HOP_BINS).min(nodes - 1);
+        let j = (i + 1).min(nodes - 1);
+        let (ci, cj) = (i * FLOOR_HOP_BINS, (j * FLOOR_HOP_BINS).min(bins - 1));
+        let t = if cj > ci {
+            ((k - ci) as f64 / (cj - ci) as f64).min(1.0)
+        } else {
+            0.0
+        };
+        *f = node_floor[i] * (1.0 - t) + node_floor[j] * t;
     }
 }
 
@@ -384,13 +406,43 @@ mod tests {
 
     #[test]
     fn floor_of_a_flat_power_spectrum_is_that_power() {
-        let power = vec![2.0; 1000];
-        let mut floor = vec![0.0; 1000];
-        let mut scratch = vec![0.0; 64];
-        let mut blocks = vec![0.0; 16];
-        estimate_floor(&power, &mut floor, &mut scratch, &mut blocks);
-        assert!(floor
-            .iter()
-            .all(|f| (f - 2.0 / std::f64::consts::LN_2).abs() < 1e-12));
+        for bins in [1, 7, 32, 33, 1000, 1001] {
+            let power = vec![2.0; bins];
+            let mut floor = vec![0.0; bins];
+            let mut scratch = vec![0.0; FLOOR_SPAN_BINS];
+            let mut nodes = vec![0.0; floor_nodes(bins)];
+            estimate_floor(&power, &mut floor, &mut scratch, &mut nodes);
+            assert!(floor
+                .iter()
+                .all(|f| (f - 2.0 / std::f64::consts::LN_2).abs() < 1e-12));
+        }
+    }
+
+    /// A step in the spectrum (a random band starting at bin 20): the floor follows it
+    /// within half a span, so bins 0..12 see the low side (the old 64-bin blocks gave
+    /// the whole of 0..63 the high side's floor).
+    #[test]
+    fn floor_follows_a_step_in_the_spectrum() {
+        let bins = 12_801;
+        let power: Vec<f64> = (0..bins).map(|k| if k < 20 { 0.01 } else { 1.0 }).collect();
+        let mut floor = vec![0.0; bins];
+        let mut scratch = vec![0.0; FLOOR_SPAN_BINS];
+        let mut nodes = vec![0.0; floor_nodes(bins)];
+        estimate_floor(&power, &mut floor, &mut scratch, &mut nodes);
+        let ln2 = std::f64::consts::LN_2;
+        for k in 0..=12 {
+            assert!(
+                (floor[k] - 0.01 / ln2).abs() < 1e-12,
+                "bin {k}: {}",
+                floor[k]
+            );
+        }
+        for k in 40..bins {
+            assert!(
+                (floor[k] - 1.0 / ln2).abs() < 1e-12,
+                "bin {k}: {}",
+                floor[k]
+            );
+        }
     }
 }
