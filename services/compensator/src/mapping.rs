@@ -95,7 +95,7 @@ pub enum MappingError {
 }
 
 /// Which sensor each unit axis reads, and with which sign: `[unit][axis OA, PA, IA]`.
-fn sensor_map(axes: &TriadAxes) -> [[(usize, f64); 3]; 3] {
+pub fn sensor_map(axes: &TriadAxes) -> [[(usize, f64); 3]; 3] {
     // The sensor on each body axis (TriadAxes::new guarantees the IAs cover x, y, z).
     let mut sensor_of_body = [(0usize, 1.0f64); 3];
     for (j, u) in axes.units.iter().enumerate() {

@@ -415,8 +415,8 @@ fn trends(table: &CampaignTable, residual_g: &[f64], u_g: &[f64]) -> Vec<Trend> 
 /// The key of a condition for repeats: everything but the measurement.
 fn condition_key(c: &Condition) -> String {
     let mut k = format!(
-        "{}|{:?}|{:?}|{:?}",
-        c.passport_ref, c.a_l_g, c.tone, c.random
+        "{}|{:?}|{:?}|{:?}|{:?}|{:?}",
+        c.passport_ref, c.a_l_g, c.tone, c.more_tones, c.random, c.bands
     );
     for (n, x) in &c.extra {
         if n != "tp" {
@@ -577,8 +577,12 @@ fn suggestions(model: &LabModel, table: &CampaignTable, fits: &[&EffectFit]) -> 
                     sigma_g: r.sigma_g.map(|s| s * f),
                     cov31_g2: r.cov31_g2 * f * f,
                     cov32_g2: r.cov32_g2 * f * f,
+                    cov12_g2: r.cov12_g2 * f * f,
                     ..r
                 });
+                for b in &mut v.bands {
+                    b.psd_g2_per_hz = b.psd_g2_per_hz.map(|x| x * f * f);
+                }
                 push(format!("as {} with the random RMS x {f}", c.run_id), v);
             }
         }

@@ -7,6 +7,8 @@
 //!
 //! - [`table`]: the campaign table (CSV, one row per test condition, docs/lab.md).
 //! - [`model`]: the extended model file (`MODEL.toml`): base mode plus effects.
+//! - [`flight`]: conditions from a record with a reference (a flight cut into
+//!   windows): the VE measured per window, the prediction's uncertainty.
 //! - [`predict`]: the extended model's VE for one condition.
 //! - [`library`]: the candidate effects the lab can fit.
 //! - [`fit`]: weighted nonlinear least squares (Levenberg-Marquardt).
@@ -22,6 +24,7 @@
 
 pub mod diagnose;
 pub mod fit;
+pub mod flight;
 pub mod library;
 pub mod model;
 pub mod predict;

@@ -69,6 +69,9 @@ pub struct RandomCondition {
     pub sigma_g: [f64; 3],
     pub cov31_g2: f64,
     pub cov32_g2: f64,
+    /// `K_12(0)` between OA and PA: no table column (0 for table rows); a flight
+    /// window's estimate has it (`crate::flight`).
+    pub cov12_g2: f64,
     pub kurtosis3: f64,
 }
 
@@ -86,7 +89,15 @@ pub struct Condition {
     /// `[aL1, aL2, aL3]`, g.
     pub a_l_g: [f64; 3],
     pub tone: Option<ToneCondition>,
+    /// Further tones (a flight window can hold several; a table row holds one), weaker
+    /// than `tone`. Empty for table rows.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub more_tones: Vec<ToneCondition>,
     pub random: Option<RandomCondition>,
+    /// The random part's spectrum per axis as piecewise-flat bands (a flight window's
+    /// estimated band PSDs, `crate::flight`); empty: `band_lo_hz`/`band_hi_hz` if given.
+    #[serde(skip)]
+    pub bands: Vec<PsdBand>,
     pub ve_measured_g: f64,
     pub ve_uncertainty_g: f64,
     /// Extra numeric columns by name (NaN where empty).
@@ -98,7 +109,7 @@ impl Condition {
     /// `phi3 = 0`, `phi1 = -phase31`, `phi2 = -phase32`; the random part's covariance.
     pub fn vibration(&self) -> Vibration {
         let mut v = Vibration::none();
-        if let Some(t) = &self.tone {
+        for t in self.tone.iter().chain(&self.more_tones) {
             let _ = v.push_tone(Tone {
                 freq_hz: t.freq_hz,
                 amplitude_g: t.a_b_g,
@@ -117,13 +128,19 @@ impl Condition {
             v.covariance_g2[0][2] = r.cov31_g2;
             v.covariance_g2[2][1] = r.cov32_g2;
             v.covariance_g2[1][2] = r.cov32_g2;
+            v.covariance_g2[0][1] = r.cov12_g2;
+            v.covariance_g2[1][0] = r.cov12_g2;
             v.kurtosis[2] = r.kurtosis3;
         }
         v
     }
 
-    /// The random part as a flat band (`band_lo_hz`, `band_hi_hz`), when given.
+    /// The random part's spectrum: the condition's bands, or one flat band
+    /// (`band_lo_hz`, `band_hi_hz`) when given.
     pub fn psd(&self) -> Vec<PsdBand> {
+        if !self.bands.is_empty() {
+            return self.bands.clone();
+        }
         let (Some(r), Some(lo), Some(hi)) = (
             &self.random,
             self.extra
@@ -159,7 +176,7 @@ impl Condition {
     /// The vibration direction in words, from which axes vibrate: `IA`, `IA+OA`, ...
     pub fn direction(&self) -> String {
         let mut on = [false; 3];
-        if let Some(t) = &self.tone {
+        for t in self.tone.iter().chain(&self.more_tones) {
             for i in 0..3 {
                 on[i] |= t.a_b_g[i] != 0.0;
             }
@@ -371,6 +388,7 @@ impl CampaignTable {
                     sigma_g: [g("sigma1_g", 0.0), g("sigma2_g", 0.0), g("sigma3_g", 0.0)],
                     cov31_g2: g("cov31_g2", 0.0),
                     cov32_g2: g("cov32_g2", 0.0),
+                    cov12_g2: 0.0,
                     kurtosis3: g("kurtosis3", 3.0),
                 };
                 for (i, s) in r.sigma_g.iter().enumerate() {
@@ -440,7 +458,9 @@ impl CampaignTable {
                 passport,
                 a_l_g,
                 tone,
+                more_tones: Vec::new(),
                 random,
+                bands: Vec::new(),
                 ve_measured_g,
                 ve_uncertainty_g,
                 extra,
@@ -470,6 +490,28 @@ impl CampaignTable {
             path: self.path.display().to_string(),
             source: std::io::Error::other(e.to_string()),
         };
+        // What a CSV row cannot hold (a flight window's condition, `crate::flight`).
+        for c in &self.conditions {
+            let mut lost = Vec::new();
+            if !c.more_tones.is_empty() {
+                lost.push(format!("{} tones", 1 + c.more_tones.len()));
+            }
+            if !c.bands.is_empty() {
+                lost.push(format!("a spectrum of {} bands", c.bands.len()));
+            }
+            if c.random.is_some_and(|r| r.cov12_g2 != 0.0) {
+                lost.push("an OA-PA covariance".to_string());
+            }
+            if !lost.is_empty() {
+                return Err(Error::Invalid(format!(
+                    "{}: condition {} has {}: a CSV row holds one tone, one flat band and no \
+                     OA-PA covariance",
+                    self.path.display(),
+                    c.run_id,
+                    lost.join(", ")
+                )));
+            }
+        }
         let mut out = csv::Writer::from_writer(w);
         let mut header: Vec<&str> = REQUIRED_COLUMNS.to_vec();
         header.extend(self.extra_columns.iter().map(String::as_str));
@@ -555,6 +597,7 @@ impl CampaignTable {
                 ],
                 cov31_g2: v.covariance_g2[2][0],
                 cov32_g2: v.covariance_g2[2][1],
+                cov12_g2: 0.0,
                 kurtosis3: v.kurtosis[2],
             });
             let mut extra = BTreeMap::new();
@@ -572,7 +615,9 @@ impl CampaignTable {
                 passport,
                 a_l_g: c.a_l_unit_g,
                 tone,
+                more_tones: Vec::new(),
                 random,
+                bands: Vec::new(),
                 ve_measured_g: s.measurement.ve_g,
                 ve_uncertainty_g: s.measurement.ve_sigma_g.hypot(floor_g),
                 extra,

@@ -126,6 +126,17 @@ impl MeanModel {
 
     /// Sets the vibration state. Does not allocate.
     pub fn set_vibration(&mut self, vib: &Vibration) -> Result<()> {
+        self.set_vibration_with(vib, false)
+    }
+
+    /// As [`Self::set_vibration`] for few evaluations of this state: one tone with
+    /// random vibration is averaged over the tone's phase instead of tabulated
+    /// ([`AbsMean::set_direct`]); each evaluation then costs more.
+    pub fn set_vibration_direct(&mut self, vib: &Vibration) -> Result<()> {
+        self.set_vibration_with(vib, true)
+    }
+
+    fn set_vibration_with(&mut self, vib: &Vibration, direct: bool) -> Result<()> {
         vib.validate()?;
         self.moments = ia_moments(vib);
         self.cross_g2 = cross_moments_g2(vib);
@@ -133,7 +144,13 @@ impl MeanModel {
         for (a, t) in amplitudes.iter_mut().zip(vib.tones()) {
             *a = self.passport.lambda_at(t.freq_hz) * t.amplitude_g[2];
         }
-        self.abs.set(
+        let set = if direct {
+            AbsMean::set_direct
+        } else {
+            AbsMean::set
+        };
+        set(
+            &mut self.abs,
             &amplitudes[..vib.tones().len()],
             vib.sigma_g(2),
             vib.kurtosis[2],
@@ -249,10 +266,27 @@ impl MeanModel {
 }
 
 /// Exact VE of unit `p` at flight acceleration `a_l_g` under `vib` (MODEL.md section 6).
+///
+/// For one-shot evaluations (the lab's fits call it thousands of times): one tone with
+/// random vibration is averaged directly over the tone's phase
+/// ([`MeanModel::set_vibration_direct`]), and the model, whose table buffers and FFT
+/// plans cost more to build than the evaluation, is kept per thread.
 pub fn exact_ve(p: &Passport, a_l_g: [f64; 3], vib: &Vibration) -> Result<VeComponents> {
-    let mut model = MeanModel::new(*p);
-    model.set_vibration(vib)?;
-    Ok(model.ve(a_l_g))
+    thread_local! {
+        static MODEL: std::cell::RefCell<Option<MeanModel>> = const { std::cell::RefCell::new(None) };
+    }
+    MODEL.with(|cell| {
+        let mut slot = cell.borrow_mut();
+        let model = match slot.as_mut() {
+            Some(m) => {
+                m.set_passport(*p);
+                m
+            }
+            None => slot.insert(MeanModel::new(*p)),
+        };
+        model.set_vibration_direct(vib)?;
+        Ok(model.ve(a_l_g))
+    })
 }
 
 #[cfg(test)]

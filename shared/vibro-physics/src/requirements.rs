@@ -209,7 +209,7 @@ pub fn exact(env: &Environment) -> Result<Vec<Requirement>> {
     let m2 = 0.5 * ab3_2 + s2;
     let m4 = 0.375 * ab3_2 * ab3_2 + 3.0 * ab3_2 * s2 + 3.0 * s2 * s2;
     let mut abs = AbsMean::new();
-    abs.set(&[ab3], s, 3.0)?;
+    abs.set_direct(&[ab3], s, 3.0)?;
     let asym = 0.5 * (abs.eval(a).0 - a.abs());
     Ok(assemble(
         env,

@@ -14,7 +14,8 @@ macro_rules! p {
         let _ = writeln!($o, $($arg)*);
     }};
 }
-use anyhow::{bail, Context};
+use super::lab_log::{table_from_log, LogArgs, LogTableSummary};
+use anyhow::Context;
 use clap::{Args, Subcommand};
 use std::path::{Path, PathBuf};
 use vibro_lab::diagnose::{Diagnosis, Verdict};
@@ -49,7 +50,9 @@ pub struct ReportArgs {
 /// The input and the model, shared by the lab's commands.
 #[derive(Debug, Args)]
 pub struct Input {
-    /// The campaign table (CSV, docs/lab.md), e.g. from `vibrocomp sim CAMPAIGN --lab-csv`.
+    /// The campaign table (CSV, docs/lab.md), e.g. from `vibrocomp sim CAMPAIGN
+    /// --lab-csv`, or an MCAP log with a reference (`.mcap`: a flight cut into the
+    /// estimator's windows, docs/lab.md "Logs as input").
     pub input: PathBuf,
     /// The model to compare: an extended model file (`lab add --out`); default the
     /// model of MODEL.md, exact mode.
@@ -59,6 +62,8 @@ pub struct Input {
     /// as-published). A model file sets its own.
     #[arg(long, value_enum, default_value = "exact", conflicts_with = "model")]
     pub mode: super::model::ModeArg,
+    #[command(flatten)]
+    pub log: LogArgs,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -86,9 +91,11 @@ pub struct DiagnoseArgs {
 pub struct AddArgs {
     /// The effect to fit and add (a kind of the lab's library, see `lab diagnose`).
     pub effect: String,
-    /// The campaign table to fit it to.
+    /// The campaign table (or MCAP log with a reference) to fit it to.
     #[arg(long)]
     pub from: PathBuf,
+    #[command(flatten)]
+    pub log: LogArgs,
     /// The model to extend (default the model of MODEL.md, exact mode).
     #[arg(long)]
     pub model: Option<PathBuf>,
@@ -118,11 +125,20 @@ pub fn run(cmd: &LabCommand) -> anyhow::Result<()> {
     }
 }
 
+/// What the lab read: the model, the table, and for an MCAP log what became of its
+/// windows.
+struct Loaded {
+    model: LabModel,
+    table: CampaignTable,
+    log: Option<LogTableSummary>,
+}
+
 fn load(
     input: &Path,
     model: Option<&Path>,
     mode: BaseMode,
-) -> anyhow::Result<(LabModel, CampaignTable)> {
+    log_args: &LogArgs,
+) -> anyhow::Result<Loaded> {
     let model = match model {
         Some(p) => LabModel::load(p)?,
         None => LabModel::base(mode),
@@ -131,14 +147,54 @@ fn load(
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
     if is_mcap {
-        bail!(
-            "{}: the lab reads campaign tables (CSV, docs/lab.md); an MCAP log must first be \
-             turned into one (not supported yet)",
-            input.display()
-        );
+        let (table, summary) = table_from_log(input, &model, log_args)?;
+        return Ok(Loaded {
+            model,
+            table,
+            log: Some(summary),
+        });
     }
     let table = CampaignTable::load(input, &model)?;
-    Ok((model, table))
+    Ok(Loaded {
+        model,
+        table,
+        log: None,
+    })
+}
+
+/// One line on what became of a log's windows.
+fn print_log_summary(o: &mut String, s: &LogTableSummary) {
+    p!(
+        o,
+        "{}: {} conditions from {} of {} estimator windows ({} s, units {}, passports from {}); \
+         left out: {} flagged, {} incomplete, {} with aL changing",
+        s.log,
+        s.conditions,
+        s.windows_used,
+        s.windows,
+        s.estimator_window_s,
+        s.units.join(", "),
+        s.passports_from,
+        s.left_out_flagged,
+        s.left_out_incomplete,
+        s.left_out_al_span
+    );
+}
+
+/// A command's JSON with the log's summary beside it when the input was a log.
+#[derive(serde::Serialize)]
+struct WithLog<'a, T: serde::Serialize> {
+    #[serde(flatten)]
+    inner: &'a T,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    log: Option<&'a LogTableSummary>,
+}
+
+fn print_json_with_log<T: serde::Serialize>(
+    inner: &T,
+    log: Option<&LogTableSummary>,
+) -> anyhow::Result<()> {
+    print_json(&WithLog { inner, log })
 }
 
 fn g(x: f64) -> String {
@@ -223,16 +279,20 @@ fn print_comparison(o: &mut String, c: &Comparison, all: bool) {
 }
 
 fn compare(a: &CompareArgs) -> anyhow::Result<()> {
-    let (model, table) = load(
+    let Loaded { model, table, log } = load(
         &a.input.input,
         a.input.model.as_deref(),
         base_mode(a.input.mode),
+        &a.input.log,
     )?;
     let c = vibro_lab::compare(&model, &table)?;
     if a.input.json {
-        return print_json(&c);
+        return print_json_with_log(&c, log.as_ref());
     }
     let mut o = String::new();
+    if let Some(s) = &log {
+        print_log_summary(&mut o, s);
+    }
     print_comparison(&mut o, &c, a.all);
     print_text(&o)
 }
@@ -400,10 +460,11 @@ fn print_diagnosis(o: &mut String, d: &Diagnosis) {
 }
 
 fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
-    let (model, table) = load(
+    let Loaded { model, table, log } = load(
         &a.input.input,
         a.input.model.as_deref(),
         base_mode(a.input.mode),
+        &a.input.log,
     )?;
     let opts = DiagnoseOptions {
         candidates: a.effects.clone(),
@@ -411,9 +472,12 @@ fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
     };
     let d = vibro_lab::diagnose(&model, &table, &opts)?;
     if a.input.json {
-        return print_json(&d);
+        return print_json_with_log(&d, log.as_ref());
     }
     let mut o = String::new();
+    if let Some(s) = &log {
+        print_log_summary(&mut o, s);
+    }
     print_diagnosis(&mut o, &d);
     print_text(&o)
 }
@@ -426,19 +490,25 @@ struct AddReport<'a> {
 }
 
 fn add(a: &AddArgs) -> anyhow::Result<()> {
-    let (model, table) = load(&a.from, a.model.as_deref(), BaseMode::Exact)?;
+    let Loaded { model, table, log } = load(&a.from, a.model.as_deref(), BaseMode::Exact, &a.log)?;
     let (extended, fit) = vibro_lab::add_effect(&model, &table, &a.effect)?;
     extended
         .save(&a.out)
         .with_context(|| format!("{}: cannot write the extended model", a.out.display()))?;
     if a.json {
-        return print_json(&AddReport {
-            out: a.out.display().to_string(),
-            effects: extended.effect_kinds(),
-            fit: &fit,
-        });
+        return print_json_with_log(
+            &AddReport {
+                out: a.out.display().to_string(),
+                effects: extended.effect_kinds(),
+                fit: &fit,
+            },
+            log.as_ref(),
+        );
     }
     let mut o = String::new();
+    if let Some(s) = &log {
+        print_log_summary(&mut o, s);
+    }
     p!(
         o,
         "{} fitted to {} ({} conditions): {}",
@@ -466,10 +536,11 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
 }
 
 fn report(a: &ReportArgs) -> anyhow::Result<()> {
-    let (model, table) = load(
+    let Loaded { model, table, log } = load(
         &a.input.input,
         a.input.model.as_deref(),
         base_mode(a.input.mode),
+        &a.input.log,
     )?;
     let opts = DiagnoseOptions::default();
     let diagnosis = vibro_lab::diagnose(&model, &table, &opts)?;
@@ -491,9 +562,12 @@ fn report(a: &ReportArgs) -> anyhow::Result<()> {
         },
     )?;
     if a.input.json {
-        return print_json(&summary);
+        return print_json_with_log(&summary, log.as_ref());
     }
     let mut o = String::new();
+    if let Some(s) = &log {
+        print_log_summary(&mut o, s);
+    }
     p!(
         o,
         "wrote {} ({} plots); residual RMS {:.3e} g -> {:.3e} g with {}",

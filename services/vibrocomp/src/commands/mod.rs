@@ -4,6 +4,7 @@ pub mod demo;
 pub mod estimate;
 pub mod identify;
 pub mod lab;
+pub mod lab_log;
 pub mod lab_report;
 pub mod latency;
 pub mod log;

@@ -18,7 +18,7 @@
 //! response at the internal rate.
 
 use super::filter::{Analog, Biquad, BiquadState};
-use super::spectral::{check_rate, exact_shift, filtered_vibration};
+use super::spectral::{check_rate, exact_shift, filtered_vibration, Panels};
 use super::{unit_axes_param, EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
 use crate::Result;
@@ -116,15 +116,19 @@ impl Effect for MountResonance {
         let rate = ctx.internal_rate_hz;
         check_rate(KIND, rate)?;
         let filter = Biquad::bilinear(&self.analog, rate, self.freq_hz);
-        // Panels far narrower than the resonance's half-power width f0/q.
-        let panel_hz = self.freq_hz / (8.0 * self.q.max(1.0));
+        // Panels far narrower than the resonance's half-power width f0/q at the
+        // resonance, wider away from it.
+        let panels = Panels::Graded {
+            centre_hz: self.freq_hz,
+            finest_hz: self.freq_hz / (8.0 * self.q.max(1.0)),
+        };
         let transmitted = filtered_vibration(
             KIND,
             ctx.vibration_unit,
             ctx.psd_unit,
             self.axes,
             |_, f| filter.response(f, rate),
-            panel_hz,
+            panels,
         )?;
         exact_shift(ctx, &transmitted)
     }

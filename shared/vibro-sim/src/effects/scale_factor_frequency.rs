@@ -37,7 +37,7 @@
 
 use super::filter::{Analog, Biquad, BiquadState};
 use super::quad::{for_each_phase, normal_pdf, points_per_tone};
-use super::spectral::{band_integral, check_rate, no_spectrum};
+use super::spectral::{band_integral, check_rate, no_spectrum, Panels};
 use super::{EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
 use crate::Result;
@@ -169,7 +169,7 @@ impl Effect for ScaleFactorFrequency {
                 ctx.psd_unit,
                 |b| b.psd_g2_per_hz[2].max(0.0),
                 |f| lf.response(f, rate).re - 1.0,
-                panel_hz,
+                Panels::Uniform(panel_hz),
             );
             if den.is_nan() || den <= 0.0 {
                 return Err(no_spectrum(

@@ -16,7 +16,7 @@
 //! variance (and IA covariances) through `H` band by band, minus the exact mean without.
 
 use super::filter::{Analog, Biquad, BiquadState};
-use super::spectral::{check_rate, exact_shift, filtered_vibration};
+use super::spectral::{check_rate, exact_shift, filtered_vibration, Panels};
 use super::{EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
 use crate::Result;
@@ -104,15 +104,19 @@ impl Effect for UnitResponse {
         let rate = ctx.internal_rate_hz;
         check_rate(KIND, rate)?;
         let filter = Biquad::bilinear(&self.analog, rate, self.natural_freq_hz);
-        // Panels far narrower than the peak's width (about 2 zeta f0).
-        let panel_hz = self.natural_freq_hz * self.damping_ratio.min(0.5) / 4.0;
+        // Panels far narrower than the peak's width (about 2 zeta f0) at the peak, wider
+        // away from it.
+        let panels = Panels::Graded {
+            centre_hz: self.natural_freq_hz,
+            finest_hz: self.natural_freq_hz * self.damping_ratio.min(0.5) / 4.0,
+        };
         let seen = filtered_vibration(
             KIND,
             ctx.vibration_unit,
             ctx.psd_unit,
             [false, false, true],
             |_, f| filter.response(f, rate),
-            panel_hz,
+            panels,
         )?;
         exact_shift(ctx, &seen)
     }

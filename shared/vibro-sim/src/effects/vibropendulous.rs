@@ -24,7 +24,7 @@
 //!   bands. `HP` is the exact discrete-time response at the internal rate.
 
 use super::filter::{Analog, Biquad, BiquadState};
-use super::spectral::{band_integral, check_rate, cross_weight, no_spectrum};
+use super::spectral::{band_integral, check_rate, cross_weight, no_spectrum, Panels};
 use super::{EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
 use crate::Result;
@@ -128,13 +128,18 @@ impl Effect for Vibropendulous {
         }
         let cov32 = vib.covariance_g2[2][1];
         if cov32 != 0.0 {
-            // Panels a quarter of the corner frequency wide resolve Re HP's transition.
-            let panel_hz = (0.25 / (2.0 * PI * self.tau_s)).max(1e-3);
+            // Panels a quarter of the corner frequency wide resolve Re HP's transition;
+            // a first-order response's pole is at `i f_c`, so above the corner the
+            // panels may grow with the frequency.
+            let panels = Panels::Graded {
+                centre_hz: 0.0,
+                finest_hz: (0.25 / (2.0 * PI * self.tau_s)).max(1e-3),
+            };
             let (num, den) = band_integral(
                 ctx.psd_unit,
                 |b| cross_weight(b, 2, 1),
                 |f| hp.response(f, rate).re,
-                panel_hz,
+                panels,
             );
             if den.is_nan() || den <= 0.0 {
                 return Err(no_spectrum(KIND, format!("cov32 = {cov32} g^2")));

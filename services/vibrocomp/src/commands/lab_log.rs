@@ -1,0 +1,515 @@
+//! The lab's log input: an MCAP log with a reference (`/truth`) turned into the lab's
+//! table, one condition per estimator window and unit (`vibro_lab::flight`,
+//! docs/lab.md "Logs as input").
+//!
+//! The log's `/vib` stream goes through the estimator (the service's own
+//! `vibro_dsp::Estimator`, its configuration), offline and deterministic; its estimates
+//! are mapped to each unit's axes as the compensator maps them
+//! (`vibro_compensator::mapping`), with the whole vibration (the lab compares the VE of
+//! the papers' static model, not the compensator's per-interval part). Windows that do
+//! not overlap are kept; those the estimator flagged, those the log does not cover
+//! with readings and reference, and those over which the flight acceleration changes
+//! by more than `--max-al-span-g` are left out and counted.
+
+use anyhow::{bail, Context};
+use clap::Args;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use vibro_compensator::mapping::{sensor_map, unit_vibrations, EstimateMapping};
+use vibro_dsp::{Estimator, EstimatorConfig, SampleBlock};
+use vibro_lab::flight::{self, ReferenceSample, VibrationU, WindowInput};
+use vibro_lab::predict::flat_passport;
+use vibro_lab::{CampaignTable, LabModel};
+use vibro_mcap::{Message, Reader};
+use vibro_msgs::{estimate_flags, Stream, VibEstimate, MAX_BANDS};
+use vibro_physics::passport::Passport;
+use vibro_physics::vibration::PsdBand;
+use vibro_replay::topic;
+
+/// Options of the lab's commands that apply to an MCAP log.
+#[derive(Debug, Args, Clone)]
+pub struct LogArgs {
+    /// With an MCAP log: the triad (a file, or `default`) whose geometry the log's units
+    /// have, and its passports; passports the log carries (a simulator's log) win.
+    #[arg(long, default_value = "default")]
+    pub triad: String,
+    /// With an MCAP log: the estimator's configuration (default: the shipped
+    /// `config/services/estimator.toml`); the sensor rate, sensitivity and AC corner the
+    /// log's metadata states win.
+    #[arg(long)]
+    pub estimator_config: Option<PathBuf>,
+    /// With an MCAP log: contiguous batches per window for the measured VE's
+    /// uncertainty (batch means).
+    #[arg(long, default_value_t = 8)]
+    pub batches: usize,
+    /// With an MCAP log: windows over which a flight-acceleration component changes by
+    /// more than this are left out (the model is evaluated at the window's mean, with
+    /// the curvature over the window's aL3 in the uncertainty), g.
+    #[arg(long, default_value_t = 1.0)]
+    pub max_al_span_g: f64,
+}
+
+/// Estimate flags that make a window unusable.
+const BAD_ESTIMATE: u32 = estimate_flags::GAP
+    | estimate_flags::NON_FINITE
+    | estimate_flags::OUT_OF_ORDER
+    | estimate_flags::INSUFFICIENT_DATA
+    | estimate_flags::RATE_MISMATCH
+    | estimate_flags::SATURATED_AXIS0
+    | (estimate_flags::SATURATED_AXIS0 << 1)
+    | (estimate_flags::SATURATED_AXIS0 << 2);
+
+/// What became of the log's windows.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct LogTableSummary {
+    pub log: String,
+    /// Where the passports came from: `log` (its attachments) or the triad.
+    pub passports_from: String,
+    pub units: Vec<String>,
+    pub estimator_window_s: f64,
+    pub estimator_overlap_fraction: f64,
+    /// Sensor settings taken from the log's metadata, by key.
+    pub sensor_from_log: BTreeMap<String, f64>,
+    pub accel_samples: u64,
+    pub estimates: u64,
+    /// Estimates whose windows do not overlap the previous one kept.
+    pub windows: u64,
+    pub windows_used: u64,
+    pub left_out_flagged: u64,
+    pub left_out_incomplete: u64,
+    pub left_out_al_span: u64,
+    pub conditions: usize,
+}
+
+/// One accelerometer sample with its reference, by sample index.
+#[derive(Debug, Clone, Copy, Default)]
+struct Row {
+    latch_ns: u64,
+    output_v: Option<[f64; 3]>,
+    a_l_ia_g: Option<[f64; 3]>,
+    a_sensed_ia_g: Option<[f64; 3]>,
+}
+
+/// A row with its reading and its reference.
+#[derive(Debug, Clone, Copy)]
+struct Complete {
+    latch_ns: u64,
+    output_v: [f64; 3],
+    a_l_ia_g: [f64; 3],
+    a_sensed_ia_g: [f64; 3],
+}
+
+/// Window edges this close are the same edge (sample times are rounded to 1 ns).
+const SAME_EDGE_NS: u64 = 1_000;
+
+/// Longest log the lab reads, in accelerometer samples (about 35 h at 800 Hz).
+const MAX_SAMPLES: usize = 100_000_000;
+
+fn row_at(rows: &mut Vec<Row>, index: u64) -> anyhow::Result<&mut Row> {
+    let i = usize::try_from(index).context("sample index")?;
+    anyhow::ensure!(
+        i < MAX_SAMPLES,
+        "sample index {i}: over the {MAX_SAMPLES} samples the lab reads"
+    );
+    if rows.len() <= i {
+        rows.resize(i + 1, Row::default());
+    }
+    Ok(&mut rows[i])
+}
+
+/// The log's passports (`passport-{i}-{name}.toml` attachments), if it has all three.
+fn log_passports(reader: &mut Reader) -> anyhow::Result<Option<[(String, Passport); 3]>> {
+    let mut found: [Option<(String, Passport)>; 3] = [None, None, None];
+    for name in reader.attachment_names() {
+        let Some(rest) = name.strip_prefix("passport-") else {
+            continue;
+        };
+        let Some(i) = rest
+            .split('-')
+            .next()
+            .and_then(|d| d.parse::<usize>().ok())
+            .filter(|&i| i < 3)
+        else {
+            continue;
+        };
+        let Some(bytes) = reader.read_attachment(&name)? else {
+            continue;
+        };
+        let text = String::from_utf8(bytes)
+            .with_context(|| format!("attachment {name}: not UTF-8 text"))?;
+        let p = vibro_config::parse_passport(&text, &format!("attachment {name}"))?;
+        found[i] = Some((name.clone(), p));
+    }
+    Ok(match found {
+        [Some(a), Some(b), Some(c)] => Some([a, b, c]),
+        _ => None,
+    })
+}
+
+/// The estimator's configuration, with the sensor settings the log's metadata states.
+fn estimator_config(
+    args: &LogArgs,
+    reader: &mut Reader,
+    summary: &mut LogTableSummary,
+) -> anyhow::Result<EstimatorConfig> {
+    let base = match &args.estimator_config {
+        Some(p) => vibro_estimator::Config::load(p)?,
+        None => vibro_estimator::Config::shipped()?,
+    };
+    let mut raw = base.estimator.raw().clone();
+    let meta = reader.metadata()?;
+    if let Some((_, m)) = meta.iter().find(|(name, _)| name == "scenario") {
+        let num = |key: &str| m.get(key).and_then(|v| v.parse::<f64>().ok());
+        if let Some(hz) = num("sensor_hz") {
+            raw.sample_rate_hz = hz;
+            summary.sensor_from_log.insert("sensor_hz".into(), hz);
+        }
+        if let Some(s) = num("sensor_sensitivity_v_per_g") {
+            raw.sensitivity_raw_per_g = [s; 3];
+            summary
+                .sensor_from_log
+                .insert("sensor_sensitivity_v_per_g".into(), s);
+        }
+        if let Some(fc) = num("sensor_ac_corner_hz") {
+            raw.ac_corner_hz = (fc > 0.0).then_some(fc);
+            summary
+                .sensor_from_log
+                .insert("sensor_ac_corner_hz".into(), fc);
+        }
+    }
+    summary.estimator_window_s = raw.window_s;
+    summary.estimator_overlap_fraction = raw.overlap_fraction;
+    EstimatorConfig::try_from(raw).map_err(|e| {
+        anyhow::anyhow!("the estimator's configuration with the log's sensor settings: {e}")
+    })
+}
+
+/// The random part's spectrum of unit `u` from the estimate's bands: each axis reads
+/// its sensor's band PSDs; the part of the broadband variance outside the bands is
+/// spread flat over the broadband band's uncovered ends (the bands scaled down when
+/// they hold more than the broadband variance, by the estimates' scatter).
+fn unit_bands(est: &VibEstimate, sensor_of_axis: &[(usize, f64); 3]) -> Vec<PsdBand> {
+    let n = (est.band_count as usize).min(MAX_BANDS);
+    if n == 0 {
+        return Vec::new();
+    }
+    let mut bands: Vec<PsdBand> = (0..n)
+        .map(|b| PsdBand {
+            f_lo_hz: est.band_f_lo_hz[b],
+            f_hi_hz: est.band_f_hi_hz[b],
+            psd_g2_per_hz: sensor_of_axis.map(|(j, _)| est.band_psd_g2_per_hz[b][j].max(0.0)),
+        })
+        .collect();
+    if bands.iter().any(|b| {
+        b.f_hi_hz.partial_cmp(&b.f_lo_hz) != Some(std::cmp::Ordering::Greater)
+            || b.psd_g2_per_hz.iter().any(|x| !x.is_finite())
+    }) {
+        return Vec::new();
+    }
+    let (lo, hi) = (est.broadband_f_lo_hz, est.broadband_f_hi_hz);
+    let covered_lo = bands
+        .iter()
+        .map(|b| b.f_lo_hz)
+        .fold(f64::INFINITY, f64::min);
+    let covered_hi = bands.iter().map(|b| b.f_hi_hz).fold(0.0, f64::max);
+    let gaps: Vec<(f64, f64)> = [(lo, covered_lo), (covered_hi, hi)]
+        .into_iter()
+        .filter(|(a, b)| b > a)
+        .collect();
+    let gap_width: f64 = gaps.iter().map(|(a, b)| b - a).sum();
+    let mut leftover = [0.0; 3];
+    for (a, &(j, _)) in sensor_of_axis.iter().enumerate() {
+        let total = est.broadband_rms_g[j].powi(2);
+        let in_bands: f64 = bands
+            .iter()
+            .map(|b| b.psd_g2_per_hz[a] * (b.f_hi_hz - b.f_lo_hz))
+            .sum();
+        if in_bands > total && in_bands > 0.0 {
+            let f = total / in_bands;
+            for b in &mut bands {
+                b.psd_g2_per_hz[a] *= f;
+            }
+        } else if gap_width > 0.0 {
+            leftover[a] = (total - in_bands) / gap_width;
+        }
+    }
+    for (a, b) in gaps {
+        bands.push(PsdBand {
+            f_lo_hz: a,
+            f_hi_hz: b,
+            psd_g2_per_hz: leftover,
+        });
+    }
+    bands.sort_by(|x, y| x.f_lo_hz.total_cmp(&y.f_lo_hz));
+    bands
+}
+
+/// Reads `path` and builds the lab's table (module doc).
+pub fn table_from_log(
+    path: &Path,
+    model: &LabModel,
+    args: &LogArgs,
+) -> anyhow::Result<(CampaignTable, LogTableSummary)> {
+    anyhow::ensure!(
+        args.batches >= 2,
+        "--batches {}: must be at least 2 (batch means)",
+        args.batches
+    );
+    anyhow::ensure!(
+        args.max_al_span_g.is_finite() && args.max_al_span_g >= 0.0,
+        "--max-al-span-g {}: must be finite and >= 0",
+        args.max_al_span_g
+    );
+    let mut summary = LogTableSummary {
+        log: path.display().to_string(),
+        ..Default::default()
+    };
+    let mut reader = Reader::open(path)?;
+    let triad = vibro_config::resolve_triad(&args.triad)
+        .with_context(|| format!("--triad {}", args.triad))?;
+    let (refs, passports): (Vec<String>, Vec<Passport>) = match log_passports(&mut reader)? {
+        Some(list) => {
+            summary.passports_from = "log".into();
+            list.into_iter()
+                .map(|(name, p)| (format!("{} ({name})", p.id()), p))
+                .unzip()
+        }
+        None => {
+            summary.passports_from = format!("triad {}", triad.id);
+            triad
+                .passports
+                .iter()
+                .map(|p| (p.id().to_string(), *p))
+                .unzip()
+        }
+    };
+    let flat: Vec<Passport> = passports
+        .iter()
+        .map(flat_passport)
+        .collect::<Result<_, _>>()?;
+    summary.units = triad.names.to_vec();
+    let config = estimator_config(args, &mut reader, &mut summary)?;
+    let mut estimator = Estimator::new(config);
+
+    let (vib_topic, accel_topic, truth_topic) = (
+        topic(Stream::Vib),
+        topic(Stream::Accel),
+        topic(Stream::Truth),
+    );
+    let mut rows: Vec<Row> = Vec::new();
+    let mut period_ns = 0u64;
+    let mut estimates: Vec<VibEstimate> = Vec::new();
+    let (mut have_vib, mut have_truth) = (false, false);
+    for record in reader {
+        let record = record?;
+        let t = &*record.topic;
+        match &record.message {
+            Message::VibBlock(b) if t == vib_topic => {
+                have_vib = true;
+                let block = SampleBlock {
+                    seq: b.seq,
+                    t0_ns: b.t0_ns,
+                    samples_raw: b.samples_v(),
+                };
+                estimator
+                    .push_block(&block, |e| {
+                        let mut m = VibEstimate::default();
+                        vibro_estimator::mirror_estimate(e, &mut m);
+                        m.seq = estimates.len() as u64;
+                        estimates.push(m);
+                    })
+                    .context("the estimator")?;
+            }
+            Message::AccelBlock(b) if t == accel_topic => {
+                period_ns = b.sample_period_ns;
+                for (k, u) in b.samples_v().iter().enumerate() {
+                    let r = row_at(&mut rows, b.first_sample_index + k as u64)?;
+                    r.latch_ns = b.t0_ns + k as u64 * b.sample_period_ns;
+                    r.output_v = Some(*u);
+                    summary.accel_samples += 1;
+                }
+            }
+            Message::TruthBlock(b) if t == truth_topic => {
+                have_truth = true;
+                for k in 0..(b.count as usize).min(b.a_l_ia_g.len()) {
+                    let r = row_at(&mut rows, b.first_sample_index + k as u64)?;
+                    r.a_l_ia_g = Some(b.a_l_ia_g[k]);
+                    r.a_sensed_ia_g = Some(b.a_sensed_ia_g[k]);
+                }
+            }
+            _ => {}
+        }
+    }
+    if !have_vib || period_ns == 0 {
+        bail!(
+            "{}: the lab needs the vibration sensors ({vib_topic}) and the readings \
+             ({accel_topic}); the log has {}{}",
+            path.display(),
+            if have_vib { "" } else { "no vibration blocks" },
+            if period_ns == 0 {
+                if have_vib {
+                    "no accelerometer blocks"
+                } else {
+                    ", no accelerometer blocks"
+                }
+            } else {
+                ""
+            }
+        );
+    }
+    if !have_truth {
+        bail!(
+            "{}: no reference ({truth_topic}): a flight's VE is measured against the \
+             reference's flight and sensed accelerations (docs/lab.md, \"Logs as input\")",
+            path.display()
+        );
+    }
+    summary.estimates = estimates.len() as u64;
+
+    // The rows with everything, in time order (sample index order).
+    let complete: Vec<Complete> = rows
+        .iter()
+        .filter_map(|r| match (r.output_v, r.a_l_ia_g, r.a_sensed_ia_g) {
+            (Some(output_v), Some(a_l_ia_g), Some(a_sensed_ia_g)) => Some(Complete {
+                latch_ns: r.latch_ns,
+                output_v,
+                a_l_ia_g,
+                a_sensed_ia_g,
+            }),
+            _ => None,
+        })
+        .collect();
+    let t_first_ns = complete
+        .first()
+        .map(|r| r.latch_ns.saturating_sub(period_ns))
+        .unwrap_or(0);
+    let map = sensor_map(&triad.axes);
+    let mapping = EstimateMapping {
+        within_output_interval: false,
+        ..EstimateMapping::default()
+    };
+    let mut conditions = Vec::new();
+    let mut last_end_ns = 0u64;
+    for est in &estimates {
+        // Consecutive windows' edges agree to rounding (a fractional sample period).
+        if est.start_ns + SAME_EDGE_NS < last_end_ns {
+            continue;
+        }
+        summary.windows += 1;
+        last_end_ns = est.end_ns;
+        if est.flags & BAD_ESTIMATE != 0 {
+            summary.left_out_flagged += 1;
+            continue;
+        }
+        // Samples whose interval (latch - T, latch] lies inside the window.
+        let first = complete.partition_point(|r| r.latch_ns < est.start_ns + period_ns);
+        let last = complete.partition_point(|r| r.latch_ns <= est.end_ns);
+        let expected = (est.end_ns - est.start_ns) / period_ns.max(1);
+        let got = last.saturating_sub(first) as u64;
+        if got + 1 < expected || got < args.batches as u64 {
+            summary.left_out_incomplete += 1;
+            continue;
+        }
+        let window = &complete[first..last];
+        let vib = match unit_vibrations(est, &triad.axes, &mapping) {
+            Ok(v) => v,
+            Err(e) => {
+                tracing::debug!("window at {} ns left out: {e}", est.start_ns);
+                summary.left_out_flagged += 1;
+                continue;
+            }
+        };
+        let mut measured = Vec::with_capacity(3);
+        for (u, p) in flat.iter().enumerate() {
+            let axes = &triad.axes.units[u];
+            let samples: Vec<ReferenceSample> = window
+                .iter()
+                .map(|r| ReferenceSample {
+                    reading_g: r.output_v[u] / p.k1_v_per_g,
+                    a_l_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_l_ia_g)),
+                    a_sensed_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_sensed_ia_g)),
+                })
+                .collect();
+            measured.push(flight::window_ve(p, &samples, args.batches));
+        }
+        if measured
+            .iter()
+            .any(|m| m.is_none_or(|m| m.a_l_span_g > args.max_al_span_g))
+        {
+            summary.left_out_al_span += u64::from(measured.iter().all(Option::is_some));
+            summary.left_out_incomplete += u64::from(measured.iter().any(Option::is_none));
+            continue;
+        }
+        summary.windows_used += 1;
+        let center_s = est.center_ns.saturating_sub(t_first_ns) as f64 * 1e-9;
+        for (u, m) in measured.into_iter().enumerate() {
+            let Some(m) = m else { continue };
+            let v = vib.units[u];
+            // The uncertainties of the unit's tones (the mapping keeps the estimate's
+            // values: a tone is found by its frequency) and RMS per axis.
+            let count = (est.tone_count as usize).min(est.tone_frequency_hz.len());
+            let tone_amplitude_u_g = v
+                .tones()
+                .iter()
+                .map(|t| {
+                    let k = (0..count).find(|&k| est.tone_frequency_hz[k] == t.freq_hz);
+                    map[u].map(|(j, _)| k.map_or(0.0, |k| est.tone_amplitude_u_g[k][j]))
+                })
+                .collect();
+            let u_vib = VibrationU {
+                tone_amplitude_u_g,
+                sigma_u_g: map[u].map(|(j, _)| est.broadband_rms_u_g[j]),
+            };
+            let prediction_u_g = flight::prediction_u_g(
+                model.mode,
+                &flat[u],
+                m.a_l_unit_g,
+                m.a_l3_var_g2,
+                &v,
+                &u_vib,
+            )
+            .with_context(|| format!("window at {center_s:.3} s, unit {}", triad.names[u]))?;
+            let extra = BTreeMap::from([
+                ("t_s".to_string(), center_s),
+                ("unit".to_string(), (u + 1) as f64),
+                // The vibration has run since the log's start (heating's time).
+                ("vibrating_s".to_string(), center_s),
+            ]);
+            conditions.push(flight::condition(WindowInput {
+                run_id: format!("{}@{center_s:.2}s", triad.names[u]),
+                line: conditions.len() + 1,
+                passport_ref: refs[u].clone(),
+                passport: flat[u],
+                vibration: v,
+                bands: unit_bands(est, &map[u]),
+                measured: m,
+                prediction_u_g,
+                extra,
+            }));
+        }
+    }
+    summary.conditions = conditions.len();
+    if conditions.is_empty() {
+        bail!(
+            "{}: no usable window ({} estimates, {} windows: {} flagged by the estimator, \
+             {} not covered by readings and reference, {} with the flight acceleration \
+             changing by more than {} g)",
+            path.display(),
+            summary.estimates,
+            summary.windows,
+            summary.left_out_flagged,
+            summary.left_out_incomplete,
+            summary.left_out_al_span,
+            args.max_al_span_g
+        );
+    }
+    Ok((
+        CampaignTable {
+            path: path.to_path_buf(),
+            conditions,
+            extra_columns: ["t_s", "unit", "vibrating_s"].map(String::from).to_vec(),
+        },
+        summary,
+    ))
+}

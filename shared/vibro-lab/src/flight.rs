@@ -1,0 +1,569 @@
+//! Conditions from a record with a reference: a flight (or any vibrating run) cut into
+//! windows, each window of each unit one condition of a [`CampaignTable`].
+//!
+//! A shake-table campaign measures the VE as the vibrating record against still ones
+//! (MODEL.md section 8). A flight has no still record: a reference takes its place. Per
+//! accelerometer sample it gives the flight acceleration `aL` (the slow part, MODEL.md
+//! section 3) and the whole acceleration `a` the unit sensed, both as means over the
+//! sample's interval, in the unit's axes. Per sample ([`sample_ve_g`]):
+//!
+//! ```text
+//! r = aF_read - FP(aL) - J(aL) . (a - aL)
+//! ```
+//!
+//! - `aF_read = U/K1`, the reading;
+//! - `FP(aL)`, the output at the flight acceleration without vibration (MODEL.md
+//!   section 2: `aL3 + a0 + dO(aL)` of section 4, with `k1` and the cross terms);
+//! - `J(aL)`, the gradient of (FP) at `aL`: the unit's linear response to the
+//!   vibration's own motion, which a window's mean does not remove (a window holds a
+//!   fractional number of periods of a slow tone: a 0.5 g tone at 8 Hz leaves up to
+//!   20 mg in a 1 s mean, ten times the VE). At `aL3 = 0` the asymmetry's slope
+//!   `0.5 k1 d1A sign(aL3)` is taken as 0: there all of `0.5 k1 d1A |a3|` is rectified.
+//!
+//! What is left is the rectified part, the VE of MODEL.md section 3 (`<aF> - a3` minus
+//! the main error without vibration) to second order in the interval-mean vibration.
+//! Over a window ([`window_ve`]) the mean of `r` is the measured VE; its standard
+//! uncertainty comes from batch means (contiguous batches of the window: the
+//! rectified signal is correlated sample to sample).
+//!
+//! The prediction is made from the vibration estimated over the same window, so its
+//! uncertainty is part of the comparison: [`prediction_u_g`] propagates the estimates'
+//! own standard uncertainties (tone amplitudes and band RMS per axis) through the base
+//! model to first order, and [`condition`] states
+//! `ve_uncertainty_g = sqrt(u_measured^2 + u_prediction^2)`.
+
+use crate::model::BaseMode;
+use crate::predict::base_ve_g;
+use crate::table::{Condition, RandomCondition, ToneCondition};
+use crate::Result;
+use std::collections::BTreeMap;
+use vibro_physics::passport::Passport;
+use vibro_physics::vibration::{PsdBand, Vibration};
+
+/// One accelerometer sample of one unit with its reference, in the unit's axes
+/// `[OA, PA, IA]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReferenceSample {
+    /// The reading `U/K1`, g.
+    pub reading_g: f64,
+    /// Flight acceleration `aL`, mean over the sample's interval, g.
+    pub a_l_unit_g: [f64; 3],
+    /// Whole acceleration the unit sensed (flight plus the vibration's own motion),
+    /// mean over the sample's interval, g.
+    pub a_sensed_unit_g: [f64; 3],
+}
+
+/// Gradient of (FP) (MODEL.md section 2) at `a`, `[d/da1, d/da2, d/da3]`, with the
+/// asymmetry's slope `0.5 k1 d1A sign(a3)` (0 at `a3 = 0`).
+pub fn fp_gradient(p: &Passport, a_unit_g: [f64; 3]) -> [f64; 3] {
+    let [a1, a2, a3] = a_unit_g;
+    let sign = if a3 > 0.0 {
+        1.0
+    } else if a3 < 0.0 {
+        -1.0
+    } else {
+        0.0
+    };
+    // d/da3 of k2 a^2 + ... + k5 a^5 by Horner.
+    let poly = a3 * (2.0 * p.k[2] + a3 * (3.0 * p.k[3] + a3 * (4.0 * p.k[4] + a3 * 5.0 * p.k[5])));
+    [
+        p.m1 + p.m31_per_g * a3,
+        p.m2 + p.m32_per_g * a3,
+        p.k1 * (1.0 + 0.5 * p.d1a * sign) + poly + p.m31_per_g * a1 + p.m32_per_g * a2,
+    ]
+}
+
+/// The rectified part of one sample's reading (module doc), g.
+pub fn sample_ve_g(p: &Passport, s: &ReferenceSample) -> f64 {
+    let [l1, l2, l3] = s.a_l_unit_g;
+    let grad = fp_gradient(p, s.a_l_unit_g);
+    let linear: f64 = (0..3)
+        .map(|i| grad[i] * (s.a_sensed_unit_g[i] - s.a_l_unit_g[i]))
+        .sum();
+    s.reading_g - vibro_physics::fp::output_g(p, l1, l2, l3) - linear
+}
+
+/// The VE measured over one window of one unit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WindowVe {
+    /// Mean of [`sample_ve_g`] over the window, g.
+    pub ve_g: f64,
+    /// Its standard uncertainty by batch means, g.
+    pub u_g: f64,
+    /// Mean flight acceleration over the window, unit axes, g.
+    pub a_l_unit_g: [f64; 3],
+    /// Largest change of any flight-acceleration component within the window
+    /// (max - min), g: the model is evaluated at the mean.
+    pub a_l_span_g: f64,
+    /// Variance of `aL3` over the window's samples, g^2 ([`prediction_u_g`]).
+    pub a_l3_var_g2: f64,
+    /// Samples in the window.
+    pub samples: usize,
+}
+
+/// The measured VE over `samples` (one window of one unit), with `batches` contiguous
+/// batch means for its uncertainty. `None` with fewer than 2 batches or fewer samples
+/// than batches.
+pub fn window_ve(p: &Passport, samples: &[ReferenceSample], batches: usize) -> Option<WindowVe> {
+    let n = samples.len();
+    if batches < 2 || n < batches {
+        return None;
+    }
+    let r: Vec<f64> = samples.iter().map(|s| sample_ve_g(p, s)).collect();
+    let ve_g = r.iter().sum::<f64>() / n as f64;
+    // Equal batches over the first `batches * m` samples; the mean uses all of them.
+    let m = n / batches;
+    let means: Vec<f64> = r
+        .chunks_exact(m)
+        .take(batches)
+        .map(|b| b.iter().sum::<f64>() / m as f64)
+        .collect();
+    let grand = means.iter().sum::<f64>() / batches as f64;
+    let var = means.iter().map(|x| (x - grand).powi(2)).sum::<f64>() / (batches - 1) as f64;
+    let mut a_l = [0.0; 3];
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for s in samples {
+        for i in 0..3 {
+            a_l[i] += s.a_l_unit_g[i] / n as f64;
+            lo[i] = lo[i].min(s.a_l_unit_g[i]);
+            hi[i] = hi[i].max(s.a_l_unit_g[i]);
+        }
+    }
+    let a_l_span_g = (0..3).map(|i| hi[i] - lo[i]).fold(0.0, f64::max);
+    let a_l3_var_g2 = samples
+        .iter()
+        .map(|s| (s.a_l_unit_g[2] - a_l[2]).powi(2))
+        .sum::<f64>()
+        / n as f64;
+    Some(WindowVe {
+        ve_g,
+        u_g: (var / batches as f64).sqrt(),
+        a_l_unit_g: a_l,
+        a_l_span_g,
+        a_l3_var_g2,
+        samples: n,
+    })
+}
+
+/// Standard uncertainties of an estimated vibration, in the unit's axes.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct VibrationU {
+    /// Per tone of the vibration (its order), per axis: the amplitude's, g.
+    pub tone_amplitude_u_g: Vec<[f64; 3]>,
+    /// Per axis: the broadband RMS's, g.
+    pub sigma_u_g: [f64; 3],
+}
+
+/// `vib` with tone `k`'s amplitude on `axis` moved by `h` (never below 0).
+fn with_amplitude(vib: &Vibration, k: usize, axis: usize, h: f64) -> Vibration {
+    let mut out = *vib;
+    out.clear_tones();
+    for (j, t) in vib.tones().iter().enumerate() {
+        let mut t = *t;
+        if j == k {
+            t.amplitude_g[axis] = (t.amplitude_g[axis] + h).max(0.0);
+        }
+        // The same tones as before: they fit.
+        let _ = out.push_tone(t);
+    }
+    out
+}
+
+/// `vib` with the RMS on `axis` moved by `h` (correlations kept).
+fn with_sigma(vib: &Vibration, axis: usize, h: f64) -> Vibration {
+    let mut out = *vib;
+    let sigma = vib.covariance_g2[axis][axis].max(0.0).sqrt();
+    if sigma <= 0.0 {
+        return out;
+    }
+    let f = ((sigma + h).max(0.0)) / sigma;
+    for j in 0..3 {
+        out.covariance_g2[axis][j] *= f;
+        out.covariance_g2[j][axis] *= f;
+    }
+    out
+}
+
+/// Standard uncertainty of the base model's VE for a window, g:
+///
+/// - from the vibration's uncertainties, to first order (central differences of
+///   `base_ve_g` with steps of one uncertainty; the parameters taken as independent);
+/// - from evaluating the model at the window's mean `aL3` while `aL3` varies over it
+///   with variance `a_l3_var_g2`: the mean of a smooth VE over the window differs from
+///   the VE at the mean by `VE''(aL3) var / 2` (the VE depends on `aL1`, `aL2` only
+///   through terms that do not change with the vibration, MODEL.md sections 4-6),
+///   taken whole as an uncertainty.
+pub fn prediction_u_g(
+    mode: BaseMode,
+    passport: &Passport,
+    a_l_unit_g: [f64; 3],
+    a_l3_var_g2: f64,
+    vib: &Vibration,
+    u: &VibrationU,
+) -> Result<f64> {
+    let ve = |v: &Vibration| base_ve_g(mode, passport, a_l_unit_g, v);
+    let mut var = 0.0;
+    if a_l3_var_g2 > 0.0 {
+        let h = a_l3_var_g2.sqrt().max(1e-3);
+        let at = |d: f64| {
+            let mut a = a_l_unit_g;
+            a[2] += d;
+            base_ve_g(mode, passport, a, vib)
+        };
+        let curvature = (at(h)? - 2.0 * at(0.0)? + at(-h)?) / (h * h);
+        var += (0.5 * curvature * a_l3_var_g2).powi(2);
+    }
+    let mut add = |plus: Vibration, minus: Vibration, h_plus: f64, h_minus: f64| -> Result<()> {
+        let span = h_plus + h_minus;
+        if span > 0.0 {
+            let slope = (ve(&plus)? - ve(&minus)?) / span;
+            // One uncertainty times the slope.
+            let step = 0.5 * span;
+            var += (slope * step).powi(2);
+        }
+        Ok(())
+    };
+    for (k, t) in vib.tones().iter().enumerate() {
+        let Some(u_k) = u.tone_amplitude_u_g.get(k) else {
+            break;
+        };
+        for axis in 0..3 {
+            let h = u_k[axis];
+            if !(h.is_finite() && h > 0.0) {
+                continue;
+            }
+            let h_minus = h.min(t.amplitude_g[axis]);
+            add(
+                with_amplitude(vib, k, axis, h),
+                with_amplitude(vib, k, axis, -h_minus),
+                h,
+                h_minus,
+            )?;
+        }
+    }
+    for axis in 0..3 {
+        let h = u.sigma_u_g[axis];
+        let sigma = vib.covariance_g2[axis][axis].max(0.0).sqrt();
+        if !(h.is_finite() && h > 0.0 && sigma > 0.0) {
+            continue;
+        }
+        let h_minus = h.min(sigma);
+        add(
+            with_sigma(vib, axis, h),
+            with_sigma(vib, axis, -h_minus),
+            h,
+            h_minus,
+        )?;
+    }
+    Ok(var.sqrt())
+}
+
+/// Phase difference `a - b` in degrees, wrapped to `(-180, 180]`.
+fn phase_difference_deg(a_rad: f64, b_rad: f64) -> f64 {
+    let d = (a_rad - b_rad).to_degrees();
+    let w = d - 360.0 * ((d + 180.0) / 360.0).floor();
+    if w <= -180.0 {
+        w + 360.0
+    } else {
+        w
+    }
+}
+
+/// What [`condition`] needs of one window of one unit.
+#[derive(Debug, Clone)]
+pub struct WindowInput {
+    pub run_id: String,
+    /// Order in the table, for messages (in place of a line number).
+    pub line: usize,
+    pub passport_ref: String,
+    /// The unit's passport, flat (`predict::flat_passport`).
+    pub passport: Passport,
+    /// The vibration estimated over the window, unit axes, strongest tone first.
+    pub vibration: Vibration,
+    /// Its random part's spectrum, unit axes (may be empty).
+    pub bands: Vec<PsdBand>,
+    pub measured: WindowVe,
+    /// [`prediction_u_g`] of the window, g.
+    pub prediction_u_g: f64,
+    /// Extra numeric variables (time, unit, ...).
+    pub extra: BTreeMap<String, f64>,
+}
+
+/// The table row of one window of one unit: the window's mean flight acceleration,
+/// its estimated vibration, the measured VE and the combined uncertainty.
+pub fn condition(w: WindowInput) -> Condition {
+    let v = &w.vibration;
+    let mut tones = v.tones().iter().map(|t| ToneCondition {
+        freq_hz: t.freq_hz,
+        a_b_g: t.amplitude_g,
+        phase31_deg: phase_difference_deg(t.phase_rad[2], t.phase_rad[0]),
+        phase32_deg: phase_difference_deg(t.phase_rad[2], t.phase_rad[1]),
+    });
+    let tone = tones.next();
+    let more_tones: Vec<ToneCondition> = tones.collect();
+    let variances = [0, 1, 2].map(|i| v.covariance_g2[i][i].max(0.0));
+    let random = variances.iter().any(|&x| x > 0.0).then(|| RandomCondition {
+        sigma_g: variances.map(f64::sqrt),
+        cov31_g2: v.covariance_g2[2][0],
+        cov32_g2: v.covariance_g2[2][1],
+        cov12_g2: v.covariance_g2[0][1],
+        kurtosis3: v.kurtosis[2],
+    });
+    Condition {
+        run_id: w.run_id,
+        line: w.line,
+        passport_ref: w.passport_ref,
+        passport: w.passport,
+        a_l_g: w.measured.a_l_unit_g,
+        tone,
+        more_tones,
+        random,
+        bands: w.bands,
+        ve_measured_g: w.measured.ve_g,
+        ve_uncertainty_g: w.measured.u_g.hypot(w.prediction_u_g),
+        extra: w.extra,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::predict::flat_passport;
+    use vibro_physics::exact::exact_ve;
+    use vibro_physics::fp::output_g;
+
+    fn al15() -> Passport {
+        flat_passport(&vibro_config::resolve_passport("AL-15").unwrap()).unwrap()
+    }
+
+    fn tone_with_phases(freq_hz: f64, amplitude_g: [f64; 3], phase_rad: [f64; 3]) -> Vibration {
+        let mut v = Vibration::none();
+        v.push_tone(vibro_physics::vibration::Tone {
+            freq_hz,
+            amplitude_g,
+            phase_rad,
+        })
+        .unwrap();
+        v
+    }
+
+    /// A unit under `aL` plus a tone, read as interval means of (FP) at 64 internal
+    /// samples per output sample; the reference as the same interval means.
+    fn tone_window(
+        p: &Passport,
+        a_l: [f64; 3],
+        amp_g: [f64; 3],
+        phase_rad: [f64; 3],
+        freq_hz: f64,
+        out_hz: f64,
+        seconds: f64,
+    ) -> Vec<ReferenceSample> {
+        let sub = 64;
+        let n = (seconds * out_hz).round() as usize;
+        let dt = 1.0 / (out_hz * sub as f64);
+        (0..n)
+            .map(|i| {
+                let mut reading = 0.0;
+                let mut sensed = [0.0; 3];
+                for k in 0..sub {
+                    let t = (i * sub + k) as f64 * dt;
+                    let a: [f64; 3] = std::array::from_fn(|j| {
+                        a_l[j]
+                            + amp_g[j]
+                                * (2.0 * std::f64::consts::PI * freq_hz * t + phase_rad[j]).sin()
+                    });
+                    reading += output_g(p, a[0], a[1], a[2]) / sub as f64;
+                    for j in 0..3 {
+                        sensed[j] += a[j] / sub as f64;
+                    }
+                }
+                ReferenceSample {
+                    reading_g: reading,
+                    a_l_unit_g: a_l,
+                    a_sensed_unit_g: sensed,
+                }
+            })
+            .collect()
+    }
+
+    /// A window holding whole periods of a tone: the measured VE is the exact model's
+    /// (MODEL.md section 6: moments `E[sin^2] = 1/2`, ..., the asymmetry's `E|aL + aB
+    /// sin|` in closed form), as long as the tone is slow against the output rate (the
+    /// interval means then carry the whole vibration).
+    #[test]
+    fn a_tone_over_whole_periods_measures_the_exact_ve() {
+        let p = al15();
+        for (a_l, amp, phase) in [
+            ([0.3, -0.2, 2.0], [1.2, 0.8, 0.5], [0.0, 0.3, 0.0]),
+            ([0.0, 0.0, 0.2], [0.0, 0.0, 1.5], [0.0; 3]),
+            ([0.5, 0.5, -3.0], [0.0, 1.0, 2.0], [0.0, 1.0, -0.5]),
+        ] {
+            let samples = tone_window(&p, a_l, amp, phase, 8.0, 800.0, 1.0);
+            let w = window_ve(&p, &samples, 8).unwrap();
+            let vib = tone_with_phases(8.0, amp, phase);
+            let want = exact_ve(&p, a_l, &vib).unwrap().total_g;
+            assert!(
+                (w.ve_g - want).abs() < 1e-4 * want.abs() + 1e-9,
+                "aL {a_l:?}: measured {} vs exact {want}",
+                w.ve_g
+            );
+            assert_eq!(w.samples, 800);
+            for i in 0..3 {
+                assert!((w.a_l_unit_g[i] - a_l[i]).abs() < 1e-12);
+            }
+        }
+    }
+
+    /// Without the linear response to the interval-mean vibration, a fractional number
+    /// of periods leaves the tone's own mean in the window: the term is needed, and
+    /// with it the VE comes out within the residual of the fractional period.
+    #[test]
+    fn the_linear_response_removes_a_fractional_periods_mean() {
+        let p = al15();
+        let (a_l, amp) = ([0.0, 0.0, 2.0], [0.0, 0.0, 0.5]);
+        let samples = tone_window(&p, a_l, amp, [0.0; 3], 8.3, 800.0, 1.0);
+        let vib = Vibration::single_tone(8.3, amp);
+        let want = exact_ve(&p, a_l, &vib).unwrap().total_g;
+        let w = window_ve(&p, &samples, 8).unwrap();
+        let naive: f64 = samples
+            .iter()
+            .map(|s| s.reading_g - output_g(&p, 0.0, 0.0, 2.0))
+            .sum::<f64>()
+            / samples.len() as f64;
+        // The tone's mean over 8.3 periods: 0.5 g (1 - cos(2 pi 0.3)) / (2 pi 8.3).
+        let tone_mean = 0.5 * (1.0 - (2.0 * std::f64::consts::PI * 0.3).cos())
+            / (2.0 * std::f64::consts::PI * 8.3);
+        assert!((naive - want - p.k1 * tone_mean).abs() < 0.02 * p.k1 * tone_mean);
+        // What is left: the rectified terms' own fractional period, k2 aB^2 / 2 over
+        // 2 omega, a few ug at most.
+        assert!((w.ve_g - want).abs() < 3e-6, "{} vs {want}", w.ve_g);
+    }
+
+    /// Batch means: for independent noise of RMS s on every sample, the uncertainty is
+    /// about s / sqrt(n), and the mean over it follows Student's t.
+    #[test]
+    fn batch_means_give_the_standard_error_of_white_noise() {
+        let p = al15();
+        let n = 8000;
+        let s = 1e-5;
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = || {
+            // xorshift64*: a reproducible, well-mixed stream.
+            state ^= state >> 12;
+            state ^= state << 25;
+            state ^= state >> 27;
+            (state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut z2 = 0.0;
+        let runs = 2000;
+        for _ in 0..runs {
+            let samples: Vec<ReferenceSample> = (0..n)
+                .map(|_| ReferenceSample {
+                    reading_g: output_g(&p, 0.0, 0.0, 1.0) + s * 12f64.sqrt() * (next() - 0.5),
+                    a_l_unit_g: [0.0, 0.0, 1.0],
+                    a_sensed_unit_g: [0.0, 0.0, 1.0],
+                })
+                .collect();
+            let w = window_ve(&p, &samples, 10).unwrap();
+            let expected = s / (n as f64).sqrt();
+            assert!(w.u_g > 0.2 * expected && w.u_g < 2.5 * expected);
+            z2 += (w.ve_g / w.u_g).powi(2);
+        }
+        // z = mean / u follows Student's t with 9 dof: E[z^2] = 9/7, and z^2 has the
+        // variance E[t^4] - (9/7)^2 = 243/35 - 81/49, so the mean over the runs has a
+        // standard error of 0.051: 4 of them allowed.
+        let mean_z2 = z2 / runs as f64;
+        assert!((mean_z2 - 9.0 / 7.0).abs() < 0.21, "E[z^2] = {mean_z2}");
+    }
+
+    /// The propagated uncertainty against the closed form: with only k2 and the tone on
+    /// IA, VE = 0.5 k2 aB3^2 (MODEL.md 6), so u = k2 aB3 u(aB3); with only k2 and random
+    /// IA vibration, VE = k2 sigma3^2, so u = 2 k2 sigma3 u(sigma3).
+    #[test]
+    fn the_prediction_uncertainty_matches_the_closed_form() {
+        let mut spec = al15().to_spec();
+        spec.k2_ppm_per_g = 105.0;
+        spec.k3_ppm_per_g2 = 0.0;
+        spec.k4_ppm_per_g3 = 0.0;
+        spec.k5_ppm_per_g4 = 0.0;
+        spec.d1a_ppm = 0.0;
+        spec.m31_ppm_per_g = 0.0;
+        spec.m32_ppm_per_g = 0.0;
+        let p = Passport::try_from_spec(&spec).unwrap();
+        let k2 = p.k[2];
+        let vib = Vibration::single_tone(40.0, [0.0, 0.0, 2.0]);
+        let u = VibrationU {
+            tone_amplitude_u_g: vec![[0.0, 0.0, 0.01]],
+            sigma_u_g: [0.0; 3],
+        };
+        let got = prediction_u_g(BaseMode::Exact, &p, [0.0, 0.0, 1.0], 0.0, &vib, &u).unwrap();
+        let want = k2 * 2.0 * 0.01;
+        assert!((got - want).abs() < 1e-9 * want, "{got} vs {want}");
+
+        let mut vib = Vibration::none();
+        vib.covariance_g2[2][2] = 1.4f64.powi(2);
+        let u = VibrationU {
+            tone_amplitude_u_g: vec![],
+            sigma_u_g: [0.0, 0.0, 0.02],
+        };
+        let got = prediction_u_g(BaseMode::Exact, &p, [0.0, 0.0, 1.0], 0.0, &vib, &u).unwrap();
+        let want = 2.0 * k2 * 1.4 * 0.02;
+        assert!((got - want).abs() < 1e-9 * want, "{got} vs {want}");
+
+        // aL3 varying over the window: with k3 alone and a tone, VE = 1.5 k3 aB3^2 aL3
+        // (linear in aL3: no curvature term), with k4 alone VE = 3 k4 aB3^2 aL3^2 + ...,
+        // VE'' = 6 k4 aB3^2, so u = 3 k4 aB3^2 var.
+        spec.k2_ppm_per_g = 0.0;
+        spec.k4_ppm_per_g3 = 10.0;
+        let p = Passport::try_from_spec(&spec).unwrap();
+        let vib = Vibration::single_tone(40.0, [0.0, 0.0, 2.0]);
+        let none = VibrationU::default();
+        let var = 0.04;
+        let got = prediction_u_g(BaseMode::Exact, &p, [0.0, 0.0, 3.0], var, &vib, &none).unwrap();
+        let want = 3.0 * p.k[4] * 4.0 * var;
+        assert!((got - want).abs() < 1e-6 * want, "{got} vs {want}");
+    }
+
+    #[test]
+    fn a_condition_keeps_every_tone_and_the_relative_phases() {
+        let p = al15();
+        let mut vib = tone_with_phases(12.0, [1.2, 1.2, 0.5], [0.1, -0.2, 0.4]);
+        vib.push_tone(vibro_physics::vibration::Tone {
+            freq_hz: 30.0,
+            amplitude_g: [0.0, 0.0, 0.1],
+            phase_rad: [0.0; 3],
+        })
+        .unwrap();
+        vib.covariance_g2[2][2] = 1.0;
+        vib.covariance_g2[0][0] = 0.5;
+        let c = condition(WindowInput {
+            run_id: "AK1@1.0s".into(),
+            line: 1,
+            passport_ref: "AL-15".into(),
+            passport: p,
+            vibration: vib,
+            bands: vec![],
+            measured: WindowVe {
+                ve_g: 1e-3,
+                u_g: 3e-6,
+                a_l_unit_g: [0.0, 0.0, 2.0],
+                a_l_span_g: 0.0,
+                a_l3_var_g2: 0.0,
+                samples: 800,
+            },
+            prediction_u_g: 4e-6,
+            extra: BTreeMap::new(),
+        });
+        assert!((c.ve_uncertainty_g - 5e-6).abs() < 1e-18);
+        let t = c.tone.unwrap();
+        assert!((t.phase31_deg - 0.3f64.to_degrees()).abs() < 1e-12);
+        assert!((t.phase32_deg - 0.6f64.to_degrees()).abs() < 1e-12);
+        assert_eq!(c.more_tones.len(), 1);
+        // The condition's vibration has the same moments the model uses.
+        let back = c.vibration();
+        let a = exact_ve(&p, [0.0, 0.0, 2.0], &vib).unwrap().total_g;
+        let b = exact_ve(&p, [0.0, 0.0, 2.0], &back).unwrap().total_g;
+        assert!((a - b).abs() < 1e-15 * a.abs().max(1e-12), "{a} vs {b}");
+    }
+}
