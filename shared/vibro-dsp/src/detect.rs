@@ -14,7 +14,7 @@
 //! `|W(delta)| = |sinc(delta) / (1 - delta^2)|`.
 //!
 //! The floor is a running median of the periodogram: the median of the 32 bins around
-//! every 8th bin, linearly interpolated between, divided by ln 2 (a noise bin's power
+//! every 16th bin, linearly interpolated between, divided by ln 2 (a noise bin's power
 //! is exponentially distributed, and its median is ln 2 times its mean): tones take up
 //! a few bins and barely move a median. It must be local: a tone beside a band of
 //! random vibration is measured against the floor under it, not the band's. With the
@@ -35,8 +35,9 @@ use std::sync::Arc;
 
 /// Bins in each median of the floor.
 const FLOOR_SPAN_BINS: usize = 32;
-/// Bins between the medians (the floor is interpolated between them).
-const FLOOR_HOP_BINS: usize = 8;
+/// Bins between the medians (the floor is interpolated between them): half a span, so
+/// every bin lies within a quarter span of a median's centre.
+const FLOOR_HOP_BINS: usize = 16;
 const MAX_CANDIDATES: usize = 4 * MAX_TONES;
 /// Tone SNR of a peak bin relative to its power-to-floor ratio, at worst scalloping
 /// (Hann: 1.5 at a bin centre, / 0.72 at half a bin).
@@ -72,7 +73,8 @@ pub(crate) struct Detector {
     power: [Vec<f64>; 3],
     /// Mean periodogram power of the broadband floor, per bin.
     floor: [Vec<f64>; 3],
-    median_scratch: Vec<f64>,
+    /// The bits of the powers under one median: positive floats order as their bits.
+    median_scratch: Vec<u64>,
     node_floor: Vec<f64>,
     /// Per bin: sum over the axes of power / floor, and its largest term.
     ratio_sum: Vec<f64>,
@@ -106,7 +108,7 @@ impl Detector {
             window_sq_sum: window_sq_sum_all,
             power: std::array::from_fn(|_| vec![0.0; bins]),
             floor: std::array::from_fn(|_| vec![0.0; bins]),
-            median_scratch: vec![0.0; FLOOR_SPAN_BINS],
+            median_scratch: vec![0; FLOOR_SPAN_BINS],
             node_floor: vec![0.0; floor_nodes(bins)],
             ratio_sum: vec![0.0; bins],
             ratio_max: vec![0.0; bins],
@@ -340,7 +342,7 @@ fn floor_nodes(bins: usize) -> usize {
 
 /// Running-median floor (see the module docs). `node_floor` holds one value per node
 /// ([`floor_nodes`]), `scratch` at least `FLOOR_SPAN_BINS` values.
-fn estimate_floor(power: &[f64], floor: &mut [f64], scratch: &mut [f64], node_floor: &mut [f64]) {
+fn estimate_floor(power: &[f64], floor: &mut [f64], scratch: &mut [u64], node_floor: &mut [f64]) {
     let bins = power.len();
     if bins == 0 {
         return;
@@ -352,10 +354,14 @@ fn estimate_floor(power: &[f64], floor: &mut [f64], scratch: &mut [f64], node_fl
         // A full span around the centre, shifted inwards at the ends.
         let lo = centre.saturating_sub(span / 2).min(bins - span);
         let s = &mut scratch[..span];
-        s.copy_from_slice(&power[lo..lo + span]);
+        // Powers are squared magnitudes, >= +0: their bits order as the values do, and
+        // an integer selection is about twice as fast as one by `total_cmp`.
+        for (b, p) in s.iter_mut().zip(&power[lo..lo + span]) {
+            *b = p.to_bits();
+        }
         let mid = span / 2;
-        let (_, median, _) = s.select_nth_unstable_by(mid, f64::total_cmp);
-        *nf = *median / std::f64::consts::LN_2;
+        let (_, median, _) = s.select_nth_unstable(mid);
+        *nf = f64::from_bits(*median) / std::f64::consts::LN_2;
     }
     for (k, f) in floor.iter_mut().enumerate() {
         let i = (k / FLOOR_HOP_BINS).min(nodes - 1);
@@ -409,7 +415,7 @@ mod tests {
         for bins in [1, 7, 32, 33, 1000, 1001] {
             let power = vec![2.0; bins];
             let mut floor = vec![0.0; bins];
-            let mut scratch = vec![0.0; FLOOR_SPAN_BINS];
+            let mut scratch = vec![0u64; FLOOR_SPAN_BINS];
             let mut nodes = vec![0.0; floor_nodes(bins)];
             estimate_floor(&power, &mut floor, &mut scratch, &mut nodes);
             assert!(floor
@@ -426,7 +432,7 @@ mod tests {
         let bins = 12_801;
         let power: Vec<f64> = (0..bins).map(|k| if k < 20 { 0.01 } else { 1.0 }).collect();
         let mut floor = vec![0.0; bins];
-        let mut scratch = vec![0.0; FLOOR_SPAN_BINS];
+        let mut scratch = vec![0u64; FLOOR_SPAN_BINS];
         let mut nodes = vec![0.0; floor_nodes(bins)];
         estimate_floor(&power, &mut floor, &mut scratch, &mut nodes);
         let ln2 = std::f64::consts::LN_2;
