@@ -536,3 +536,30 @@ fn a_log_without_reference_or_sensors_is_refused() {
         assert!(err.contains(s(&out)) && err.contains(says), "{err}");
     }
 }
+
+/// The recorder's side: a session recorded by `vibrocomp demo` (the flight replayed
+/// through the services and recorded) gives the lab the same conditions, to the bit,
+/// as the simulator's log it replayed.
+#[test]
+fn a_recorded_session_gives_the_conditions_of_the_flight_it_replayed() {
+    let dir = Dir::new("lablog-rec");
+    let out = dir.path("demo");
+    run_json(&["demo", "--out-dir", s(&out), "--json"]);
+    let flight = run_json(&[
+        "lab",
+        "compare",
+        s(&out.join("flight.mcap")),
+        "--all",
+        "--json",
+    ]);
+    let session = run_json(&[
+        "lab",
+        "compare",
+        s(&out.join("session.mcap")),
+        "--all",
+        "--json",
+    ]);
+    assert!(num(&flight["log"], "conditions") > 0.0);
+    assert_eq!(flight["rows"], session["rows"]);
+    assert_eq!(flight["summary"], session["summary"]);
+}
