@@ -53,30 +53,10 @@ pub struct ReferenceSample {
     pub a_sensed_unit_g: [f64; 3],
 }
 
-/// Gradient of (FP) (MODEL.md section 2) at `a`, `[d/da1, d/da2, d/da3]`, with the
-/// asymmetry's slope `0.5 k1 d1A sign(a3)` (0 at `a3 = 0`).
-pub fn fp_gradient(p: &Passport, a_unit_g: [f64; 3]) -> [f64; 3] {
-    let [a1, a2, a3] = a_unit_g;
-    let sign = if a3 > 0.0 {
-        1.0
-    } else if a3 < 0.0 {
-        -1.0
-    } else {
-        0.0
-    };
-    // d/da3 of k2 a^2 + ... + k5 a^5 by Horner.
-    let poly = a3 * (2.0 * p.k[2] + a3 * (3.0 * p.k[3] + a3 * (4.0 * p.k[4] + a3 * 5.0 * p.k[5])));
-    [
-        p.m1 + p.m31_per_g * a3,
-        p.m2 + p.m32_per_g * a3,
-        p.k1 * (1.0 + 0.5 * p.d1a * sign) + poly + p.m31_per_g * a1 + p.m32_per_g * a2,
-    ]
-}
-
 /// The rectified part of one sample's reading (module doc), g.
 pub fn sample_ve_g(p: &Passport, s: &ReferenceSample) -> f64 {
     let [l1, l2, l3] = s.a_l_unit_g;
-    let grad = fp_gradient(p, s.a_l_unit_g);
+    let grad = vibro_physics::fp::gradient_g(p, l1, l2, l3);
     let linear: f64 = (0..3)
         .map(|i| grad[i] * (s.a_sensed_unit_g[i] - s.a_l_unit_g[i]))
         .sum();

@@ -23,6 +23,35 @@ pub fn output_g(p: &Passport, a1_g: f64, a2_g: f64, a3_g: f64) -> f64 {
         + a * (p.m31_per_g * a1_g + p.m32_per_g * a2_g)
 }
 
+/// `sign(a3)` of the asymmetry term, 0 at `a3 = 0` (where `|a3|` has no slope).
+#[inline]
+pub fn asymmetry_sign(a3_g: f64) -> f64 {
+    if a3_g > 0.0 {
+        1.0
+    } else if a3_g < 0.0 {
+        -1.0
+    } else {
+        0.0
+    }
+}
+
+/// Gradient of (FP) at `[a1, a2, a3]`, `[d/da1, d/da2, d/da3]`, with the asymmetry's
+/// slope `0.5 k1 d1A sign(a3)` taken as 0 at `a3 = 0` ([`asymmetry_sign`]).
+#[inline]
+pub fn gradient_g(p: &Passport, a1_g: f64, a2_g: f64, a3_g: f64) -> [f64; 3] {
+    let a = a3_g;
+    // d/da of k2 a^2 + ... + k5 a^5 by Horner.
+    let poly = a * (2.0 * p.k[2] + a * (3.0 * p.k[3] + a * (4.0 * p.k[4] + a * 5.0 * p.k[5])));
+    [
+        p.m1 + p.m31_per_g * a,
+        p.m2 + p.m32_per_g * a,
+        p.k1 * (1.0 + 0.5 * p.d1a * asymmetry_sign(a))
+            + poly
+            + p.m31_per_g * a1_g
+            + p.m32_per_g * a2_g,
+    ]
+}
+
 /// Output `U` in volts (output units) for true accelerations: `K1 * aF`.
 #[inline]
 pub fn output_v(p: &Passport, a1_g: f64, a2_g: f64, a3_g: f64) -> f64 {
@@ -41,6 +70,28 @@ pub fn apply_g(p: &Passport, a1_g: &[f64], a2_g: &[f64], a3_g: &[f64], out_g: &m
 mod tests {
     use super::*;
     use crate::testutil::al15;
+
+    /// The gradient against central differences of (FP) away from `a3 = 0`, and the
+    /// asymmetry's slope left out at `a3 = 0`.
+    #[test]
+    fn gradient_is_the_derivative_of_the_conversion() {
+        let p = al15();
+        for a in [[0.3, -0.7, 2.0], [1.0, 0.5, -3.0], [0.0, 0.0, 0.4]] {
+            let g = gradient_g(&p, a[0], a[1], a[2]);
+            for i in 0..3 {
+                let h = 1e-5;
+                let (mut up, mut down) = (a, a);
+                up[i] += h;
+                down[i] -= h;
+                let d = (output_g(&p, up[0], up[1], up[2])
+                    - output_g(&p, down[0], down[1], down[2]))
+                    / (2.0 * h);
+                assert!((g[i] - d).abs() < 1e-9, "{a:?} axis {i}: {} vs {d}", g[i]);
+            }
+        }
+        let at0 = gradient_g(&p, 0.0, 0.0, 0.0);
+        assert_eq!(at0[2], p.k1);
+    }
 
     #[test]
     fn matches_the_written_out_polynomial() {

@@ -139,13 +139,7 @@ impl Effect for ScaleFactorFrequency {
         };
         for (a, o) in input_unit_g.iter().zip(out_g.iter_mut()) {
             let a3 = a[2];
-            let sign = if a3 > 0.0 {
-                1.0
-            } else if a3 < 0.0 {
-                -1.0
-            } else {
-                0.0
-            };
+            let sign = vibro_physics::fp::asymmetry_sign(a3);
             let la3 = state.step_primed(&self.filter, a3);
             *o += k1 * (1.0 + 0.5 * d1a * sign) * (la3 - a3);
         }
