@@ -103,19 +103,16 @@ struct Complete {
 /// Window edges this close are the same edge (sample times are rounded to 1 ns).
 const SAME_EDGE_NS: u64 = 1_000;
 
-/// Longest log the lab reads, in accelerometer samples (about 35 h at 800 Hz).
+/// Most accelerometer samples the lab reads from one log (about 35 h at 800 Hz).
 const MAX_SAMPLES: usize = 100_000_000;
 
-fn row_at(rows: &mut Vec<Row>, index: u64) -> anyhow::Result<&mut Row> {
-    let i = usize::try_from(index).context("sample index")?;
-    anyhow::ensure!(
-        i < MAX_SAMPLES,
-        "sample index {i}: over the {MAX_SAMPLES} samples the lab reads"
-    );
-    if rows.len() <= i {
-        rows.resize(i + 1, Row::default());
+/// The row of sample `index` (rows are keyed by the producer's sample index, which a
+/// long-running rig starts far from 0).
+fn row_at(rows: &mut BTreeMap<u64, Row>, index: u64) -> anyhow::Result<&mut Row> {
+    if rows.len() >= MAX_SAMPLES && !rows.contains_key(&index) {
+        bail!("over {MAX_SAMPLES} accelerometer samples: more than the lab reads from one log");
     }
-    Ok(&mut rows[i])
+    Ok(rows.entry(index).or_default())
 }
 
 /// The log's passports (`passport-{i}-{name}.toml` attachments), if it has all three.
@@ -297,7 +294,7 @@ pub fn table_from_log(
         topic(Stream::Accel),
         topic(Stream::Truth),
     );
-    let mut rows: Vec<Row> = Vec::new();
+    let mut rows: BTreeMap<u64, Row> = BTreeMap::new();
     let mut period_ns = 0u64;
     let mut estimates: Vec<VibEstimate> = Vec::new();
     let (mut have_vib, mut have_truth) = (false, false);
@@ -369,7 +366,7 @@ pub fn table_from_log(
 
     // The rows with everything, in time order (sample index order).
     let complete: Vec<Complete> = rows
-        .iter()
+        .values()
         .filter_map(|r| match (r.output_v, r.a_l_ia_g, r.a_sensed_ia_g) {
             (Some(output_v), Some(a_l_ia_g), Some(a_sensed_ia_g)) => Some(Complete {
                 latch_ns: r.latch_ns,
@@ -405,7 +402,7 @@ pub fn table_from_log(
         // Samples whose interval (latch - T, latch] lies inside the window.
         let first = complete.partition_point(|r| r.latch_ns < est.start_ns + period_ns);
         let last = complete.partition_point(|r| r.latch_ns <= est.end_ns);
-        let expected = (est.end_ns - est.start_ns) / period_ns.max(1);
+        let expected = est.end_ns.saturating_sub(est.start_ns) / period_ns.max(1);
         let got = last.saturating_sub(first) as u64;
         if got + 1 < expected || got < args.batches as u64 {
             summary.left_out_incomplete += 1;
