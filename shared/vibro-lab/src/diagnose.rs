@@ -54,6 +54,26 @@ pub struct DiagnoseOptions {
     pub candidates: Vec<String>,
     /// Threads fitting candidates at once.
     pub threads: usize,
+    /// Told after each candidate's fit (for a progress display).
+    #[serde(skip)]
+    pub progress: Progress,
+}
+
+/// What [`Progress`] calls: `(fitted, of, kind)`.
+pub type ProgressFn = dyn Fn(usize, usize, &str) + Send + Sync;
+
+/// A callback told `(fitted, of, kind)` after each candidate's fit; none by default.
+#[derive(Clone, Default)]
+pub struct Progress(pub Option<std::sync::Arc<ProgressFn>>);
+
+impl std::fmt::Debug for Progress {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.0.is_some() {
+            "Progress(set)"
+        } else {
+            "Progress(none)"
+        })
+    }
 }
 
 impl Default for DiagnoseOptions {
@@ -67,6 +87,7 @@ impl Default for DiagnoseOptions {
             collinear: 0.98,
             candidates: Vec::new(),
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            progress: Progress::default(),
         }
     }
 }
@@ -487,8 +508,10 @@ fn fit_all(
     prep: &Prepared,
     cands: &[&'static Candidate],
     threads: usize,
+    progress: &Progress,
 ) -> Vec<(&'static Candidate, Result<EffectFit>)> {
     let next = std::sync::atomic::AtomicUsize::new(0);
+    let fitted = std::sync::atomic::AtomicUsize::new(0);
     let results = std::sync::Mutex::new(Vec::new());
     std::thread::scope(|s| {
         for _ in 0..threads.clamp(1, cands.len().max(1)) {
@@ -498,6 +521,10 @@ fn fit_all(
                 let r = fit_prepared(model, table, prep, c);
                 if let Ok(mut v) = results.lock() {
                     v.push((i, *c, r));
+                }
+                if let Some(f) = &progress.0 {
+                    let done = fitted.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+                    f(done, cands.len(), c.kind);
                 }
             });
         }
@@ -646,32 +673,34 @@ pub fn diagnose(
     let residual_g = prep.residual_g();
     let trends = trends(table, &residual_g, &prep.uncertainty_g);
     let lack_of_fit = lack_of_fit(table, &residual_g, &prep.uncertainty_g);
-    let mut candidates: Vec<RankedCandidate> = fit_all(model, table, &prep, &cands, opts.threads)
-        .into_iter()
-        .map(|(c, r)| {
-            let (fit, not_applicable) = match r {
-                Ok(f) => (Some(f), None),
-                Err(e) => (None, Some(e.to_string())),
-            };
-            let supported = fit
-                .as_ref()
-                .is_some_and(|f| f.delta_bic <= opts.bic_support);
-            let explains = supported
-                && fit.as_ref().is_some_and(|f| {
-                    f.p_value_after >= opts.alpha_fit
-                        || f.rms_residual_after_g <= opts.model_tolerance * f.rms_residual_before_g
-                });
-            RankedCandidate {
-                kind: c.kind.into(),
-                physics: c.physics.into(),
-                signature: c.signature.into(),
-                fit,
-                not_applicable,
-                supported,
-                explains,
-            }
-        })
-        .collect();
+    let mut candidates: Vec<RankedCandidate> =
+        fit_all(model, table, &prep, &cands, opts.threads, &opts.progress)
+            .into_iter()
+            .map(|(c, r)| {
+                let (fit, not_applicable) = match r {
+                    Ok(f) => (Some(f), None),
+                    Err(e) => (None, Some(e.to_string())),
+                };
+                let supported = fit
+                    .as_ref()
+                    .is_some_and(|f| f.delta_bic <= opts.bic_support);
+                let explains = supported
+                    && fit.as_ref().is_some_and(|f| {
+                        f.p_value_after >= opts.alpha_fit
+                            || f.rms_residual_after_g
+                                <= opts.model_tolerance * f.rms_residual_before_g
+                    });
+                RankedCandidate {
+                    kind: c.kind.into(),
+                    physics: c.physics.into(),
+                    signature: c.signature.into(),
+                    fit,
+                    not_applicable,
+                    supported,
+                    explains,
+                }
+            })
+            .collect();
     candidates.sort_by(|a, b| {
         let key = |c: &RankedCandidate| c.fit.as_ref().map_or(f64::INFINITY, |f| f.delta_bic);
         key(a).total_cmp(&key(b))

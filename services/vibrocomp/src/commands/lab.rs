@@ -17,7 +17,10 @@ macro_rules! p {
 use super::lab_log::{table_from_log, LogArgs, LogTableSummary};
 use anyhow::Context;
 use clap::{Args, Subcommand};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
+use vibro_lab::diagnose::Progress;
 use vibro_lab::diagnose::{Diagnosis, Verdict};
 use vibro_lab::{BaseMode, CampaignTable, Comparison, DiagnoseOptions, LabModel};
 
@@ -160,6 +163,29 @@ fn load(
         table,
         log: None,
     })
+}
+
+/// A progress bar over the candidates' fits (a long log's diagnosis takes minutes),
+/// on a terminal only: redirected stderr (scripts, tests) stays clean.
+fn fit_progress() -> (ProgressBar, Progress) {
+    if !std::io::stderr().is_terminal() {
+        return (ProgressBar::hidden(), Progress::default());
+    }
+    let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
+    if let Ok(style) = ProgressStyle::with_template("fitting candidates {bar:30} {pos}/{len} {msg}")
+    {
+        bar.set_style(style);
+    }
+    bar.set_message("(the library's effects to the residual)");
+    let shown = bar.clone();
+    let progress = Progress(Some(std::sync::Arc::new(
+        move |done: usize, of: usize, kind: &str| {
+            shown.set_length(of as u64);
+            shown.set_position(done as u64);
+            shown.set_message(format!("({kind} done)"));
+        },
+    )));
+    (bar, progress)
 }
 
 /// One line on what became of a log's windows.
@@ -466,11 +492,15 @@ fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
         base_mode(a.input.mode),
         &a.input.log,
     )?;
+    let (bar, progress) = fit_progress();
     let opts = DiagnoseOptions {
         candidates: a.effects.clone(),
+        progress,
         ..DiagnoseOptions::default()
     };
-    let d = vibro_lab::diagnose(&model, &table, &opts)?;
+    let d = vibro_lab::diagnose(&model, &table, &opts);
+    bar.finish_and_clear();
+    let d = d?;
     if a.input.json {
         return print_json_with_log(&d, log.as_ref());
     }
@@ -542,12 +572,17 @@ fn report(a: &ReportArgs) -> anyhow::Result<()> {
         base_mode(a.input.mode),
         &a.input.log,
     )?;
-    let opts = DiagnoseOptions::default();
+    let (bar, progress) = fit_progress();
+    let opts = DiagnoseOptions {
+        progress,
+        ..DiagnoseOptions::default()
+    };
     let diagnosis = vibro_lab::diagnose(&model, &table, &opts)?;
     let mut text = String::new();
     print_diagnosis(&mut text, &diagnosis);
     let (ladder, extended) =
         vibro_lab::diagnose::ladder_from(&model, &table, &opts, a.max_effects, Some(&diagnosis))?;
+    bar.finish_and_clear();
     let after = vibro_lab::compare(&extended, &table)?;
     let summary = super::lab_report::write(
         &a.out,
