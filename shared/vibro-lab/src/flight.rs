@@ -194,13 +194,13 @@ pub fn prediction_u_g(
         let curvature = (at(h)? - 2.0 * at(0.0)? + at(-h)?) / (h * h);
         var += (0.5 * curvature * a_l3_var_g2).powi(2);
     }
+    // `h_plus` is the parameter's uncertainty; the step below may be shorter (a value
+    // cannot go below 0), which changes the slope's estimate, not the uncertainty.
     let mut add = |plus: Vibration, minus: Vibration, h_plus: f64, h_minus: f64| -> Result<()> {
         let span = h_plus + h_minus;
         if span > 0.0 {
             let slope = (ve(&plus)? - ve(&minus)?) / span;
-            // One uncertainty times the slope.
-            let step = 0.5 * span;
-            var += (slope * step).powi(2);
+            var += (slope * h_plus).powi(2);
         }
         Ok(())
     };
