@@ -331,6 +331,14 @@ impl AbsMean {
     /// - table: the slope is piecewise constant, and the change is read exactly.
     #[inline(always)]
     pub fn slope_change_bound(&self, m: f64, s: f64) -> f64 {
+        self.slope_change_bound_from(m, self.eval(m).1, s)
+    }
+
+    /// [`Self::slope_change_bound`] with the slope at `m`, `slope_m = eval(m).1`,
+    /// already known (the kernel has it from the evaluation that took the step): the
+    /// table's change is then read at one bin, `end`'s, instead of two.
+    #[inline(always)]
+    pub fn slope_change_bound_from(&self, m: f64, slope_m: f64, s: f64) -> f64 {
         let end = m + s;
         match self.kind {
             Kind::Zero => {
@@ -367,9 +375,12 @@ impl AbsMean {
                 }
                 bound
             }
+            // eval's slope is `p_tot - 2 prefix_p[j]`, computed the same way at both
+            // ends: 0 exactly when both are in one bin.
             Kind::Table => {
-                2.0 * (self.prefix_p[self.table_index(end)] - self.prefix_p[self.table_index(m)])
-                    .abs()
+                let slope_end =
+                    self.prefix_p[TABLE_POINTS] - 2.0 * self.prefix_p[self.table_index(end)];
+                (slope_end - slope_m).abs()
             }
         }
     }

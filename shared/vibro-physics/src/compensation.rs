@@ -356,17 +356,11 @@ impl TriadCompensator {
                     }
                     None => [a1; 3],
                 };
-                let out = self.exact(readings_g, a1, start);
-                let correction = out
-                    .units
-                    .map(|u| [u.main_g, u.main_g + u.det_g, u.main_g + u.det_g + u.rand_g]);
-                let per_stage = [0, 1, 2].map(|s| correction.map(|unit| unit[s]));
-                self.last_correction_g = per_stage
-                    .iter()
-                    .flatten()
-                    .all(|c| c.is_finite())
-                    .then_some(per_stage);
-                out
+                let (x, iterations) = self.solve_exact(readings_g, start);
+                let finite = x.iter().flatten().all(|v| v.is_finite());
+                self.last_correction_g =
+                    finite.then(|| x.map(|xs| [a1[0] - xs[0], a1[1] - xs[1], a1[2] - xs[2]]));
+                Self::exact_stages(a1, x, iterations)
             }
         }
     }
@@ -377,7 +371,10 @@ impl TriadCompensator {
         let a1 = self.first_approximations_g(readings_g);
         match self.units[0].mode {
             Mode::AsPublished | Mode::Paper => self.published(a1),
-            Mode::Exact => self.exact(readings_g, a1, [a1; 3]),
+            Mode::Exact => {
+                let (x, iterations) = self.solve_exact(readings_g, [a1; 3]);
+                Self::exact_stages(a1, x, iterations)
+            }
         }
     }
 
@@ -409,7 +406,9 @@ impl TriadCompensator {
     /// slope), so a stage stops as soon as that bound is below [`TOLERANCE_G`]: no
     /// verifying evaluation is needed. From `a(1)` a stage typically takes two steps;
     /// from the last sample's correction, one.
-    fn exact(&self, readings_g: [f64; 3], a1: [f64; 3], start: [[f64; 3]; 3]) -> TriadStages {
+    /// Returns the roots `[stage][unit]` (stages `a(2)`, `a(3)`, `a(4)`) and the number
+    /// of Newton steps taken.
+    fn solve_exact(&self, readings_g: [f64; 3], start: [[f64; 3]; 3]) -> ([[f64; 3]; 3], u32) {
         let mut x = start;
         let mut done = [false; 3];
         let mut iterations = 0;
@@ -422,32 +421,38 @@ impl TriadCompensator {
                 let xs = &mut x[stage];
                 let mut residual = [0.0; 3];
                 let mut jacobian = [[0.0; 3]; 3];
+                let mut abs_slope = [0.0; 3];
                 let mut curvature = 0.0f64;
                 let mut slope_min = f64::INFINITY;
                 for i in 0..3 {
                     let [oa, pa] = &self.cross_rows[i];
                     let cross = [dot3(oa, xs), dot3(pa, xs)];
-                    let (value, grad, curv) = self.units[i].models[stage]
+                    let d = self.units[i].models[stage]
                         .mean_output_with_derivatives_g([cross[0], cross[1], xs[i]]);
-                    residual[i] = value - readings_g[i];
+                    let grad = d.gradient;
+                    residual[i] = d.value_g - readings_g[i];
                     for j in 0..3 {
                         jacobian[i][j] = grad[0] * oa[j] + grad[1] * pa[j];
                     }
                     jacobian[i][i] += grad[2];
-                    curvature = curvature.max(curv);
-                    slope_min = slope_min.min(grad[2].abs());
+                    abs_slope[i] = d.abs_slope;
+                    curvature = larger(curvature, d.curvature_bound_per_g);
+                    slope_min = smaller(slope_min, grad[2].abs());
                 }
-                let inv = inverse3(&jacobian);
+                let step = solve3(&jacobian, &residual);
                 let mut largest = 0.0f64;
                 let mut asymmetry_bound = 0.0f64;
                 for i in 0..3 {
-                    let step =
-                        inv[i][0] * residual[0] + inv[i][1] * residual[1] + inv[i][2] * residual[2];
-                    asymmetry_bound = asymmetry_bound.max(
-                        self.units[i].models[stage].asymmetry_step_error_bound_g(xs[i], -step),
+                    asymmetry_bound = larger(
+                        asymmetry_bound,
+                        self.units[i].models[stage].asymmetry_step_error_bound_g(
+                            xs[i],
+                            abs_slope[i],
+                            -step[i],
+                        ),
                     );
-                    xs[i] -= step;
-                    largest = largest.max(step.abs());
+                    xs[i] -= step[i];
+                    largest = larger(largest, step[i].abs());
                 }
                 // The residual left by the step: the smooth terms' `0.5 H s^2` (with a
                 // factor 4 for H taken at the start of the step), plus the asymmetry
@@ -459,6 +464,11 @@ impl TriadCompensator {
                 break;
             }
         }
+        (x, iterations)
+    }
+
+    #[inline]
+    fn exact_stages(a1: [f64; 3], x: [[f64; 3]; 3], iterations: u32) -> TriadStages {
         let unit = |i: usize| Stages::new([a1[i], x[0][i], x[1][i], x[2][i]]);
         TriadStages {
             units: [unit(0), unit(1), unit(2)],
@@ -472,24 +482,47 @@ fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
-/// The inverse of a 3x3 matrix by its adjugate. `J` is within 1e-2 of `k1 * I` for any
+/// `max(a, b)` as one `maxsd`: `f64::max`'s NaN rule (the other operand wins) costs
+/// several instructions, and here a NaN in `b` should not be dropped: it propagates,
+/// so the stopping test fails and the caller sees a non-finite result.
+#[inline(always)]
+fn larger(a: f64, b: f64) -> f64 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `min(a, b)`, NaN in `b` propagating, as [`larger`].
+#[inline(always)]
+fn smaller(a: f64, b: f64) -> f64 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `J^-1 r` by the adjugate (Cramer's rule). `J` is within 1e-2 of `k1 * I` for any
 /// valid passport, so it is far from singular.
-#[inline]
-fn inverse3(j: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
+#[inline(always)]
+fn solve3(j: &[[f64; 3]; 3], r: &[f64; 3]) -> [f64; 3] {
+    // Cofactors: c_ik of element (i, k); adj(J)[k][i] = c_ik.
     let c00 = j[1][1] * j[2][2] - j[1][2] * j[2][1];
     let c01 = j[1][2] * j[2][0] - j[1][0] * j[2][2];
     let c02 = j[1][0] * j[2][1] - j[1][1] * j[2][0];
-    let inv_det = 1.0 / (j[0][0] * c00 + j[0][1] * c01 + j[0][2] * c02);
     let c10 = j[0][2] * j[2][1] - j[0][1] * j[2][2];
     let c11 = j[0][0] * j[2][2] - j[0][2] * j[2][0];
     let c12 = j[0][1] * j[2][0] - j[0][0] * j[2][1];
     let c20 = j[0][1] * j[1][2] - j[0][2] * j[1][1];
     let c21 = j[0][2] * j[1][0] - j[0][0] * j[1][2];
     let c22 = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+    let inv_det = 1.0 / (j[0][0] * c00 + j[0][1] * c01 + j[0][2] * c02);
     [
-        [c00 * inv_det, c10 * inv_det, c20 * inv_det],
-        [c01 * inv_det, c11 * inv_det, c21 * inv_det],
-        [c02 * inv_det, c12 * inv_det, c22 * inv_det],
+        (c00 * r[0] + c10 * r[1] + c20 * r[2]) * inv_det,
+        (c01 * r[0] + c11 * r[1] + c21 * r[2]) * inv_det,
+        (c02 * r[0] + c12 * r[1] + c22 * r[2]) * inv_det,
     ]
 }
 

@@ -80,6 +80,20 @@ pub struct MeanModel {
     hot: HotTerms,
 }
 
+/// [`MeanModel::mean_output_with_derivatives_g`]'s result.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeanOutputDerivatives {
+    /// `E[aF]`, g.
+    pub value_g: f64,
+    /// `[d/daL1, d/daL2, d/daL3]` of `E[aF]`.
+    pub gradient: [f64; 3],
+    /// A bound on the second derivatives, 1/g.
+    pub curvature_bound_per_g: f64,
+    /// The slope of the asymmetry term's `E|aL3 + v3|` at this `aL3`, the input of
+    /// [`MeanModel::asymmetry_step_error_bound_g`].
+    pub abs_slope: f64,
+}
+
 /// The parts of `E[aF]` that do not depend on the flight acceleration.
 #[derive(Debug, Clone, Copy, Default)]
 struct HotTerms {
@@ -194,8 +208,8 @@ impl MeanModel {
     /// `E[aF]` at `a_l_g` and its gradient `[d/daL1, d/daL2, d/daL3]`.
     #[inline]
     pub fn mean_output_with_gradient_g(&self, a_l_g: [f64; 3]) -> (f64, [f64; 3]) {
-        let (value, gradient, _) = self.mean_output_with_derivatives_g(a_l_g);
-        (value, gradient)
+        let d = self.mean_output_with_derivatives_g(a_l_g);
+        (d.value_g, d.gradient)
     }
 
     /// `E[aF]`, its gradient, and a bound on its second derivatives: `|d2/daL3^2|` of
@@ -203,7 +217,7 @@ impl MeanModel {
     /// asymmetry table adds slope jumps of at most `d1A` per bin, which the compensation
     /// tolerates (see [`crate::compensation`]).
     #[inline(always)]
-    pub fn mean_output_with_derivatives_g(&self, a_l_g: [f64; 3]) -> (f64, [f64; 3], f64) {
+    pub fn mean_output_with_derivatives_g(&self, a_l_g: [f64; 3]) -> MeanOutputDerivatives {
         let p = &self.passport;
         let h = &self.hot;
         let [a1, a2, a] = a_l_g;
@@ -226,15 +240,24 @@ impl MeanModel {
             p.m2 + p.m32_per_g * a,
             h.linear + h.half_asym * abs_slope + poly_slope + cross_slope,
         ];
-        (value, gradient, poly_curv.abs() + h.mixed_curvature)
+        MeanOutputDerivatives {
+            value_g: value,
+            gradient,
+            curvature_bound_per_g: poly_curv.abs() + h.mixed_curvature,
+            abs_slope,
+        }
     }
 
     /// A bound on the change of the asymmetry term's linearisation after a Newton
     /// step `step_g` taken from `a3_g`: `0.5 |k1 d1A| |s| max|slope change|`, exact
     /// for the convex `E|aL3 + v3|` (see [`AbsMean::slope_change_bound`]).
+    /// `abs_slope` is [`MeanOutputDerivatives::abs_slope`] at `a3_g`, so that the
+    /// table's bound reads one bin, not two.
     #[inline(always)]
-    pub fn asymmetry_step_error_bound_g(&self, a3_g: f64, step_g: f64) -> f64 {
-        self.hot.half_asym_abs * step_g.abs() * self.abs.slope_change_bound(a3_g, step_g)
+    pub fn asymmetry_step_error_bound_g(&self, a3_g: f64, abs_slope: f64, step_g: f64) -> f64 {
+        self.hot.half_asym_abs
+            * step_g.abs()
+            * self.abs.slope_change_bound_from(a3_g, abs_slope, step_g)
     }
 
     /// The exact VE components at `a_l_g`. The additive part `d0(1)` holds the
