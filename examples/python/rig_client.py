@@ -51,7 +51,7 @@ except ImportError as e:  # pragma: no cover - depends on the environment
 # --- The message contracts (docs/messages.md) -----------------------------------------
 
 #: Every type name ends in ``::v{SCHEMA_VERSION}`` (``vibro_msgs::SCHEMA_VERSION``).
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 UNITS = 3
 ACCEL_BLOCK_MAX = 32
 VIB_BLOCK_MAX = 512
@@ -179,7 +179,7 @@ class CompensatedBlock(C.Structure):
     ]
 
 
-@wire(80)
+@wire(88)
 class Heartbeat(C.Structure):
     _fields_ = [
         ("seq", U64),
@@ -191,6 +191,7 @@ class Heartbeat(C.Structure):
         ("stale", U64),
         ("latency_p50_ns", U64),
         ("latency_p99_ns", U64),
+        ("input_samples_to_output", U64),
         ("service", U8),
         ("state", U8),
         ("_pad", U8 * 6),

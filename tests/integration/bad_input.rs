@@ -291,7 +291,7 @@ struct AccelBlockV1 {
 /// edited without the version bump docs/messages.md asks for. Never built, as above.
 #[allow(dead_code)]
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
-#[type_name("vibrocomp::VibBlock::v2")]
+#[type_name("vibrocomp::VibBlock::v3")]
 #[repr(C)]
 struct VibBlockEdited {
     seq: u64,
@@ -322,14 +322,14 @@ fn services_finding_a_stream_of_another_version_refuse_naming_both_payloads() {
         &out,
         &[
             &format!("subscribing to {p}accel"),
-            &format!("\"{p}accel\" carries vibrocomp::AccelBlock::v1 (816 bytes, alignment 8), but this process uses vibrocomp::AccelBlock::v2 (824 bytes, alignment 8)"),
-            "incompatible version of the message contracts (this build's is version 2",
+            &format!("\"{p}accel\" carries vibrocomp::AccelBlock::v1 (816 bytes, alignment 8), but this process uses vibrocomp::AccelBlock::v3 (824 bytes, alignment 8)"),
+            "incompatible version of the message contracts (this build's is version 3",
         ],
     );
 
     let (data, event, config) = open(Stream::Vib);
     let _edited = StreamPublisher::<VibBlockEdited>::create(&node, &data, &event, &config).unwrap();
-    let same_name = format!("\"{p}vib\" carries vibrocomp::VibBlock::v2 (16 bytes, alignment 8), but this process uses vibrocomp::VibBlock::v2 (12344 bytes, alignment 8)");
+    let same_name = format!("\"{p}vib\" carries vibrocomp::VibBlock::v3 (16 bytes, alignment 8), but this process uses vibrocomp::VibBlock::v3 (12344 bytes, alignment 8)");
     let out = run_within(
         bin().args(["service", "estimator", "--prefix", &p]),
         Duration::from_secs(20),
@@ -400,7 +400,7 @@ fn a_running_system_refuses_a_publisher_of_another_version() {
         "{err}"
     );
     let text = err.to_string();
-    let wanted = format!("\"{p}accel\" carries vibrocomp::AccelBlock::v2 (824 bytes, alignment 8), but this process uses vibrocomp::AccelBlock::v1 (816 bytes, alignment 8): one of the two was built against an incompatible version of the message contracts");
+    let wanted = format!("\"{p}accel\" carries vibrocomp::AccelBlock::v3 (824 bytes, alignment 8), but this process uses vibrocomp::AccelBlock::v1 (816 bytes, alignment 8): one of the two was built against an incompatible version of the message contracts");
     assert!(text.contains(&wanted), "{text}");
 
     let s = Stream::Vib;
@@ -414,7 +414,7 @@ fn a_running_system_refuses_a_publisher_of_another_version() {
     .expect("an edited publisher is refused")
     .to_string();
     assert!(
-        err.contains("carries vibrocomp::VibBlock::v2 (12344 bytes, alignment 8), but this process uses vibrocomp::VibBlock::v2 (16 bytes, alignment 8)"),
+        err.contains("carries vibrocomp::VibBlock::v3 (12344 bytes, alignment 8), but this process uses vibrocomp::VibBlock::v3 (16 bytes, alignment 8)"),
         "{err}"
     );
 

@@ -253,6 +253,18 @@ fn lockstepped_replay_through_the_processes_equals_the_library_twice() {
     assert_eq!(comp_s["undelivered"], 0, "{comp_s}");
     assert_eq!(est_s["vib"]["lost_messages"], 0, "{est_s}");
     assert_eq!(est_s["vib"]["received"], 400, "{est_s}");
+    // The replays waited only where an estimate could come out (docs/messages.md,
+    // "progress"): at most twice per estimate, plus the first blocks; a wait at every
+    // switch between /vib and /accel would be 200 per replay.
+    let estimates = est_s["estimates_published"].as_u64().unwrap();
+    assert_eq!(
+        estimates, 14,
+        "7 windows of 1 s sliding by 0.5 s per replay: {est_s}"
+    );
+    for r in [&r1, &r2] {
+        let waits = r["lockstep_waits"].as_u64().unwrap();
+        assert!(waits <= 2 * 7 + 4, "{waits} waits for 7 estimates: {r}");
+    }
 }
 
 /// Python's reader decodes every message of a recording made from the processes,

@@ -818,6 +818,8 @@ impl Compensation {
             stale: self.s.stale_blocks + self.s.missing_blocks + self.s.ahead_blocks,
             latency: self.latency.period(),
             state,
+            // Every block is answered at once: nothing to report.
+            input_samples_to_output: 0,
         }
     }
 }
@@ -1035,6 +1037,7 @@ fn hot_loop(
                 stale: st.s.stale_blocks + st.s.missing_blocks + st.s.ahead_blocks,
                 latency: Quantiles::default(),
                 state: ServiceState::Running,
+                input_samples_to_output: 0,
             };
             if let Err(e) = progress.publish(&report) {
                 debug!("progress: {e}");

@@ -422,6 +422,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
                 stale: c.estimates_flagged,
                 latency: Quantiles::default(),
                 state: ServiceState::Running,
+                input_samples_to_output: estimator.samples_to_next_estimate(),
             };
             if let Err(e) = progress.publish(&report) {
                 debug!("progress: {e}");
@@ -460,6 +461,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
                 stale: c.estimates_flagged,
                 latency: period,
                 state,
+                input_samples_to_output: estimator.samples_to_next_estimate(),
             };
             if let Err(e) = heartbeat.publish(&report) {
                 debug!("heartbeat: {e}");
@@ -504,6 +506,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
         stale: c.estimates_flagged,
         latency: latency.period(),
         state: ServiceState::Stopping,
+        input_samples_to_output: estimator.samples_to_next_estimate(),
     };
     if let Err(e) = heartbeat.publish(&report) {
         debug!("final heartbeat: {e}");

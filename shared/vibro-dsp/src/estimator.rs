@@ -192,6 +192,13 @@ impl Estimator {
         &self.config
     }
 
+    /// Samples the current window still needs: the next estimate comes out when this
+    /// many more are placed (received, or filled in for a gap). Never 0 between calls
+    /// (a full window is estimated and slid at once).
+    pub fn samples_to_next_estimate(&self) -> u64 {
+        (self.intake.window - self.intake.filled) as u64
+    }
+
     /// Totals since the estimator was built.
     pub fn counters(&self) -> Counters {
         self.counters

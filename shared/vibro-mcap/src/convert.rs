@@ -561,6 +561,7 @@ impl From<&Heartbeat> for proto::Heartbeat {
             stale: m.stale,
             latency_p50_ns: m.latency_p50_ns,
             latency_p99_ns: m.latency_p99_ns,
+            input_samples_to_output: m.input_samples_to_output,
             service: m.service.into(),
             state: m.state.into(),
         }
@@ -581,6 +582,7 @@ impl TryFrom<&proto::Heartbeat> for Heartbeat {
             stale: p.stale,
             latency_p50_ns: p.latency_p50_ns,
             latency_p99_ns: p.latency_p99_ns,
+            input_samples_to_output: p.input_samples_to_output,
             service: small_code(K, "service", p.service)?,
             state: small_code(K, "state", p.state)?,
             _pad: [0; 6],
@@ -727,6 +729,7 @@ mod tests {
             stale: 7,
             latency_p50_ns: 8,
             latency_p99_ns: u64::MAX,
+            input_samples_to_output: 12_800,
             service: 4,
             state: 255,
             _pad: [0; 6],

@@ -8,7 +8,7 @@
 //! Every type is `#[repr(C)]`, fixed-size, made of plain numbers only (no pointers,
 //! strings or vectors), `Copy`, free of implicit padding (checked at compile time), and
 //! derives iceoryx2's `ZeroCopySend` with an explicit, versioned type name
-//! (`vibrocomp::AccelBlock::v2`). Field names carry units (`_v`, `_g`, `_hz`, `_ns`,
+//! (`vibrocomp::AccelBlock::v3`). Field names carry units (`_v`, `_g`, `_hz`, `_ns`,
 //! `_rad`, `_db`). Their byte layouts are published in `docs/messages.md` for rigs written
 //! in C or Python, and a test checks that document against [`FieldLayout`] tables made by
 //! `core::mem::offset_of!`, so the two cannot drift.
@@ -60,7 +60,7 @@ pub use names::{
 
 /// Version of the message contracts. Every type name ends in `::v{SCHEMA_VERSION}`; any
 /// change to any wire type's layout or meaning increments it (docs/messages.md).
-pub const SCHEMA_VERSION: u32 = 2;
+pub const SCHEMA_VERSION: u32 = 3;
 
 /// Units in a triad: accelerometers AK1..AK3, each with its vibration sensor VD1..VD3.
 pub const UNITS: usize = 3;
@@ -117,22 +117,22 @@ mod tests {
         let expected = [
             (
                 iceoryx_type_name::<AccelBlock>(),
-                "vibrocomp::AccelBlock::v2",
+                "vibrocomp::AccelBlock::v3",
             ),
-            (iceoryx_type_name::<VibBlock>(), "vibrocomp::VibBlock::v2"),
+            (iceoryx_type_name::<VibBlock>(), "vibrocomp::VibBlock::v3"),
             (
                 iceoryx_type_name::<VibEstimate>(),
-                "vibrocomp::VibEstimate::v2",
+                "vibrocomp::VibEstimate::v3",
             ),
             (
                 iceoryx_type_name::<CompensatedBlock>(),
-                "vibrocomp::CompensatedBlock::v2",
+                "vibrocomp::CompensatedBlock::v3",
             ),
             (
                 iceoryx_type_name::<TruthBlock>(),
-                "vibrocomp::TruthBlock::v2",
+                "vibrocomp::TruthBlock::v3",
             ),
-            (iceoryx_type_name::<Heartbeat>(), "vibrocomp::Heartbeat::v2"),
+            (iceoryx_type_name::<Heartbeat>(), "vibrocomp::Heartbeat::v3"),
         ];
         for (seen, want) in expected {
             assert_eq!(seen, want);

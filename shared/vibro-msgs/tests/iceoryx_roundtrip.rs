@@ -148,6 +148,7 @@ fn heartbeat() -> Heartbeat {
         stale: 106,
         latency_p50_ns: 107,
         latency_p99_ns: 108,
+        input_samples_to_output: 109,
         service: ServiceId::Estimator.code(),
         state: ServiceState::Degraded.code(),
         _pad: [0; 6],

@@ -19,7 +19,10 @@
 //!   docs/messages.md) until the consumer of the other stream has taken everything
 //!   sent. The compensator then sees exactly the estimates of the vibration blocks that
 //!   precede each accelerometer block in the log, whatever the machine's load: no
-//!   sample is dropped and the outputs are bit-identical from run to run.
+//!   sample is dropped and the outputs are bit-identical from run to run. It waits only
+//!   where an estimate can come out: the estimator's progress messages say how many
+//!   samples its window still needs (`Heartbeat::input_samples_to_output`), so the
+//!   replay waits about twice per estimate instead of at every switch.
 //!
 //! Bad input fails cleanly, naming the file and the problem. A log that is not MCAP,
 //! not finished (a crash), empty, or whose rig topics carry other message types is

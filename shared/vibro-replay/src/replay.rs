@@ -314,6 +314,86 @@ struct Consumer {
     baseline: u64,
     /// Latest `received` seen.
     received: u64,
+    /// `input_samples_to_output` of the latest progress message (0: not reported).
+    samples_to_output: u64,
+}
+
+/// Where a lock-stepped replay must wait (docs/messages.md, "progress"). Waiting at
+/// every switch between `/vib` and `/accel` is always right, but each wait is a
+/// round trip through the scheduler. An estimate can only come out of a vibration
+/// block that completes the estimator's window, so:
+///
+/// - before an accelerometer block, the replay waits for the estimator only if the
+///   vibration samples sent since its last wait may have completed a window;
+/// - before a vibration block that may complete one, it waits until the compensator
+///   has taken every accelerometer block sent, so that the estimate cannot overtake
+///   them.
+///
+/// "May complete" is conservative: the window's remaining samples are known only
+/// from the estimator's progress message at a wait; a vibration block that does not
+/// follow the previous one exactly (sequence, sample index, rate, or a start time off
+/// by more than the rounding of an integer `sample_period_ns`), or a flagged block, is
+/// taken as completing one (the estimator may fill a gap with samples); and so is
+/// everything while the estimator reports 0 (not known).
+#[derive(Debug, Default)]
+struct Gate {
+    /// Samples the estimator's window still needed at the last wait for it; 0: unknown.
+    budget: u64,
+    /// Vibration samples sent since that wait.
+    spent: u64,
+    /// A vibration block sent since that wait may have completed a window.
+    estimator_due: bool,
+    /// Accelerometer blocks were sent since the compensator last took everything.
+    accel_pending: bool,
+    /// Where the next vibration block follows the last one: `(seq, first index,
+    /// t0, period)`.
+    next_vib: Option<(u64, u64, u64, u64)>,
+}
+
+impl Gate {
+    /// Before vibration block `b` (as published): must the replay first wait for the
+    /// compensator? Also books the block.
+    fn before_vib(&mut self, b: VibHead) -> bool {
+        let count = u64::from(b.count);
+        let follows = self.next_vib.is_some_and(|(seq, index, t0_ns, period_ns)| {
+            b.seq == seq
+                && b.first_sample_index == index
+                && b.sample_period_ns == period_ns
+                && b.t0_ns.abs_diff(t0_ns) <= count.max(1)
+                && b.flags == 0
+        });
+        self.next_vib = Some((
+            b.seq.wrapping_add(1),
+            b.first_sample_index.wrapping_add(count),
+            b.t0_ns.wrapping_add(count.wrapping_mul(b.sample_period_ns)),
+            b.sample_period_ns,
+        ));
+        self.spent = self.spent.saturating_add(count);
+        let may_complete = !follows || self.budget == 0 || self.spent >= self.budget;
+        if may_complete {
+            self.estimator_due = true;
+        }
+        may_complete && self.accel_pending
+    }
+
+    /// The compensator has taken every accelerometer block sent.
+    fn compensator_synced(&mut self) {
+        self.accel_pending = false;
+    }
+
+    /// Before an accelerometer block: must the replay first wait for the estimator?
+    fn before_accel(&mut self) -> bool {
+        self.accel_pending = true;
+        self.estimator_due
+    }
+
+    /// The estimator has taken every vibration block sent and reports that its
+    /// window needs `samples_to_output` more samples.
+    fn estimator_synced(&mut self, samples_to_output: u64) {
+        self.budget = samples_to_output;
+        self.spent = 0;
+        self.estimator_due = false;
+    }
 }
 
 impl Consumer {
@@ -330,6 +410,7 @@ impl Consumer {
             progress: StreamSubscriber::open(node, names, s)?,
             baseline: 0,
             received: 0,
+            samples_to_output: 0,
         })
     }
 
@@ -344,6 +425,7 @@ impl Consumer {
     fn poll(&mut self) -> Result<()> {
         while let Some(m) = self.progress.receive()? {
             self.received = self.received.max(m.received);
+            self.samples_to_output = m.input_samples_to_output;
         }
         Ok(())
     }
@@ -428,7 +510,30 @@ struct Shift {
     next: (u64, u64, u64),
 }
 
+/// What [`Gate`] looks at in a vibration block, as published (shifted).
+#[derive(Debug, Clone, Copy)]
+struct VibHead {
+    seq: u64,
+    first_sample_index: u64,
+    t0_ns: u64,
+    sample_period_ns: u64,
+    count: u32,
+    flags: u32,
+}
+
 impl Shift {
+    /// The head of `b` as it will be published in this pass.
+    fn head(&self, b: &VibBlock) -> VibHead {
+        VibHead {
+            seq: b.seq.wrapping_add(self.seq),
+            first_sample_index: b.first_sample_index.wrapping_add(self.index),
+            t0_ns: b.t0_ns.wrapping_add(self.time_ns),
+            sample_period_ns: b.sample_period_ns,
+            count: b.count,
+            flags: b.flags,
+        }
+    }
+
     /// The shift of the next pass: its first message continues where this one ended.
     fn advance(&mut self) {
         if let Some((seq, index, time_ns)) = self.first {
@@ -616,7 +721,7 @@ pub fn replay(
     let mut topics: BTreeMap<String, u64> = selected.iter().map(|&s| (topic(s), 0)).collect();
     let (mut vib_sent, mut accel_sent) = (0u64, 0u64);
     let (mut waits, mut wait_s) = (0u64, 0.0f64);
-    let mut last: Option<Stream> = None;
+    let mut gate = Gate::default();
     let mut messages = 0u64;
     let mut passes = 0u64;
     let mut span_ns = 0u64;
@@ -677,20 +782,35 @@ pub fn replay(
                 }
             }
             // Lock-step: the other stream's consumer must have taken everything sent
-            // before this stream gets its next message.
-            if lockstep && last != Some(stream) {
+            // before this stream's next message, where that message could be overtaken
+            // (`Gate`).
+            if lockstep {
                 let t = Instant::now();
-                let waited = match stream {
-                    Stream::Accel => match &mut estimator {
-                        Some(c) => c.wait_for(vib_sent, options.stall_timeout, stop)?,
-                        None => false,
-                    },
-                    Stream::Vib => match &mut compensator {
-                        Some(c) => c.wait_for(accel_sent, options.stall_timeout, stop)?,
-                        None => false,
-                    },
-                    _ => false,
+                let mut waited = false;
+                let consumer = match (&record.message, stream) {
+                    (Message::AccelBlock(_), Stream::Accel) => {
+                        gate.before_accel().then_some(ServiceId::Estimator)
+                    }
+                    (Message::VibBlock(b), Stream::Vib) => gate
+                        .before_vib(pubs.shifts[0].head(b))
+                        .then_some(ServiceId::Compensator),
+                    _ => None,
                 };
+                match consumer {
+                    Some(ServiceId::Estimator) => {
+                        if let Some(c) = &mut estimator {
+                            waited = c.wait_for(vib_sent, options.stall_timeout, stop)?;
+                            gate.estimator_synced(c.samples_to_output);
+                        }
+                    }
+                    Some(_) => {
+                        if let Some(c) = &mut compensator {
+                            waited = c.wait_for(accel_sent, options.stall_timeout, stop)?;
+                        }
+                        gate.compensator_synced();
+                    }
+                    None => {}
+                }
                 if waited {
                     waits += 1;
                     wait_s += t.elapsed().as_secs_f64();
@@ -737,7 +857,6 @@ pub fn replay(
                 Some(Err(e)) => return Err(e.into()),
                 Some(Ok(_)) => {}
             }
-            last = Some(stream);
             messages += 1;
             if let Some(n) = topics.get_mut(&topic(stream)) {
                 *n += 1;
@@ -811,4 +930,117 @@ pub fn replay(
         "replay finished"
     );
     Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 512-sample blocks at 25.6 kHz: 20 ms apart exactly, while the integer period
+    /// (39062 ns) times 512 falls 256 ns short, as in the simulator's logs.
+    fn vib(k: u64) -> VibHead {
+        VibHead {
+            seq: k,
+            first_sample_index: 512 * k,
+            t0_ns: 20_000_000 * k,
+            sample_period_ns: 39_062,
+            count: 512,
+            flags: 0,
+        }
+    }
+
+    /// Replays the log order of the default flight (two vibration blocks, then one
+    /// accelerometer block) against an estimator whose window needs `window` samples
+    /// and slides by `hop`, and returns the waits `(estimator, compensator)` and
+    /// whether every estimate was waited for before the next accelerometer block and
+    /// every accelerometer block taken before a window-completing vibration block.
+    fn simulate(blocks: u64, window: u64, hop: u64, report: bool) -> (u64, u64) {
+        let mut gate = Gate::default();
+        let (mut filled, mut estimates_seen, mut estimates) = (0u64, 0u64, 0u64);
+        let (mut est_waits, mut comp_waits, mut accel_untaken) = (0, 0, 0u64);
+        for k in 0..blocks {
+            if gate.before_vib(vib(k)) {
+                comp_waits += 1;
+                accel_untaken = 0;
+                gate.compensator_synced();
+            }
+            filled += 512;
+            if filled >= window {
+                // An estimate comes out: no accelerometer block may be in flight.
+                assert_eq!(accel_untaken, 0, "block {k}: an estimate overtook accel");
+                estimates += 1;
+                filled -= hop;
+            }
+            if k % 2 == 1 {
+                if gate.before_accel() {
+                    est_waits += 1;
+                    estimates_seen = estimates;
+                    gate.estimator_synced(if report { window - filled } else { 0 });
+                }
+                assert_eq!(estimates_seen, estimates, "block {k}: estimate not awaited");
+                accel_untaken += 1;
+            }
+        }
+        (est_waits, comp_waits)
+    }
+
+    #[test]
+    fn the_gate_waits_only_where_an_estimate_can_come_out() {
+        // 600 s: 30,000 blocks, an estimate every 12,800 samples (25 blocks).
+        let (est, comp) = simulate(30_000, 25_600, 12_800, true);
+        let estimates = (30_000 * 512 - 25_600) / 12_800 + 1;
+        assert_eq!(estimates, 1199);
+        // One wait each per estimate, plus the first block (budget not yet known).
+        assert!(est <= estimates + 1 && est >= estimates, "{est}");
+        assert!(comp <= estimates + 1 && comp >= estimates - 1, "{comp}");
+        // Without the estimator's report: a wait at every switch, as before.
+        let (est, comp) = simulate(30_000, 25_600, 12_800, false);
+        assert_eq!((est, comp), (15_000, 14_999));
+    }
+
+    #[test]
+    fn anything_irregular_in_the_vibration_stream_counts_as_a_completed_window() {
+        let synced = |k: u64| {
+            let mut g = Gate::default();
+            g.before_vib(vib(k));
+            g.before_accel();
+            g.estimator_synced(10_000);
+            g
+        };
+        // Contiguous: within the budget, no wait.
+        let mut g = synced(0);
+        assert!(!g.before_vib(vib(1)));
+        assert!(!g.before_accel());
+        type Edit = fn(&mut VibHead);
+        let cases: [(&str, Edit); 6] = [
+            ("sequence jump", |b| b.seq += 1),
+            ("sample index jump", |b| b.first_sample_index += 512),
+            ("time gap of one period", |b| b.t0_ns += 39_062),
+            ("time 513 ns off", |b| b.t0_ns += 513),
+            ("rate change", |b| b.sample_period_ns = 78_125),
+            ("flagged", |b| b.flags = vibro_msgs::vib_flags::GAP_BEFORE),
+        ];
+        for (what, edit) in cases {
+            let mut g = synced(0);
+            let mut b = vib(1);
+            edit(&mut b);
+            // An accelerometer block is pending: the compensator must take it first,
+            // and the estimator must be waited for before the next one.
+            assert!(g.before_vib(b), "{what}");
+            g.compensator_synced();
+            assert!(g.before_accel(), "{what}");
+        }
+        // 256 ns of integer-period rounding is not a gap.
+        let mut g = synced(0);
+        let mut b = vib(1);
+        b.t0_ns -= 256;
+        assert!(!g.before_vib(b));
+        // The budget: the block that reaches it may complete the window.
+        let mut g = synced(0);
+        g.before_accel();
+        for k in 1..=19 {
+            assert!(!g.before_vib(vib(k)), "block {k}: 512 * {k} < 10,000");
+        }
+        assert!(g.before_vib(vib(20)), "512 * 20 >= 10,000");
+    }
 }

@@ -15,6 +15,9 @@ pub struct HeartbeatReport {
     /// Latency over the last period.
     pub latency: Quantiles,
     pub state: ServiceState,
+    /// Contiguous input samples still needed before the next output; 0: not reported
+    /// (`Heartbeat::input_samples_to_output`).
+    pub input_samples_to_output: u64,
 }
 
 /// Publishes one service's heartbeats.
@@ -84,6 +87,7 @@ impl HeartbeatPublisher {
             stale: report.stale,
             latency_p50_ns: report.latency.p50_ns,
             latency_p99_ns: report.latency.p99_ns,
+            input_samples_to_output: report.input_samples_to_output,
             service: self.service.code(),
             state: report.state.code(),
             ..Heartbeat::ZEROED

@@ -161,6 +161,7 @@ pub fn heartbeat(seq: u64) -> Heartbeat {
         stale: 1,
         latency_p50_ns: 45_000,
         latency_p99_ns: 120_000,
+        input_samples_to_output: 6_400,
         service: ServiceId::Compensator.code(),
         state: ServiceState::Running.code(),
         _pad: [0; 6],
