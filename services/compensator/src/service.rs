@@ -226,6 +226,7 @@ impl InProcess {
     /// accelerometer block).
     pub fn on_estimate(&mut self, estimate: &VibEstimate) {
         self.st.on_estimate(estimate);
+        self.st.prepare();
     }
 
     /// An accelerometer block arrives at `recv_ns`: its compensated block (if it was
@@ -341,6 +342,12 @@ impl EffectGrid {
 struct Compensation {
     model: Model,
     compensator: TriadCompensator,
+    /// A clone of `compensator` holding the latest estimate's vibration, built when the
+    /// estimate arrives ([`Self::prepare`]) so that the block that needs it swaps it in
+    /// instead of building the exact model's tables on its own latency.
+    prepared: TriadCompensator,
+    /// `generation` of the estimate `prepared` holds; `None`: nothing usable.
+    prepared_for: Option<u64>,
     k1_v_per_g: [f64; 3],
     /// The extended model's correction per unit, for the vibration the compensator
     /// holds; `None` without `model = ...` or without vibration.
@@ -376,6 +383,8 @@ impl Compensation {
             effect_grids: None,
             effect_center_g: [0.0; 3],
             model,
+            prepared: compensator.clone(),
+            prepared_for: None,
             compensator,
             latest: None,
             applied: None,
@@ -423,6 +432,9 @@ impl Compensation {
     fn take_update(&mut self, update: ModelUpdate) {
         self.model = update.model;
         self.compensator = update.compensator;
+        // Allocates, once per reload (not per block).
+        self.prepared = self.compensator.clone();
+        self.prepared_for = None;
         self.k1_v_per_g = self.model.k1_v_per_g();
         self.remap_latest();
         self.s.reloads_applied += 1;
@@ -447,6 +459,7 @@ impl Compensation {
     /// compensator takes it at the next block.
     fn remap_latest(&mut self) {
         self.applied = None;
+        self.prepared_for = None;
         let interval_s = self.interval_s();
         if let Some(l) = &mut self.latest {
             let within = within_output_interval(&l.estimate, interval_s);
@@ -481,6 +494,7 @@ impl Compensation {
                 let quality = e.flags & estimate_flags::ALL & !estimate_flags::TONE_FREE;
                 self.s.estimates_accepted += 1;
                 self.s.tones_dropped += u64::from(v.tones_dropped);
+                self.prepared_for = None;
                 self.latest = Some(Latest {
                     generation: self.s.estimates_accepted,
                     estimate: *e,
@@ -502,12 +516,40 @@ impl Compensation {
         }
     }
 
+    /// Builds the latest estimate's vibration into `prepared`, off the blocks' path:
+    /// called once the pending estimates are taken (not per estimate, so a burst
+    /// builds once). The extended model's grids depend on the block's reading, so with
+    /// `model = ...` the tables are still built by the block ([`Self::apply`]). A
+    /// vibration the compensator refuses is left to `apply`, which reports it.
+    fn prepare(&mut self) {
+        if self.model.effects.is_some() {
+            return;
+        }
+        let Some(l) = &self.latest else {
+            return;
+        };
+        if self.prepared_for == Some(l.generation) || self.applied == Some(l.generation) {
+            return;
+        }
+        let ok = (0..3).all(|i| {
+            self.prepared
+                .set_vibration(i, &l.vibrations.units[i])
+                .is_ok()
+        });
+        self.prepared_for = ok.then_some(l.generation);
+    }
+
     /// Gives the compensator the vibration of estimate generation `want` (or none). Per estimate,
     /// never per sample: `set_vibration` rebuilds the exact model's tables (~1 ms).
     fn apply(&mut self, want: Option<u64>) -> bool {
         self.s.vibration_updates += 1;
         self.effect_grids = None;
         let ok = match (want, &self.latest) {
+            (Some(g), Some(_)) if self.model.effects.is_none() && self.prepared_for == Some(g) => {
+                self.compensator.swap_units(&mut self.prepared);
+                self.prepared_for = None;
+                true
+            }
             (Some(_), Some(l)) => match &self.model.effects {
                 None => (0..3).all(|i| {
                     self.compensator
@@ -1009,6 +1051,11 @@ fn hot_loop(
             }
         }
         let mut received_any = drain_estimates(&estimates, &mut st);
+        if received_any {
+            // The tables of the estimate the next block will want, built now rather
+            // than on that block's latency.
+            st.prepare();
+        }
         loop {
             match accel.receive() {
                 Ok(Some(block)) => {

@@ -328,6 +328,16 @@ impl TriadCompensator {
         self.units[i].set_vibration(vib)
     }
 
+    /// Exchanges the three units (passports, modes, vibrations and the exact model's
+    /// tables) with `other`'s, keeping this triad's tracking state. `other` must be a
+    /// clone of this triad (same axes, passports and mode) whose vibration was set
+    /// with [`Self::set_vibration`]: the tables are then built away from the stream
+    /// and taken in O(1), and the stream continues exactly as if they had been set
+    /// here. Does not allocate.
+    pub fn swap_units(&mut self, other: &mut TriadCompensator) {
+        std::mem::swap(&mut self.units, &mut other.units);
+    }
+
     /// Replaces unit `i`'s passport, keeping its vibration `vib`.
     pub fn set_passport(&mut self, i: usize, passport: Passport, vib: &Vibration) -> Result<()> {
         self.last_correction_g = None;
@@ -718,5 +728,52 @@ mod tests {
         let per_sample = f64::from(warm_iterations) / samples as f64;
         assert!(per_sample < 3.01, "{per_sample} iterations per sample");
         assert!(f64::from(cold_iterations) / samples as f64 >= 5.0);
+    }
+
+    /// A vibration built in a standby clone and swapped in gives, to the bit, the
+    /// stream that setting it in place gives: same tables, same tracking state. The
+    /// standby's previous vibration differs, so tables left over from it would show.
+    #[test]
+    fn swapping_in_a_prepared_vibration_equals_setting_it_in_place() {
+        let passports = [al15(), al1m(), aks05()];
+        let first = Vibration::single_tone(30.0, [0.5, 0.0, 2.0]);
+        let mut second = Vibration::single_tone(12.0, [1.2, 1.2, 0.5]);
+        second.covariance_g2 = [[1.0, 0.0, 0.3], [0.0, 1.0, 0.0], [0.3, 0.0, 1.96]];
+        let mut in_place = TriadCompensator::new(TriadAxes::standard(), passports, Mode::Exact);
+        let mut standby = in_place.clone();
+        for i in 0..3 {
+            in_place.set_vibration(i, &first).unwrap();
+            standby
+                .set_vibration(i, &Vibration::single_tone(80.0, [3.0; 3]))
+                .unwrap();
+        }
+        let mut swapped = in_place.clone();
+        let reading = |k: usize| {
+            let d = k as f64 * 1e-4;
+            [0.3 + d, -0.2 - d, 1.0 + 3.0 * d]
+        };
+        for k in 0..200 {
+            assert_eq!(
+                in_place.compensate(reading(k)),
+                swapped.compensate(reading(k))
+            );
+        }
+        for i in 0..3 {
+            in_place.set_vibration(i, &second).unwrap();
+            standby.set_vibration(i, &second).unwrap();
+        }
+        swapped.swap_units(&mut standby);
+        let mut changed = 0;
+        for k in 200..400 {
+            let (a, b) = (
+                in_place.compensate(reading(k)),
+                swapped.compensate(reading(k)),
+            );
+            assert_eq!(a, b, "sample {k}");
+            changed += usize::from(a.units[2].rand_g != 0.0);
+        }
+        // The second vibration is in use (its random part corrects), not the first.
+        assert_eq!(changed, 200);
+        assert_eq!(standby.unit(0).passport(), in_place.unit(0).passport());
     }
 }

@@ -510,6 +510,81 @@ struct Shift {
     next: (u64, u64, u64),
 }
 
+/// Records decoded ahead of the replay loop, on a thread of their own: decompressing
+/// and decoding the log (zstd and protobuf, most of the replay's own CPU time) then
+/// overlaps with the waits for the services, and the loop only publishes. Holds at
+/// most [`ReadAhead::DEPTH`] records; dropping it stops the thread. Reads on the
+/// caller's thread if no thread can be started.
+enum ReadAhead {
+    Thread {
+        records: Option<std::sync::mpsc::Receiver<vibro_mcap::Result<vibro_mcap::Record>>>,
+        thread: Option<std::thread::JoinHandle<()>>,
+    },
+    Inline(Box<Reader>),
+}
+
+impl ReadAhead {
+    /// About 0.5 s of the default flight's rig streams.
+    const DEPTH: usize = 64;
+
+    fn new(reader: Reader) -> Self {
+        let (tx, rx) = std::sync::mpsc::sync_channel(Self::DEPTH);
+        // The reader moves into the thread only if it starts.
+        let slot = std::sync::Arc::new(std::sync::Mutex::new(Some(reader)));
+        let theirs = std::sync::Arc::clone(&slot);
+        let spawned = std::thread::Builder::new()
+            .name("vibro-replay-read".into())
+            .spawn(move || {
+                let reader = theirs.lock().ok().and_then(|mut r| r.take());
+                for record in reader.into_iter().flatten() {
+                    if tx.send(record).is_err() {
+                        break; // the replay stopped
+                    }
+                }
+            });
+        match spawned {
+            Ok(thread) => ReadAhead::Thread {
+                records: Some(rx),
+                thread: Some(thread),
+            },
+            Err(e) => {
+                debug!("reading the log on the replay's thread (no reader thread: {e})");
+                match slot.lock().ok().and_then(|mut r| r.take()) {
+                    Some(reader) => ReadAhead::Inline(Box::new(reader)),
+                    // Unreachable: a thread that did not start took nothing.
+                    None => ReadAhead::Thread {
+                        records: None,
+                        thread: None,
+                    },
+                }
+            }
+        }
+    }
+}
+
+impl Iterator for ReadAhead {
+    type Item = vibro_mcap::Result<vibro_mcap::Record>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        match self {
+            ReadAhead::Thread { records, .. } => records.as_ref()?.recv().ok(),
+            ReadAhead::Inline(reader) => reader.next(),
+        }
+    }
+}
+
+impl Drop for ReadAhead {
+    fn drop(&mut self) {
+        if let ReadAhead::Thread { records, thread } = self {
+            // The thread's next send fails, and it ends.
+            *records = None;
+            if let Some(t) = thread.take() {
+                let _ = t.join();
+            }
+        }
+    }
+}
+
 /// What [`Gate`] looks at in a vibration block, as published (shifted).
 #[derive(Debug, Clone, Copy)]
 struct VibHead {
@@ -728,7 +803,7 @@ pub fn replay(
     let started = Instant::now();
     let mut pass_start_ns = 0u64; // wall-clock offset of the current pass (Rate pace)
     'passes: loop {
-        let reader = Reader::open(path).map_err(|e| bad_log(path, &e))?;
+        let reader = ReadAhead::new(Reader::open(path).map_err(|e| bad_log(path, &e))?);
         let mut first_log_ns: Option<u64> = None;
         let mut window: Option<(u64, u64)> = None;
         let mut last_due_ns = 0u64;
