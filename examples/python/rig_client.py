@@ -179,7 +179,7 @@ class CompensatedBlock(C.Structure):
     ]
 
 
-@wire(88)
+@wire(96)
 class Heartbeat(C.Structure):
     _fields_ = [
         ("seq", U64),
@@ -192,6 +192,7 @@ class Heartbeat(C.Structure):
         ("latency_p50_ns", U64),
         ("latency_p99_ns", U64),
         ("input_samples_to_output", U64),
+        ("input_samples_per_output", U64),
         ("service", U8),
         ("state", U8),
         ("_pad", U8 * 6),

@@ -862,6 +862,7 @@ impl Compensation {
             state,
             // Every block is answered at once: nothing to report.
             input_samples_to_output: 0,
+            input_samples_per_output: 0,
         }
     }
 }
@@ -1085,6 +1086,7 @@ fn hot_loop(
                 latency: Quantiles::default(),
                 state: ServiceState::Running,
                 input_samples_to_output: 0,
+                input_samples_per_output: 0,
             };
             if let Err(e) = progress.publish(&report) {
                 debug!("progress: {e}");

@@ -423,6 +423,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
                 latency: Quantiles::default(),
                 state: ServiceState::Running,
                 input_samples_to_output: estimator.samples_to_next_estimate(),
+                input_samples_per_output: estimator.samples_per_estimate(),
             };
             if let Err(e) = progress.publish(&report) {
                 debug!("progress: {e}");
@@ -462,6 +463,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
                 latency: period,
                 state,
                 input_samples_to_output: estimator.samples_to_next_estimate(),
+                input_samples_per_output: estimator.samples_per_estimate(),
             };
             if let Err(e) = heartbeat.publish(&report) {
                 debug!("heartbeat: {e}");
@@ -507,6 +509,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
         latency: latency.period(),
         state: ServiceState::Stopping,
         input_samples_to_output: estimator.samples_to_next_estimate(),
+        input_samples_per_output: estimator.samples_per_estimate(),
     };
     if let Err(e) = heartbeat.publish(&report) {
         debug!("final heartbeat: {e}");

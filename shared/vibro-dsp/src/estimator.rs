@@ -199,6 +199,12 @@ impl Estimator {
         (self.intake.window - self.intake.filled) as u64
     }
 
+    /// Samples between two estimates after the next (the hop): a full window is
+    /// estimated and slid by this many.
+    pub fn samples_per_estimate(&self) -> u64 {
+        self.intake.hop.min(self.intake.window) as u64
+    }
+
     /// Totals since the estimator was built.
     pub fn counters(&self) -> Counters {
         self.counters

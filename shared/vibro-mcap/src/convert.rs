@@ -562,6 +562,7 @@ impl From<&Heartbeat> for proto::Heartbeat {
             latency_p50_ns: m.latency_p50_ns,
             latency_p99_ns: m.latency_p99_ns,
             input_samples_to_output: m.input_samples_to_output,
+            input_samples_per_output: m.input_samples_per_output,
             service: m.service.into(),
             state: m.state.into(),
         }
@@ -583,6 +584,7 @@ impl TryFrom<&proto::Heartbeat> for Heartbeat {
             latency_p50_ns: p.latency_p50_ns,
             latency_p99_ns: p.latency_p99_ns,
             input_samples_to_output: p.input_samples_to_output,
+            input_samples_per_output: p.input_samples_per_output,
             service: small_code(K, "service", p.service)?,
             state: small_code(K, "state", p.state)?,
             _pad: [0; 6],
@@ -730,6 +732,7 @@ mod tests {
             latency_p50_ns: 8,
             latency_p99_ns: u64::MAX,
             input_samples_to_output: 12_800,
+            input_samples_per_output: 12_801,
             service: 4,
             state: 255,
             _pad: [0; 6],

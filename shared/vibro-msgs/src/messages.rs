@@ -382,6 +382,9 @@ wire_struct! {
         /// any input may cause output. A lock-stepped replay need not wait for the
         /// service while the samples it sent stay below this (docs/messages.md).
         pub input_samples_to_output: u64,
+        /// Input samples between two outputs once the next has come out (the
+        /// estimator's hop); 0 when not reported.
+        pub input_samples_per_output: u64,
         /// [`ServiceId`] code.
         pub service: u8,
         /// [`ServiceState`] code.

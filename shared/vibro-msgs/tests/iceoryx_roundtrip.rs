@@ -149,6 +149,7 @@ fn heartbeat() -> Heartbeat {
         latency_p50_ns: 107,
         latency_p99_ns: 108,
         input_samples_to_output: 109,
+        input_samples_per_output: 110,
         service: ServiceId::Estimator.code(),
         state: ServiceState::Degraded.code(),
         _pad: [0; 6],

@@ -2,7 +2,7 @@
 
 use crate::topics::{known_topics, rig_streams, stream_of_topic, topic};
 use crate::{Error, Result};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::io::Read as _;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -314,31 +314,38 @@ struct Consumer {
     baseline: u64,
     /// Latest `received` seen.
     received: u64,
-    /// `input_samples_to_output` of the latest progress message (0: not reported).
+    /// `input_samples_to_output` and `input_samples_per_output` of the latest progress
+    /// message (0: not reported).
     samples_to_output: u64,
+    samples_per_output: u64,
 }
 
 /// Where a lock-stepped replay must wait (docs/messages.md, "progress"). Waiting at
 /// every switch between `/vib` and `/accel` is always right, but each wait is a
-/// round trip through the scheduler. An estimate can only come out of a vibration
-/// block that completes the estimator's window, so:
+/// round trip through the scheduler, and the estimator idles while the replay
+/// publishes. An estimate can only come out of a vibration block that completes the
+/// estimator's window, and the estimator says where its windows end (the samples its
+/// window still needs, and its hop), so:
 ///
-/// - before an accelerometer block, the replay waits for the estimator only if the
-///   vibration samples sent since its last wait may have completed a window;
-/// - before a vibration block that may complete one, it waits until the compensator
-///   has taken every accelerometer block sent, so that the estimate cannot overtake
-///   them.
+/// - the accelerometer (and truth) blocks after a window-completing vibration block
+///   are held, and the vibration blocks that complete nothing go on ahead of them;
+/// - before the next vibration block that may complete a window, the replay waits
+///   for the estimator (the estimate is out), sends the held blocks, and waits for
+///   the compensator to take them, so that the new estimate cannot overtake them.
 ///
-/// "May complete" is conservative: the window's remaining samples are known only
-/// from the estimator's progress message at a wait; a vibration block that does not
-/// follow the previous one exactly (sequence, sample index, rate, or a start time off
-/// by more than the rounding of an integer `sample_period_ns`), or a flagged block, is
-/// taken as completing one (the estimator may fill a gap with samples); and so is
-/// everything while the estimator reports 0 (not known).
+/// "May complete" is conservative: a vibration block that does not follow the
+/// previous one exactly (sequence, sample index, rate, or a start time off by more
+/// than the rounding of an integer `sample_period_ns`), or a flagged block, is taken
+/// as completing one (the estimator may fill a gap with samples), and so is
+/// everything from then on, or while the estimator reports 0 (not known), until the
+/// next wait for the estimator.
 #[derive(Debug, Default)]
 struct Gate {
-    /// Samples the estimator's window still needed at the last wait for it; 0: unknown.
+    /// Samples from the last wait for the estimator to the end of its next window
+    /// (advanced by `hop` as blocks complete windows); 0: unknown.
     budget: u64,
+    /// The estimator's hop; 0: not reported.
+    hop: u64,
     /// Vibration samples sent since that wait.
     spent: u64,
     /// A vibration block sent since that wait may have completed a window.
@@ -351,17 +358,34 @@ struct Gate {
 }
 
 impl Gate {
-    /// Before vibration block `b` (as published): must the replay first wait for the
-    /// compensator? Also books the block.
-    fn before_vib(&mut self, b: VibHead) -> bool {
+    /// The held blocks go out at the latest at this many (about 1 s of the default
+    /// flight's accelerometer and truth streams).
+    const HELD_MAX: usize = 128;
+
+    fn follows(&self, b: &VibHead) -> bool {
         let count = u64::from(b.count);
-        let follows = self.next_vib.is_some_and(|(seq, index, t0_ns, period_ns)| {
+        self.next_vib.is_some_and(|(seq, index, t0_ns, period_ns)| {
             b.seq == seq
                 && b.first_sample_index == index
                 && b.sample_period_ns == period_ns
                 && b.t0_ns.abs_diff(t0_ns) <= count.max(1)
                 && b.flags == 0
-        });
+        })
+    }
+
+    /// May vibration block `b`, sent next, complete the estimator's window?
+    fn may_complete(&self, b: &VibHead) -> bool {
+        !self.follows(b)
+            || self.budget == 0
+            || self.spent.saturating_add(u64::from(b.count)) >= self.budget
+    }
+
+    /// Before vibration block `b` (as published): must the replay first wait for the
+    /// compensator? Also books the block.
+    fn before_vib(&mut self, b: VibHead) -> bool {
+        let count = u64::from(b.count);
+        let may_complete = self.may_complete(&b);
+        let follows = self.follows(&b);
         self.next_vib = Some((
             b.seq.wrapping_add(1),
             b.first_sample_index.wrapping_add(count),
@@ -369,9 +393,16 @@ impl Gate {
             b.sample_period_ns,
         ));
         self.spent = self.spent.saturating_add(count);
-        let may_complete = !follows || self.budget == 0 || self.spent >= self.budget;
         if may_complete {
             self.estimator_due = true;
+            if follows && self.budget > 0 && self.hop > 0 {
+                // A contiguous block completed a window: the next ends a hop later.
+                while self.spent >= self.budget {
+                    self.budget = self.budget.saturating_add(self.hop);
+                }
+            } else {
+                self.budget = 0;
+            }
         }
         may_complete && self.accel_pending
     }
@@ -381,6 +412,12 @@ impl Gate {
         self.accel_pending = false;
     }
 
+    /// Should the next accelerometer or truth block be held (behind the vibration
+    /// blocks that follow it)? `held` blocks are already waiting.
+    fn hold(&self, held: usize) -> bool {
+        held > 0 || self.estimator_due
+    }
+
     /// Before an accelerometer block: must the replay first wait for the estimator?
     fn before_accel(&mut self) -> bool {
         self.accel_pending = true;
@@ -388,9 +425,10 @@ impl Gate {
     }
 
     /// The estimator has taken every vibration block sent and reports that its
-    /// window needs `samples_to_output` more samples.
-    fn estimator_synced(&mut self, samples_to_output: u64) {
+    /// window needs `samples_to_output` more samples, then `per_output` per estimate.
+    fn estimator_synced(&mut self, samples_to_output: u64, per_output: u64) {
         self.budget = samples_to_output;
+        self.hop = per_output;
         self.spent = 0;
         self.estimator_due = false;
     }
@@ -411,6 +449,7 @@ impl Consumer {
             baseline: 0,
             received: 0,
             samples_to_output: 0,
+            samples_per_output: 0,
         })
     }
 
@@ -426,6 +465,7 @@ impl Consumer {
         while let Some(m) = self.progress.receive()? {
             self.received = self.received.max(m.received);
             self.samples_to_output = m.input_samples_to_output;
+            self.samples_per_output = m.input_samples_per_output;
         }
         Ok(())
     }
@@ -797,6 +837,9 @@ pub fn replay(
     let (mut vib_sent, mut accel_sent) = (0u64, 0u64);
     let (mut waits, mut wait_s) = (0u64, 0.0f64);
     let mut gate = Gate::default();
+    // Records to publish now, and records held behind the vibration blocks (`Gate`).
+    let mut ready: VecDeque<(vibro_mcap::Record, Stream)> = VecDeque::new();
+    let mut held: VecDeque<(vibro_mcap::Record, Stream)> = VecDeque::new();
     let mut messages = 0u64;
     let mut passes = 0u64;
     let mut span_ns = 0u64;
@@ -809,21 +852,131 @@ pub fn replay(
         let mut last_due_ns = 0u64;
         let mut last_log_ns = 0u64;
         let published_before = messages;
-        for record in reader {
-            let record = record.map_err(|e| {
-                let (problem, recoverable) = log_problem(&e);
-                Error::DamagedPartWay {
-                    path: path.to_path_buf(),
-                    problem,
-                    published: messages,
-                    log_time_s: last_log_ns.saturating_sub(first_log_ns.unwrap_or(0)) as f64 * 1e-9,
-                    hint: if recoverable {
-                        recover_hint(path)
-                    } else {
-                        String::new()
-                    },
+        // Publishes what is ready, in order, each after the waits it needs.
+        macro_rules! publish_ready {
+            () => {
+                while let Some((record, stream)) = ready.pop_front() {
+                    // Lock-step: the other stream's consumer must have taken everything sent
+                    // before this stream's next message, where that message could be overtaken
+                    // (`Gate`).
+                    if lockstep {
+                        let t = Instant::now();
+                        let mut waited = false;
+                        let consumer = match (&record.message, stream) {
+                            (Message::AccelBlock(_), Stream::Accel) => {
+                                gate.before_accel().then_some(ServiceId::Estimator)
+                            }
+                            (Message::VibBlock(b), Stream::Vib) => gate
+                                .before_vib(pubs.shifts[0].head(b))
+                                .then_some(ServiceId::Compensator),
+                            _ => None,
+                        };
+                        match consumer {
+                            Some(ServiceId::Estimator) => {
+                                if let Some(c) = &mut estimator {
+                                    waited = c.wait_for(vib_sent, options.stall_timeout, stop)?;
+                                    gate.estimator_synced(
+                                        c.samples_to_output,
+                                        c.samples_per_output,
+                                    );
+                                }
+                            }
+                            Some(_) => {
+                                if let Some(c) = &mut compensator {
+                                    waited = c.wait_for(accel_sent, options.stall_timeout, stop)?;
+                                }
+                                gate.compensator_synced();
+                            }
+                            None => {}
+                        }
+                        if waited {
+                            waits += 1;
+                            wait_s += t.elapsed().as_secs_f64();
+                        }
+                    }
+                    let sent = match (&record.message, stream) {
+                        (Message::VibBlock(b), Stream::Vib) => match &mut pubs.vib {
+                            Some(p) => {
+                                let b = shifted!(b, pubs.shifts[0]);
+                                vib_sent += 1;
+                                Some(p.publish(&b))
+                            }
+                            None => None,
+                        },
+                        (Message::AccelBlock(b), Stream::Accel) => match &mut pubs.accel {
+                            Some(p) => {
+                                let b = shifted!(b, pubs.shifts[1]);
+                                accel_sent += 1;
+                                Some(p.publish(&b))
+                            }
+                            None => None,
+                        },
+                        (Message::TruthBlock(b), Stream::Truth) => match &mut pubs.truth {
+                            Some(p) => {
+                                let b = shifted!(b, pubs.shifts[2]);
+                                Some(p.publish(&b))
+                            }
+                            None => None,
+                        },
+                        _ => None,
+                    };
+                    match sent {
+                        None => continue,
+                        // Counted by the publisher (`undelivered`); the replay goes on. A
+                        // consumer killed without closing its ports keeps a full buffer on the
+                        // stream until someone removes its dead node, and every later message
+                        // would wait the whole back-pressure timeout for it: remove it now.
+                        Some(Err(vibro_ipc::Error::Undelivered { .. })) => {
+                            let cleaned = cleanup_dead_nodes(&node);
+                            if cleaned > 0 {
+                                info!(cleaned, "removed the resources of dead iceoryx2 nodes");
+                            }
+                        }
+                        Some(Err(e)) => return Err(e.into()),
+                        Some(Ok(_)) => {}
+                    }
+                    messages += 1;
+                    if let Some(n) = topics.get_mut(&topic(stream)) {
+                        *n += 1;
+                    }
+                    span_ns =
+                        span_ns.max(record.log_time_ns.saturating_sub(window.map_or(0, |w| w.0)));
+                    if messages % 256 == 0 {
+                        progress(messages, per_pass);
+                    }
                 }
-            })?;
+            };
+        }
+        // `None` after the last record: the pass is over, the held blocks go out.
+        let mut records = reader.map(Some).chain(std::iter::once(None));
+        loop {
+            let Some(Some(record)) = records.next() else {
+                ready.extend(held.drain(..));
+                publish_ready!();
+                break;
+            };
+            let record = match record {
+                Ok(record) => record,
+                Err(e) => {
+                    // What came before the damage goes out first.
+                    ready.extend(held.drain(..));
+                    publish_ready!();
+                    debug!(messages, waits, wait_s, "the log is damaged here; stopping");
+                    let (problem, recoverable) = log_problem(&e);
+                    return Err(Error::DamagedPartWay {
+                        path: path.to_path_buf(),
+                        problem,
+                        published: messages,
+                        log_time_s: last_log_ns.saturating_sub(first_log_ns.unwrap_or(0)) as f64
+                            * 1e-9,
+                        hint: if recoverable {
+                            recover_hint(path)
+                        } else {
+                            String::new()
+                        },
+                    });
+                }
+            };
             last_log_ns = record.log_time_ns;
             if stop.load(Ordering::Acquire) {
                 break 'passes;
@@ -840,6 +993,8 @@ pub fn replay(
                 continue;
             }
             if record.log_time_ns >= to {
+                ready.extend(held.drain(..));
+                publish_ready!();
                 break;
             }
             let Some(stream) = stream_of_topic(&record.topic) else {
@@ -856,90 +1011,23 @@ pub fn replay(
                     std::thread::sleep(Duration::from_nanos(due_ns - now));
                 }
             }
-            // Lock-step: the other stream's consumer must have taken everything sent
-            // before this stream's next message, where that message could be overtaken
-            // (`Gate`).
-            if lockstep {
-                let t = Instant::now();
-                let mut waited = false;
-                let consumer = match (&record.message, stream) {
-                    (Message::AccelBlock(_), Stream::Accel) => {
-                        gate.before_accel().then_some(ServiceId::Estimator)
+            // Lock-step: hold what could be overtaken (`Gate`).
+            match (&record.message, stream) {
+                (Message::VibBlock(b), Stream::Vib) if lockstep => {
+                    if gate.may_complete(&pubs.shifts[0].head(b)) {
+                        ready.extend(held.drain(..));
                     }
-                    (Message::VibBlock(b), Stream::Vib) => gate
-                        .before_vib(pubs.shifts[0].head(b))
-                        .then_some(ServiceId::Compensator),
-                    _ => None,
-                };
-                match consumer {
-                    Some(ServiceId::Estimator) => {
-                        if let Some(c) = &mut estimator {
-                            waited = c.wait_for(vib_sent, options.stall_timeout, stop)?;
-                            gate.estimator_synced(c.samples_to_output);
-                        }
-                    }
-                    Some(_) => {
-                        if let Some(c) = &mut compensator {
-                            waited = c.wait_for(accel_sent, options.stall_timeout, stop)?;
-                        }
-                        gate.compensator_synced();
-                    }
-                    None => {}
+                    ready.push_back((record, stream));
                 }
-                if waited {
-                    waits += 1;
-                    wait_s += t.elapsed().as_secs_f64();
-                }
-            }
-            let sent = match (&record.message, stream) {
-                (Message::VibBlock(b), Stream::Vib) => match &mut pubs.vib {
-                    Some(p) => {
-                        let b = shifted!(b, pubs.shifts[0]);
-                        vib_sent += 1;
-                        Some(p.publish(&b))
-                    }
-                    None => None,
-                },
-                (Message::AccelBlock(b), Stream::Accel) => match &mut pubs.accel {
-                    Some(p) => {
-                        let b = shifted!(b, pubs.shifts[1]);
-                        accel_sent += 1;
-                        Some(p.publish(&b))
-                    }
-                    None => None,
-                },
-                (Message::TruthBlock(b), Stream::Truth) => match &mut pubs.truth {
-                    Some(p) => {
-                        let b = shifted!(b, pubs.shifts[2]);
-                        Some(p.publish(&b))
-                    }
-                    None => None,
-                },
-                _ => None,
-            };
-            match sent {
-                None => continue,
-                // Counted by the publisher (`undelivered`); the replay goes on. A
-                // consumer killed without closing its ports keeps a full buffer on the
-                // stream until someone removes its dead node, and every later message
-                // would wait the whole back-pressure timeout for it: remove it now.
-                Some(Err(vibro_ipc::Error::Undelivered { .. })) => {
-                    let cleaned = cleanup_dead_nodes(&node);
-                    if cleaned > 0 {
-                        info!(cleaned, "removed the resources of dead iceoryx2 nodes");
+                (_, Stream::Accel | Stream::Truth) if lockstep && gate.hold(held.len()) => {
+                    held.push_back((record, stream));
+                    if held.len() >= Gate::HELD_MAX {
+                        ready.extend(held.drain(..));
                     }
                 }
-                Some(Err(e)) => return Err(e.into()),
-                Some(Ok(_)) => {}
+                _ => ready.push_back((record, stream)),
             }
-            messages += 1;
-            if let Some(n) = topics.get_mut(&topic(stream)) {
-                *n += 1;
-            }
-            span_ns = span_ns.max(record.log_time_ns - from);
-            if messages % 256 == 0 {
-                progress(messages, per_pass);
-            }
+            publish_ready!();
         }
         // A pass that published nothing would loop for ever with `passes = 0`.
         if messages == published_before && !stop.load(Ordering::Acquire) {
@@ -1024,53 +1112,138 @@ mod tests {
         }
     }
 
-    /// Replays the log order of the default flight (two vibration blocks, then one
-    /// accelerometer block) against an estimator whose window needs `window` samples
-    /// and slides by `hop`, and returns the waits `(estimator, compensator)` and
-    /// whether every estimate was waited for before the next accelerometer block and
-    /// every accelerometer block taken before a window-completing vibration block.
-    fn simulate(blocks: u64, window: u64, hop: u64, report: bool) -> (u64, u64) {
+    /// Estimates an estimator with this window and hop has made after `m` blocks.
+    fn completions(m: u64, window: u64, hop: u64) -> u64 {
+        let s = 512 * m;
+        if s >= window {
+            (s - window) / hop + 1
+        } else {
+            0
+        }
+    }
+
+    /// Samples the estimator's window still needs after `m` blocks.
+    fn remaining(m: u64, window: u64, hop: u64) -> u64 {
+        let s = 512 * m;
+        if s < window {
+            window - s
+        } else {
+            hop - (s - window) % hop
+        }
+    }
+
+    #[derive(Debug, Clone, Copy)]
+    enum Item {
+        Vib(u64),
+        Accel(u64),
+        Truth,
+    }
+
+    /// Replays the default flight's log order (two vibration blocks, then an
+    /// accelerometer and a truth block) as `replay` does (holding, then publishing
+    /// each record after its waits), against an estimator with this window and hop,
+    /// and checks the lock-step's promise at every publish:
+    /// - an accelerometer block goes out when exactly the estimates of the vibration
+    ///   blocks before it in the log are out (no later one: the blocks sent ahead of
+    ///   it complete no window);
+    /// - a vibration block that completes a window goes out when the compensator has
+    ///   taken every accelerometer block before it in the log.
+    ///
+    /// Returns the waits `(estimator, compensator)` and the most records held.
+    fn simulate(blocks: u64, window: u64, hop: u64, report: bool) -> (u64, u64, usize) {
         let mut gate = Gate::default();
-        let (mut filled, mut estimates_seen, mut estimates) = (0u64, 0u64, 0u64);
-        let (mut est_waits, mut comp_waits, mut accel_untaken) = (0, 0, 0u64);
-        for k in 0..blocks {
-            if gate.before_vib(vib(k)) {
-                comp_waits += 1;
-                accel_untaken = 0;
-                gate.compensator_synced();
-            }
-            filled += 512;
-            if filled >= window {
-                // An estimate comes out: no accelerometer block may be in flight.
-                assert_eq!(accel_untaken, 0, "block {k}: an estimate overtook accel");
-                estimates += 1;
-                filled -= hop;
-            }
+        let (mut held, mut ready) = (VecDeque::new(), VecDeque::new());
+        let (mut vib_sent, mut accel_sent, mut taken, mut synced) = (0u64, 0u64, 0u64, 0u64);
+        let (mut est_waits, mut comp_waits, mut most_held) = (0, 0, 0);
+        let mut log = (0..blocks).flat_map(|k| {
+            let mut v = vec![Item::Vib(k)];
             if k % 2 == 1 {
-                if gate.before_accel() {
-                    est_waits += 1;
-                    estimates_seen = estimates;
-                    gate.estimator_synced(if report { window - filled } else { 0 });
+                v.extend([Item::Accel(k / 2), Item::Truth]);
+            }
+            v
+        });
+        let mut over = false;
+        while !over {
+            match log.next() {
+                None => {
+                    ready.extend(held.drain(..));
+                    over = true;
                 }
-                assert_eq!(estimates_seen, estimates, "block {k}: estimate not awaited");
-                accel_untaken += 1;
+                Some(Item::Vib(k)) => {
+                    if gate.may_complete(&vib(k)) {
+                        ready.extend(held.drain(..));
+                    }
+                    ready.push_back(Item::Vib(k));
+                }
+                Some(other) => {
+                    if gate.hold(held.len()) {
+                        held.push_back(other);
+                        most_held = most_held.max(held.len());
+                        if held.len() >= Gate::HELD_MAX {
+                            ready.extend(held.drain(..));
+                        }
+                    } else {
+                        ready.push_back(other);
+                    }
+                }
+            }
+            while let Some(item) = ready.pop_front() {
+                match item {
+                    Item::Vib(k) => {
+                        if gate.before_vib(vib(k)) {
+                            comp_waits += 1;
+                            taken = accel_sent;
+                            gate.compensator_synced();
+                        }
+                        assert_eq!(vib_sent, k, "vibration blocks in order");
+                        vib_sent += 1;
+                        let makes = completions(k + 1, window, hop) > completions(k, window, hop);
+                        // Accelerometer blocks before vib k in the log: k / 2.
+                        assert!(!makes || taken >= k / 2, "vib {k}: accel not taken");
+                    }
+                    Item::Accel(a) => {
+                        if gate.before_accel() {
+                            est_waits += 1;
+                            synced = completions(vib_sent, window, hop);
+                            let (r, h) = if report {
+                                (remaining(vib_sent, window, hop), hop)
+                            } else {
+                                (0, 0)
+                            };
+                            gate.estimator_synced(r, h);
+                        }
+                        assert_eq!(accel_sent, a, "accelerometer blocks in order");
+                        let before = completions(2 * a + 2, window, hop);
+                        assert_eq!(completions(vib_sent, window, hop), before, "accel {a}");
+                        assert_eq!(synced, before, "accel {a}: estimate not awaited");
+                        accel_sent += 1;
+                    }
+                    Item::Truth => {}
+                }
             }
         }
-        (est_waits, comp_waits)
+        assert_eq!((vib_sent, accel_sent), (blocks, blocks / 2));
+        (est_waits, comp_waits, most_held)
     }
 
     #[test]
     fn the_gate_waits_only_where_an_estimate_can_come_out() {
         // 600 s: 30,000 blocks, an estimate every 12,800 samples (25 blocks).
-        let (est, comp) = simulate(30_000, 25_600, 12_800, true);
-        let estimates = (30_000 * 512 - 25_600) / 12_800 + 1;
+        let estimates = completions(30_000, 25_600, 12_800);
         assert_eq!(estimates, 1199);
-        // One wait each per estimate, plus the first block (budget not yet known).
-        assert!(est <= estimates + 1 && est >= estimates, "{est}");
-        assert!(comp <= estimates + 1 && comp >= estimates - 1, "{comp}");
+        let (est, comp, most_held) = simulate(30_000, 25_600, 12_800, true);
+        // One wait each per estimate, plus the first blocks (nothing known yet).
+        assert!((estimates..=estimates + 2).contains(&est), "{est}");
+        assert!((estimates - 1..=estimates + 2).contains(&comp), "{comp}");
+        // What follows an estimate waits behind the next 25 vibration blocks.
+        assert!((24..=26).contains(&most_held), "{most_held}");
+        // Other windows and hops, with the estimates 1 block or less apart.
+        for (window, hop) in [(25_600, 25_600), (1000, 300), (4096, 512), (2048, 1)] {
+            simulate(2_000, window, hop, true);
+        }
         // Without the estimator's report: a wait at every switch, as before.
-        let (est, comp) = simulate(30_000, 25_600, 12_800, false);
-        assert_eq!((est, comp), (15_000, 14_999));
+        let (est, comp, most_held) = simulate(30_000, 25_600, 12_800, false);
+        assert_eq!((est, comp, most_held), (15_000, 14_999, 2));
     }
 
     #[test]
@@ -1079,7 +1252,7 @@ mod tests {
             let mut g = Gate::default();
             g.before_vib(vib(k));
             g.before_accel();
-            g.estimator_synced(10_000);
+            g.estimator_synced(10_000, 12_800);
             g
         };
         // Contiguous: within the budget, no wait.

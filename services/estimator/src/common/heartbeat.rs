@@ -18,6 +18,8 @@ pub struct HeartbeatReport {
     /// Contiguous input samples still needed before the next output; 0: not reported
     /// (`Heartbeat::input_samples_to_output`).
     pub input_samples_to_output: u64,
+    /// Input samples between outputs after the next; 0: not reported.
+    pub input_samples_per_output: u64,
 }
 
 /// Publishes one service's heartbeats.
@@ -88,6 +90,7 @@ impl HeartbeatPublisher {
             latency_p50_ns: report.latency.p50_ns,
             latency_p99_ns: report.latency.p99_ns,
             input_samples_to_output: report.input_samples_to_output,
+            input_samples_per_output: report.input_samples_per_output,
             service: self.service.code(),
             state: report.state.code(),
             ..Heartbeat::ZEROED

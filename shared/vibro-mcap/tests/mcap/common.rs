@@ -162,6 +162,7 @@ pub fn heartbeat(seq: u64) -> Heartbeat {
         latency_p50_ns: 45_000,
         latency_p99_ns: 120_000,
         input_samples_to_output: 6_400,
+        input_samples_per_output: 12_800,
         service: ServiceId::Compensator.code(),
         state: ServiceState::Running.code(),
         _pad: [0; 6],

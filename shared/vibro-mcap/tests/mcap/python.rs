@@ -296,6 +296,7 @@ fn the_python_reference_reader_decodes_every_type_to_the_written_values() {
         ("latency_p50_ns", h.latency_p50_ns),
         ("latency_p99_ns", h.latency_p99_ns),
         ("input_samples_to_output", h.input_samples_to_output),
+        ("input_samples_per_output", h.input_samples_per_output),
         ("service", h.service.into()),
         ("state", h.state.into()),
     ] {
