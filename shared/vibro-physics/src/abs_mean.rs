@@ -435,27 +435,41 @@ impl AbsMean {
             fft.real.fill(0.0);
             let cdf = |u: f64| 0.5 + (u / a).clamp(-1.0, 1.0).asin() / PI;
             let half = (a / h).ceil() as isize + 1;
+            // Bin j holds (j - 1/2) h..(j + 1/2) h: each edge's CDF is evaluated once.
+            let mut below = cdf((-half as f64 - 0.5) * h);
             for j in -half..=half {
-                let u = j as f64 * h;
-                fft.real[j.rem_euclid(TABLE_POINTS as isize) as usize] =
-                    cdf(u + 0.5 * h) - cdf(u - 0.5 * h);
+                let above = cdf((j as f64 + 0.5) * h);
+                fft.real[j.rem_euclid(TABLE_POINTS as isize) as usize] = above - below;
+                below = above;
             }
             fold_in(fft, &mut first)?;
         }
         if sigma_max > 0.0 {
             fft.real.fill(0.0);
             let half = (GAUSS_CUT_SIGMAS * sigma_max / h).ceil() as isize + 1;
+            // Each edge's CDF once per component (the erfc calls are most of the
+            // update's time), as for the tones.
+            // Gaussian vibration has two equal scales: one evaluation serves both.
+            let same = sigmas_g[0] == sigmas_g[1];
+            let cdf = |x: f64, s: f64| if s > 0.0 { normal_cdf(x / s) } else { 0.0 };
+            let edge_cdf = |j: isize| -> [f64; 2] {
+                let x = (j as f64 + 0.5) * h;
+                let c0 = cdf(x, sigmas_g[0]);
+                [c0, if same { c0 } else { cdf(x, sigmas_g[1]) }]
+            };
+            let mut below = edge_cdf(-half - 1);
             for j in -half..=half {
-                let u = j as f64 * h;
+                let above = edge_cdf(j);
                 let mut p = 0.0;
-                for (s, w) in sigmas_g.iter().zip(prob) {
-                    if *s > 0.0 {
-                        p += w * (normal_cdf((u + 0.5 * h) / s) - normal_cdf((u - 0.5 * h) / s));
+                for k in 0..2 {
+                    if sigmas_g[k] > 0.0 {
+                        p += prob[k] * (above[k] - below[k]);
                     } else if j == 0 {
-                        p += w;
+                        p += prob[k];
                     }
                 }
                 fft.real[j.rem_euclid(TABLE_POINTS as isize) as usize] = p;
+                below = above;
             }
             fold_in(fft, &mut first)?;
         }
