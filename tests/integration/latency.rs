@@ -55,6 +55,15 @@ fn latency_reports_every_hop_of_three_pipelines_without_loss() {
         assert!(p50("end_to_end") >= p50("processing"), "{r}");
         assert!(!r["cpu_percent"].as_array().unwrap().is_empty(), "{r}");
     }
+    // The bare baseline moves both streams, as the services do: a forwarder for the
+    // accelerometer blocks and a sink for the vibration blocks.
+    let bare: Vec<&str> = runs[1]["cpu_percent"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p[0].as_str().unwrap())
+        .collect();
+    assert_eq!(bare, ["vibration sink", "forwarder", "rig"], "{v}");
     for k in [
         "vs_bare_p50",
         "vs_bare_p99",

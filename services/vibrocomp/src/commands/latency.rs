@@ -12,7 +12,8 @@
 //! - **vibrocomp**: the real estimator and compensator processes over iceoryx2;
 //! - **bare iceoryx2**: a forwarder process with the same hot-loop structure (WaitSet or
 //!   spin) that answers each accelerometer block with a compensated block holding its
-//!   timestamps and nothing computed: the transport alone;
+//!   timestamps and nothing computed, and a sink process that takes the vibration
+//!   blocks: the transport alone, for both streams;
 //! - **Unix sockets**: one process running the estimator's and the compensator's logic
 //!   (`vibro_dsp::Estimator`, `vibro_compensator::InProcess`, the hot loop's own
 //!   handler) on two threads, fed over two Unix stream sockets with the same
@@ -77,6 +78,14 @@ pub enum PeerCommand {
     /// Answers every accelerometer block on `{prefix}accel` with a compensated block
     /// holding its timestamps, nothing computed.
     Bare {
+        #[arg(long)]
+        prefix: String,
+        #[arg(long, default_value = "event")]
+        mode: LoopMode,
+    },
+    /// Takes every vibration block on `{prefix}vib` and drops it: the estimator's
+    /// process without the estimation, so that the bare pipeline moves both streams.
+    BareVib {
         #[arg(long)]
         prefix: String,
         #[arg(long, default_value = "event")]
@@ -540,36 +549,48 @@ fn run_vibrocomp(args: &LatencyArgs, k1: [f64; 3], log: &Path) -> anyhow::Result
 fn run_bare(args: &LatencyArgs, k1: [f64; 3], log: &Path) -> anyhow::Result<PipelineRun> {
     let prefix = private_prefix("vcbare");
     let exe = std::env::current_exe()?;
-    let mut child = std::process::Command::new(exe)
-        .args([
-            "latency-peer",
-            "bare",
-            "--prefix",
-            &prefix,
-            "--mode",
-            args.mode.as_str(),
-        ])
-        .stdout(std::process::Stdio::null())
-        .stderr(
-            std::fs::OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(log)?,
-        )
-        .spawn()
-        .context("starting the bare forwarder")?;
-    let guard = KillOnDrop(Some(&mut child));
+    let spawn = |peer: &str, what: &str| -> anyhow::Result<std::process::Child> {
+        std::process::Command::new(&exe)
+            .args([
+                "latency-peer",
+                peer,
+                "--prefix",
+                &prefix,
+                "--mode",
+                args.mode.as_str(),
+            ])
+            .stdout(std::process::Stdio::null())
+            .stderr(
+                std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(log)?,
+            )
+            .spawn()
+            .with_context(|| format!("starting the bare {what}"))
+    };
+    // Both streams travel, as in the vibrocomp pipeline: the forwarder answers the
+    // accelerometer blocks, the sink takes the vibration blocks (the estimator's
+    // process, without the estimation).
+    let mut forwarder = spawn("bare", "forwarder")?;
+    let forwarder = KillOnDrop(Some(&mut forwarder));
+    let mut sink = spawn("bare-vib", "vibration sink")?;
+    let sink = KillOnDrop(Some(&mut sink));
     wait_for_heartbeats(
         &ServiceNames::new(&prefix)?,
-        &[ServiceId::Compensator],
+        &[ServiceId::Compensator, ServiceId::Estimator],
         Duration::from_secs(30),
         || Ok(()),
     )?;
-    let pid = guard.pid();
-    let cpu = Cpu::start(&[("forwarder", pid), ("rig", std::process::id())]);
+    let cpu = Cpu::start(&[
+        ("vibration sink", sink.pid()),
+        ("forwarder", forwarder.pid()),
+        ("rig", std::process::id()),
+    ]);
     let result = run_iceoryx(args, &prefix, k1)?;
     let cpu = cpu.finish();
-    drop(guard);
+    drop(sink);
+    drop(forwarder);
     summarize("bare iceoryx2", args, result, 0, cpu)
 }
 
@@ -846,6 +867,57 @@ fn peer_bare(prefix: &str, mode: LoopMode) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The bare vibration sink: the estimator's loop without the estimation.
+fn peer_bare_vib(prefix: &str, mode: LoopMode) -> anyhow::Result<()> {
+    let names = ServiceNames::new(prefix)?;
+    let node = create_node("vibrocomp-bare-vib")?;
+    let vib = StreamSubscriber::<VibBlock>::open(&node, &names, Stream::Vib)?;
+    let hb = Stream::Heartbeat(ServiceId::Estimator);
+    let mut heartbeat = StreamPublisher::<Heartbeat>::open(&node, &names, hb)?;
+    let waitset = create_waitset()?;
+    let _g = waitset
+        .attach_notification(vib.listener())
+        .map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
+    let stop = install_stop()?;
+    let mut next_hb = 0u64;
+    let mut taken = 0u64;
+    while !stop.load(Ordering::Acquire) {
+        if mode == LoopMode::Event {
+            waitset
+                .wait_and_process_once_with_timeout(
+                    |_| iceoryx2::prelude::CallbackProgression::Continue,
+                    Duration::from_millis(100),
+                )
+                .map_err(|e| anyhow::anyhow!("wait: {e:?}"))?;
+            let _ = vib.clear_events();
+        }
+        let mut any = false;
+        while let Some(b) = vib.receive()? {
+            any = true;
+            taken = taken.wrapping_add(u64::from(b.count));
+        }
+        if mode == LoopMode::Spin {
+            if any {
+                let _ = vib.clear_events();
+            } else {
+                std::hint::spin_loop();
+            }
+        }
+        let now = now_ns();
+        if now >= next_hb {
+            next_hb = now + 200_000_000;
+            let _ = heartbeat.publish(&Heartbeat {
+                publish_ns: now,
+                received: taken,
+                service: ServiceId::Estimator.code(),
+                state: vibro_msgs::ServiceState::Running.code(),
+                ..Heartbeat::ZEROED
+            });
+        }
+    }
+    Ok(())
+}
+
 /// SIGTERM/SIGINT set the returned flag (the peers have no tokio runtime).
 fn install_stop() -> anyhow::Result<Arc<AtomicBool>> {
     static STOP: AtomicBool = AtomicBool::new(false);
@@ -939,6 +1011,7 @@ fn peer_uds(dir: &Path) -> anyhow::Result<()> {
 pub fn run_peer(cmd: &PeerCommand) -> anyhow::Result<()> {
     match cmd {
         PeerCommand::Bare { prefix, mode } => peer_bare(prefix, *mode),
+        PeerCommand::BareVib { prefix, mode } => peer_bare_vib(prefix, *mode),
         PeerCommand::Uds { socket_dir } => peer_uds(socket_dir),
     }
 }
