@@ -375,17 +375,19 @@ impl Gate {
 
     /// May vibration block `b`, sent next, complete the estimator's window?
     fn may_complete(&self, b: &VibHead) -> bool {
-        !self.follows(b)
-            || self.budget == 0
-            || self.spent.saturating_add(u64::from(b.count)) >= self.budget
+        self.may_complete_given(b, self.follows(b))
+    }
+
+    fn may_complete_given(&self, b: &VibHead, follows: bool) -> bool {
+        !follows || self.budget == 0 || self.spent.saturating_add(u64::from(b.count)) >= self.budget
     }
 
     /// Before vibration block `b` (as published): must the replay first wait for the
     /// compensator? Also books the block.
     fn before_vib(&mut self, b: VibHead) -> bool {
         let count = u64::from(b.count);
-        let may_complete = self.may_complete(&b);
         let follows = self.follows(&b);
+        let may_complete = self.may_complete_given(&b, follows);
         self.next_vib = Some((
             b.seq.wrapping_add(1),
             b.first_sample_index.wrapping_add(count),

@@ -804,21 +804,26 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The bare forwarder: the compensator's loop without the compensation.
-fn peer_bare(prefix: &str, mode: LoopMode) -> anyhow::Result<()> {
-    let names = ServiceNames::new(prefix)?;
-    let node = create_node("vibrocomp-bare")?;
-    let accel = StreamSubscriber::<AccelBlock>::open(&node, &names, Stream::Accel)?;
-    let mut out = StreamPublisher::<CompensatedBlock>::open(&node, &names, Stream::Compensated)?;
-    let hb = Stream::Heartbeat(ServiceId::Compensator);
-    let mut heartbeat = StreamPublisher::<Heartbeat>::open(&node, &names, hb)?;
+/// The loop of a bare peer, the services' loop structure without their work: wait on
+/// `input` (WaitSet or spin), hand every message to `take`, and publish a heartbeat as
+/// `service` every 0.2 s (with `received` = what `take` returned last).
+fn bare_peer_loop<T: iceoryx2::prelude::ZeroCopySend + std::fmt::Debug + 'static>(
+    names: &ServiceNames,
+    node: &vibro_ipc::IpcNode,
+    input: Stream,
+    service: ServiceId,
+    mode: LoopMode,
+    mut take: impl FnMut(&T) -> u64,
+) -> anyhow::Result<()> {
+    let sub = StreamSubscriber::<T>::open(node, names, input)?;
+    let mut heartbeat =
+        StreamPublisher::<Heartbeat>::open(node, names, Stream::Heartbeat(service))?;
     let waitset = create_waitset()?;
     let _g = waitset
-        .attach_notification(accel.listener())
+        .attach_notification(sub.listener())
         .map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
     let stop = install_stop()?;
-    let mut next_hb = 0u64;
-    let mut seq = 0u64;
+    let (mut next_hb, mut received) = (0u64, 0u64);
     while !stop.load(Ordering::Acquire) {
         if mode == LoopMode::Event {
             waitset
@@ -827,11 +832,48 @@ fn peer_bare(prefix: &str, mode: LoopMode) -> anyhow::Result<()> {
                     Duration::from_millis(100),
                 )
                 .map_err(|e| anyhow::anyhow!("wait: {e:?}"))?;
-            let _ = accel.clear_events();
+            let _ = sub.clear_events();
         }
         let mut any = false;
-        while let Some(b) = accel.receive()? {
+        while let Some(m) = sub.receive()? {
             any = true;
+            received = take(&m);
+        }
+        if mode == LoopMode::Spin {
+            if any {
+                let _ = sub.clear_events();
+            } else {
+                std::hint::spin_loop();
+            }
+        }
+        let now = now_ns();
+        if now >= next_hb {
+            next_hb = now + 200_000_000;
+            let _ = heartbeat.publish(&Heartbeat {
+                publish_ns: now,
+                received,
+                service: service.code(),
+                state: vibro_msgs::ServiceState::Running.code(),
+                ..Heartbeat::ZEROED
+            });
+        }
+    }
+    Ok(())
+}
+
+/// The bare forwarder: the compensator's loop without the compensation.
+fn peer_bare(prefix: &str, mode: LoopMode) -> anyhow::Result<()> {
+    let names = ServiceNames::new(prefix)?;
+    let node = create_node("vibrocomp-bare")?;
+    let mut out = StreamPublisher::<CompensatedBlock>::open(&node, &names, Stream::Compensated)?;
+    let mut seq = 0u64;
+    bare_peer_loop(
+        &names,
+        &node,
+        Stream::Accel,
+        ServiceId::Compensator,
+        mode,
+        |b: &AccelBlock| {
             let recv_ns = now_ns();
             let _ = out.publish_with(|m| {
                 m.seq = seq;
@@ -845,77 +887,27 @@ fn peer_bare(prefix: &str, mode: LoopMode) -> anyhow::Result<()> {
                 m.publish_ns = now_ns();
             });
             seq += 1;
-        }
-        if mode == LoopMode::Spin {
-            if any {
-                let _ = accel.clear_events();
-            } else {
-                std::hint::spin_loop();
-            }
-        }
-        let now = now_ns();
-        if now >= next_hb {
-            next_hb = now + 200_000_000;
-            let _ = heartbeat.publish(&Heartbeat {
-                publish_ns: now,
-                service: ServiceId::Compensator.code(),
-                state: vibro_msgs::ServiceState::Running.code(),
-                ..Heartbeat::ZEROED
-            });
-        }
-    }
-    Ok(())
+            seq
+        },
+    )
 }
 
 /// The bare vibration sink: the estimator's loop without the estimation.
 fn peer_bare_vib(prefix: &str, mode: LoopMode) -> anyhow::Result<()> {
     let names = ServiceNames::new(prefix)?;
     let node = create_node("vibrocomp-bare-vib")?;
-    let vib = StreamSubscriber::<VibBlock>::open(&node, &names, Stream::Vib)?;
-    let hb = Stream::Heartbeat(ServiceId::Estimator);
-    let mut heartbeat = StreamPublisher::<Heartbeat>::open(&node, &names, hb)?;
-    let waitset = create_waitset()?;
-    let _g = waitset
-        .attach_notification(vib.listener())
-        .map_err(|e| anyhow::anyhow!("attach: {e:?}"))?;
-    let stop = install_stop()?;
-    let mut next_hb = 0u64;
     let mut taken = 0u64;
-    while !stop.load(Ordering::Acquire) {
-        if mode == LoopMode::Event {
-            waitset
-                .wait_and_process_once_with_timeout(
-                    |_| iceoryx2::prelude::CallbackProgression::Continue,
-                    Duration::from_millis(100),
-                )
-                .map_err(|e| anyhow::anyhow!("wait: {e:?}"))?;
-            let _ = vib.clear_events();
-        }
-        let mut any = false;
-        while let Some(b) = vib.receive()? {
-            any = true;
-            taken = taken.wrapping_add(u64::from(b.count));
-        }
-        if mode == LoopMode::Spin {
-            if any {
-                let _ = vib.clear_events();
-            } else {
-                std::hint::spin_loop();
-            }
-        }
-        let now = now_ns();
-        if now >= next_hb {
-            next_hb = now + 200_000_000;
-            let _ = heartbeat.publish(&Heartbeat {
-                publish_ns: now,
-                received: taken,
-                service: ServiceId::Estimator.code(),
-                state: vibro_msgs::ServiceState::Running.code(),
-                ..Heartbeat::ZEROED
-            });
-        }
-    }
-    Ok(())
+    bare_peer_loop(
+        &names,
+        &node,
+        Stream::Vib,
+        ServiceId::Estimator,
+        mode,
+        |_: &VibBlock| {
+            taken += 1;
+            taken
+        },
+    )
 }
 
 /// SIGTERM/SIGINT set the returned flag (the peers have no tokio runtime).
