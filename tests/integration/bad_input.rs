@@ -28,7 +28,8 @@ use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 use vibro_ipc::{create_node, stream_config, StreamPublisher};
 use vibro_msgs::{MessageKind, ServiceId, ServiceNames, Stream, VibEstimate};
-use vibrocomp::system::{wait_for_heartbeats, Process, Role, SystemSpec};
+use vibro_service::supervise::{wait_for_heartbeats, Process};
+use vibrocomp::system::{Role, SystemSpec};
 
 // ---------------------------------------------------------------------------------
 // Helpers
@@ -99,8 +100,8 @@ fn services(prefix: &str, log: &Path) -> (Process, Process) {
         exe: Some(PathBuf::from(env!("CARGO_BIN_EXE_vibrocomp"))),
         ..SystemSpec::default()
     };
-    let mut est = Process::spawn(&spec, Role::Estimator, Some(log)).unwrap();
-    let mut cmp = Process::spawn(&spec, Role::Compensator, Some(log)).unwrap();
+    let mut est = spec.spawn(Role::Estimator, Some(log)).unwrap();
+    let mut cmp = spec.spawn(Role::Compensator, Some(log)).unwrap();
     let names = ServiceNames::new(prefix).unwrap();
     let up = wait_for_heartbeats(
         &names,
@@ -129,7 +130,7 @@ fn stop_cleanly((est, cmp): (Process, Process), log: &Path) {
             exit.code,
             Some(0),
             "the {} did not stop cleanly; services log:\n{}",
-            exit.role.name(),
+            exit.name,
             std::fs::read_to_string(log).unwrap_or_default()
         );
     }

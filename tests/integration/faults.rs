@@ -34,7 +34,9 @@ use vibro_msgs::compensation_flags as cf;
 use vibro_msgs::{
     CompensatedBlock, Heartbeat, ServiceId, ServiceNames, ServiceState, Stream, VibEstimate,
 };
-use vibrocomp::system::{wait_for_heartbeats, Role, SystemSpec};
+use vibro_service::supervise::wait_for_heartbeats;
+use vibro_service::ServiceConfig;
+use vibrocomp::system::{Role, SystemSpec};
 
 /// The soak needs both cores to itself: it takes this lock for writing, the other
 /// tests of this module for reading (they may run two at a time).

@@ -18,7 +18,9 @@ use vibro_dsp::{Estimator, SampleBlock};
 use vibro_mcap::{Message, Reader};
 use vibro_msgs::compensation_flags::INPUT_GAP;
 use vibro_msgs::{CompensatedBlock, ServiceId, ServiceNames, VibEstimate};
-use vibrocomp::system::{wait_for_heartbeats, Process, Role, SystemSpec};
+use vibro_service::supervise::{wait_for_heartbeats, Process};
+use vibro_service::ServiceConfig;
+use vibrocomp::system::{Role, SystemSpec};
 
 fn spec(prefix: &str, record: Option<PathBuf>) -> SystemSpec {
     SystemSpec {
@@ -34,7 +36,7 @@ fn spec(prefix: &str, record: Option<PathBuf>) -> SystemSpec {
 }
 
 fn start(spec: &SystemSpec, role: Role, log: &Path) -> Process {
-    Process::spawn(spec, role, Some(log)).unwrap()
+    spec.spawn(role, Some(log)).unwrap()
 }
 
 fn wait_up(prefix: &str, services: &[ServiceId], procs: &mut [&mut Process], log: &Path) {

@@ -6,7 +6,7 @@
 use crate::common::{bin, num, repo_path, run_failing, run_json};
 use std::path::PathBuf;
 use std::process::Command;
-use vibro_sim::effects::{build_for_rig, EffectSpec, Rig};
+use vibro_effects::{build_for_rig, EffectSpec, Rig};
 use vibro_sim::{parse_scenario, Scenario, Simulator};
 
 /// A steady flight for the effect tests: flight acceleration on every body axis (so

@@ -8,6 +8,7 @@
 
 use vibro_compensator::{Config, InProcess};
 use vibro_msgs::{AccelBlock, CompensatedBlock, VibEstimate};
+use vibro_service::ServiceConfig;
 
 fn main() -> anyhow::Result<()> {
     let config = Config::load_default()?;

@@ -11,13 +11,13 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::time::Duration;
 use vibro_config::TriadConfig;
-use vibro_estimator::common::{
-    check_prefix, check_seconds, default_prefix, parse_toml, read_config_file, ConfigError,
-    ConfigSource, ServiceSettings, ServiceSettingsRaw,
-};
 use vibro_msgs::{CompensationMode, ServiceNames};
 use vibro_physics::compensation::{Mode, TriadCompensator};
 use vibro_physics::vibration::MAX_TONES as PHYSICS_MAX_TONES;
+use vibro_service::{
+    check_prefix, check_seconds, default_prefix, parse_toml, ConfigError, ConfigSource,
+    ServiceConfig, ServiceSettings, ServiceSettingsRaw,
+};
 
 use crate::mapping::{EstimateMapping, KurtosisUse};
 
@@ -128,7 +128,7 @@ pub struct Model {
     pub max_estimate_lead_ns: u64,
     pub estimate: EstimateMapping,
     /// The extended model's effects (`model = ...`), with the file they came from.
-    pub effects: Option<(PathBuf, vibro_lab::LabModel)>,
+    pub effects: Option<(PathBuf, vibro_effects::LabModel)>,
 }
 
 impl Model {
@@ -319,13 +319,16 @@ impl Config {
             Some(value) => {
                 let (arg, file) = locate(value, base_dir);
                 watched.extend(file);
-                match vibro_lab::LabModel::load(Path::new(&arg)) {
+                match vibro_effects::LabModel::load(Path::new(&arg)) {
                     Ok(m) => {
                         let agree = matches!(
                             (m.mode, mode),
-                            (vibro_lab::BaseMode::Exact, Some(Mode::Exact))
-                                | (vibro_lab::BaseMode::Paper, Some(Mode::Paper))
-                                | (vibro_lab::BaseMode::AsPublished, Some(Mode::AsPublished))
+                            (vibro_effects::BaseMode::Exact, Some(Mode::Exact))
+                                | (vibro_effects::BaseMode::Paper, Some(Mode::Paper))
+                                | (
+                                    vibro_effects::BaseMode::AsPublished,
+                                    Some(Mode::AsPublished)
+                                )
                         );
                         if agree || mode.is_none() {
                             Some(Some((PathBuf::from(arg), m)))
@@ -411,10 +414,17 @@ impl Config {
             _ => Err(ConfigError::new("configuration", problems)),
         }
     }
+}
+
+/// Loading: `Config::load(path)`, `Config::load_default()`, `Config::shipped()`,
+/// `Config::shipped_text()`, `config.with_prefix(..)` (with [`ServiceConfig`] in scope).
+impl ServiceConfig for Config {
+    const DEFAULT_CONFIG_PATH: &'static str = DEFAULT_CONFIG_PATH;
+    const EMBEDDED: &'static str = EMBEDDED_CONFIG;
 
     /// Parses and validates TOML text; `source` names it in errors, and a file source's
     /// directory is where relative paths are looked up first.
-    pub fn parse(text: &str, source: ConfigSource) -> Result<Self, ConfigError> {
+    fn parse(text: &str, source: ConfigSource) -> Result<Self, ConfigError> {
         let file = source.to_string();
         let raw: RawConfig = parse_toml(text, &file)?;
         let base = match &source {
@@ -429,46 +439,14 @@ impl Config {
         Ok(config)
     }
 
-    /// Loads a configuration file.
-    pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        Self::parse(
-            &read_config_file(path)?,
-            ConfigSource::File(path.to_path_buf()),
-        )
+    /// Replaces the service names only: `as_written` keeps the file's prefix, so a
+    /// reload that keeps it is not taken for a prefix change.
+    fn set_names(&mut self, names: ServiceNames) {
+        self.names = names;
     }
 
-    /// [`DEFAULT_CONFIG_PATH`] if it exists (run from the repository), else the
-    /// shipped copy compiled into the binary.
-    pub fn load_default() -> Result<Self, ConfigError> {
-        let path = Path::new(DEFAULT_CONFIG_PATH);
-        if path.is_file() {
-            Self::load(path)
-        } else {
-            Self::shipped()
-        }
-    }
-
-    /// The text of the shipped configuration (what a recording attaches when the
-    /// service runs on it).
-    pub fn shipped_text() -> &'static str {
-        EMBEDDED_CONFIG
-    }
-
-    /// The shipped configuration (compiled in).
-    pub fn shipped() -> Result<Self, ConfigError> {
-        Self::parse(EMBEDDED_CONFIG, ConfigSource::Embedded(DEFAULT_CONFIG_PATH))
-    }
-
-    /// Replaces the service-name prefix (the `--prefix` option).
-    pub fn with_prefix(mut self, prefix: &str) -> Result<Self, ConfigError> {
-        let mut problems = Vec::new();
-        match check_prefix("--prefix", prefix, &mut problems) {
-            Some(names) => {
-                self.names = names;
-                Ok(self)
-            }
-            None => Err(ConfigError::new("command line", problems)),
-        }
+    fn service_mut(&mut self) -> &mut ServiceSettings {
+        &mut self.service
     }
 }
 

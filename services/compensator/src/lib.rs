@@ -26,7 +26,7 @@
 //!
 //! ```no_run
 //! use vibro_compensator::{run, Config};
-//! use vibro_estimator::common::Shutdown;
+//! use vibro_service::{ServiceConfig, Shutdown};
 //! # fn main() -> anyhow::Result<()> {
 //! let config = Config::load(std::path::Path::new("config/services/compensator.toml"))?;
 //! let shutdown = Shutdown::new();
@@ -44,33 +44,13 @@
 #![allow(clippy::needless_range_loop)]
 
 mod config;
+mod core;
 pub mod interval;
 pub mod mapping;
 mod reload;
 mod service;
 
+pub use self::core::{InProcess, OutputSink, Summary, MAX_ABS_READING_G};
 pub use config::{wire_mode, Config, EstimateMappingRaw, Model, RawConfig, DEFAULT_CONFIG_PATH};
 pub use mapping::{unit_vibrations, EstimateMapping, KurtosisUse, MappingError, UnitVibrations};
-pub use service::{run, run_async, InProcess, OutputSink, Summary, MAX_ABS_READING_G};
-pub use vibro_estimator::common::{LoopMode, ServiceArgs, Shutdown};
-
-/// What `vibro-compensator` and `vibrocomp service compensator` do: load the
-/// configuration (file, prefix and loop-mode overrides), run until SIGINT/SIGTERM,
-/// print the JSON summary with `--json`.
-pub fn main_with(args: &ServiceArgs) -> anyhow::Result<()> {
-    let mut config = match &args.config {
-        Some(path) => Config::load(path)?,
-        None => Config::load_default()?,
-    };
-    if let Some(prefix) = &args.prefix {
-        config = config.with_prefix(prefix)?;
-    }
-    if let Some(mode) = args.mode {
-        config.service.loop_mode = mode;
-    }
-    let summary = vibro_estimator::common::run_service(|shutdown| run_async(config, shutdown))?;
-    if args.json {
-        println!("{}", summary.to_json());
-    }
-    Ok(())
-}
+pub use service::{run, run_async};

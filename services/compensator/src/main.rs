@@ -11,13 +11,13 @@ use std::process::ExitCode;
 )]
 struct Args {
     #[command(flatten)]
-    service: vibro_compensator::ServiceArgs,
+    service: vibro_service::ServiceArgs,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    vibro_estimator::common::init_tracing();
-    match vibro_compensator::main_with(&args.service) {
+    vibro_service::init_tracing();
+    match vibro_service::main_with(&args.service, vibro_compensator::run_async) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("vibro-compensator: {e:#}");

@@ -12,8 +12,8 @@ use std::sync::Arc;
 use std::time::{Duration, SystemTime};
 use tokio::time::MissedTickBehavior;
 use tracing::{error, info, warn};
-use vibro_estimator::common::Shutdown;
 use vibro_physics::compensation::TriadCompensator;
+use vibro_service::{ServiceConfig, Shutdown};
 
 /// A new model for the hot thread, with its compensator already built.
 pub(crate) struct ModelUpdate {

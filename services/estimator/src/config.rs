@@ -1,14 +1,13 @@
 //! The estimator's configuration: `config/services/estimator.toml` → [`RawConfig`]
 //! (unknown keys refused) → [`Config`] (validated; the only form `run` takes).
 
-use crate::common::{
-    check_prefix, default_prefix, parse_toml, read_config_file, ConfigError, ConfigSource,
-    ServiceSettings, ServiceSettingsRaw,
-};
 use serde::Deserialize;
-use std::path::Path;
 use vibro_dsp::{EstimatorConfig, EstimatorConfigRaw};
 use vibro_msgs::ServiceNames;
+use vibro_service::{
+    check_prefix, default_prefix, parse_toml, ConfigError, ConfigSource, ServiceConfig,
+    ServiceSettings, ServiceSettingsRaw,
+};
 
 /// Where `main` looks for its configuration when `--config` is not given.
 pub const DEFAULT_CONFIG_PATH: &str = "config/services/estimator.toml";
@@ -69,9 +68,14 @@ impl TryFrom<RawConfig> for Config {
     }
 }
 
-impl Config {
+/// Loading: `Config::load(path)`, `Config::load_default()`, `Config::shipped()`,
+/// `Config::shipped_text()`, `config.with_prefix(..)` (with [`ServiceConfig`] in scope).
+impl ServiceConfig for Config {
+    const DEFAULT_CONFIG_PATH: &'static str = DEFAULT_CONFIG_PATH;
+    const EMBEDDED: &'static str = EMBEDDED_CONFIG;
+
     /// Parses and validates TOML text; `source` names it in errors.
-    pub fn parse(text: &str, source: ConfigSource) -> Result<Self, ConfigError> {
+    fn parse(text: &str, source: ConfigSource) -> Result<Self, ConfigError> {
         let file = source.to_string();
         let raw: RawConfig = parse_toml(text, &file)?;
         let mut config = Config::try_from(raw).map_err(|e| e.in_file(&file))?;
@@ -79,52 +83,19 @@ impl Config {
         Ok(config)
     }
 
-    /// Loads a configuration file.
-    pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        Self::parse(
-            &read_config_file(path)?,
-            ConfigSource::File(path.to_path_buf()),
-        )
+    fn set_names(&mut self, names: ServiceNames) {
+        self.names = names;
     }
 
-    /// [`DEFAULT_CONFIG_PATH`] if it exists (run from the repository), else the
-    /// shipped copy compiled into the binary.
-    pub fn load_default() -> Result<Self, ConfigError> {
-        let path = Path::new(DEFAULT_CONFIG_PATH);
-        if path.is_file() {
-            Self::load(path)
-        } else {
-            Self::shipped()
-        }
-    }
-
-    /// The text of the shipped configuration (what a recording attaches when the
-    /// service runs on it).
-    pub fn shipped_text() -> &'static str {
-        EMBEDDED_CONFIG
-    }
-
-    /// The shipped configuration (compiled in).
-    pub fn shipped() -> Result<Self, ConfigError> {
-        Self::parse(EMBEDDED_CONFIG, ConfigSource::Embedded(DEFAULT_CONFIG_PATH))
-    }
-
-    /// Replaces the service-name prefix (the `--prefix` option).
-    pub fn with_prefix(mut self, prefix: &str) -> Result<Self, ConfigError> {
-        let mut problems = Vec::new();
-        match check_prefix("--prefix", prefix, &mut problems) {
-            Some(names) => {
-                self.names = names;
-                Ok(self)
-            }
-            None => Err(ConfigError::new("command line", problems)),
-        }
+    fn service_mut(&mut self) -> &mut ServiceSettings {
+        &mut self.service
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::Path;
 
     #[test]
     fn the_shipped_configuration_is_valid_and_matches_the_rig() {

@@ -13,10 +13,15 @@
 //! configured `sample_rate_hz` is kept out (its samples become a gap) and the estimates
 //! whose windows overlap it carry `RATE_MISMATCH`; an empty block only advances `seq`.
 //!
-//! The crate also holds [`common`], the plumbing the compensator shares.
+//! What happens to each block (validation, continuity, flags, the estimator, the
+//! estimates' numbering) is [`InProcess`], the transport-free core: the service's hot
+//! loop feeds it from `{prefix}vib`, offline users (the lab, replays) feed it
+//! directly. The runtime it shares with the compensator (shutdown, heartbeats,
+//! continuity, configuration loading, `main`) is `vibro-service`.
 //!
 //! ```no_run
-//! use vibro_estimator::{common::Shutdown, run, Config};
+//! use vibro_estimator::{run, Config};
+//! use vibro_service::{ServiceConfig, Shutdown};
 //! # fn main() -> anyhow::Result<()> {
 //! let config = Config::shipped()?.with_prefix("rig-a/")?;
 //! let shutdown = Shutdown::new();
@@ -34,31 +39,10 @@
 //! References: `docs/services.md` (streams, flags, loss accounting), `docs/estimation.md`
 //! (the estimator), MODEL.md section 7 (what the compensator does with the estimates).
 
-pub mod common;
 mod config;
+mod core;
 mod service;
 
-pub use common::{LoopMode, ServiceArgs, Shutdown};
+pub use self::core::{mirror_estimate, EstimateSink, InProcess, Summary};
 pub use config::{Config, RawConfig, DEFAULT_CONFIG_PATH};
-pub use service::{mirror_estimate, run, run_async, Summary};
-
-/// What `vibro-estimator` and `vibrocomp service estimator` do: load the configuration
-/// (file, prefix and loop-mode overrides), run until SIGINT/SIGTERM, print the JSON
-/// summary with `--json`.
-pub fn main_with(args: &common::ServiceArgs) -> anyhow::Result<()> {
-    let mut config = match &args.config {
-        Some(path) => Config::load(path)?,
-        None => Config::load_default()?,
-    };
-    if let Some(prefix) = &args.prefix {
-        config = config.with_prefix(prefix)?;
-    }
-    if let Some(mode) = args.mode {
-        config.service.loop_mode = mode;
-    }
-    let summary = common::run_service(|shutdown| run_async(config, shutdown))?;
-    if args.json {
-        println!("{}", summary.to_json());
-    }
-    Ok(())
-}
+pub use service::{run, run_async};

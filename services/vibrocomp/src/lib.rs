@@ -6,7 +6,6 @@
 
 pub mod commands;
 pub mod output;
-pub mod rig;
 pub mod system;
 
 use clap::{Parser, Subcommand};

@@ -28,12 +28,12 @@
 
 use crate::fit::{chi2_sf, fit_prepared, EffectFit, Prepared};
 use crate::library::{self, Candidate, LIBRARY};
-use crate::model::{FitRecord, LabModel};
 use crate::table::{CampaignTable, Condition, RandomCondition, ToneCondition};
 use crate::{Error, Result};
 use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 use std::collections::BTreeMap;
+use vibro_effects::model::{FitRecord, LabModel};
 
 /// Options of [`diagnose`].
 #[derive(Debug, Clone, Serialize)]

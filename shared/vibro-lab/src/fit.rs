@@ -19,13 +19,13 @@
 //! beyond 10 is very strong evidence.
 
 use crate::library::{Candidate, Search};
-use crate::model::{build_effects, LabModel};
-use crate::predict::{self, effect_shifts_g};
 use crate::table::CampaignTable;
 use crate::{Error, Result};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
+use vibro_effects::model::{build_effects, LabModel};
+use vibro_effects::predict::{self, effect_shifts_g};
 
 /// One fitted parameter.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -84,7 +84,7 @@ impl Prepared {
         };
         for c in &table.conditions {
             let effects = build_effects(&model.effects, &c.passport)?;
-            let row = |e: Error| Error::Predict {
+            let row = |e: vibro_effects::Error| Error::Predict {
                 what: format!("{} (line {}, {})", table.path.display(), c.line, c.run_id),
                 reason: e.to_string(),
             };
@@ -138,7 +138,7 @@ pub(crate) fn shifts_g(
     let t = effect_table(cand, theta);
     // The candidate built once per passport of the table (most tables have one), not
     // once per row: building parses and validates the effect's table.
-    let mut built: Vec<(&str, Vec<Box<dyn vibro_sim::Effect>>)> = Vec::new();
+    let mut built: Vec<(&str, Vec<Box<dyn vibro_effects::Effect>>)> = Vec::new();
     let mut out = Vec::with_capacity(table.conditions.len());
     for (i, c) in table.conditions.iter().enumerate() {
         let k = match built.iter().position(|(r, _)| *r == c.passport_ref) {
@@ -152,7 +152,7 @@ pub(crate) fn shifts_g(
             }
         };
         let one = &built[k].1;
-        let row = |e: Error| Error::Predict {
+        let row = |e: vibro_effects::Error| Error::Predict {
             what: format!("{} on line {} ({})", cand.kind, c.line, c.run_id),
             reason: e.to_string(),
         };

@@ -32,11 +32,11 @@
 //! model to first order, and [`condition`] states
 //! `ve_uncertainty_g = sqrt(u_measured^2 + u_prediction^2)`.
 
-use crate::model::BaseMode;
-use crate::predict::base_ve_g;
 use crate::table::{Condition, RandomCondition, ToneCondition};
 use crate::Result;
 use std::collections::BTreeMap;
+use vibro_effects::model::BaseMode;
+use vibro_effects::predict::base_ve_g;
 use vibro_physics::passport::Passport;
 use vibro_physics::vibration::{PsdBand, Vibration};
 
@@ -309,7 +309,7 @@ pub fn condition(w: WindowInput) -> Condition {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::predict::flat_passport;
+    use vibro_effects::predict::flat_passport;
     use vibro_physics::exact::exact_ve;
     use vibro_physics::fp::output_g;
 

@@ -6,18 +6,19 @@
 //! it to an extended model file that the rest of vibrocomp reads.
 //!
 //! - [`table`]: the campaign table (CSV, one row per test condition, docs/lab.md).
-//! - [`model`]: the extended model file (`MODEL.toml`): base mode plus effects.
 //! - [`flight`]: conditions from a record with a reference (a flight cut into
 //!   windows): the VE measured per window, the prediction's uncertainty.
-//! - [`predict`]: the extended model's VE for one condition.
 //! - [`library`]: the candidate effects the lab can fit.
 //! - [`fit`]: weighted nonlinear least squares (Levenberg-Marquardt).
 //! - [`diagnose`]: `compare`, `diagnose` (where the model fails and which effect is
 //!   missing, with a verdict that says "noise", "effect", "confounded" or
 //!   "unexplained"), `add_effect`, `error_ladder`.
 //!
-//! The effects are the simulator's (`vibro_sim::effects`): one physics, one mean
-//! formula (`Effect::mean_shift_g`), used to simulate a campaign and to explain one.
+//! The effects, the extended model file (`MODEL.toml`: base mode plus effects,
+//! [`LabModel`]) and its prediction are the effects library's (`vibro_effects`),
+//! shared with the simulator and the compensator: one physics, one mean formula
+//! (`Effect::mean_shift_g`), used to simulate a campaign, to explain one and to
+//! compensate.
 
 // Per-axis and per-row index loops mirror the formulas' subscripts.
 #![allow(clippy::needless_range_loop)]
@@ -26,8 +27,6 @@ pub mod diagnose;
 pub mod fit;
 pub mod flight;
 pub mod library;
-pub mod model;
-pub mod predict;
 pub mod table;
 
 pub use diagnose::{
@@ -35,9 +34,11 @@ pub use diagnose::{
     Diagnosis, LadderStep, Verdict,
 };
 pub use fit::EffectFit;
-pub use model::{BaseMode, FitRecord, LabModel};
-pub use predict::{predict_ve, Prediction};
 pub use table::{CampaignTable, Condition, REQUIRED_COLUMNS};
+// The extended model file the lab writes and its prediction live in the effects
+// library (the compensator reads them too); the lab's API hands them out.
+pub use vibro_effects::model::{BaseMode, FitRecord, LabModel};
+pub use vibro_effects::predict::{predict_ve, Prediction};
 
 /// Errors of the lab. Every message names the file (and row, column, key) concerned.
 #[derive(Debug, thiserror::Error)]
@@ -45,9 +46,6 @@ pub enum Error {
     /// A campaign table with problems: every problem, one per line.
     #[error("{path}: {}", problems.join("\n  "))]
     Table { path: String, problems: Vec<String> },
-    /// A model file with problems.
-    #[error("{path}: {}", problems.join("\n  "))]
-    Model { path: String, problems: Vec<String> },
     /// Reading or writing a file.
     #[error("{path}: {source}")]
     Io {
@@ -62,6 +60,10 @@ pub enum Error {
     /// A request that does not make sense (an unknown candidate, too few conditions).
     #[error("{0}")]
     Invalid(String),
+    /// The effects library or the extended model (a model file with problems, an
+    /// effect that cannot be built or evaluated), its message unchanged.
+    #[error(transparent)]
+    Effects(#[from] vibro_effects::Error),
 }
 
 pub type Result<T> = std::result::Result<T, Error>;

@@ -12,12 +12,12 @@
 //! `band_lo_hz`, `band_hi_hz` (the random part as a flat band, which the filtering
 //! effects need). Lines starting with `#` are comments.
 
-use crate::model::LabModel;
-use crate::predict::flat_passport;
 use crate::{Error, Result};
 use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
+use vibro_effects::model::LabModel;
+use vibro_effects::predict::flat_passport;
 use vibro_physics::passport::Passport;
 use vibro_physics::vibration::{PsdBand, Tone, Vibration};
 
@@ -636,7 +636,7 @@ impl CampaignTable {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::BaseMode;
+    use vibro_effects::model::BaseMode;
 
     const HEADER: &str = "run_id,passport,aL1_g,aL2_g,aL3_g,freq_hz,aB1_g,aB2_g,aB3_g,phase31_deg,phase32_deg,sigma1_g,sigma2_g,sigma3_g,cov31_g2,cov32_g2,kurtosis3,ve_measured_g,ve_uncertainty_g";
 

@@ -24,12 +24,13 @@
 use crate::engine::{scenario_effects, Simulator};
 use crate::scenario::{Condition, Scenario};
 use crate::sensor::ac_coupling_response;
-use crate::{Effect, Error, Result};
+use crate::{Error, Result};
 use std::f64::consts::TAU;
 use std::io::Write;
 use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc;
+use vibro_effects::Effect;
 use vibro_ident::{measure_ve_from_samples, MeasureOptions, VeMeasurement};
 use vibro_physics::ve::{published, Constants};
 use vibro_physics::vibration::Vibration;

@@ -1,14 +1,14 @@
 //! The streaming simulator: body-frame vibration, the chain of each unit, its
 //! vibration sensor and the truth, chunk by chunk (see the crate docs for the chain).
 
-use crate::effects::{build_for_rig, Rig};
 use crate::random::RandomGenerator;
 use crate::scenario::{campaign_axes, Condition, Profile, Rates, Scenario, SensorSpec};
 use crate::sensor::SensorChain;
 use crate::tones::{Sweep, ToneBank};
-use crate::{BlockCtx, Effect, Error, MeanContext, Result};
+use crate::{Error, Result};
 use std::f64::consts::PI;
 use std::ops::ControlFlow;
+use vibro_effects::{build_for_rig, BlockCtx, Effect, MeanContext, Rig};
 use vibro_physics::exact::MeanModel;
 use vibro_physics::fp;
 use vibro_physics::passport::Passport;
@@ -662,7 +662,7 @@ impl Simulator {
         };
         self.effects
             .iter()
-            .map(|e| (e.kind(), e.mean_shift_g(&ctx)))
+            .map(|e| (e.kind(), e.mean_shift_g(&ctx).map_err(Error::from)))
             .collect()
     }
 
@@ -879,7 +879,7 @@ pub fn scenario_effects(scenario: &Scenario) -> Result<Vec<Box<dyn Effect>>> {
         .effects
         .iter()
         .filter(|s| s.enabled)
-        .map(|s| build_for_rig(s, &rig))
+        .map(|s| build_for_rig(s, &rig).map_err(Error::from))
         .collect()
 }
 

@@ -3,17 +3,17 @@
 /// What can go wrong building or running a simulation.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// A scenario or effect parameter breaks its rule.
+    /// A scenario or run parameter breaks its rule.
     #[error("{key} = {value}: {rule}")]
     Invalid {
         key: String,
         value: String,
         rule: String,
     },
-    /// Several parameters break their rules, all reported at once (each an
-    /// [`Error::Invalid`]); added by the effects library.
-    #[error("{}", .0.iter().map(ToString::to_string).collect::<Vec<_>>().join("; "))]
-    Several(Vec<Error>),
+    /// An effect refused its parameters or its mean formula failed (the effects
+    /// library's message, unchanged).
+    #[error(transparent)]
+    Effects(#[from] vibro_effects::Error),
     /// The physics core refused an input.
     #[error(transparent)]
     Physics(#[from] vibro_physics::Error),

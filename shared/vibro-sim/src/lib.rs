@@ -6,7 +6,8 @@
 //! vibration error (VE) of MODEL.md *emerges from the signal* (the conversion
 //! function (FP) applied sample by sample and averaged) instead of being taken from
 //! the closed forms it is then checked against. Physical effects the model lacks
-//! (MODEL.md section 11) plug in through the [`Effect`] contract ([`effects`]).
+//! (MODEL.md section 11) plug in through the `vibro_effects::Effect` contract (the
+//! effects library, `vibro-effects`).
 //!
 //! A [`Scenario`] (`config/scenarios/*.toml`, [`scenario`]) is either
 //!
@@ -87,8 +88,6 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod campaign;
-pub mod effect;
-pub mod effects;
 mod engine;
 mod error;
 pub mod random;
@@ -101,7 +100,6 @@ pub use campaign::{
     run_campaign, run_condition, run_condition_records, write_positions_csv, write_summary_csv,
     CampaignOptions, ConditionRun, ConditionSummary, EffectShift, MeasuredVibration,
 };
-pub use effect::{BlockCtx, Effect, MeanContext};
 pub use engine::{scenario_effects, SampleCounts, SimChunk, Simulator, Truth, DEFAULT_CHUNK_S};
 pub use error::{Error, Result};
 pub use scenario::{load_scenario, parse_scenario, resolve_scenario, Scenario, ScenarioKind};

@@ -18,6 +18,7 @@ use vibro_msgs::{accel_flags, AccelBlock, CompensatedBlock, VibEstimate};
 use vibro_physics::compensation::{Mode, TriadCompensator};
 use vibro_physics::triad::TriadAxes;
 use vibro_physics::vibration::Vibration;
+use vibro_service::ServiceConfig;
 
 /// 800 Hz output.
 const T_NS: u64 = 1_250_000;

@@ -16,6 +16,7 @@ use vibro_compensator::{Config, InProcess};
 use vibro_msgs::compensation_flags as cf;
 use vibro_msgs::{AccelBlock, CompensatedBlock};
 use vibro_physics::vibration::Vibration;
+use vibro_service::ServiceConfig;
 
 const T_NS: u64 = 1_250_000;
 const BLOCK: u64 = 32;
@@ -60,7 +61,7 @@ fn config(model: Option<&str>) -> Config {
     c.model.effects = model.map(|text| {
         (
             "m.toml".into(),
-            vibro_lab::LabModel::parse(text, "m.toml").unwrap(),
+            vibro_effects::LabModel::parse(text, "m.toml").unwrap(),
         )
     });
     c
@@ -189,7 +190,7 @@ fn a_model_file_is_checked_watched_and_its_mode_must_match() {
         ),
         1,
     );
-    let src = || vibro_estimator::common::ConfigSource::File("c.toml".into());
+    let src = || vibro_service::ConfigSource::File("c.toml".into());
     let e = Config::parse(&text, src()).unwrap_err().to_string();
     assert!(
         e.contains("its mode \"paper\" is not this file's mode = \"exact\""),

@@ -3,9 +3,10 @@
 //! give NaN outputs with a flag. Runs the hot loop in spin mode.
 
 use crate::support::*;
-use vibro_compensator::{Config, LoopMode};
+use vibro_compensator::Config;
 use vibro_msgs::compensation_flags as cf;
 use vibro_msgs::{Heartbeat, ServiceId, Stream};
+use vibro_service::{LoopMode, ServiceConfig};
 
 #[test]
 fn gaps_duplicates_malformed_and_non_finite_input_are_counted_and_flagged() {
@@ -20,10 +21,10 @@ fn gaps_duplicates_malformed_and_non_finite_input_are_counted_and_flagged() {
         &node,
         &rig.names.stream(hb),
         &rig.names.event(hb),
-        &vibro_estimator::common::data_stream_config(),
+        &vibro_service::data_stream_config(),
     )
     .unwrap();
-    let service = Running::start(config);
+    let service = Running::start(vibro_compensator::run, config);
     rig.wait_for_service();
 
     let one_g = [[k1[0], 0.0, 0.0]; 32]; // 1 g on unit 1, 0 on the others

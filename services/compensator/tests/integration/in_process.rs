@@ -5,12 +5,12 @@
 
 use crate::support::*;
 use vibro_compensator::{unit_vibrations, Config, EstimateMapping};
-use vibro_estimator::common::now_ns;
 use vibro_msgs::compensation_flags as cf;
 use vibro_msgs::{estimate_flags, CompensatedBlock, CompensationMode};
 use vibro_physics::compensation::{Mode, TriadCompensator};
 use vibro_physics::exact::MeanModel;
 use vibro_physics::triad::TriadAxes;
+use vibro_service::{now_ns, ServiceConfig};
 
 /// The flight: body acceleration at sample `n` (1..5 g along z, a little on x and y).
 fn body_g(n: usize) -> [f64; 3] {
@@ -69,7 +69,7 @@ fn exact_mode_recovers_the_truth_bit_for_bit_with_the_kernel() {
     let passports = triad.passports;
 
     let mut rig = Rig::new(&prefix);
-    let service = Running::start(config);
+    let service = Running::start(vibro_compensator::run, config);
     rig.wait_for_service();
 
     // Readings: the exact mean output of each unit under the vibration it sees.
@@ -174,7 +174,7 @@ fn missing_and_stale_estimates_give_flagged_main_only_outputs() {
     let axes = config.model.triad.axes;
     let passports = config.model.triad.passports;
     let mut rig = Rig::new(&prefix);
-    let service = Running::start(config);
+    let service = Running::start(vibro_compensator::run, config);
     rig.wait_for_service();
 
     let t0_ns = 20_000_000_000u64;

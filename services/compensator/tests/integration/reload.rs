@@ -6,6 +6,7 @@ use crate::support::*;
 use std::time::{Duration, Instant};
 use vibro_compensator::Config;
 use vibro_msgs::CompensationMode;
+use vibro_service::ServiceConfig;
 
 fn mode_of(rig: &mut Rig, seq: u64) -> CompensationMode {
     let out = rig.roundtrip(&accel_block(
@@ -23,7 +24,7 @@ fn a_changed_model_file_is_picked_up_and_a_bad_one_refused() {
     let path = dir.path("compensator.toml");
     std::fs::write(&path, config_text(&prefix, "exact", "default", "event")).unwrap();
     let mut rig = Rig::new(&prefix);
-    let service = Running::start(Config::load(&path).unwrap());
+    let service = Running::start(vibro_compensator::run, Config::load(&path).unwrap());
     rig.wait_for_service();
     let mut seq = 0;
     let mut next = || {
@@ -104,7 +105,7 @@ fn a_changed_extended_model_is_picked_up_live() {
     let config = Config::load(&path).unwrap();
     let axes = config.model.triad.axes;
     let mut rig = Rig::new(&prefix);
-    let service = Running::start(config);
+    let service = Running::start(vibro_compensator::run, config);
     rig.wait_for_service();
     let vib = BodyVibration::rig();
     // E[v1 v2] per unit, from the body-frame description.

@@ -3,14 +3,13 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU32, Ordering};
-use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
-use vibro_compensator::{Config, Shutdown, Summary};
-use vibro_estimator::common::{data_stream_config, estimate_stream_config, now_ns};
+use std::time::Duration;
 use vibro_ipc::{create_node, IpcNode, StreamPublisher, StreamSubscriber};
 use vibro_msgs::{AccelBlock, CompensatedBlock, ServiceNames, Stream, VibEstimate};
 use vibro_physics::triad::{TriadAxes, UnitAxes};
 use vibro_physics::vibration::{Tone, Vibration};
+pub use vibro_service::testing::{wait_until, Running};
+use vibro_service::{data_stream_config, estimate_stream_config, now_ns};
 
 fn next_id() -> u32 {
     static NEXT: AtomicU32 = AtomicU32::new(0);
@@ -95,51 +94,6 @@ ia = "-x"
 oa = "-y"
 pa = "z"
 "#;
-
-/// The compensator running in-process on its own thread.
-pub struct Running {
-    shutdown: Shutdown,
-    handle: Option<JoinHandle<anyhow::Result<Summary>>>,
-}
-
-impl Running {
-    pub fn start(config: Config) -> Self {
-        let shutdown = Shutdown::new();
-        let token = shutdown.clone();
-        let handle = std::thread::spawn(move || vibro_compensator::run(config, token));
-        Self {
-            shutdown,
-            handle: Some(handle),
-        }
-    }
-
-    pub fn stop(mut self) -> Summary {
-        self.shutdown.trigger();
-        let handle = self.handle.take().expect("running");
-        handle.join().expect("no panic").expect("clean stop")
-    }
-}
-
-impl Drop for Running {
-    fn drop(&mut self) {
-        self.shutdown.trigger();
-        if let Some(h) = self.handle.take() {
-            let _ = h.join();
-        }
-    }
-}
-
-/// Polls `done` every millisecond until it holds or `timeout` passes.
-pub fn wait_until(timeout: Duration, mut done: impl FnMut() -> bool) -> bool {
-    let start = Instant::now();
-    while start.elapsed() < timeout {
-        if done() {
-            return true;
-        }
-        std::thread::sleep(Duration::from_millis(1));
-    }
-    done()
-}
 
 /// The test's side of the streams: it plays the rig and the estimator, and reads the
 /// compensated blocks.

@@ -13,12 +13,12 @@ use crate::in_process::{
 use crate::support::{prefix, wait_until, Gaussian, Running};
 use std::f64::consts::TAU;
 use std::time::Duration;
-use vibro_estimator::common::{data_stream_config, estimate_stream_config, now_ns};
 use vibro_estimator::Summary;
 use vibro_ipc::{create_node, StreamPublisher, StreamSubscriber};
 use vibro_msgs::{
     estimate_flags, Heartbeat, ServiceId, ServiceNames, Stream, VibBlock, VibEstimate,
 };
+use vibro_service::{data_stream_config, estimate_stream_config, now_ns};
 
 /// 6 s of signal.
 const SAMPLES: usize = 6 * FS_HZ as usize;
@@ -89,7 +89,7 @@ fn run(blocks: &[VibBlock]) -> (Vec<VibEstimate>, Summary) {
         &data_stream_config(),
     )
     .unwrap();
-    let service = Running::start(config(&prefix));
+    let service = Running::start(vibro_estimator::run, config(&prefix));
     assert!(wait_until(Duration::from_secs(5), || vib
         .subscriber_count()
         == 1));

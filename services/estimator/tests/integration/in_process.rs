@@ -6,14 +6,12 @@ use crate::support::{prefix, wait_until, Gaussian, Running};
 use std::f64::consts::TAU;
 use std::time::Duration;
 use vibro_dsp::EstimatorConfigRaw;
-use vibro_estimator::common::{
-    data_stream_config, estimate_stream_config, now_ns, ServiceSettingsRaw,
-};
 use vibro_estimator::{Config, RawConfig};
 use vibro_ipc::{create_node, StreamPublisher, StreamSubscriber};
 use vibro_msgs::{
     estimate_flags, Heartbeat, ServiceId, ServiceNames, Stream, VibBlock, VibEstimate,
 };
+use vibro_service::{data_stream_config, estimate_stream_config, now_ns, ServiceSettingsRaw};
 
 pub const FS_HZ: f64 = 4096.0;
 pub const BLOCK: usize = 256;
@@ -96,7 +94,7 @@ fn estimates_a_tone_in_noise_and_counts_a_lost_block() {
     )
     .unwrap();
 
-    let service = Running::start(config(&prefix));
+    let service = Running::start(vibro_estimator::run, config(&prefix));
     assert!(wait_until(Duration::from_secs(5), || vib
         .subscriber_count()
         == 1));
@@ -233,7 +231,7 @@ fn bad_input_is_counted_never_fatal() {
         &data_stream_config(),
     )
     .unwrap();
-    let service = Running::start(config(&prefix));
+    let service = Running::start(vibro_estimator::run, config(&prefix));
     assert!(wait_until(Duration::from_secs(5), || vib
         .subscriber_count()
         == 1));

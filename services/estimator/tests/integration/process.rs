@@ -5,9 +5,9 @@ use crate::support::{prefix, wait_until};
 use std::io::Read;
 use std::process::{Command, Stdio};
 use std::time::Duration;
-use vibro_estimator::common::data_stream_config;
 use vibro_ipc::{create_node, StreamSubscriber};
 use vibro_msgs::{Heartbeat, ServiceId, ServiceNames, Stream};
+use vibro_service::data_stream_config;
 
 #[test]
 fn the_binary_stops_cleanly_on_sigterm_and_prints_its_summary() {

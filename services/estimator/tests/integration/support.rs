@@ -1,9 +1,7 @@
 //! Helpers shared by the tests: unique prefixes, a running service, waiting, noise.
 
 use std::sync::atomic::{AtomicU32, Ordering};
-use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
-use vibro_estimator::{Config, Shutdown, Summary};
+pub use vibro_service::testing::{wait_until, Running};
 
 /// A service-name prefix no other test (or test process) uses.
 pub fn prefix() -> String {
@@ -13,52 +11,6 @@ pub fn prefix() -> String {
         std::process::id(),
         NEXT.fetch_add(1, Ordering::Relaxed)
     )
-}
-
-/// The estimator running in-process on its own thread.
-pub struct Running {
-    shutdown: Shutdown,
-    handle: Option<JoinHandle<anyhow::Result<Summary>>>,
-}
-
-impl Running {
-    pub fn start(config: Config) -> Self {
-        let shutdown = Shutdown::new();
-        let token = shutdown.clone();
-        let handle = std::thread::spawn(move || vibro_estimator::run(config, token));
-        Self {
-            shutdown,
-            handle: Some(handle),
-        }
-    }
-
-    /// Triggers the shutdown and returns the summary.
-    pub fn stop(mut self) -> Summary {
-        self.shutdown.trigger();
-        let handle = self.handle.take().expect("running");
-        handle.join().expect("no panic").expect("clean stop")
-    }
-}
-
-impl Drop for Running {
-    fn drop(&mut self) {
-        self.shutdown.trigger();
-        if let Some(h) = self.handle.take() {
-            let _ = h.join();
-        }
-    }
-}
-
-/// Polls `done` every millisecond until it holds or `timeout` passes.
-pub fn wait_until(timeout: Duration, mut done: impl FnMut() -> bool) -> bool {
-    let start = Instant::now();
-    while start.elapsed() < timeout {
-        if done() {
-            return true;
-        }
-        std::thread::sleep(Duration::from_millis(1));
-    }
-    done()
 }
 
 /// Standard normal draws: SplitMix64 into Box-Muller (deterministic, no dependency).

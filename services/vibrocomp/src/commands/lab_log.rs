@@ -2,8 +2,9 @@
 //! table, one condition per estimator window and unit (`vibro_lab::flight`,
 //! docs/lab.md "Logs as input").
 //!
-//! The log's `/vib` stream goes through the estimator (the service's own
-//! `vibro_dsp::Estimator`, its configuration), offline and deterministic; its estimates
+//! The log's `/vib` stream goes through the estimator (the service's own core,
+//! `vibro_estimator::InProcess`, with its configuration: validation, continuity and
+//! flags as the service applies them), offline and deterministic; its estimates
 //! are mapped to each unit's axes as the compensator maps them
 //! (`vibro_compensator::mapping`), with the whole vibration (the lab compares the VE of
 //! the papers' static model, not the compensator's per-interval part). Windows that do
@@ -16,16 +17,18 @@ use clap::Args;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use vibro_compensator::mapping::{sensor_map, unit_vibrations, EstimateMapping};
-use vibro_dsp::{Estimator, EstimatorConfig, SampleBlock};
-use vibro_lab::flight::{self, ReferenceSample, VibrationU, WindowInput};
-use vibro_lab::predict::flat_passport;
-use vibro_lab::{CampaignTable, LabModel};
+use vibro_compensator::mapping::{sensor_map, unit_vibrations, EstimateMapping, UnitVibrations};
+use vibro_config::TriadConfig;
+use vibro_dsp::EstimatorConfig;
+use vibro_effects::predict::flat_passport;
+use vibro_lab::flight::{self, ReferenceSample, VibrationU, WindowInput, WindowVe};
+use vibro_lab::{CampaignTable, Condition, LabModel};
+use vibro_log::topic;
 use vibro_mcap::{Message, Reader};
 use vibro_msgs::{estimate_flags, Stream, VibEstimate, MAX_BANDS};
 use vibro_physics::passport::Passport;
 use vibro_physics::vibration::PsdBand;
-use vibro_replay::topic;
+use vibro_service::ServiceConfig;
 
 /// Options of the lab's commands that apply to an MCAP log.
 #[derive(Debug, Args, Clone)]
@@ -115,28 +118,15 @@ fn row_at(rows: &mut BTreeMap<u64, Row>, index: u64) -> anyhow::Result<&mut Row>
     Ok(rows.entry(index).or_default())
 }
 
-/// The log's passports (`passport-{i}-{name}.toml` attachments), if it has all three.
+/// The log's passports (`vibro_log::attachments::read_passports`), if it has all three.
 fn log_passports(reader: &mut Reader) -> anyhow::Result<Option<[(String, Passport); 3]>> {
     let mut found: [Option<(String, Passport)>; 3] = [None, None, None];
-    for name in reader.attachment_names() {
-        let Some(rest) = name.strip_prefix("passport-") else {
-            continue;
-        };
-        let Some(i) = rest
-            .split('-')
-            .next()
-            .and_then(|d| d.parse::<usize>().ok())
-            .filter(|&i| i < 3)
-        else {
-            continue;
-        };
-        let Some(bytes) = reader.read_attachment(&name)? else {
-            continue;
-        };
-        let text = String::from_utf8(bytes)
-            .with_context(|| format!("attachment {name}: not UTF-8 text"))?;
-        let p = vibro_config::parse_passport(&text, &format!("attachment {name}"))?;
-        found[i] = Some((name.clone(), p));
+    for lp in vibro_log::attachments::read_passports(reader)? {
+        let name = lp.attachment;
+        let p = vibro_config::parse_passport(&lp.toml, &format!("attachment {name}"))?;
+        if let Some(slot) = found.get_mut(lp.index) {
+            *slot = Some((name, p));
+        }
     }
     Ok(match found {
         [Some(a), Some(b), Some(c)] => Some([a, b, c]),
@@ -149,7 +139,7 @@ fn estimator_config(
     args: &LogArgs,
     reader: &mut Reader,
     summary: &mut LogTableSummary,
-) -> anyhow::Result<EstimatorConfig> {
+) -> anyhow::Result<vibro_estimator::Config> {
     let base = match &args.estimator_config {
         Some(p) => vibro_estimator::Config::load(p)?,
         None => vibro_estimator::Config::shipped()?,
@@ -177,9 +167,10 @@ fn estimator_config(
     }
     summary.estimator_window_s = raw.window_s;
     summary.estimator_overlap_fraction = raw.overlap_fraction;
-    EstimatorConfig::try_from(raw).map_err(|e| {
+    let estimator = EstimatorConfig::try_from(raw).map_err(|e| {
         anyhow::anyhow!("the estimator's configuration with the log's sensor settings: {e}")
-    })
+    })?;
+    Ok(vibro_estimator::Config { estimator, ..base })
 }
 
 /// The random part's spectrum of unit `u` from the estimate's bands: each axis reads
@@ -263,9 +254,56 @@ pub fn table_from_log(
         ..Default::default()
     };
     let mut reader = Reader::open(path)?;
+    let units = log_units(&mut reader, args, &mut summary)?;
+    let config = estimator_config(args, &mut reader, &mut summary)?;
+    let mut estimator = vibro_estimator::InProcess::new(&config)?;
+    let streams = read_streams(path, reader, &mut estimator, &mut summary)?;
+    let conditions = window_conditions(&streams, &units, model, args, &mut summary)?;
+    summary.conditions = conditions.len();
+    if conditions.is_empty() {
+        bail!(
+            "{}: no usable window ({} estimates, {} windows: {} flagged by the estimator, \
+             {} not covered by readings and reference, {} with the flight acceleration \
+             changing by more than {} g)",
+            path.display(),
+            summary.estimates,
+            summary.windows,
+            summary.left_out_flagged,
+            summary.left_out_incomplete,
+            summary.left_out_al_span,
+            args.max_al_span_g
+        );
+    }
+    Ok((
+        CampaignTable {
+            path: path.to_path_buf(),
+            conditions,
+            extra_columns: ["t_s", "unit", "vibrating_s"].map(String::from).to_vec(),
+        },
+        summary,
+    ))
+}
+
+/// The log's units: the triad's geometry and names, and their passports.
+struct Units {
+    triad: TriadConfig,
+    /// Per unit: the passport as the table names it.
+    refs: Vec<String>,
+    /// Per unit: the passport, flat (`vibro_effects::predict::flat_passport`).
+    flat: Vec<Passport>,
+    /// Per unit axis: the vibration sensor that measures it, and the sign.
+    map: [[(usize, f64); 3]; 3],
+}
+
+/// The units of `--triad`, with the passports the log carries if it has all three.
+fn log_units(
+    reader: &mut Reader,
+    args: &LogArgs,
+    summary: &mut LogTableSummary,
+) -> anyhow::Result<Units> {
     let triad = vibro_config::resolve_triad(&args.triad)
         .with_context(|| format!("--triad {}", args.triad))?;
-    let (refs, passports): (Vec<String>, Vec<Passport>) = match log_passports(&mut reader)? {
+    let (refs, passports): (Vec<String>, Vec<Passport>) = match log_passports(reader)? {
         Some(list) => {
             summary.passports_from = "log".into();
             list.into_iter()
@@ -286,9 +324,33 @@ pub fn table_from_log(
         .map(flat_passport)
         .collect::<Result<_, _>>()?;
     summary.units = triad.names.to_vec();
-    let config = estimator_config(args, &mut reader, &mut summary)?;
-    let mut estimator = Estimator::new(config);
+    let map = sensor_map(&triad.axes);
+    Ok(Units {
+        triad,
+        refs,
+        flat,
+        map,
+    })
+}
 
+/// The log's streams, read in one pass.
+struct LogStreams {
+    /// The accelerometer samples and their reference, by sample index.
+    rows: BTreeMap<u64, Row>,
+    /// The accelerometer stream's sample period, ns.
+    period_ns: u64,
+    /// The estimates of the `/vib` stream, in order.
+    estimates: Vec<VibEstimate>,
+}
+
+/// Reads the log: `/vib` through the estimator (its windows' estimates), `/accel` and
+/// `/truth` into rows. Fails when the log lacks one of the three.
+fn read_streams(
+    path: &Path,
+    reader: Reader,
+    estimator: &mut vibro_estimator::InProcess,
+    summary: &mut LogTableSummary,
+) -> anyhow::Result<LogStreams> {
     let (vib_topic, accel_topic, truth_topic) = (
         topic(Stream::Vib),
         topic(Stream::Accel),
@@ -304,18 +366,9 @@ pub fn table_from_log(
         match &record.message {
             Message::VibBlock(b) if t == vib_topic => {
                 have_vib = true;
-                let block = SampleBlock {
-                    seq: b.seq,
-                    t0_ns: b.t0_ns,
-                    samples_raw: b.samples_v(),
-                };
+                // Offline: no receive time (the estimates' latency means nothing here).
                 estimator
-                    .push_block(&block, |e| {
-                        let mut m = VibEstimate::default();
-                        vibro_estimator::mirror_estimate(e, &mut m);
-                        m.seq = estimates.len() as u64;
-                        estimates.push(m);
-                    })
+                    .on_block(b, 0, &mut estimates)
                     .context("the estimator")?;
             }
             Message::AccelBlock(b) if t == accel_topic => {
@@ -363,10 +416,16 @@ pub fn table_from_log(
         );
     }
     summary.estimates = estimates.len() as u64;
+    Ok(LogStreams {
+        rows,
+        period_ns,
+        estimates,
+    })
+}
 
-    // The rows with everything, in time order (sample index order).
-    let complete: Vec<Complete> = rows
-        .values()
+/// The rows with everything, in time order (sample index order).
+fn complete_rows(rows: &BTreeMap<u64, Row>) -> Vec<Complete> {
+    rows.values()
         .filter_map(|r| match (r.output_v, r.a_l_ia_g, r.a_sensed_ia_g) {
             (Some(output_v), Some(a_l_ia_g), Some(a_sensed_ia_g)) => Some(Complete {
                 latch_ns: r.latch_ns,
@@ -376,137 +435,178 @@ pub fn table_from_log(
             }),
             _ => None,
         })
-        .collect();
+        .collect()
+}
+
+/// A window the lab uses.
+struct UsedWindow<'e> {
+    est: &'e VibEstimate,
+    /// The vibration each unit sees (the whole vibration, not the compensator's
+    /// per-interval part).
+    vib: UnitVibrations,
+    /// The window's centre from the first complete sample, s.
+    center_s: f64,
+}
+
+/// The table's conditions: one per unit of every window kept (windows that do not
+/// overlap the previous one kept, and that [`measure_window`] does not leave out).
+fn window_conditions(
+    streams: &LogStreams,
+    units: &Units,
+    model: &LabModel,
+    args: &LogArgs,
+    summary: &mut LogTableSummary,
+) -> anyhow::Result<Vec<Condition>> {
+    let complete = complete_rows(&streams.rows);
+    let period_ns = streams.period_ns;
     let t_first_ns = complete
         .first()
         .map(|r| r.latch_ns.saturating_sub(period_ns))
         .unwrap_or(0);
-    let map = sensor_map(&triad.axes);
     let mapping = EstimateMapping {
         within_output_interval: false,
         ..EstimateMapping::default()
     };
     let mut conditions = Vec::new();
     let mut last_end_ns = 0u64;
-    for est in &estimates {
+    for est in &streams.estimates {
         // Consecutive windows' edges agree to rounding (a fractional sample period).
         if est.start_ns + SAME_EDGE_NS < last_end_ns {
             continue;
         }
         summary.windows += 1;
         last_end_ns = est.end_ns;
-        if est.flags & BAD_ESTIMATE != 0 {
-            summary.left_out_flagged += 1;
+        let Some((vib, measured)) =
+            measure_window(est, &complete, period_ns, units, &mapping, args, summary)
+        else {
             continue;
-        }
-        // Samples whose interval (latch - T, latch] lies inside the window.
-        let first = complete.partition_point(|r| r.latch_ns < est.start_ns + period_ns);
-        let last = complete.partition_point(|r| r.latch_ns <= est.end_ns);
-        let expected = est.end_ns.saturating_sub(est.start_ns) / period_ns.max(1);
-        let got = last.saturating_sub(first) as u64;
-        if got + 1 < expected || got < args.batches as u64 {
-            summary.left_out_incomplete += 1;
-            continue;
-        }
-        let window = &complete[first..last];
-        let vib = match unit_vibrations(est, &triad.axes, &mapping) {
-            Ok(v) => v,
-            Err(e) => {
-                tracing::debug!("window at {} ns left out: {e}", est.start_ns);
-                summary.left_out_flagged += 1;
-                continue;
-            }
         };
-        let mut measured = Vec::with_capacity(3);
-        for (u, p) in flat.iter().enumerate() {
-            let axes = &triad.axes.units[u];
-            let samples: Vec<ReferenceSample> = window
-                .iter()
-                .map(|r| ReferenceSample {
-                    reading_g: r.output_v[u] / p.k1_v_per_g,
-                    a_l_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_l_ia_g)),
-                    a_sensed_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_sensed_ia_g)),
-                })
-                .collect();
-            measured.push(flight::window_ve(p, &samples, args.batches));
-        }
-        if measured
-            .iter()
-            .any(|m| m.is_none_or(|m| m.a_l_span_g > args.max_al_span_g))
-        {
-            summary.left_out_al_span += u64::from(measured.iter().all(Option::is_some));
-            summary.left_out_incomplete += u64::from(measured.iter().any(Option::is_none));
-            continue;
-        }
         summary.windows_used += 1;
-        let center_s = est.center_ns.saturating_sub(t_first_ns) as f64 * 1e-9;
+        let window = UsedWindow {
+            est,
+            vib,
+            center_s: est.center_ns.saturating_sub(t_first_ns) as f64 * 1e-9,
+        };
         for (u, m) in measured.into_iter().enumerate() {
             let Some(m) = m else { continue };
-            let v = vib.units[u];
-            // The uncertainties of the unit's tones (the mapping keeps the estimate's
-            // values: a tone is found by its frequency) and RMS per axis.
-            let count = (est.tone_count as usize).min(est.tone_frequency_hz.len());
-            let tone_amplitude_u_g = v
-                .tones()
-                .iter()
-                .map(|t| {
-                    let k = (0..count).find(|&k| est.tone_frequency_hz[k] == t.freq_hz);
-                    map[u].map(|(j, _)| k.map_or(0.0, |k| est.tone_amplitude_u_g[k][j]))
-                })
-                .collect();
-            let u_vib = VibrationU {
-                tone_amplitude_u_g,
-                sigma_u_g: map[u].map(|(j, _)| est.broadband_rms_u_g[j]),
-            };
-            let prediction_u_g = flight::prediction_u_g(
-                model.mode,
-                &flat[u],
-                m.a_l_unit_g,
-                m.a_l3_var_g2,
-                &v,
-                &u_vib,
-            )
-            .with_context(|| format!("window at {center_s:.3} s, unit {}", triad.names[u]))?;
-            let extra = BTreeMap::from([
-                ("t_s".to_string(), center_s),
-                ("unit".to_string(), (u + 1) as f64),
-                // The vibration has run since the log's start (heating's time).
-                ("vibrating_s".to_string(), center_s),
-            ]);
-            conditions.push(flight::condition(WindowInput {
-                run_id: format!("{}@{center_s:.2}s", triad.names[u]),
-                line: conditions.len() + 1,
-                passport_ref: refs[u].clone(),
-                passport: flat[u],
-                vibration: v,
-                bands: unit_bands(est, &map[u]),
-                measured: m,
-                prediction_u_g,
-                extra,
-            }));
+            let line = conditions.len() + 1;
+            conditions.push(unit_condition(&window, u, m, units, model, line)?);
         }
     }
-    summary.conditions = conditions.len();
-    if conditions.is_empty() {
-        bail!(
-            "{}: no usable window ({} estimates, {} windows: {} flagged by the estimator, \
-             {} not covered by readings and reference, {} with the flight acceleration \
-             changing by more than {} g)",
-            path.display(),
-            summary.estimates,
-            summary.windows,
-            summary.left_out_flagged,
-            summary.left_out_incomplete,
-            summary.left_out_al_span,
-            args.max_al_span_g
-        );
+    Ok(conditions)
+}
+
+/// The vibration and the measured VE of each unit over the window of `est`; `None`
+/// (counted in `summary`) for a window the lab leaves out: flagged by the estimator,
+/// not covered by readings and reference, or with the flight acceleration changing by
+/// more than `--max-al-span-g`.
+fn measure_window(
+    est: &VibEstimate,
+    complete: &[Complete],
+    period_ns: u64,
+    units: &Units,
+    mapping: &EstimateMapping,
+    args: &LogArgs,
+    summary: &mut LogTableSummary,
+) -> Option<(UnitVibrations, Vec<Option<WindowVe>>)> {
+    if est.flags & BAD_ESTIMATE != 0 {
+        summary.left_out_flagged += 1;
+        return None;
     }
-    Ok((
-        CampaignTable {
-            path: path.to_path_buf(),
-            conditions,
-            extra_columns: ["t_s", "unit", "vibrating_s"].map(String::from).to_vec(),
-        },
-        summary,
-    ))
+    // Samples whose interval (latch - T, latch] lies inside the window.
+    let first = complete.partition_point(|r| r.latch_ns < est.start_ns + period_ns);
+    let last = complete.partition_point(|r| r.latch_ns <= est.end_ns);
+    let expected = est.end_ns.saturating_sub(est.start_ns) / period_ns.max(1);
+    let got = last.saturating_sub(first) as u64;
+    if got + 1 < expected || got < args.batches as u64 {
+        summary.left_out_incomplete += 1;
+        return None;
+    }
+    let window = &complete[first..last];
+    let triad = &units.triad;
+    let vib = match unit_vibrations(est, &triad.axes, mapping) {
+        Ok(v) => v,
+        Err(e) => {
+            tracing::debug!("window at {} ns left out: {e}", est.start_ns);
+            summary.left_out_flagged += 1;
+            return None;
+        }
+    };
+    let mut measured = Vec::with_capacity(3);
+    for (u, p) in units.flat.iter().enumerate() {
+        let axes = &triad.axes.units[u];
+        let samples: Vec<ReferenceSample> = window
+            .iter()
+            .map(|r| ReferenceSample {
+                reading_g: r.output_v[u] / p.k1_v_per_g,
+                a_l_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_l_ia_g)),
+                a_sensed_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_sensed_ia_g)),
+            })
+            .collect();
+        measured.push(flight::window_ve(p, &samples, args.batches));
+    }
+    if measured
+        .iter()
+        .any(|m| m.is_none_or(|m| m.a_l_span_g > args.max_al_span_g))
+    {
+        summary.left_out_al_span += u64::from(measured.iter().all(Option::is_some));
+        summary.left_out_incomplete += u64::from(measured.iter().any(Option::is_none));
+        return None;
+    }
+    Some((vib, measured))
+}
+
+/// The condition of unit `u` over a window, its measured VE `m` and the model's
+/// prediction; `line` is its line in the table.
+fn unit_condition(
+    w: &UsedWindow<'_>,
+    u: usize,
+    m: WindowVe,
+    units: &Units,
+    model: &LabModel,
+    line: usize,
+) -> anyhow::Result<Condition> {
+    let (est, center_s, map) = (w.est, w.center_s, &units.map);
+    let v = w.vib.units[u];
+    // The uncertainties of the unit's tones (the mapping keeps the estimate's
+    // values: a tone is found by its frequency) and RMS per axis.
+    let count = (est.tone_count as usize).min(est.tone_frequency_hz.len());
+    let tone_amplitude_u_g = v
+        .tones()
+        .iter()
+        .map(|t| {
+            let k = (0..count).find(|&k| est.tone_frequency_hz[k] == t.freq_hz);
+            map[u].map(|(j, _)| k.map_or(0.0, |k| est.tone_amplitude_u_g[k][j]))
+        })
+        .collect();
+    let u_vib = VibrationU {
+        tone_amplitude_u_g,
+        sigma_u_g: map[u].map(|(j, _)| est.broadband_rms_u_g[j]),
+    };
+    let prediction_u_g = flight::prediction_u_g(
+        model.mode,
+        &units.flat[u],
+        m.a_l_unit_g,
+        m.a_l3_var_g2,
+        &v,
+        &u_vib,
+    )
+    .with_context(|| format!("window at {center_s:.3} s, unit {}", units.triad.names[u]))?;
+    let extra = BTreeMap::from([
+        ("t_s".to_string(), center_s),
+        ("unit".to_string(), (u + 1) as f64),
+        // The vibration has run since the log's start (heating's time).
+        ("vibrating_s".to_string(), center_s),
+    ]);
+    Ok(flight::condition(WindowInput {
+        run_id: format!("{}@{center_s:.2}s", units.triad.names[u]),
+        line,
+        passport_ref: units.refs[u].clone(),
+        passport: units.flat[u],
+        vibration: v,
+        bands: unit_bands(est, &map[u]),
+        measured: m,
+        prediction_u_g,
+        extra,
+    }))
 }

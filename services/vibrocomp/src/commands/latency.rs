@@ -15,8 +15,8 @@
 //!   timestamps and nothing computed, and a sink process that takes the vibration
 //!   blocks: the transport alone, for both streams;
 //! - **Unix sockets**: one process running the estimator's and the compensator's logic
-//!   (`vibro_dsp::Estimator`, `vibro_compensator::InProcess`, the hot loop's own
-//!   handler) on two threads, fed over two Unix stream sockets with the same
+//!   (`vibro_estimator::InProcess`, `vibro_compensator::InProcess`, the hot loops' own
+//!   handlers) on two threads, fed over two Unix stream sockets with the same
 //!   fixed-size messages, answering on the accelerometer socket.
 //!
 //! Each histogram is an HdrHistogram (1 ns .. 60 s, 3 significant digits); the blocks
@@ -33,14 +33,15 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use vibro_estimator::common::LoopMode;
 use vibro_ipc::{create_node, create_waitset, now_ns, StreamPublisher, StreamSubscriber};
 use vibro_msgs::{
     AccelBlock, CompensatedBlock, Heartbeat, ServiceId, ServiceNames, Stream, VibBlock, VibEstimate,
 };
+use vibro_service::{LoopMode, ServiceConfig};
 
 use crate::output::print_json;
-use crate::system::{private_prefix, wait_for_heartbeats, Process, Role, SystemSpec};
+use crate::system::{Role, SystemSpec};
+use vibro_service::supervise::{private_prefix, wait_for_heartbeats};
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct LatencyArgs {
@@ -521,8 +522,8 @@ fn losses(summary: &serde_json::Value, stream: &str) -> u64 {
 fn run_vibrocomp(args: &LatencyArgs, k1: [f64; 3], log: &Path) -> anyhow::Result<PipelineRun> {
     let prefix = private_prefix("vclat");
     let spec = spec_for(&prefix, args.mode);
-    let mut est = Process::spawn(&spec, Role::Estimator, Some(log))?;
-    let mut comp = Process::spawn(&spec, Role::Compensator, Some(log))?;
+    let mut est = spec.spawn(Role::Estimator, Some(log))?;
+    let mut comp = spec.spawn(Role::Compensator, Some(log))?;
     wait_for_heartbeats(
         &ServiceNames::new(&prefix)?,
         &[ServiceId::Estimator, ServiceId::Compensator],
@@ -603,7 +604,7 @@ impl KillOnDrop<'_> {
 impl Drop for KillOnDrop<'_> {
     fn drop(&mut self) {
         if let Some(c) = self.0.take() {
-            crate::system::terminate(c);
+            vibro_service::supervise::terminate(c);
             let t = Instant::now();
             while t.elapsed() < Duration::from_secs(3) {
                 if let Ok(Some(_)) = c.try_wait() {
@@ -932,6 +933,25 @@ fn install_stop() -> anyhow::Result<Arc<AtomicBool>> {
     Ok(flag)
 }
 
+/// The socket peer's estimates, sent to its compensator thread: stamped as the
+/// service's publisher stamps them (after the estimate is written).
+struct EstimateChannel(std::sync::mpsc::Sender<VibEstimate>);
+
+impl vibro_estimator::EstimateSink for EstimateChannel {
+    fn publish_with(
+        &mut self,
+        fill: impl FnOnce(&mut VibEstimate),
+    ) -> (u64, vibro_ipc::Result<usize>) {
+        let mut m = VibEstimate::ZEROED;
+        fill(&mut m);
+        let publish_ns = now_ns();
+        m.publish_ns = publish_ns;
+        // The compensator thread gone: the run is ending.
+        let _ = self.0.send(m);
+        (publish_ns, Ok(1))
+    }
+}
+
 /// The socket peer: the estimator's and compensator's logic on two threads.
 fn peer_uds(dir: &Path) -> anyhow::Result<()> {
     let est_config = vibro_estimator::Config::load_default()?;
@@ -947,30 +967,18 @@ fn peer_uds(dir: &Path) -> anyhow::Result<()> {
     let (tx, rx) = std::sync::mpsc::channel::<VibEstimate>();
     let estimator = std::thread::spawn(move || -> anyhow::Result<()> {
         let (mut sock, _) = vib_listener.accept()?;
-        let mut est = vibro_dsp::Estimator::new(est_config.estimator.clone());
+        let mut est = vibro_estimator::InProcess::new(&est_config)?;
+        let mut estimates = EstimateChannel(tx);
         let mut buf = vec![0u8; std::mem::size_of::<VibBlock>()];
-        let mut seq = 0u64;
         loop {
             if sock.read_exact(&mut buf).is_err() {
                 return Ok(());
             }
+            let recv_ns = now_ns();
             let Some(b) = VibBlock::from_bytes(&buf) else {
                 bail!("vib block size")
             };
-            let input = vibro_dsp::SampleBlock {
-                seq: b.seq,
-                t0_ns: b.t0_ns,
-                samples_raw: b.samples_v(),
-            };
-            est.push_block(&input, |e| {
-                let mut m = VibEstimate::ZEROED;
-                vibro_estimator::mirror_estimate(e, &mut m);
-                m.seq = seq;
-                m.source_seq = b.seq;
-                m.publish_ns = now_ns();
-                seq += 1;
-                let _ = tx.send(m);
-            })?;
+            est.on_block(&b, recv_ns, &mut estimates)?;
         }
     });
     let (mut sock, _) = accel_listener.accept()?;

@@ -5,7 +5,8 @@
 //! - `recover` rewrites a log left by a crash up to its last complete chunk
 //!   (`vibro_mcap::recover`) and says what was kept and what was lost.
 //! - `import` (module [`import`]) turns rig data recorded as CSV into a log with the
-//!   simulator's topics and wire types, so that it replays like a simulated flight.
+//!   simulator's topics and wire types, so that it replays like a simulated flight
+//!   (`vibro_log::import`).
 
 mod import;
 
@@ -16,10 +17,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 use serde::Serialize;
+use vibro_log::output::{check_output, PartFile};
 use vibro_mcap::{LogInfo, RecoverReport};
 
 use crate::output::print_json;
-pub use import::{read_csv_blocks, ImportArgs, ImportKind};
+pub use import::ImportArgs;
 
 /// Inspect, repair and import MCAP logs.
 #[derive(Debug, Subcommand)]
@@ -68,96 +70,6 @@ fn print_text(write: impl FnOnce(&mut String) -> std::fmt::Result) -> anyhow::Re
     match out.write_all(text.as_bytes()) {
         Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
         other => other.context("writing to stdout"),
-    }
-}
-
-/// Whether `a` and `b` name the same existing file (also through links).
-fn same_file(a: &Path, b: &Path) -> bool {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::MetadataExt;
-        if let (Ok(x), Ok(y)) = (std::fs::metadata(a), std::fs::metadata(b)) {
-            return x.dev() == y.dev() && x.ino() == y.ino();
-        }
-    }
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => false,
-    }
-}
-
-/// Refuses an output that exists (without `--force`), is a directory, or is one of the
-/// inputs.
-fn check_output(out: &Path, inputs: &[&Path], force: bool) -> anyhow::Result<()> {
-    if out.file_name().is_none() {
-        bail!("output {}: must name a file", out.display());
-    }
-    for input in inputs {
-        if same_file(input, out) {
-            bail!(
-                "output {} is the input {}: write to another file (the input is read while the output is written)",
-                out.display(),
-                input.display()
-            );
-        }
-    }
-    if out.is_dir() {
-        bail!("output {}: is a directory, not a file", out.display());
-    }
-    let folder = out
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    if !folder.is_dir() {
-        bail!(
-            "output {}: its folder {} does not exist",
-            out.display(),
-            folder.display()
-        );
-    }
-    if out.exists() && !force {
-        bail!(
-            "output {}: exists; pass --force to overwrite it",
-            out.display()
-        );
-    }
-    Ok(())
-}
-
-/// A file written under a temporary name beside its destination and renamed over it
-/// when complete, so that a failed command leaves neither a half-written log nor a
-/// clobbered one. Removed on drop unless [`PartFile::commit`] ran.
-struct PartFile {
-    path: PathBuf,
-    committed: bool,
-}
-
-impl PartFile {
-    fn beside(out: &Path) -> PartFile {
-        let name = out
-            .file_name()
-            .map_or_else(|| "log".into(), |n| n.to_string_lossy().into_owned());
-        PartFile {
-            path: out.with_file_name(format!(".{name}.{}.part", std::process::id())),
-            committed: false,
-        }
-    }
-
-    fn commit(mut self, out: &Path) -> anyhow::Result<()> {
-        std::fs::rename(&self.path, out).with_context(|| {
-            format!("cannot rename {} to {}", self.path.display(), out.display())
-        })?;
-        self.committed = true;
-        Ok(())
-    }
-}
-
-impl Drop for PartFile {
-    fn drop(&mut self) {
-        if !self.committed {
-            // Best effort: the command is failing already and reports why.
-            let _ = std::fs::remove_file(&self.path);
-        }
     }
 }
 
@@ -377,7 +289,7 @@ fn recover(args: &RecoverArgs) -> anyhow::Result<()> {
     let input_bytes = check_mcap_file(&args.damaged).context("the damaged log to recover")?;
     check_output(&args.out, &[&args.damaged], args.force)?;
     let part = PartFile::beside(&args.out);
-    let mut report = match vibro_mcap::recover(&args.damaged, &part.path) {
+    let mut report = match vibro_mcap::recover(&args.damaged, part.path()) {
         Ok(report) => report,
         // Without a complete header there is no profile, schema or chunk to keep.
         Err(vibro_mcap::Error::Truncated { .. }) => bail!(

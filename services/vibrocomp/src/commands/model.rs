@@ -324,7 +324,7 @@ struct EffectVe {
     ve_g: f64,
 }
 
-/// `model ve --model`: the extended model's VE (vibro_lab::predict, steady state).
+/// `model ve --model`: the extended model's VE (vibro_effects::predict, steady state).
 fn extended_ve(
     path: &std::path::Path,
     p: &Passport,
@@ -332,10 +332,11 @@ fn extended_ve(
     vib: &Vibration,
     json: bool,
 ) -> anyhow::Result<()> {
-    let model = vibro_lab::LabModel::load(path)?;
-    let flat = vibro_lab::predict::flat_passport(p)?;
+    let model = vibro_effects::LabModel::load(path)?;
+    let flat = vibro_effects::predict::flat_passport(p)?;
     let effects = model.build_effects(&flat)?;
-    let pred = vibro_lab::predict_ve(model.mode, &effects, &flat, a_l, vib, &[], f64::INFINITY)?;
+    let pred =
+        vibro_effects::predict_ve(model.mode, &effects, &flat, a_l, vib, &[], f64::INFINITY)?;
     let report = ExtendedVeReport {
         passport: p.id(),
         model: path.display().to_string(),
@@ -456,16 +457,16 @@ struct ExtendedCompensateReport<'a> {
 
 fn compensate_extended(args: &CompensateArgs, path: &std::path::Path) -> anyhow::Result<()> {
     let (p, vib) = args.vibration.resolve()?;
-    let lab = vibro_lab::LabModel::load(path)?;
+    let lab = vibro_effects::LabModel::load(path)?;
     let mode = match lab.mode {
-        vibro_lab::BaseMode::Exact => Mode::Exact,
-        vibro_lab::BaseMode::Paper => Mode::Paper,
-        vibro_lab::BaseMode::AsPublished => Mode::AsPublished,
+        vibro_effects::BaseMode::Exact => Mode::Exact,
+        vibro_effects::BaseMode::Paper => Mode::Paper,
+        vibro_effects::BaseMode::AsPublished => Mode::AsPublished,
     };
-    let flat = vibro_lab::predict::flat_passport(&p)?;
+    let flat = vibro_effects::predict::flat_passport(&p)?;
     let effects = lab.build_effects(&flat)?;
     let cross = [args.reading1_g, args.reading2_g];
-    let truth = vibro_lab::predict::true_vibration(
+    let truth = vibro_effects::predict::true_vibration(
         &effects,
         &flat,
         [cross[0], cross[1], args.reading_g],
@@ -476,7 +477,7 @@ fn compensate_extended(args: &CompensateArgs, path: &std::path::Path) -> anyhow:
     let mut unit = UnitCompensator::new(p, mode);
     unit.set_vibration(&vib_true)?;
     let stages = unit.compensate(args.reading_g, cross);
-    let parts = vibro_lab::predict::effect_shifts_g(
+    let parts = vibro_effects::predict::effect_shifts_g(
         &effects,
         &flat,
         [cross[0], cross[1], stages.a1_g],

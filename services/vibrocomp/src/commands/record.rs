@@ -1,5 +1,5 @@
 //! `vibrocomp record OUT.mcap`: records the live streams of a running system into an
-//! MCAP log (`vibro_replay::record`), with the services' configurations and the
+//! MCAP log (`vibro_log::record`), with the services' configurations and the
 //! passports in use attached, until Ctrl-C / SIGTERM (or `--duration-s`).
 
 use anyhow::Context;
@@ -7,9 +7,10 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-use vibro_estimator::common::{init_tracing, run_service};
+use vibro_log::attachments::{LogExtras, RECORDER_METADATA};
+use vibro_log::{record, stream_of_topic, topic, RecordOptions, DEFAULT_RECORD_STREAMS};
 use vibro_msgs::{ServiceNames, Stream};
-use vibro_replay::{record, stream_of_topic, topic, RecordOptions, DEFAULT_RECORD_STREAMS};
+use vibro_service::{init_tracing, run_service, ServiceConfig};
 
 use crate::output::print_json;
 
@@ -46,7 +47,7 @@ pub struct RecordArgs {
 #[derive(Debug, Serialize)]
 struct Report {
     #[serde(flatten)]
-    summary: vibro_replay::RecordSummary,
+    summary: vibro_log::RecordSummary,
     attachments: Vec<String>,
 }
 
@@ -99,37 +100,25 @@ fn config_text(
     }
 }
 
-/// Attachments: the files given, both services' configurations and the passports.
-fn attachments(args: &RecordArgs) -> anyhow::Result<Vec<(String, String, Vec<u8>)>> {
-    let mut out = Vec::new();
+/// Attachments: the files given, both services' configurations and the passports
+/// (named by `vibro_log::attachments`).
+fn attachments(args: &RecordArgs, out: &mut LogExtras) -> anyhow::Result<()> {
     for path in &args.attach {
         let data = std::fs::read(path).with_context(|| format!("--attach {}", path.display()))?;
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().to_string())
-            .unwrap_or_else(|| path.display().to_string());
-        out.push((name, "application/octet-stream".to_string(), data));
+        out.file(path, data);
     }
     let (name, text) = config_text(
         args.estimator_config.as_deref(),
         vibro_estimator::DEFAULT_CONFIG_PATH,
         vibro_estimator::Config::shipped_text(),
     )?;
-    out.push((
-        format!("estimator.toml ({name})"),
-        "application/toml".into(),
-        text,
-    ));
+    out.service_config("estimator", &name, text);
     let (name, text) = config_text(
         args.compensator_config.as_deref(),
         vibro_compensator::DEFAULT_CONFIG_PATH,
         vibro_compensator::Config::shipped_text(),
     )?;
-    out.push((
-        format!("compensator.toml ({name})"),
-        "application/toml".into(),
-        text,
-    ));
+    out.service_config("compensator", &name, text);
     let compensator = match &args.compensator_config {
         Some(p) => vibro_compensator::Config::load(p)?,
         None => vibro_compensator::Config::load_default()?,
@@ -137,13 +126,9 @@ fn attachments(args: &RecordArgs) -> anyhow::Result<Vec<(String, String, Vec<u8>
     let triad = &compensator.model.triad;
     for (i, p) in triad.passports.iter().enumerate() {
         let text = toml::to_string(&p.to_spec()).context("passport as TOML")?;
-        out.push((
-            format!("passport-{}-{}.toml", i, p.id()),
-            "application/toml".into(),
-            text.into_bytes(),
-        ));
+        out.passport(i, p.id(), text);
     }
-    Ok(out)
+    Ok(())
 }
 
 pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
@@ -157,12 +142,9 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
             "--duration-s = {d}: must be finite and > 0"
         );
     }
-    let attachments = attachments(args)?;
-    let attached: Vec<String> = attachments.iter().map(|a| a.0.clone()).collect();
-    let mut options = RecordOptions::new(names, streams);
-    options.attachments = attachments;
-    options.metadata.push((
-        "recorder".to_string(),
+    let mut extras = LogExtras::recorded();
+    extras.metadata(
+        RECORDER_METADATA,
         BTreeMap::from([
             (
                 "program".to_string(),
@@ -170,7 +152,11 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
             ),
             ("pid".to_string(), std::process::id().to_string()),
         ]),
-    ));
+    );
+    attachments(args, &mut extras)?;
+    let attached: Vec<String> = extras.attachments().map(|a| a.name.clone()).collect();
+    let mut options = RecordOptions::new(names, streams);
+    options.extras = extras;
     let out = args.out.clone();
     let duration = args.duration_s.map(Duration::from_secs_f64);
     let summary = run_service(|shutdown| async move {

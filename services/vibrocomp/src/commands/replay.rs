@@ -1,5 +1,5 @@
 //! `vibrocomp replay IN.mcap`: publishes the rig streams of a log into a running
-//! system (`vibro_replay::replay`), paced or as fast as possible in lock-step with the
+//! system (`vibro_log::replay`), paced or as fast as possible in lock-step with the
 //! services.
 
 use anyhow::Context;
@@ -8,8 +8,8 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use vibro_log::{replay, Pace, ReplayOptions, ReplaySummary};
 use vibro_msgs::ServiceNames;
-use vibro_replay::{replay, Pace, ReplayOptions, ReplaySummary};
 
 use crate::output::print_json;
 
@@ -106,11 +106,11 @@ pub fn replay_with_bar(
 }
 
 pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
-    vibro_estimator::common::init_tracing();
+    vibro_service::init_tracing();
     let options = args.options()?;
     let stop = Arc::new(AtomicBool::new(false));
     // Ctrl-C / SIGTERM: stop after the current message, the ports released cleanly.
-    let summary = vibro_estimator::common::run_service(|shutdown| {
+    let summary = vibro_service::run_service(|shutdown| {
         let stop = Arc::clone(&stop);
         let input = args.input.clone();
         async move {

@@ -3,7 +3,7 @@
 //! this way (as child processes of the one `vibrocomp` executable), so a fresh
 //! `cargo run -p vibrocomp` has everything it needs.
 
-use vibro_estimator::common::{init_tracing, ServiceArgs};
+use vibro_service::{init_tracing, main_with, ServiceArgs};
 
 #[derive(Debug, clap::Subcommand)]
 pub enum ServiceCommand {
@@ -16,7 +16,7 @@ pub enum ServiceCommand {
 pub fn run(cmd: &ServiceCommand) -> anyhow::Result<()> {
     init_tracing();
     match cmd {
-        ServiceCommand::Estimator(args) => vibro_estimator::main_with(args),
-        ServiceCommand::Compensator(args) => vibro_compensator::main_with(args),
+        ServiceCommand::Estimator(args) => main_with(args, vibro_estimator::run_async),
+        ServiceCommand::Compensator(args) => main_with(args, vibro_compensator::run_async),
     }
 }

@@ -19,16 +19,17 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use serde::Serialize;
+use vibro_effects::{catalogue, EffectSpec};
+use vibro_log::attachments::{effect_metadata_name, LogExtras, SCENARIO_METADATA};
+use vibro_log::rig::{Packetizer, RigChunk, RigMessage, TruthSample};
 use vibro_mcap::{Recorder, RecorderOptions};
 use vibro_msgs::{ServiceNames, Stream};
-use vibro_sim::effects::{catalogue, EffectSpec};
 use vibro_sim::{Scenario, ScenarioKind, Simulator};
 
 use crate::output::{fmt_g, print_json};
-use crate::rig::{Packetizer, RigMessage};
 
 /// Topics of the rig streams in a log: the stream names without the prefix.
-pub use vibro_replay::topic;
+pub use vibro_log::topic;
 
 #[derive(Debug, clap::Args)]
 pub struct SimArgs {
@@ -381,20 +382,16 @@ fn open_log(path: &Path, scenario: &Scenario, effects: &[String]) -> anyhow::Res
         ),
         ("effects".to_string(), effects.join("; ")),
     ]);
+    let mut extras = LogExtras::generated();
     if let Some(f) = scenario.flight() {
         meta.insert("duration_s".into(), f.duration_s.to_string());
         meta.insert("units".into(), f.triad.names.join(", "));
         for (i, p) in f.triad.passports.iter().enumerate() {
             let text = toml::to_string(&p.to_spec()).context("passport as TOML")?;
-            rec.add_attachment_at(
-                &format!("passport-{}-{}.toml", i, f.triad.names[i]),
-                "application/toml",
-                text.into_bytes(),
-                0,
-            )?;
+            extras.passport(i, p.id(), text);
         }
     }
-    rec.add_metadata("scenario", meta)?;
+    extras.metadata(SCENARIO_METADATA, meta);
     for (i, e) in scenario.effects.iter().filter(|e| e.enabled).enumerate() {
         let mut m: BTreeMap<String, String> = e
             .params
@@ -405,7 +402,7 @@ fn open_log(path: &Path, scenario: &Scenario, effects: &[String]) -> anyhow::Res
         if let Some(units) = &e.units {
             m.insert("units".into(), format!("{units:?}"));
         }
-        rec.add_metadata(&format!("effect-{i}"), m)?;
+        extras.metadata(&effect_metadata_name(i), m);
     }
     // The scenario as written: its file, or the shipped text it was parsed from.
     let text = std::fs::read(&scenario.file).ok().or_else(|| {
@@ -415,8 +412,9 @@ fn open_log(path: &Path, scenario: &Scenario, effects: &[String]) -> anyhow::Res
             .map(|(_, _, text)| text.as_bytes().to_vec())
     });
     if let Some(text) = text {
-        rec.add_attachment_at("scenario.toml", "application/toml", text, 0)?;
+        extras.scenario_text(text);
     }
+    extras.write_to(&rec)?;
     Ok(rec)
 }
 
@@ -440,6 +438,19 @@ fn write_log(rec: &Recorder, msg: RigMessage<'_>) -> anyhow::Result<()> {
             }
             other => return other.map_err(Into::into),
         }
+    }
+}
+
+/// What the rig's truth stream carries of a sample's truth: each unit's IA component.
+fn truth_sample(t: &vibro_sim::Truth) -> TruthSample {
+    TruthSample {
+        a_l_ia_g: [t.a_l_unit_g[0][2], t.a_l_unit_g[1][2], t.a_l_unit_g[2][2]],
+        a_sensed_ia_g: [
+            t.a_mean_unit_g[0][2],
+            t.a_mean_unit_g[1][2],
+            t.a_mean_unit_g[2][2],
+        ],
+        vib_error_ia_g: t.exact_ve_g,
     }
 }
 
@@ -525,7 +536,13 @@ pub fn simulate_flight(
             }
             n += 1;
         }
-        packetizer.push_chunk(chunk, &mut emit)?;
+        let rig_chunk = RigChunk {
+            sensor_first_index: chunk.sensor_first_index(),
+            sensor_v: chunk.sensor_v(),
+            output_first_index: chunk.output_first_index(),
+            accel_v: chunk.accel_v(),
+        };
+        packetizer.push_chunk(rig_chunk, chunk.truth().iter().map(truth_sample), &mut emit)?;
         bar.set_position(n);
     }
     packetizer.flush(&mut emit)?;

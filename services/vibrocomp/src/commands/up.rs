@@ -5,11 +5,12 @@
 use anyhow::Context;
 use serde::Serialize;
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 use tokio::sync::mpsc;
-use tracing::{error, info, warn};
-use vibro_estimator::common::{init_tracing, run_service, Shutdown};
+use tracing::info;
 use vibro_msgs::ServiceNames;
+use vibro_service::supervise::{supervise, ProcessReport, RestartLimits};
+use vibro_service::{init_tracing, run_service, ServiceConfig};
 
 use crate::output::print_json;
 use crate::system::{Role, SystemSpec};
@@ -44,109 +45,11 @@ pub struct UpArgs {
     pub json: bool,
 }
 
-/// What happened to one supervised process.
-#[derive(Debug, Clone, Serialize)]
-struct RoleReport {
-    role: &'static str,
-    starts: u32,
-    crashes: u32,
-    last_exit: Option<String>,
-    gave_up: bool,
-}
-
 #[derive(Debug, Serialize)]
 struct UpReport {
     prefix: String,
     record: Option<String>,
-    processes: Vec<RoleReport>,
-}
-
-struct Limits {
-    max_restarts: u32,
-    window: Duration,
-    stop_timeout: Duration,
-}
-
-fn signal(pid: Option<u32>, sig: libc::c_int) {
-    if let Some(pid) = pid {
-        // SAFETY: signalling our own child by its pid.
-        unsafe {
-            libc::kill(pid as libc::pid_t, sig);
-        }
-    }
-}
-
-/// Runs one role until shutdown, restarting it when it dies (the recorder is not
-/// restarted: a new recorder would replace the log).
-async fn supervise(
-    spec: SystemSpec,
-    role: Role,
-    limits: Limits,
-    shutdown: Shutdown,
-    events: mpsc::UnboundedSender<RoleReport>,
-) -> anyhow::Result<()> {
-    let mut report = RoleReport {
-        role: role.name(),
-        starts: 0,
-        crashes: 0,
-        last_exit: None,
-        gave_up: false,
-    };
-    let mut recent: Vec<Instant> = Vec::new();
-    loop {
-        let mut child = tokio::process::Command::from(spec.command(role)?)
-            .kill_on_drop(true)
-            .spawn()
-            .with_context(|| format!("starting the {}", role.name()))?;
-        report.starts += 1;
-        let pid = child.id();
-        info!(process = role.name(), pid, "started");
-        tokio::select! {
-            status = child.wait() => {
-                let status = status.with_context(|| format!("waiting for the {}", role.name()))?;
-                report.last_exit = Some(status.to_string());
-                if shutdown.is_triggered() {
-                    break;
-                }
-                report.crashes += 1;
-                warn!(process = role.name(), %status, "exited unexpectedly");
-                if role == Role::Recorder {
-                    error!("the recorder is not restarted (a new one would replace the log); the services keep running");
-                    break;
-                }
-                let now = Instant::now();
-                recent.retain(|t| now.duration_since(*t) < limits.window);
-                recent.push(now);
-                if recent.len() as u32 > limits.max_restarts {
-                    error!(
-                        process = role.name(),
-                        crashes = recent.len(),
-                        window_s = limits.window.as_secs_f64(),
-                        "too many crashes: giving up and stopping the system"
-                    );
-                    report.gave_up = true;
-                    shutdown.trigger();
-                    break;
-                }
-                // Backs off a little more after each crash in the window.
-                tokio::time::sleep(Duration::from_millis(200 * recent.len() as u64)).await;
-            }
-            _ = shutdown.triggered() => {
-                signal(pid, libc::SIGTERM);
-                match tokio::time::timeout(limits.stop_timeout, child.wait()).await {
-                    Ok(status) => report.last_exit = status.ok().map(|s| s.to_string()),
-                    Err(_) => {
-                        warn!(process = role.name(), "did not stop in time: killed");
-                        let _ = child.kill().await;
-                        report.last_exit = Some("killed".into());
-                    }
-                }
-                break;
-            }
-        }
-    }
-    let _ = events.send(report);
-    Ok(())
+    processes: Vec<ProcessReport>,
 }
 
 pub fn run(args: &UpArgs) -> anyhow::Result<()> {
@@ -184,18 +87,26 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
         let (tx, mut rx) = mpsc::unbounded_channel();
         let mut tasks = Vec::new();
         for role in roles {
-            let limits = Limits {
+            let limits = RestartLimits {
                 max_restarts: args.max_restarts,
                 window: Duration::from_secs_f64(args.restart_window_s),
                 stop_timeout: Duration::from_secs_f64(args.stop_timeout_s),
             };
-            tasks.push(tokio::spawn(supervise(
-                spec.clone(),
-                role,
-                limits,
-                shutdown.clone(),
-                tx.clone(),
-            )));
+            let (spec, shutdown, tx) = (spec.clone(), shutdown.clone(), tx.clone());
+            tasks.push(tokio::spawn(async move {
+                // The recorder is not restarted: a new recorder would replace the log.
+                let restart = role != Role::Recorder;
+                let report = supervise(
+                    role.name(),
+                    restart,
+                    || spec.command(role),
+                    limits,
+                    shutdown,
+                )
+                .await?;
+                let _ = tx.send(report);
+                anyhow::Ok(())
+            }));
         }
         drop(tx);
         info!(

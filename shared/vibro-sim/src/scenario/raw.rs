@@ -1,8 +1,8 @@
 //! A scenario as written in its TOML file: every table rejects unknown keys, and only
 //! structural defaults are filled in here; [`super::Scenario`] checks every rule.
 
-use crate::effects::EffectSpec;
 use serde::Deserialize;
+use vibro_effects::EffectSpec;
 
 /// The whole file.
 #[derive(Debug, Clone, Deserialize)]

@@ -3,8 +3,9 @@
 //! random draws of the other sources unchanged (common random numbers).
 
 use crate::common::*;
+use vibro_effects::{BlockCtx, Effect, MeanContext};
 use vibro_physics::vibration::Vibration;
-use vibro_sim::{BlockCtx, Effect, MeanContext, Simulator};
+use vibro_sim::Simulator;
 
 /// Cyclone-4 (tones, p1-table3 random, sensors with noise) shortened to `seconds`.
 fn cyclone(seconds: f64, seed: u64) -> vibro_sim::Scenario {
@@ -119,7 +120,7 @@ impl Effect for StatefulProbe {
             *o += *q;
         }
     }
-    fn mean_shift_g(&self, _ctx: &MeanContext<'_>) -> vibro_sim::Result<f64> {
+    fn mean_shift_g(&self, _ctx: &MeanContext<'_>) -> vibro_effects::Result<f64> {
         Ok(0.0)
     }
 }
@@ -175,7 +176,7 @@ impl Effect for Kurtosis {
     fn adjust_body_vibration(&self, vib: &mut Vibration) {
         vib.kurtosis = [self.0; 3];
     }
-    fn mean_shift_g(&self, _ctx: &MeanContext<'_>) -> vibro_sim::Result<f64> {
+    fn mean_shift_g(&self, _ctx: &MeanContext<'_>) -> vibro_effects::Result<f64> {
         Ok(0.0)
     }
 }
@@ -195,7 +196,7 @@ impl Effect for PhaseY {
             vib.push_tone(t).unwrap();
         }
     }
-    fn mean_shift_g(&self, _ctx: &MeanContext<'_>) -> vibro_sim::Result<f64> {
+    fn mean_shift_g(&self, _ctx: &MeanContext<'_>) -> vibro_effects::Result<f64> {
         Ok(0.0)
     }
 }

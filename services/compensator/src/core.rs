@@ -1,0 +1,864 @@
+//! The compensator's handling of each message without the transport: validation,
+//! continuity, staleness, the estimate in use, flags and the compensation itself
+//! ([`Compensation`]), fed by the service's hot loop (`crate::service`) or in-process
+//! ([`InProcess`]).
+
+use crate::config::{Config, Model};
+use crate::interval::within_output_interval;
+use crate::mapping::{unit_vibrations, UnitVibrations};
+use crate::reload::ModelUpdate;
+use tracing::{info, warn};
+use vibro_ipc::StreamPublisher;
+use vibro_msgs::compensation_flags as cf;
+use vibro_msgs::{
+    accel_flags, estimate_flags, AccelBlock, CompensatedBlock, CompensationMode, VibEstimate,
+    WireMessage,
+};
+use vibro_physics::compensation::TriadCompensator;
+use vibro_physics::vibration::{PsdBand, Vibration};
+use vibro_service::{
+    count_first, now_ns, Continuity, JsonObject, Latency, Quantiles, StreamCounters,
+};
+
+/// Readings beyond this magnitude are treated like NaN: no accelerometer measures them,
+/// and the model's fifth powers would overflow.
+pub const MAX_ABS_READING_G: f64 = 1e6;
+
+/// What the compensator did, returned by [`run`](crate::run) when it stops (and printed
+/// by `--json`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Summary {
+    /// Time the hot loop ran.
+    pub uptime_s: f64,
+    /// The `{prefix}accel` stream (received, lost by `seq` and `first_sample_index`,
+    /// out of order = dropped, restarts, malformed = dropped).
+    pub accel: StreamCounters,
+    /// The `{prefix}estimate` stream.
+    pub estimates: StreamCounters,
+    /// Estimates mapped to the model.
+    pub estimates_accepted: u64,
+    /// Estimates that could not be used (non-finite values, counts out of range, ...).
+    pub estimates_rejected: u64,
+    /// Times the compensator's vibration was set (once per estimate used, and when the
+    /// estimate went stale or came back).
+    pub vibration_updates: u64,
+    /// Tones left out because the model holds at most `estimate.max_tones`.
+    pub tones_dropped: u64,
+    /// Blocks published on `{prefix}compensated`.
+    pub published: u64,
+    /// Samples compensated (or set NaN for non-finite input).
+    pub samples: u64,
+    pub non_finite_samples: u64,
+    /// Blocks published with `INPUT_GAP`.
+    pub input_gap_blocks: u64,
+    /// Blocks published with `VIBRATION_ESTIMATE_STALE`.
+    pub stale_blocks: u64,
+    /// Blocks published with `ESTIMATE_MISSING`.
+    pub missing_blocks: u64,
+    /// Blocks published with `ESTIMATE_FLAGGED`.
+    pub flagged_estimate_blocks: u64,
+    /// Blocks published with `ESTIMATE_AHEAD` (an estimate dated beyond the lead limit
+    /// after the block: not used).
+    pub ahead_blocks: u64,
+    /// Blocks published with `RATE_CHANGE`.
+    pub rate_change_blocks: u64,
+    /// Blocks published with `TIME_JUMP`.
+    pub time_jump_blocks: u64,
+    /// Blocks published with `INPUT_SATURATED`.
+    pub saturated_blocks: u64,
+    /// Estimates for which the extended model's effects could not be evaluated (the
+    /// base model was applied without them).
+    pub model_effect_errors: u64,
+    /// Blocks a subscriber's full buffer did not take (after the back-pressure timeout).
+    pub undelivered: u64,
+    /// Other publish failures (loan, send): those blocks were not published.
+    pub publish_errors: u64,
+    pub receive_errors: u64,
+    /// Reloaded models taken by the hot loop.
+    pub reloads_applied: u64,
+    /// Reloads refused (invalid or unreadable files).
+    pub reload_errors: u64,
+    pub heartbeats: u64,
+    /// Mode at the end.
+    pub mode: CompensationMode,
+    /// From receiving an accelerometer block to publishing its compensated block.
+    pub latency: Quantiles,
+}
+
+impl Summary {
+    /// The summary as one JSON object.
+    pub fn to_json(&self) -> String {
+        let mut o = JsonObject::new();
+        o.str("service", "compensator")
+            .f64("uptime_s", self.uptime_s)
+            .str("mode", self.mode.as_str())
+            .object("accel", self.accel.to_json())
+            .object("estimates", self.estimates.to_json())
+            .u64("estimates_accepted", self.estimates_accepted)
+            .u64("estimates_rejected", self.estimates_rejected)
+            .u64("vibration_updates", self.vibration_updates)
+            .u64("tones_dropped", self.tones_dropped)
+            .u64("published", self.published)
+            .u64("samples", self.samples)
+            .u64("non_finite_samples", self.non_finite_samples)
+            .u64("input_gap_blocks", self.input_gap_blocks)
+            .u64("stale_blocks", self.stale_blocks)
+            .u64("missing_blocks", self.missing_blocks)
+            .u64("flagged_estimate_blocks", self.flagged_estimate_blocks)
+            .u64("ahead_blocks", self.ahead_blocks)
+            .u64("rate_change_blocks", self.rate_change_blocks)
+            .u64("time_jump_blocks", self.time_jump_blocks)
+            .u64("saturated_blocks", self.saturated_blocks)
+            .u64("model_effect_errors", self.model_effect_errors)
+            .u64("undelivered", self.undelivered)
+            .u64("publish_errors", self.publish_errors)
+            .u64("receive_errors", self.receive_errors)
+            .u64("reloads_applied", self.reloads_applied)
+            .u64("reload_errors", self.reload_errors)
+            .u64("heartbeats", self.heartbeats)
+            .object("latency", self.latency.to_json());
+        o.finish()
+    }
+}
+
+impl vibro_service::ServiceSummary for Summary {
+    fn to_json(&self) -> String {
+        Summary::to_json(self)
+    }
+}
+
+/// Where compensated blocks go: the `{prefix}compensated` publisher in the service,
+/// a vector in [`InProcess`].
+pub trait OutputSink {
+    /// Publishes one block, written in place by `fill` into a default message.
+    fn publish_with(
+        &mut self,
+        fill: impl FnOnce(&mut CompensatedBlock),
+    ) -> vibro_ipc::Result<usize>;
+}
+
+impl OutputSink for StreamPublisher<CompensatedBlock> {
+    fn publish_with(
+        &mut self,
+        fill: impl FnOnce(&mut CompensatedBlock),
+    ) -> vibro_ipc::Result<usize> {
+        StreamPublisher::publish_with(self, fill)
+    }
+}
+
+impl OutputSink for Vec<CompensatedBlock> {
+    fn publish_with(
+        &mut self,
+        fill: impl FnOnce(&mut CompensatedBlock),
+    ) -> vibro_ipc::Result<usize> {
+        let mut m = CompensatedBlock::default();
+        fill(&mut m);
+        self.push(m);
+        Ok(1)
+    }
+}
+
+/// The compensator's handling of each message without the transport: the same code
+/// the service's hot loop runs (validation, continuity, staleness, the estimate in
+/// use, flags, the compensation itself), fed in-process. A log replayed through the
+/// service processes in lock-step gives bit-identical blocks (timestamps aside).
+pub struct InProcess {
+    st: Compensation,
+}
+
+impl InProcess {
+    /// The compensator of `config`'s model (the transport settings are not used).
+    pub fn new(config: &Config) -> anyhow::Result<Self> {
+        Ok(Self {
+            st: Compensation::new(config.model.clone(), config.model.compensator())?,
+        })
+    }
+
+    /// An estimate arrives (the service takes every pending estimate before each
+    /// accelerometer block).
+    pub fn on_estimate(&mut self, estimate: &VibEstimate) {
+        self.st.on_estimate(estimate);
+        self.st.prepare();
+    }
+
+    /// An accelerometer block arrives at `recv_ns`: its compensated block (if it was
+    /// not dropped) is appended to `out`.
+    pub fn on_accel(&mut self, block: &AccelBlock, recv_ns: u64, out: &mut Vec<CompensatedBlock>) {
+        self.st.on_accel(block, recv_ns, out);
+    }
+
+    /// The counters so far.
+    pub fn summary(&self) -> Summary {
+        self.st.s.clone()
+    }
+}
+
+/// The latest usable estimate, mapped to the units.
+struct Latest {
+    /// Counts the estimates accepted: tells two estimates apart even when a restarted
+    /// estimator reuses a `seq`.
+    generation: u64,
+    estimate: VibEstimate,
+    vibrations: UnitVibrations,
+    /// The estimate carries quality flags (other than `TONE_FREE`), or its kurtosis
+    /// had to be replaced.
+    flagged: bool,
+}
+
+/// Where the accelerometer stream's last accepted block put its samples: the next
+/// block's `t0_ns` is checked against it.
+#[derive(Debug, Clone, Copy)]
+struct AccelTiming {
+    /// End of the block's last sample interval, `t0 + (count - 1) T` (one period
+    /// before `t0` for an empty block), ns; wide, so that no input overflows it.
+    last_end_ns: i128,
+    /// Sample index after the block's last sample.
+    next_index: u64,
+}
+
+impl AccelTiming {
+    fn after(block: &AccelBlock) -> Self {
+        let period = i128::from(block.sample_period_ns);
+        Self {
+            last_end_ns: i128::from(block.t0_ns) + (i128::from(block.count) - 1) * period,
+            next_index: block
+                .first_sample_index
+                .wrapping_add(u64::from(block.count)),
+        }
+    }
+
+    /// The block's `t0_ns` is more than half its sample period away from where this
+    /// timing and the sample index put it: sample 0's interval starts where the last
+    /// known sample's ended, one period per sample lost in between (at the block's
+    /// own period, so a rate change alone is no jump).
+    fn jumped(&self, block: &AccelBlock) -> bool {
+        let period = i128::from(block.sample_period_ns);
+        let skipped = i128::from(block.first_sample_index) - i128::from(self.next_index);
+        let expected_ns = self.last_end_ns + (1 + skipped) * period;
+        2 * (i128::from(block.t0_ns) - expected_ns).abs() > period
+    }
+}
+
+/// Nodes of an [`EffectGrid`]: 17 nodes 0.25 g apart cover +-2 g around the reading
+/// the grid was built at.
+const EFFECT_GRID_NODES: usize = 17;
+const EFFECT_GRID_STEP_G: f64 = 0.25;
+
+/// One unit's extended-model correction (the effects' VE change, docs/lab.md) as a
+/// function of its flight acceleration `a(1)`, tabulated when the vibration changes
+/// (per estimate, or when the reading leaves the grid): the effects' mean formulas
+/// run quadratures and build exact-model tables, far too slow per sample. Per sample,
+/// a cubic interpolation; beyond the grid, the end value.
+#[derive(Debug, Clone, Copy)]
+struct EffectGrid {
+    a0_g: f64,
+    ve_g: [f64; EFFECT_GRID_NODES],
+}
+
+impl EffectGrid {
+    /// The grid centred on `center_g`, from the VE change at each node.
+    fn build(
+        center_g: f64,
+        mut ve_at: impl FnMut(f64) -> vibro_effects::Result<f64>,
+    ) -> vibro_effects::Result<Self> {
+        let a0_g = center_g - EFFECT_GRID_STEP_G * (EFFECT_GRID_NODES / 2) as f64;
+        let mut ve_g = [0.0; EFFECT_GRID_NODES];
+        for (j, v) in ve_g.iter_mut().enumerate() {
+            *v = ve_at(a0_g + EFFECT_GRID_STEP_G * j as f64)?;
+        }
+        Ok(Self { a0_g, ve_g })
+    }
+
+    fn covers(&self, a_g: f64) -> bool {
+        let x = (a_g - self.a0_g) / EFFECT_GRID_STEP_G;
+        x >= 1.0 && x <= (EFFECT_GRID_NODES - 2) as f64
+    }
+
+    /// Cubic (4-point Lagrange) interpolation at `a_g`, clamped to the grid: exact for
+    /// cubics; for a smooth `E`, error at most `|E''''| h^4 9/384` (h = 0.25 g).
+    fn at(&self, a_g: f64) -> f64 {
+        let last = (EFFECT_GRID_NODES - 1) as f64;
+        let x = ((a_g - self.a0_g) / EFFECT_GRID_STEP_G).clamp(0.0, last);
+        // Nodes j-1, j, j+1, j+2 around x, kept inside the grid.
+        let j = (x.floor() as usize).clamp(1, EFFECT_GRID_NODES - 3);
+        let t = x - j as f64;
+        let y = |k: usize| self.ve_g[j + k - 1];
+        let (p0, p1, p2, p3) = (y(0), y(1), y(2), y(3));
+        -t * (t - 1.0) * (t - 2.0) / 6.0 * p0 + (t + 1.0) * (t - 1.0) * (t - 2.0) / 2.0 * p1
+            - (t + 1.0) * t * (t - 2.0) / 2.0 * p2
+            + (t + 1.0) * t * (t - 1.0) / 6.0 * p3
+    }
+}
+
+/// The hot loop's state. Nothing in it allocates per block or per sample.
+pub(crate) struct Compensation {
+    model: Model,
+    compensator: TriadCompensator,
+    /// A clone of `compensator` holding the latest estimate's vibration, built when the
+    /// estimate arrives ([`Self::prepare`]) so that the block that needs it swaps it in
+    /// instead of building the exact model's tables on its own latency.
+    prepared: TriadCompensator,
+    /// `generation` of the estimate `prepared` holds; `None`: nothing usable.
+    prepared_for: Option<u64>,
+    k1_v_per_g: [f64; 3],
+    /// The extended model's correction per unit, for the vibration the compensator
+    /// holds; `None` without `model = ...` or without vibration.
+    effect_grids: Option<[EffectGrid; 3]>,
+    /// The first reading (U/K1) of the block the grids were wanted for, g.
+    effect_center_g: [f64; 3],
+    latest: Option<Latest>,
+    /// `generation` of the estimate whose vibration the compensator holds; `None`: no
+    /// vibration.
+    applied: Option<u64>,
+    /// The accelerometer stream's sample period (each output is the mean over it), s;
+    /// 0 before the first block.
+    output_interval_s: f64,
+    /// The accelerometer stream's `sample_period_ns`; `None` before the first block.
+    period_ns: Option<u64>,
+    /// The last accepted block's timing; `None` before the first block.
+    timing: Option<AccelTiming>,
+    accel_continuity: Continuity,
+    estimate_continuity: Continuity,
+    /// A dropped (malformed) block: the next output is flagged `INPUT_GAP`.
+    pending_gap: bool,
+    rejecting: bool,
+    out_seq: u64,
+    pub(crate) latency: Latency,
+    pub(crate) s: Summary,
+}
+
+impl Compensation {
+    pub(crate) fn new(model: Model, compensator: TriadCompensator) -> anyhow::Result<Self> {
+        let mode = model.wire_mode();
+        Ok(Compensation {
+            k1_v_per_g: model.k1_v_per_g(),
+            effect_grids: None,
+            effect_center_g: [0.0; 3],
+            model,
+            prepared: compensator.clone(),
+            prepared_for: None,
+            compensator,
+            latest: None,
+            applied: None,
+            output_interval_s: 0.0,
+            period_ns: None,
+            timing: None,
+            accel_continuity: Continuity::new(),
+            estimate_continuity: Continuity::new(),
+            pending_gap: false,
+            rejecting: false,
+            out_seq: 0,
+            latency: Latency::new()?,
+            s: Summary {
+                uptime_s: 0.0,
+                accel: StreamCounters::default(),
+                estimates: StreamCounters::default(),
+                estimates_accepted: 0,
+                estimates_rejected: 0,
+                vibration_updates: 0,
+                tones_dropped: 0,
+                published: 0,
+                samples: 0,
+                non_finite_samples: 0,
+                input_gap_blocks: 0,
+                stale_blocks: 0,
+                missing_blocks: 0,
+                flagged_estimate_blocks: 0,
+                ahead_blocks: 0,
+                rate_change_blocks: 0,
+                time_jump_blocks: 0,
+                saturated_blocks: 0,
+                model_effect_errors: 0,
+                undelivered: 0,
+                publish_errors: 0,
+                receive_errors: 0,
+                reloads_applied: 0,
+                reload_errors: 0,
+                heartbeats: 0,
+                mode,
+                latency: Quantiles::default(),
+            },
+        })
+    }
+
+    pub(crate) fn take_update(&mut self, update: ModelUpdate) {
+        self.model = update.model;
+        self.compensator = update.compensator;
+        // Allocates, once per reload (not per block).
+        self.prepared = self.compensator.clone();
+        self.prepared_for = None;
+        self.k1_v_per_g = self.model.k1_v_per_g();
+        self.remap_latest();
+        self.s.reloads_applied += 1;
+        self.s.mode = self.model.wire_mode();
+        info!(
+            mode = self.model.mode.name(),
+            "hot loop took the reloaded model"
+        );
+    }
+
+    /// The averaging interval the estimate is reduced to: the output interval, or 0
+    /// (the whole vibration) when `[estimate] within_output_interval = false`.
+    fn interval_s(&self) -> f64 {
+        if self.model.estimate.within_output_interval {
+            self.output_interval_s
+        } else {
+            0.0
+        }
+    }
+
+    /// Maps the latest estimate again (after a model or output-rate change); the
+    /// compensator takes it at the next block.
+    fn remap_latest(&mut self) {
+        self.applied = None;
+        self.prepared_for = None;
+        let interval_s = self.interval_s();
+        if let Some(l) = &mut self.latest {
+            let within = within_output_interval(&l.estimate, interval_s);
+            match unit_vibrations(&within, &self.model.triad.axes, &self.model.estimate) {
+                Ok(v) => l.vibrations = v,
+                Err(e) => {
+                    warn!("{e}: not usable");
+                    self.latest = None;
+                }
+            }
+        }
+    }
+
+    pub(crate) fn on_estimate(&mut self, e: &VibEstimate) {
+        self.s.estimates.received += 1;
+        if let Err(err) = e.validate() {
+            if count_first(&mut self.s.estimates.malformed) {
+                warn!(seq = e.seq, "dropping a malformed estimate: {err}");
+            }
+            return;
+        }
+        let arrival = self.estimate_continuity.check_seq(e.seq);
+        self.s.estimates.record(&arrival);
+        if !arrival.accepted {
+            return;
+        }
+        // The vibration inside one output interval: what the samples do not resolve
+        // (crate::interval; unknown before the first block: the whole vibration).
+        let within = within_output_interval(e, self.interval_s());
+        match unit_vibrations(&within, &self.model.triad.axes, &self.model.estimate) {
+            Ok(v) => {
+                let quality = e.flags & estimate_flags::ALL & !estimate_flags::TONE_FREE;
+                self.s.estimates_accepted += 1;
+                self.s.tones_dropped += u64::from(v.tones_dropped);
+                self.prepared_for = None;
+                self.latest = Some(Latest {
+                    generation: self.s.estimates_accepted,
+                    estimate: *e,
+                    vibrations: v,
+                    flagged: quality != 0 || v.kurtosis_defaulted,
+                });
+                if self.rejecting {
+                    info!(seq = e.seq, "vibration estimates usable again");
+                    self.rejecting = false;
+                }
+            }
+            Err(err) => {
+                self.s.estimates_rejected += 1;
+                if !self.rejecting {
+                    warn!("{err}; keeping the previous estimate while it is not stale");
+                    self.rejecting = true;
+                }
+            }
+        }
+    }
+
+    /// Builds the latest estimate's vibration into `prepared`, off the blocks' path:
+    /// called once the pending estimates are taken (not per estimate, so a burst
+    /// builds once). The extended model's grids depend on the block's reading, so with
+    /// `model = ...` the tables are still built by the block ([`Self::apply`]). A
+    /// vibration the compensator refuses is left to `apply`, which reports it.
+    pub(crate) fn prepare(&mut self) {
+        if self.model.effects.is_some() {
+            return;
+        }
+        let Some(l) = &self.latest else {
+            return;
+        };
+        if self.prepared_for == Some(l.generation) || self.applied == Some(l.generation) {
+            return;
+        }
+        let ok = (0..3).all(|i| {
+            self.prepared
+                .set_vibration(i, &l.vibrations.units[i])
+                .is_ok()
+        });
+        self.prepared_for = ok.then_some(l.generation);
+    }
+
+    /// Gives the compensator the vibration of estimate generation `want` (or none). Per estimate,
+    /// never per sample: `set_vibration` rebuilds the exact model's tables (~1 ms).
+    fn apply(&mut self, want: Option<u64>) -> bool {
+        self.s.vibration_updates += 1;
+        self.effect_grids = None;
+        let ok = match (want, &self.latest) {
+            (Some(g), Some(_)) if self.model.effects.is_none() && self.prepared_for == Some(g) => {
+                self.compensator.swap_units(&mut self.prepared);
+                self.prepared_for = None;
+                true
+            }
+            (Some(_), Some(l)) => match &self.model.effects {
+                None => (0..3).all(|i| {
+                    self.compensator
+                        .set_vibration(i, &l.vibrations.units[i])
+                        .is_ok()
+                }),
+                Some((_, lab)) => {
+                    let units = l.vibrations.units;
+                    let band_hz = [l.estimate.broadband_f_lo_hz, l.estimate.broadband_f_hi_hz];
+                    match effect_grids(
+                        lab,
+                        &self.model.triad.passports,
+                        &units,
+                        band_hz,
+                        self.effect_center_g,
+                    ) {
+                        Ok((grids, true_vibrations)) => {
+                            self.effect_grids = Some(grids);
+                            (0..3).all(|i| {
+                                self.compensator
+                                    .set_vibration(i, &true_vibrations[i])
+                                    .is_ok()
+                            })
+                        }
+                        Err(e) => {
+                            // The base model still applies: compensate without the
+                            // effects (no MODEL_EFFECTS) rather than not at all.
+                            if count_first(&mut self.s.model_effect_errors) {
+                                warn!("the extended model cannot evaluate its effects ({e}); compensating with the base model, further failures counted");
+                            }
+                            (0..3).all(|i| self.compensator.set_vibration(i, &units[i]).is_ok())
+                        }
+                    }
+                }
+            },
+            _ => true,
+        };
+        if want.is_none() || !ok {
+            self.effect_grids = None;
+            for i in 0..3 {
+                // `Vibration::none()` always validates.
+                let _ = self.compensator.set_vibration(i, &Vibration::none());
+            }
+        }
+        self.applied = if ok { want } else { None };
+        ok
+    }
+
+    /// The extended model's grids again, around `effect_center_g`, for the vibration
+    /// the compensator holds; without grids (base model) when they cannot be built.
+    fn retabulate(&mut self) {
+        let (Some((_, lab)), Some(l)) = (&self.model.effects, &self.latest) else {
+            return;
+        };
+        let band_hz = [l.estimate.broadband_f_lo_hz, l.estimate.broadband_f_hi_hz];
+        let passports = &self.model.triad.passports;
+        match effect_grids(
+            lab,
+            passports,
+            &l.vibrations.units,
+            band_hz,
+            self.effect_center_g,
+        ) {
+            Ok((grids, _)) => self.effect_grids = Some(grids),
+            Err(e) => {
+                self.effect_grids = None;
+                if count_first(&mut self.s.model_effect_errors) {
+                    warn!("the extended model cannot evaluate its effects ({e}); compensating with the base model, further failures counted");
+                }
+            }
+        }
+    }
+
+    pub(crate) fn on_accel(&mut self, block: &AccelBlock, recv_ns: u64, out: &mut impl OutputSink) {
+        self.s.accel.received += 1;
+        if let Err(e) = block.validate() {
+            if count_first(&mut self.s.accel.malformed) {
+                warn!(
+                    seq = block.seq,
+                    "dropping a malformed accelerometer block: {e}"
+                );
+            }
+            self.pending_gap = true;
+            return;
+        }
+        let arrival = self.accel_continuity.check(
+            block.seq,
+            block.first_sample_index,
+            u64::from(block.count),
+        );
+        self.s.accel.record(&arrival);
+        if !arrival.accepted {
+            if self.s.accel.out_of_order == 1 {
+                warn!(
+                    seq = block.seq,
+                    "dropping a duplicate or out-of-order accelerometer block"
+                );
+            }
+            return;
+        }
+        let count = block.count as u64;
+        let end_ns = block.t0_ns.saturating_add(
+            block
+                .sample_period_ns
+                .saturating_mul(count.saturating_sub(1)),
+        );
+        let interval_s = block.sample_period_ns as f64 * 1e-9;
+        if interval_s != self.output_interval_s {
+            // A new output rate changes what the samples resolve: map the latest
+            // estimate again (once per rate change, not per block).
+            self.output_interval_s = interval_s;
+            self.remap_latest();
+        }
+        let rate_change = self.period_ns.is_some_and(|p| p != block.sample_period_ns);
+        self.period_ns = Some(block.sample_period_ns);
+        if rate_change {
+            // The stream was reconfigured: start the kernel afresh, so that what
+            // follows is compensated as by a compensator started on the new rate.
+            self.compensator.reset_tracking();
+        }
+        // After a restart the stream's earlier timing no longer applies.
+        let time_jump =
+            !arrival.restarted && self.timing.is_some_and(|timing| timing.jumped(block));
+        self.timing = Some(AccelTiming::after(block));
+        if arrival.restarted {
+            // The producer started again (a new replay, a restarted rig): the stream
+            // history no longer applies, and an estimate dated after this block
+            // belongs to the previous run.
+            self.compensator.reset_tracking();
+            if self
+                .latest
+                .as_ref()
+                .is_some_and(|l| l.estimate.end_ns > end_ns)
+            {
+                self.latest = None;
+            }
+        }
+        let mut flags = 0u32;
+        if arrival.gap() || self.pending_gap || block.flags & accel_flags::GAP_BEFORE != 0 {
+            flags |= cf::INPUT_GAP;
+        }
+        self.pending_gap = false;
+        if block.flags & accel_flags::SATURATED != 0 {
+            // Which readings are clipped the block does not say: all are compensated
+            // as read, and the output carries the producer's warning.
+            flags |= cf::INPUT_SATURATED;
+        }
+        if rate_change {
+            flags |= cf::RATE_CHANGE;
+        }
+        if time_jump {
+            flags |= cf::TIME_JUMP;
+        }
+
+        // Staleness: the estimate's window end against the end of the block's last
+        // sample interval (both on the producers' clock, taken as given even after a
+        // TIME_JUMP). Too old: stale. Too new (the clocks disagree, or the block was
+        // dated back): not usable either, ESTIMATE_AHEAD.
+        let (mut want, mut estimate_seq, mut age_ns) = (None, 0u64, 0i64);
+        // `want`: the estimate whose vibration this block needs; `None`: main error only.
+        match &self.latest {
+            None => flags |= cf::ESTIMATE_MISSING | cf::MAIN_ONLY,
+            Some(l) => {
+                let age = i128::from(end_ns) - i128::from(l.estimate.end_ns);
+                age_ns = age.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64;
+                estimate_seq = l.estimate.seq;
+                if age > i128::from(self.model.max_estimate_age_ns) {
+                    flags |= cf::VIBRATION_ESTIMATE_STALE | cf::MAIN_ONLY;
+                } else if age < -i128::from(self.model.max_estimate_lead_ns) {
+                    // Kept: the stream may catch up with it.
+                    flags |= cf::ESTIMATE_AHEAD | cf::MAIN_ONLY;
+                } else {
+                    want = Some(l.generation);
+                    if l.flagged {
+                        flags |= cf::ESTIMATE_FLAGGED;
+                    }
+                }
+            }
+        }
+        if self.model.effects.is_some() && block.count > 0 {
+            let u_v = block.samples_v()[0];
+            let first_g = [0, 1, 2].map(|i| u_v[i] / self.k1_v_per_g[i]);
+            let outside = self
+                .effect_grids
+                .is_some_and(|g| (0..3).any(|i| !g[i].covers(first_g[i])));
+            if want != self.applied || outside {
+                self.effect_center_g = first_g;
+            }
+            if outside && want == self.applied {
+                // The flight acceleration left the grid: tabulate again around it (the
+                // compensator's vibration stays as it is).
+                self.retabulate();
+            }
+        }
+        if want != self.applied && !self.apply(want) {
+            warn!(
+                seq = estimate_seq,
+                "the compensator refused the estimate's vibration; main error only"
+            );
+            self.latest = None;
+            self.s.estimates_rejected += 1;
+            flags = (flags & !cf::ESTIMATE_FLAGGED) | cf::ESTIMATE_MISSING | cf::MAIN_ONLY;
+            (estimate_seq, age_ns) = (0, 0);
+        }
+        let main_only = flags & cf::MAIN_ONLY != 0;
+
+        let seq = self.out_seq;
+        self.out_seq += 1;
+        let mode = self.model.wire_mode().code();
+        let k1 = self.k1_v_per_g;
+        let grids = if main_only { None } else { self.effect_grids };
+        if grids.is_some() {
+            flags |= cf::MODEL_EFFECTS;
+        }
+        let compensator = &mut self.compensator;
+        let mut non_finite = 0u64;
+        let mut publish_ns = 0u64;
+        let result = out.publish_with(|m| {
+            m.seq = seq;
+            m.input_seq = block.seq;
+            m.first_sample_index = block.first_sample_index;
+            m.t0_ns = block.t0_ns;
+            m.sample_period_ns = block.sample_period_ns;
+            m.estimate_seq = estimate_seq;
+            m.input_publish_ns = block.publish_ns;
+            m.recv_ns = recv_ns;
+            m.estimate_age_ns = age_ns;
+            m.count = block.count;
+            m.source_id = block.source_id;
+            m.mode = mode;
+            for (k, u_v) in block.samples_v().iter().enumerate() {
+                // Readings in g: U / K1 per unit (MODEL.md section 2).
+                let readings_g = [u_v[0] / k1[0], u_v[1] / k1[1], u_v[2] / k1[2]];
+                if !readings_g.iter().all(|r| r.abs() <= MAX_ABS_READING_G) {
+                    // The units are coupled through the cross terms: a bad reading
+                    // spoils the whole triad sample.
+                    non_finite += 1;
+                    for a in m.stages_mut() {
+                        a[k] = [f64::NAN; 3];
+                    }
+                    continue;
+                }
+                let stages = compensator.compensate(readings_g);
+                for (i, s) in stages.units.iter().enumerate() {
+                    m.a1_g[k][i] = s.a1_g;
+                    m.a2_g[k][i] = s.a2_g;
+                    m.main_g[k][i] = s.main_g;
+                    if main_only {
+                        // No vibration model: (19) and (20) remove nothing, exactly.
+                        m.a3_g[k][i] = s.a2_g;
+                        m.a4_g[k][i] = s.a2_g;
+                    } else {
+                        // The extended model's effects at a(1), removed after (20)
+                        // and carried in `rand` so that a4 = a3 - rand (first order:
+                        // the effects' VE changes slowly with the acceleration).
+                        let effects_g = grids.map_or(0.0, |g| g[i].at(s.a1_g));
+                        m.a3_g[k][i] = s.a3_g;
+                        m.a4_g[k][i] = s.a4_g - effects_g;
+                        m.det_g[k][i] = s.det_g;
+                        m.rand_g[k][i] = s.rand_g + effects_g;
+                    }
+                }
+            }
+            m.flags = if non_finite > 0 {
+                flags | cf::NON_FINITE_INPUT
+            } else {
+                flags
+            };
+            publish_ns = now_ns();
+            m.publish_ns = publish_ns;
+        });
+        self.s.samples += count;
+        self.s.non_finite_samples += non_finite;
+        match result {
+            Ok(_) => {}
+            Err(e @ vibro_ipc::Error::Undelivered { .. }) => {
+                // Once, then counted: the heartbeat turns `degraded` and the periodic
+                // summary line carries the count (no logging per block).
+                if count_first(&mut self.s.undelivered) {
+                    warn!("{e}; further undelivered blocks are counted in the summary");
+                }
+            }
+            Err(e) => {
+                if count_first(&mut self.s.publish_errors) {
+                    warn!("{e}");
+                }
+                return;
+            }
+        }
+        self.s.published += 1;
+        self.s.input_gap_blocks += u64::from(flags & cf::INPUT_GAP != 0);
+        self.s.stale_blocks += u64::from(flags & cf::VIBRATION_ESTIMATE_STALE != 0);
+        self.s.missing_blocks += u64::from(flags & cf::ESTIMATE_MISSING != 0);
+        self.s.flagged_estimate_blocks += u64::from(flags & cf::ESTIMATE_FLAGGED != 0);
+        self.s.ahead_blocks += u64::from(flags & cf::ESTIMATE_AHEAD != 0);
+        self.s.rate_change_blocks += u64::from(rate_change);
+        self.s.time_jump_blocks += u64::from(time_jump);
+        self.s.saturated_blocks += u64::from(flags & cf::INPUT_SATURATED != 0);
+        self.latency.record(publish_ns.saturating_sub(recv_ns));
+    }
+}
+
+/// Per unit: the vibration it really sees (the sensor effects' RMS factor removed from
+/// the measured IA vibration, vibro_effects::predict) and the grid of its effects' VE
+/// change around `center_g[i]` (MODEL.md section 11, docs/lab.md), for a steady
+/// vibration (`duration = inf`), with the cross-axis flight acceleration taken as 0.
+fn effect_grids(
+    lab: &vibro_effects::LabModel,
+    passports: &[vibro_physics::passport::Passport; 3],
+    measured: &[Vibration; 3],
+    band_hz: [f64; 2],
+    center_g: [f64; 3],
+) -> vibro_effects::Result<([EffectGrid; 3], [Vibration; 3])> {
+    let mut grids = [EffectGrid {
+        a0_g: 0.0,
+        ve_g: [0.0; EFFECT_GRID_NODES],
+    }; 3];
+    let mut true_vib = *measured;
+    for i in 0..3 {
+        let flat = vibro_effects::predict::flat_passport(&passports[i])?;
+        let effects = lab.build_effects(&flat)?;
+        true_vib[i] = vibro_effects::predict::true_vibration(
+            &effects,
+            &flat,
+            [0.0, 0.0, center_g[i]],
+            &measured[i],
+            &[],
+        )?
+        .vibration;
+        // The random part as a flat spectrum over the estimate's broadband band (the
+        // filtering effects need a spectrum; the estimate carries band RMS, not a PSD
+        // in the unit frame).
+        let c = &true_vib[i].covariance_g2;
+        let psd: Vec<PsdBand> =
+            if band_hz[1] > band_hz[0] && band_hz[0] >= 0.0 && (0..3).any(|a| c[a][a] > 0.0) {
+                let width = band_hz[1] - band_hz[0];
+                vec![PsdBand {
+                    f_lo_hz: band_hz[0],
+                    f_hi_hz: band_hz[1],
+                    psd_g2_per_hz: [0, 1, 2].map(|a| c[a][a] / width),
+                }]
+            } else {
+                Vec::new()
+            };
+        grids[i] = EffectGrid::build(center_g[i], |a_g| {
+            Ok(vibro_effects::predict::effect_shifts_g(
+                &effects,
+                &flat,
+                [0.0, 0.0, a_g],
+                &true_vib[i],
+                &psd,
+                f64::INFINITY,
+            )?
+            .iter()
+            .map(|(_, v)| v)
+            .sum())
+        })?;
+    }
+    Ok((grids, true_vib))
+}

@@ -1,0 +1,316 @@
+//! The extended model's vibration error for one condition.
+//!
+//! `VE = VE_base(v_true) + sum_e [m_e(v_true) - m_e(0)]`, where
+//!
+//! - `v_true` is the vibration at the unit: the measured one with its IA amplitudes and
+//!   RMS (the unit's vibration sensor is along IA) divided by the product of the sensor
+//!   effects' RMS factors (`Effect::sensor_rms_factor`, e.g. a sensor gain error);
+//! - `VE_base` is MODEL.md section 6 (`exact`) or section 5 (`paper`, `as-published`),
+//!   with the passport's `lambda(w)` taken as 1, as in the simulator (the frequency
+//!   dependence of the scale factor is the `scale_factor_frequency` effect);
+//! - `m_e(v)` is effect `e`'s documented mean contribution (docs/effects.md) under
+//!   vibration `v`, and `m_e(0)` the same without vibration: a campaign measures the
+//!   VE as the vibrating record minus the still ones (MODEL.md section 8), so an
+//!   effect's static part cancels.
+
+use crate::model::BaseMode;
+use crate::{Effect, Error, MeanContext, Result};
+use serde::Serialize;
+use vibro_physics::exact::exact_ve;
+use vibro_physics::passport::Passport;
+use vibro_physics::ve::{published, Constants};
+use vibro_physics::vibration::{PsdBand, Vibration};
+
+/// Internal sample rate the effects' discrete-time formulas assume (the simulator's
+/// default, `rates.internal_hz`), Hz.
+pub const INTERNAL_RATE_HZ: f64 = 25_600.0;
+
+/// The extended model's prediction for one condition.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Prediction {
+    /// VE of the base model under the true vibration, g.
+    pub base_ve_g: f64,
+    /// Each non-sensor effect's VE change, g, in model order.
+    pub effects: Vec<(String, f64)>,
+    /// Product of the sensor effects' RMS factors (1 without any).
+    pub sensor_rms_factor: f64,
+    /// The total, g.
+    pub ve_g: f64,
+}
+
+/// The unit passport as the lab uses it: `lambda(w)` dropped (see the module doc).
+pub fn flat_passport(p: &Passport) -> Result<Passport> {
+    let mut spec = p.to_spec();
+    spec.lambda.clear();
+    Passport::try_from_spec(&spec).map_err(|e| Error::Predict {
+        what: format!("passport {}", p.id()),
+        reason: e.to_string(),
+    })
+}
+
+/// The base VE under `vib`, g.
+pub fn base_ve_g(
+    mode: BaseMode,
+    passport: &Passport,
+    a_l_unit_g: [f64; 3],
+    vib: &Vibration,
+) -> Result<f64> {
+    Ok(match mode {
+        BaseMode::Exact => {
+            exact_ve(passport, a_l_unit_g, vib)
+                .map_err(|e| Error::Predict {
+                    what: "exact VE".into(),
+                    reason: e.to_string(),
+                })?
+                .total_g
+        }
+        BaseMode::Paper | BaseMode::AsPublished => {
+            published(passport, a_l_unit_g, vib, Constants::PAPER).total_g
+        }
+    })
+}
+
+/// `vib` as the unit sees it when its vibration sensor (along IA) reads `factor` times
+/// the truth: the IA amplitude of every tone and the IA RMS divided by `factor` (the
+/// IA covariances by `factor`, the IA variance by `factor^2`); OA and PA untouched.
+pub fn scaled_vibration(vib: &Vibration, factor: f64) -> Vibration {
+    if factor == 1.0 {
+        return *vib;
+    }
+    let mut out = *vib;
+    out.clear_tones();
+    for t in vib.tones() {
+        let mut t = *t;
+        t.amplitude_g[2] /= factor;
+        // A tone that fitted before fits after.
+        let _ = out.push_tone(t);
+    }
+    for j in 0..3 {
+        out.covariance_g2[2][j] /= factor;
+        out.covariance_g2[j][2] /= factor;
+    }
+    out
+}
+
+pub(crate) fn scaled_psd(psd: &[PsdBand], factor: f64) -> Vec<PsdBand> {
+    psd.iter()
+        .map(|b| PsdBand {
+            psd_g2_per_hz: [
+                b.psd_g2_per_hz[0],
+                b.psd_g2_per_hz[1],
+                b.psd_g2_per_hz[2] / (factor * factor),
+            ],
+            ..*b
+        })
+        .collect()
+}
+
+/// The context an effect's mean formula is evaluated in: unit 0 of the lab's frame.
+fn context<'a>(
+    passport: &'a Passport,
+    a_l_unit_g: [f64; 3],
+    vibration_unit: &'a Vibration,
+    psd_unit: &'a [PsdBand],
+    duration_s: f64,
+) -> MeanContext<'a> {
+    MeanContext {
+        unit: 0,
+        passport,
+        a_l_unit_g,
+        vibration_unit,
+        psd_unit,
+        internal_rate_hz: INTERNAL_RATE_HZ,
+        duration_s,
+    }
+}
+
+/// Product of the sensor effects' RMS factors under the measured vibration.
+pub fn sensor_rms_factor(
+    effects: &[Box<dyn Effect>],
+    passport: &Passport,
+    a_l_unit_g: [f64; 3],
+    vibration_unit: &Vibration,
+    psd_unit: &[PsdBand],
+) -> f64 {
+    let ctx = context(
+        passport,
+        a_l_unit_g,
+        vibration_unit,
+        psd_unit,
+        f64::INFINITY,
+    );
+    effects
+        .iter()
+        .filter_map(|e| e.sensor_rms_factor(&ctx))
+        .product()
+}
+
+/// The non-sensor effects' VE changes under the true vibration `vib_true`.
+pub fn effect_shifts_g(
+    effects: &[Box<dyn Effect>],
+    passport: &Passport,
+    a_l_unit_g: [f64; 3],
+    vib_true: &Vibration,
+    psd_true: &[PsdBand],
+    duration_s: f64,
+) -> Result<Vec<(String, f64)>> {
+    let none = Vibration::none();
+    let on = context(passport, a_l_unit_g, vib_true, psd_true, duration_s);
+    let off = context(passport, a_l_unit_g, &none, &[], duration_s);
+    let mut out = Vec::new();
+    for e in effects {
+        if e.sensor_rms_factor(&on).is_some() {
+            continue;
+        }
+        let fail = |err: Error| Error::Predict {
+            what: format!("effect {}", e.kind()),
+            reason: err.to_string(),
+        };
+        let shift = e.mean_shift_g(&on).map_err(fail)? - e.mean_shift_g(&off).map_err(fail)?;
+        out.push((e.kind().to_string(), shift));
+    }
+    Ok(out)
+}
+
+/// The vibration the unit really sees: the measured one with the sensor effects'
+/// RMS factor taken out (module doc).
+#[derive(Debug, Clone)]
+pub struct TrueVibration {
+    /// Product of the sensor effects' RMS factors (1 without any).
+    pub sensor_rms_factor: f64,
+    pub vibration: Vibration,
+    pub psd: Vec<PsdBand>,
+}
+
+/// [`TrueVibration`] of a measured vibration under `effects`.
+pub fn true_vibration(
+    effects: &[Box<dyn Effect>],
+    passport: &Passport,
+    a_l_unit_g: [f64; 3],
+    vibration_unit: &Vibration,
+    psd_unit: &[PsdBand],
+) -> Result<TrueVibration> {
+    let factor = sensor_rms_factor(effects, passport, a_l_unit_g, vibration_unit, psd_unit);
+    if !(factor.is_finite() && factor > 0.0) {
+        return Err(Error::Predict {
+            what: "sensor effects".into(),
+            reason: format!("RMS factor {factor}: must be finite and > 0"),
+        });
+    }
+    Ok(TrueVibration {
+        sensor_rms_factor: factor,
+        vibration: scaled_vibration(vibration_unit, factor),
+        psd: scaled_psd(psd_unit, factor),
+    })
+}
+
+/// The extended model's VE for one unit under the true vibration `truth`.
+pub fn predict_ve_true(
+    mode: BaseMode,
+    effects: &[Box<dyn Effect>],
+    passport: &Passport,
+    a_l_unit_g: [f64; 3],
+    truth: &TrueVibration,
+    duration_s: f64,
+) -> Result<Prediction> {
+    let base_ve_g = base_ve_g(mode, passport, a_l_unit_g, &truth.vibration)?;
+    let effects = effect_shifts_g(
+        effects,
+        passport,
+        a_l_unit_g,
+        &truth.vibration,
+        &truth.psd,
+        duration_s,
+    )?;
+    let ve_g = base_ve_g + effects.iter().map(|(_, s)| s).sum::<f64>();
+    Ok(Prediction {
+        base_ve_g,
+        effects,
+        sensor_rms_factor: truth.sensor_rms_factor,
+        ve_g,
+    })
+}
+
+/// The extended model's VE for one unit (module doc). `passport` should be flat
+/// ([`flat_passport`]) to agree with the simulator.
+pub fn predict_ve(
+    mode: BaseMode,
+    effects: &[Box<dyn Effect>],
+    passport: &Passport,
+    a_l_unit_g: [f64; 3],
+    vibration_unit: &Vibration,
+    psd_unit: &[PsdBand],
+    duration_s: f64,
+) -> Result<Prediction> {
+    let truth = true_vibration(effects, passport, a_l_unit_g, vibration_unit, psd_unit)?;
+    predict_ve_true(mode, effects, passport, a_l_unit_g, &truth, duration_s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::build_effects;
+
+    fn al15() -> Passport {
+        flat_passport(&vibro_config::resolve_passport("AL-15").unwrap()).unwrap()
+    }
+
+    fn table(text: &str) -> toml::Table {
+        toml::from_str(text).unwrap()
+    }
+
+    /// anisoelastic: `k_ae E[v1 v2]` with `E[v1 v2] = 0.5 aB1 aB2 cos(phi1 - phi2) +
+    /// cov12` (docs/effects.md); its static `k_ae aL1 aL2` cancels.
+    #[test]
+    fn an_effect_adds_its_closed_form_ve_change_to_the_base() {
+        let p = al15();
+        let mut vib = Vibration::single_tone(30.0, [1.2, 0.8, 0.42]);
+        vib.covariance_g2[0][1] = 0.05;
+        vib.covariance_g2[1][0] = 0.05;
+        vib.covariance_g2[0][0] = 0.3;
+        vib.covariance_g2[1][1] = 0.2;
+        let a_l = [0.3, 0.5, 1.0];
+        let k_ae = 2.0e-5;
+        let effects = build_effects(
+            &[table(&format!(
+                "kind = \"anisoelastic\"\nk_ae_per_g = {k_ae:e}"
+            ))],
+            &p,
+        )
+        .unwrap();
+        let with = predict_ve(BaseMode::Exact, &effects, &p, a_l, &vib, &[], 300.0).unwrap();
+        let base = exact_ve(&p, a_l, &vib).unwrap().total_g;
+        let want = k_ae * (0.5 * 1.2 * 0.8 + 0.05);
+        assert!((with.base_ve_g - base).abs() < 1e-18);
+        assert!(
+            (with.ve_g - base - want).abs() < 1e-15,
+            "{} vs {}",
+            with.ve_g - base,
+            want
+        );
+    }
+
+    /// A sensor gain error `g` makes the sensors read `(1 + g)` times the vibration:
+    /// the model predicts the VE of the measured amplitude divided by `1 + g`.
+    #[test]
+    fn a_sensor_gain_error_scales_the_vibration_the_model_sees() {
+        let p = al15();
+        let vib = Vibration::single_tone(30.0, [0.0, 0.0, 2.0]);
+        let effects =
+            build_effects(&[table("kind = \"sensor_error\"\ngain_error = 0.05")], &p).unwrap();
+        let got = predict_ve(
+            BaseMode::Paper,
+            &effects,
+            &p,
+            [0.0, 0.0, 1.0],
+            &vib,
+            &[],
+            1.0,
+        )
+        .unwrap();
+        let truth = Vibration::single_tone(30.0, [0.0, 0.0, 2.0 / 1.05]);
+        let want = published(&p, [0.0, 0.0, 1.0], &truth, Constants::PAPER).total_g;
+        assert!((got.sensor_rms_factor - 1.05).abs() < 1e-15);
+        assert!((got.ve_g - want).abs() < 1e-15, "{} vs {want}", got.ve_g);
+    }
+}

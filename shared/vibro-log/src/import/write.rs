@@ -1,0 +1,318 @@
+//! The import itself: both passes over every file, the blocks of all streams written in
+//! time order into a temporary file that replaces the output when complete, the
+//! metadata and attachments, and the report. Also the parsing core alone
+//! ([`read_csv_blocks`]), for the fuzz targets.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+use vibro_mcap::{Recorder, RecorderOptions};
+
+use super::blocks::BlockMaker;
+use super::plan::{ImportPlan, StreamSpec};
+use super::progress::{ImportProgress, Tracker};
+use super::scan::scan;
+use super::ImportKind;
+use crate::attachments::{LogExtras, IMPORT_METADATA};
+use crate::output::PartFile;
+use crate::rig::RigMessage;
+use crate::{Error, Result};
+
+/// What an import found and wrote for one stream.
+#[derive(Debug, Clone, Serialize)]
+pub struct StreamReport {
+    pub stream: ImportKind,
+    pub topic: String,
+    pub message_type: String,
+    pub file: String,
+    pub file_bytes: u64,
+    /// Data rows (samples) read.
+    pub rows: u64,
+    /// 1-based column of each documented name.
+    pub columns: BTreeMap<String, usize>,
+    pub ignored_columns: Vec<String>,
+    pub rate_hz: f64,
+    pub rate_from: String,
+    pub sample_period_ns: u64,
+    pub first_time_s: f64,
+    pub last_time_s: f64,
+    /// Sample indices spanned: rows + missing samples.
+    pub samples_spanned: u64,
+    pub block_samples: usize,
+    pub blocks: u64,
+    pub gaps: u64,
+    pub missing_samples: u64,
+    /// Largest distance of a row's time from the uniform grid.
+    pub max_time_residual_s: f64,
+    pub source_id: u32,
+}
+
+/// What an import wrote (`vibrocomp log import --json` prints it).
+#[derive(Debug, Clone, Serialize)]
+pub struct ImportReport {
+    pub out: String,
+    pub messages: u64,
+    pub chunks: u64,
+    pub bytes: u64,
+    pub elapsed_s: f64,
+    pub rows_per_s: f64,
+    pub streams: Vec<StreamReport>,
+}
+
+/// Runs the import `plan`: validates every file (pass 1; problems in the input are
+/// [`Error::CsvInput`], all of them at once, and nothing is written), then writes the
+/// blocks of every stream in time order into a temporary file beside the output
+/// (pass 2; a row off the uniform grid stops the writing, and reading goes on to list
+/// every such row), with the `import` metadata and the CSV headers attached, and
+/// renames it over the output when complete.
+pub fn import(plan: &ImportPlan, progress: &mut dyn ImportProgress) -> Result<ImportReport> {
+    let started = Instant::now();
+    let total_bytes: u64 = plan
+        .streams
+        .iter()
+        .map(|s| std::fs::metadata(&s.file).map_or(0, |m| m.len()))
+        .sum();
+    progress.start(2 * total_bytes);
+    let mut progress = Tracker::new(progress);
+
+    // Pass 1: validate everything before writing anything.
+    progress.sink.pass("checking");
+    let mut scans = Vec::new();
+    let mut problems = Vec::new();
+    for spec in &plan.streams {
+        match scan(spec, plan.tolerance, &mut progress)? {
+            Ok(scan) => {
+                progress.finish_part(scan.bytes);
+                scans.push(scan);
+            }
+            Err(mut p) => problems.extend(p.lines()),
+        }
+    }
+    if !problems.is_empty() {
+        progress.sink.finish();
+        return Err(Error::CsvInput { problems });
+    }
+
+    // Pass 2: blocks, in time order over the streams, into a temporary file.
+    progress.sink.pass("importing");
+    let part = PartFile::beside(&plan.out);
+    let mut rec = Recorder::create(part.path(), RecorderOptions::default()).map_err(|source| {
+        Error::CreateLog {
+            path: plan.out.clone(),
+            source,
+        }
+    })?;
+    let mut extras = LogExtras::generated();
+    let mut makers = Vec::new();
+    for (spec, scan) in plan.streams.iter().zip(&scans) {
+        rec.add_channel(&crate::topic(spec.kind.stream()), spec.kind.stream().kind())?;
+        let mut header = LogExtras::generated();
+        header.csv_header(spec.kind.name(), scan.header.preamble.clone());
+        header.write_to(&rec)?;
+        makers.push(BlockMaker::new(spec, scan, plan.tolerance, plan.source_id)?);
+    }
+    let mut ready = Vec::with_capacity(makers.len());
+    for m in &mut makers {
+        ready.push(m.fill()?);
+    }
+    let mut writing = true;
+    let mut blocks_since_progress = 0u32;
+    loop {
+        // The complete block with the earliest time; ties go to the first stream (vib).
+        let next = makers
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| ready[*i])
+            .min_by_key(|(_, m)| m.block.message().time_ns())
+            .map(|(i, _)| i);
+        let Some(i) = next else { break };
+        // A row off the grid anywhere stops the writing; reading goes on to list
+        // every such row.
+        writing &= makers.iter().all(|m| m.problems.is_empty());
+        if writing {
+            write_block(&rec, &makers[i].topic, makers[i].block.message())?;
+        }
+        ready[i] = makers[i].fill()?;
+        blocks_since_progress += 1;
+        if blocks_since_progress == 256 {
+            blocks_since_progress = 0;
+            progress.set_current(makers.iter().map(|m| m.rows.bytes_read()).sum());
+        }
+    }
+    progress.sink.finish();
+    for m in &mut makers {
+        m.report_off_grid();
+    }
+    let problems: Vec<String> = makers.iter_mut().flat_map(|m| m.problems.lines()).collect();
+    if !problems.is_empty() {
+        return Err(Error::CsvInput { problems });
+    }
+
+    let mut meta = BTreeMap::from([
+        ("tool".to_string(), plan.tool.clone()),
+        ("period_tolerance".to_string(), plan.tolerance.to_string()),
+        ("source_id".to_string(), plan.source_id.to_string()),
+    ]);
+    let mut streams = Vec::new();
+    for ((spec, scan), maker) in plan.streams.iter().zip(&scans).zip(&makers) {
+        let s = spec.kind.name();
+        let period_ns = (scan.period_s * 1e9).round() as u64;
+        let entries = [
+            ("file", spec.file.display().to_string()),
+            ("topic", maker.topic.clone()),
+            ("rows", scan.rows.to_string()),
+            ("rate_hz", (1.0 / scan.period_s).to_string()),
+            ("rate_from", scan.rate_from.clone()),
+            ("sample_period_ns", period_ns.to_string()),
+            ("first_time_s", scan.first_time_s.to_string()),
+            ("columns", scan.header.mapping(spec.kind)),
+            ("ignored_columns", scan.header.ignored().join(", ")),
+            ("block_samples", spec.block_samples.to_string()),
+            ("blocks", maker.seq.to_string()),
+            ("gaps", scan.gaps.to_string()),
+            ("missing_samples", scan.missing_samples.to_string()),
+            ("max_time_residual_s", format!("{:e}", maker.max_residual_s)),
+        ];
+        for (k, v) in entries {
+            meta.insert(format!("{s}.{k}"), v);
+        }
+        let names = spec.kind.columns();
+        streams.push(StreamReport {
+            stream: spec.kind,
+            topic: maker.topic.clone(),
+            message_type: spec.kind.stream().kind().name().to_string(),
+            file: spec.file.display().to_string(),
+            file_bytes: scan.bytes,
+            rows: scan.rows,
+            columns: names
+                .iter()
+                .zip(scan.header.columns)
+                .map(|(n, c)| (n.to_string(), c + 1))
+                .collect(),
+            ignored_columns: scan.header.ignored(),
+            rate_hz: 1.0 / scan.period_s,
+            rate_from: scan.rate_from.clone(),
+            sample_period_ns: period_ns,
+            first_time_s: scan.first_time_s,
+            last_time_s: scan.last_time_s,
+            samples_spanned: scan.last_index + 1,
+            block_samples: spec.block_samples,
+            blocks: maker.seq,
+            gaps: scan.gaps,
+            missing_samples: scan.missing_samples,
+            max_time_residual_s: maker.max_residual_s,
+            source_id: plan.source_id,
+        });
+    }
+    extras.metadata(IMPORT_METADATA, meta);
+    extras.write_to(&rec)?;
+    let summary = rec.finish().map_err(Error::FinishLog)?;
+    part.commit(&plan.out)?;
+    let elapsed_s = started.elapsed().as_secs_f64();
+    let rows: u64 = streams.iter().map(|s| s.rows).sum();
+    Ok(ImportReport {
+        out: plan.out.display().to_string(),
+        messages: summary.messages,
+        chunks: summary.chunks,
+        bytes: summary.bytes,
+        elapsed_s,
+        rows_per_s: rows as f64 / elapsed_s.max(1e-9),
+        streams,
+    })
+}
+
+/// Writes one block, waiting for room in the recorder's queue (an import must lose
+/// nothing).
+fn write_block(rec: &Recorder, topic: &str, msg: RigMessage<'_>) -> Result<()> {
+    let t = msg.time_ns();
+    loop {
+        let result = match msg {
+            RigMessage::Vib(b) => rec.write(topic, t, b.publish_ns, b.seq as u32, b),
+            RigMessage::Accel(b) => rec.write(topic, t, b.publish_ns, b.seq as u32, b),
+            RigMessage::Truth(b) => rec.write(topic, t, b.publish_ns, b.seq as u32, b),
+        };
+        match result {
+            Err(vibro_mcap::Error::QueueFull { .. }) => {
+                std::thread::sleep(Duration::from_micros(200))
+            }
+            other => {
+                return other.map_err(|source| Error::WriteLog {
+                    topic: topic.to_string(),
+                    source,
+                })
+            }
+        }
+    }
+}
+
+/// The blocks that an import makes of one CSV file, without writing a log: the first
+/// pass (every row validated, the rate measured, the gaps found), then the second
+/// (rows cut into blocks of `block_samples`, each row checked against the time grid),
+/// each complete block handed to `each`. Returns the number of blocks. The options are
+/// those of [`super::ImportOptions`] (`rate_hz` for `--*-rate-hz`, `tolerance` for
+/// `--period-tolerance`) and are checked as it checks them; problems in the file are
+/// one error listing them all ([`Error::CsvBlocks`]). The import's parsing core, public
+/// for the fuzz targets (`fuzz/`).
+pub fn read_csv_blocks(
+    kind: ImportKind,
+    file: &Path,
+    rate_hz: Option<f64>,
+    block_samples: usize,
+    tolerance: f64,
+    mut each: impl FnMut(RigMessage<'_>),
+) -> Result<u64> {
+    if let Some(r) = rate_hz {
+        if !(r.is_finite() && r > 0.0 && r <= 1e9) {
+            return Err(Error::Option {
+                name: kind.rate_flag(),
+                value: r.to_string(),
+                rule: "must be finite, > 0 and at most 1e9 Hz".into(),
+            });
+        }
+    }
+    if !(1..=kind.max_block()).contains(&block_samples) {
+        return Err(Error::Option {
+            name: "block samples",
+            value: block_samples.to_string(),
+            rule: format!(
+                "must be 1..={} (the wire type's capacity)",
+                kind.max_block()
+            )
+            .into(),
+        });
+    }
+    if !(tolerance.is_finite() && tolerance > 0.0 && tolerance < 0.5) {
+        return Err(Error::Option {
+            name: "--period-tolerance",
+            value: tolerance.to_string(),
+            rule: "must be > 0 and < 0.5 (of a period)".into(),
+        });
+    }
+    let spec = StreamSpec {
+        kind,
+        file: file.to_path_buf(),
+        rate_hz,
+        block_samples,
+    };
+    let scan = match scan(&spec, tolerance, &mut Tracker::new(&mut ()))? {
+        Ok(scan) => scan,
+        Err(mut p) => {
+            return Err(Error::CsvBlocks {
+                problems: p.lines(),
+            })
+        }
+    };
+    let mut maker = BlockMaker::new(&spec, &scan, tolerance, 1)?;
+    while maker.fill()? {
+        each(maker.block.message());
+    }
+    maker.report_off_grid();
+    if !maker.problems.is_empty() {
+        return Err(Error::CsvBlocks {
+            problems: maker.problems.lines(),
+        });
+    }
+    Ok(maker.seq)
+}

@@ -1,0 +1,297 @@
+//! # vibro-log: the log format of vibrocomp
+//!
+//! One home for what a vibrocomp log is and how it is made and used: MCAP files
+//! (`vibro-mcap`) whose topics are the system's streams without the prefix, written
+//! from the live streams (`vibro-ipc`), from the simulator or from CSV, and played
+//! back into them. The library under `vibrocomp record`, `replay`, `sim --out`,
+//! `log import` and `lab` on a log:
+//!
+//! - [`record()`]: subscribes to the chosen streams under a prefix and writes every
+//!   message into an MCAP file with `log_time` = when it was received, `publish_time`
+//!   = the producer's `publish_ns`, `sequence` = the producer's `seq` (low 32 bits), so
+//!   a gap in a channel's sequence is a loss. The MCAP writer runs on its own thread
+//!   (zstd chunks, flushed at least every second); a full writer queue makes the
+//!   recording loop wait, which back-pressures the publishers (bounded, counted) rather
+//!   than dropping anything silently. On shutdown it drains what is queued and calls
+//!   `finish()` itself.
+//! - [`replay()`]: publishes the rig streams of a log (`/vib`, `/accel`, `/truth`) into
+//!   the services, paced at a multiple of real time, or as fast as possible
+//!   **lock-stepped** with the services: before switching from one input stream to the
+//!   other it waits on the services' progress messages (`{prefix}progress/{service}`,
+//!   docs/messages.md) until the consumer of the other stream has taken everything
+//!   sent. The compensator then sees exactly the estimates of the vibration blocks that
+//!   precede each accelerometer block in the log, whatever the machine's load: no
+//!   sample is dropped and the outputs are bit-identical from run to run. It waits only
+//!   where an estimate can come out: the estimator's progress messages say how many
+//!   samples its window still needs (`Heartbeat::input_samples_to_output`), so the
+//!   replay waits about twice per estimate instead of at every switch.
+//! - [`import`]: rig data recorded as CSV into a log with the simulator's topics and
+//!   wire types, every problem of the input reported at once before anything is
+//!   written; the caller draws the progress ([`import::ImportProgress`]).
+//! - [`rig`]: the rig packetizer, which cuts a producer's sample streams into wire
+//!   blocks with continuous sequence numbers and sample indices (the simulator's
+//!   chunks, handed over as slices: this crate knows no simulator).
+//! - [`attachments`]: the names, writing and reading of every attachment and metadata
+//!   record a log carries (passports, scenario, service configurations, effects, CSV
+//!   headers), in one place; [`output`]: writing a file under a temporary name that
+//!   replaces its destination only when complete.
+//!
+//! Bad input fails cleanly, naming the file and the problem. A log that is not MCAP,
+//! not finished (a crash), empty, or whose rig topics carry other message types is
+//! refused before anything is published ([`Error::BadLog`], [`Error::Empty`]); a log
+//! with `/accel` but no `/vib` too, unless its topics are chosen explicitly; channels
+//! with foreign schemas or topics are skipped and listed
+//! ([`ReplaySummary::skipped_topics`]); a chunk found damaged part-way stops the replay
+//! there ([`Error::DamagedPartWay`]). A recording whose file cannot be created or
+//! written stops at once with the operating system's reason ([`Error::Output`]),
+//! after releasing its subscribers. A CSV import lists every bad option
+//! ([`Error::ImportOptions`]) and every bad row, by file, line, column, value and rule
+//! ([`Error::CsvInput`]).
+//!
+//! A recorded session is measured against its reference by [`session::session_errors`]
+//! (each compensation stage's error against the sensed acceleration).
+//!
+//! Topics in a log are the stream names without the prefix (`/accel`, `/vib`,
+//! `/estimate`, `/compensated`, `/truth`, `/heartbeat/estimator`, ...), so a log
+//! replays under any prefix.
+//!
+//! ```no_run
+//! use std::sync::atomic::AtomicBool;
+//! use vibro_log::{replay, Pace, ReplayOptions};
+//! use vibro_msgs::ServiceNames;
+//! # fn main() -> vibro_log::Result<()> {
+//! let stop = AtomicBool::new(false);
+//! let options = ReplayOptions::new(ServiceNames::new("rig-a/")?, Pace::AsFastAsPossible);
+//! let summary = replay("flight.mcap".as_ref(), &options, &stop, |_done, _total| {})?;
+//! println!("{} messages, {:.0}x real time", summary.messages, summary.real_time_factor);
+//!
+//! // The passports a log carries, as TOML, by unit.
+//! let mut reader = vibro_mcap::Reader::open("flight.mcap")?;
+//! for p in vibro_log::attachments::read_passports(&mut reader)? {
+//!     println!("unit {}: {} ({} bytes)", p.index, p.attachment, p.toml.len());
+//! }
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! References: docs/logs.md (log info, recover, import, attachments and metadata),
+//! docs/services.md (streams, loss accounting), docs/messages.md (wire types, progress
+//! messages, MCAP conventions), the MCAP specification (log time, publish time,
+//! sequence).
+
+pub mod attachments;
+pub mod import;
+pub mod output;
+mod record;
+mod replay;
+pub mod rig;
+pub mod session;
+mod topics;
+
+pub use record::{record, RecordOptions, RecordSummary, TopicCounts};
+pub use replay::{replay, Pace, ReplayOptions, ReplaySummary};
+pub use topics::{rig_streams, stream_of_topic, topic, DEFAULT_RECORD_STREAMS};
+
+use std::borrow::Cow;
+use std::path::PathBuf;
+
+/// Errors of recording, replaying, importing and reading logs. Each names what it
+/// concerns.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error(transparent)]
+    Ipc(#[from] vibro_ipc::Error),
+    #[error(transparent)]
+    Mcap(#[from] vibro_mcap::Error),
+    #[error(transparent)]
+    Names(#[from] vibro_msgs::Error),
+    /// A topic that is not one of the system's streams, or not one this operation
+    /// can publish.
+    #[error("topic {topic:?}: {rule} (known: {known})")]
+    Topic {
+        topic: String,
+        rule: &'static str,
+        known: String,
+    },
+    /// An option out of range.
+    #[error("{name} = {value}: {rule}")]
+    Option {
+        name: &'static str,
+        value: String,
+        rule: Cow<'static, str>,
+    },
+    /// The log has nothing to replay.
+    #[error("{path}: {what}")]
+    Empty { path: PathBuf, what: String },
+    /// The log cannot be replayed as it is: not an MCAP file, damaged, or its topics
+    /// do not make a replay. Found before anything is published.
+    #[error("{path}: {problem}")]
+    BadLog { path: PathBuf, problem: String },
+    /// The log turned out damaged part-way through: the replay stopped there.
+    #[error("{path}: {problem}, after {published} messages had been published (log time {log_time_s:.3} s from the start); the replay stopped there{hint}")]
+    DamagedPartWay {
+        path: PathBuf,
+        problem: String,
+        published: u64,
+        log_time_s: f64,
+        /// What to do about it, if anything helps (starts with "; ").
+        hint: String,
+    },
+    /// The recording cannot be written (a missing or read-only folder, a full disk).
+    #[error("cannot {action} the recording {path}: {reason}{what_is_kept}")]
+    Output {
+        action: &'static str,
+        path: PathBuf,
+        /// The operating system's error, e.g. "No space left on device (os error 28)".
+        reason: String,
+        /// What the file keeps, if anything was written (starts with "; ").
+        what_is_kept: String,
+    },
+    /// Nobody subscribed to a stream the replay publishes.
+    #[error("nobody subscribed to {stream} within {waited_s} s: start the services (vibrocomp up) with the same prefix")]
+    NoSubscriber { stream: String, waited_s: f64 },
+    /// A lock-stepped replay needs the progress messages of the service that consumes
+    /// a stream.
+    #[error("lock-stepped replay needs {service}'s progress messages on {stream}, and none came within {waited_s} s: is vibro-{service} running under this prefix? (Or replay with --rate, which does not wait for the consumers.)")]
+    NoProgress {
+        service: &'static str,
+        stream: String,
+        waited_s: f64,
+    },
+    /// A consumer stopped taking messages during a lock-stepped replay.
+    #[error("lock-step: {service} has taken {taken} of the {sent} messages sent on {stream} and made no progress for {waited_s} s (did it stop or restart?)")]
+    Stalled {
+        service: &'static str,
+        stream: String,
+        taken: u64,
+        sent: u64,
+        waited_s: f64,
+    },
+    /// The options of an import, every problem at once.
+    #[error("log import options:\n  {}", .problems.join("\n  "))]
+    ImportOptions { problems: Vec<String> },
+    /// Problems in the CSV input of an import, every one at once (up to
+    /// [`import::MAX_PROBLEMS`] per file), each naming the file, line, column, value
+    /// and rule. Nothing was written.
+    #[error("{} problem(s) in the CSV input, nothing written:\n  {}", .problems.len(), .problems.join("\n  "))]
+    CsvInput { problems: Vec<String> },
+    /// Problems in a CSV file read by [`import::read_csv_blocks`].
+    #[error("problem(s) in the CSV input:\n  {}", .problems.join("\n  "))]
+    CsvBlocks { problems: Vec<String> },
+    /// An input file that cannot be opened or read.
+    #[error("{path}: {action}")]
+    ReadInput {
+        path: PathBuf,
+        /// What failed: "cannot open", "cannot read line 12".
+        action: String,
+        source: std::io::Error,
+    },
+    /// An input file that cannot be imported as a whole.
+    #[error("{path}: {problem}")]
+    Input { path: PathBuf, problem: String },
+    /// An output file refused before anything is written.
+    #[error("output {path}: {problem}")]
+    OutputFile { path: PathBuf, problem: String },
+    /// An output file that is one of the inputs.
+    #[error("output {out} is the input {input}: write to another file (the input is read while the output is written)")]
+    OutputIsInput { out: PathBuf, input: PathBuf },
+    /// A log that cannot be created.
+    #[error("{path}: cannot create the log")]
+    CreateLog {
+        path: PathBuf,
+        source: vibro_mcap::Error,
+    },
+    /// A message that cannot be written into a log.
+    #[error("writing {topic} to the log")]
+    WriteLog {
+        topic: String,
+        source: vibro_mcap::Error,
+    },
+    /// A log that cannot be finished.
+    #[error("finishing the log")]
+    FinishLog(#[source] vibro_mcap::Error),
+    /// A complete file that cannot take its final name.
+    #[error("cannot rename {from} to {to}")]
+    Rename {
+        from: PathBuf,
+        to: PathBuf,
+        source: std::io::Error,
+    },
+    /// An attachment that should be text and is not.
+    #[error("attachment {name}: not UTF-8 text")]
+    AttachmentText {
+        name: String,
+        source: std::string::FromUtf8Error,
+    },
+}
+
+/// `Result` with this crate's [`Error`].
+pub type Result<T> = std::result::Result<T, Error>;
+
+/// An error and its sources in one line, each source added only where the text
+/// before does not already end with it (`vibro_mcap` errors show their source in their
+/// own message, `mcap`'s I/O error only in its source).
+pub(crate) fn describe(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut text = e.to_string();
+    let mut source = e.source();
+    while let Some(s) = source {
+        let part = s.to_string();
+        if !text.ends_with(&part) {
+            text.push_str(": ");
+            text.push_str(&part);
+        }
+        source = s.source();
+    }
+    text
+}
+
+/// A number rounded to 10 significant digits, shortest form: a measured rate of
+/// 999.9999999999998 Hz reads 1000.
+pub(crate) fn fmt_sig(x: f64) -> String {
+    format!("{x:.9e}")
+        .parse::<f64>()
+        .map_or_else(|_| x.to_string(), |r| r.to_string())
+}
+
+/// The operating system's error inside `e`, if any (the innermost one).
+pub(crate) fn io_cause<'a>(e: &'a (dyn std::error::Error + 'static)) -> Option<&'a std::io::Error> {
+    let mut found = None;
+    let mut next: Option<&(dyn std::error::Error + 'static)> = Some(e);
+    while let Some(err) = next {
+        if let Some(io) = err.downcast_ref::<std::io::Error>() {
+            found = Some(io);
+        }
+        next = err.source();
+    }
+    found
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// vibro-mcap's I/O errors show their source in their message: it is not repeated.
+    #[test]
+    fn describe_adds_each_source_once_and_io_cause_finds_the_os_error() {
+        let e = vibro_mcap::Error::Io {
+            action: "create",
+            path: PathBuf::from("/nowhere/x.mcap"),
+            source: std::io::Error::from_raw_os_error(ENOENT),
+        };
+        let text = describe(&e);
+        assert_eq!(
+            text.matches("No such file or directory").count(),
+            1,
+            "{text}"
+        );
+        assert!(
+            text.starts_with("cannot create /nowhere/x.mcap: "),
+            "{text}"
+        );
+        let io = io_cause(&e).map(|io| io.raw_os_error());
+        assert_eq!(io, Some(Some(ENOENT)));
+    }
+
+    /// "No such file or directory" on Linux.
+    const ENOENT: i32 = 2;
+}

@@ -1,0 +1,461 @@
+//! Recording live streams into an MCAP file.
+
+use crate::attachments::{LogExtras, RECORDING_METADATA};
+use crate::topics::topic;
+use crate::{Error, Result};
+use iceoryx2::prelude::CallbackProgression;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+use tracing::{info, warn};
+use vibro_ipc::{
+    cleanup_dead_nodes, create_node, create_waitset, now_ns, Ipc, StreamPublisher, StreamSubscriber,
+};
+use vibro_mcap::{ChannelId, Message, Recorder, RecorderOptions};
+use vibro_msgs::{
+    AccelBlock, CompensatedBlock, Heartbeat, ServiceId, ServiceNames, ServiceState, Stream,
+    TruthBlock, VibBlock, VibEstimate, WireMessage,
+};
+
+/// What to record and how.
+#[derive(Debug, Clone)]
+pub struct RecordOptions {
+    pub names: ServiceNames,
+    /// Streams to record (see [`crate::DEFAULT_RECORD_STREAMS`]).
+    pub streams: Vec<Stream>,
+    /// Attachments (configurations, passports) and metadata records stored in the log
+    /// after the recorder's own `recording` record, in order
+    /// ([`crate::attachments`]).
+    pub extras: LogExtras,
+    pub recorder: RecorderOptions,
+    /// How often the recorder publishes its heartbeat (`{prefix}heartbeat/recorder`).
+    pub heartbeat_period: Duration,
+    /// Longest sleep before the stop flag is looked at.
+    pub stop_poll: Duration,
+}
+
+impl RecordOptions {
+    pub fn new(names: ServiceNames, streams: Vec<Stream>) -> Self {
+        Self {
+            names,
+            streams,
+            extras: LogExtras::recorded(),
+            recorder: RecorderOptions::default(),
+            heartbeat_period: Duration::from_secs(1),
+            stop_poll: Duration::from_millis(100),
+        }
+    }
+}
+
+/// Counters of one recorded topic.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct TopicCounts {
+    /// Messages taken from the stream.
+    pub received: u64,
+    /// Messages written to the log.
+    pub recorded: u64,
+    /// Messages missing by the producer's `seq` (a forward jump of `n` counts `n - 1`).
+    pub lost: u64,
+    /// Messages whose `seq` did not advance (a producer restart counts here).
+    pub out_of_order: u64,
+    /// Messages whose counts exceed their arrays: not recorded (their `seq` then shows
+    /// as missing in the log).
+    pub malformed: u64,
+    /// Times the recorder waited for room in the MCAP writer's queue.
+    pub queue_waits: u64,
+}
+
+/// What a recording holds, returned when it stops.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct RecordSummary {
+    pub path: PathBuf,
+    pub prefix: String,
+    pub topics: BTreeMap<String, TopicCounts>,
+    pub messages: u64,
+    pub lost: u64,
+    pub chunks: u64,
+    pub bytes: u64,
+    pub duration_s: f64,
+}
+
+/// One recorded stream: its subscriber and its channel in the log.
+struct Channel<T: WireMessage> {
+    subscriber: StreamSubscriber<T>,
+    channel: ChannelId,
+}
+
+/// A recorded stream's counters (apart from the subscriber, which the wait set borrows).
+struct State {
+    topic: String,
+    counts: TopicCounts,
+    next_seq: Option<u64>,
+}
+
+/// The type-erased operations of a [`Channel`], so that one loop drains every stream.
+trait Drain {
+    fn listener(&self) -> &iceoryx2::port::listener::Listener<Ipc>;
+    fn clear_events(&self);
+    /// Records every message waiting; returns how many.
+    fn drain(&self, recorder: &Recorder, st: &mut State) -> Result<u64>;
+}
+
+impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
+    fn listener(&self) -> &iceoryx2::port::listener::Listener<Ipc> {
+        self.subscriber.listener()
+    }
+
+    fn clear_events(&self) {
+        let _ = self.subscriber.clear_events();
+    }
+
+    fn drain(&self, recorder: &Recorder, st: &mut State) -> Result<u64> {
+        let mut n = 0;
+        while let Some(sample) = self.subscriber.receive()? {
+            let log_time_ns = now_ns();
+            let message: T = *sample;
+            drop(sample);
+            n += 1;
+            st.counts.received += 1;
+            let seq = message.seq();
+            match st.next_seq {
+                Some(next) if seq > next => st.counts.lost += seq - next,
+                Some(next) if seq < next => st.counts.out_of_order += 1,
+                _ => {}
+            }
+            st.next_seq = Some(seq.wrapping_add(1));
+            if let Err(e) = message.validate() {
+                st.counts.malformed += 1;
+                if st.counts.malformed == 1 {
+                    warn!(topic = %st.topic, seq, "not recording a malformed message: {e}");
+                }
+                continue;
+            }
+            let wire: Message = message.into();
+            loop {
+                match recorder.write_to(
+                    &self.channel,
+                    log_time_ns,
+                    message.publish_ns(),
+                    seq as u32,
+                    wire,
+                ) {
+                    Ok(()) => break,
+                    // The writer thread is behind: wait for it rather than drop. The
+                    // publishers feel it as back-pressure (bounded and counted by them).
+                    Err(vibro_mcap::Error::QueueFull { .. }) => {
+                        st.counts.queue_waits += 1;
+                        std::thread::sleep(Duration::from_micros(200));
+                    }
+                    Err(e) => return Err(e.into()),
+                }
+            }
+            st.counts.recorded += 1;
+        }
+        Ok(n)
+    }
+}
+
+fn open<T: WireMessage + Into<Message>>(
+    node: &vibro_ipc::IpcNode,
+    names: &ServiceNames,
+    stream: Stream,
+    recorder: &mut Recorder,
+) -> Result<(Box<dyn Drain>, State)> {
+    let subscriber = StreamSubscriber::<T>::open(node, names, stream)?;
+    let topic = topic(stream);
+    let channel = recorder.add_channel(&topic, stream.kind())?;
+    Ok((
+        Box::new(Channel {
+            subscriber,
+            channel,
+        }),
+        State {
+            topic,
+            counts: TopicCounts::default(),
+            next_seq: None,
+        },
+    ))
+}
+
+fn open_stream(
+    node: &vibro_ipc::IpcNode,
+    names: &ServiceNames,
+    stream: Stream,
+    recorder: &mut Recorder,
+) -> Result<(Box<dyn Drain>, State)> {
+    use vibro_msgs::MessageKind as K;
+    match stream.kind() {
+        K::AccelBlock => open::<AccelBlock>(node, names, stream, recorder),
+        K::VibBlock => open::<VibBlock>(node, names, stream, recorder),
+        K::VibEstimate => open::<VibEstimate>(node, names, stream, recorder),
+        K::CompensatedBlock => open::<CompensatedBlock>(node, names, stream, recorder),
+        K::TruthBlock => open::<TruthBlock>(node, names, stream, recorder),
+        K::Heartbeat => open::<Heartbeat>(node, names, stream, recorder),
+    }
+}
+
+/// The recorder's own heartbeat and progress publishers.
+struct Status {
+    heartbeat: StreamPublisher<Heartbeat>,
+    progress: StreamPublisher<Heartbeat>,
+    started_ns: u64,
+    heartbeat_seq: u64,
+    progress_seq: u64,
+}
+
+impl Status {
+    fn new(node: &vibro_ipc::IpcNode, names: &ServiceNames) -> Result<Self> {
+        let hb = Stream::Heartbeat(ServiceId::Recorder);
+        let pr = Stream::Progress(ServiceId::Recorder);
+        Ok(Self {
+            heartbeat: StreamPublisher::open(node, names, hb)?,
+            progress: StreamPublisher::open(node, names, pr)?,
+            started_ns: now_ns(),
+            heartbeat_seq: 0,
+            progress_seq: 0,
+        })
+    }
+
+    fn message(
+        &self,
+        seq: u64,
+        received: u64,
+        recorded: u64,
+        lost: u64,
+        state: ServiceState,
+    ) -> Heartbeat {
+        let now = now_ns();
+        Heartbeat {
+            seq,
+            publish_ns: now,
+            uptime_ns: now.saturating_sub(self.started_ns),
+            received,
+            published: recorded,
+            lost,
+            service: ServiceId::Recorder.code(),
+            state: state.code(),
+            ..Heartbeat::ZEROED
+        }
+    }
+
+    fn heartbeat(&mut self, received: u64, recorded: u64, lost: u64, state: ServiceState) {
+        let m = self.message(self.heartbeat_seq, received, recorded, lost, state);
+        self.heartbeat_seq += 1;
+        let _ = self.heartbeat.publish(&m);
+    }
+
+    fn progress(&mut self, received: u64, recorded: u64, lost: u64) {
+        let m = self.message(
+            self.progress_seq,
+            received,
+            recorded,
+            lost,
+            ServiceState::Running,
+        );
+        self.progress_seq += 1;
+        let _ = self.progress.publish(&m);
+    }
+}
+
+fn totals(states: &[State]) -> (u64, u64, u64) {
+    states.iter().fold((0, 0, 0), |(r, w, l), c| {
+        let k = &c.counts;
+        (r + k.received, w + k.recorded, l + k.lost)
+    })
+}
+
+/// Records `options.streams` into `path` until `stop` is set, then takes what is still
+/// waiting, finishes the file and returns what it holds. `ready` is called once every
+/// subscriber exists (messages published from then on are recorded).
+///
+/// Runs on the calling thread, which it never gives back to an async runtime: call it
+/// from a thread of its own.
+///
+/// A file that cannot be created or written (a missing or read-only folder, a full
+/// disk) is [`Error::Output`] with the operating system's reason: the recording stops
+/// at once, its subscribers are released first (the publishers are never held up by a
+/// recorder that cannot write), and the file keeps what was flushed before.
+pub fn record(
+    path: &Path,
+    options: &RecordOptions,
+    stop: &AtomicBool,
+    ready: impl FnOnce(),
+) -> Result<RecordSummary> {
+    let started_ns = now_ns();
+    let mut recorder = Recorder::create(path, options.recorder.clone())
+        .map_err(|e| output_error("create", path, e, None))?;
+    let states = match record_into(&mut recorder, path, options, stop, ready, started_ns) {
+        Ok(states) => states,
+        Err(e) => {
+            // The loop only sees that the writer thread stopped; `finish` says why.
+            let stopped = matches!(e, Error::Mcap(vibro_mcap::Error::RecorderStopped { .. }));
+            let written = recorder.stats().written;
+            return Err(match recorder.finish() {
+                Err(cause) if stopped => output_error("write", path, cause, Some(written)),
+                _ => e,
+            });
+        }
+    };
+    let topics: BTreeMap<String, TopicCounts> =
+        states.into_iter().map(|c| (c.topic, c.counts)).collect();
+    let written = recorder.stats().written;
+    let finished = recorder
+        .finish()
+        .map_err(|e| output_error("write", path, e, Some(written)))?;
+    let summary = RecordSummary {
+        path: path.to_path_buf(),
+        prefix: options.names.prefix().to_string(),
+        messages: finished.messages,
+        lost: topics.values().map(|t| t.lost).sum(),
+        topics,
+        chunks: finished.chunks,
+        bytes: finished.bytes,
+        duration_s: now_ns().saturating_sub(started_ns) as f64 * 1e-9,
+    };
+    info!(
+        messages = summary.messages,
+        lost = summary.lost,
+        bytes = summary.bytes,
+        "recording finished"
+    );
+    Ok(summary)
+}
+
+/// An error of the MCAP writer on `path`: with the operating system's reason when it
+/// is an I/O error (`written`: messages the writer had taken when it failed).
+fn output_error(
+    action: &'static str,
+    path: &Path,
+    e: vibro_mcap::Error,
+    written: Option<u64>,
+) -> Error {
+    let Some(io) = crate::io_cause(&e) else {
+        return Error::Mcap(e);
+    };
+    let what_is_kept = match written {
+        None => String::new(),
+        Some(0) => "; nothing was recorded".to_string(),
+        Some(n) => format!(
+            "; of the {n} messages taken, the file keeps those of its complete chunks: `vibrocomp log recover {} OUT.mcap` restores them",
+            path.display()
+        ),
+    };
+    Error::Output {
+        action,
+        path: path.to_path_buf(),
+        reason: io.to_string(),
+        what_is_kept,
+    }
+}
+
+/// Subscribes, writes the header records and records until `stop`; returns the
+/// counters. Every port is released when it returns, whatever the outcome.
+fn record_into(
+    recorder: &mut Recorder,
+    path: &Path,
+    options: &RecordOptions,
+    stop: &AtomicBool,
+    ready: impl FnOnce(),
+    started_ns: u64,
+) -> Result<Vec<State>> {
+    let node = create_node("vibrocomp-recorder")?;
+    let cleaned = cleanup_dead_nodes(&node);
+    if cleaned > 0 {
+        info!(cleaned, "removed the resources of dead iceoryx2 nodes");
+    }
+    let mut channels = Vec::with_capacity(options.streams.len());
+    let mut states = Vec::with_capacity(options.streams.len());
+    for &stream in &options.streams {
+        let (channel, state) = open_stream(&node, &options.names, stream, recorder)?;
+        channels.push(channel);
+        states.push(state);
+    }
+    let mut meta = BTreeMap::from([
+        ("prefix".to_string(), options.names.prefix().to_string()),
+        (
+            "topics".to_string(),
+            states
+                .iter()
+                .map(|c| c.topic.clone())
+                .collect::<Vec<_>>()
+                .join(", "),
+        ),
+        (
+            "log_time".to_string(),
+            "receive time, CLOCK_MONOTONIC ns".to_string(),
+        ),
+    ]);
+    meta.insert("started_ns".to_string(), started_ns.to_string());
+    let mut own = LogExtras::recorded();
+    own.metadata(RECORDING_METADATA, meta);
+    own.write_to(recorder)?;
+    options.extras.write_to(recorder)?;
+    let mut status = Status::new(&node, &options.names)?;
+    let waitset = create_waitset()?;
+    let mut guards = Vec::with_capacity(channels.len() + 1);
+    for (c, st) in channels.iter().zip(&states) {
+        guards.push(waitset.attach_notification(c.listener()).map_err(|e| {
+            vibro_ipc::Error::Iceoryx {
+                operation: "attach to the wait set",
+                service: st.topic.clone(),
+                reason: format!("{e:?}"),
+            }
+        })?);
+    }
+    info!(
+        prefix = options.names.prefix(),
+        streams = channels.len(),
+        path = %path.display(),
+        "recording"
+    );
+    status.heartbeat(0, 0, 0, ServiceState::Starting);
+    ready();
+    let heartbeat_ns = options.heartbeat_period.as_nanos() as u64;
+    let mut next_heartbeat_ns = now_ns().saturating_add(heartbeat_ns);
+    loop {
+        let stopping = stop.load(Ordering::Acquire);
+        if !stopping {
+            waitset
+                .wait_and_process_once_with_timeout(
+                    |_| CallbackProgression::Continue,
+                    options.stop_poll,
+                )
+                .map_err(|e| vibro_ipc::Error::Iceoryx {
+                    operation: "wait",
+                    service: "recorder wait set".to_string(),
+                    reason: format!("{e:?}"),
+                })?;
+            for c in &channels {
+                c.clear_events();
+            }
+        }
+        let mut taken = 0;
+        for (c, st) in channels.iter().zip(&mut states) {
+            taken += c.drain(recorder, st)?;
+        }
+        let (received, recorded, lost) = totals(&states);
+        if taken > 0 {
+            status.progress(received, recorded, lost);
+        }
+        let now = now_ns();
+        if now >= next_heartbeat_ns {
+            next_heartbeat_ns = now.saturating_add(heartbeat_ns);
+            let state = if received == 0 {
+                ServiceState::Starting
+            } else {
+                ServiceState::Running
+            };
+            status.heartbeat(received, recorded, lost, state);
+        }
+        // On stop: one last pass took everything the publishers had sent.
+        if stopping {
+            break;
+        }
+    }
+    let (received, recorded, lost) = totals(&states);
+    status.heartbeat(received, recorded, lost, ServiceState::Stopping);
+    drop(guards);
+    drop(channels);
+    Ok(states)
+}

@@ -1,0 +1,323 @@
+//! A system of services as child processes: started so that they stop with their
+//! parent, stopped with SIGTERM and then SIGKILL, watched until their heartbeats show
+//! their ports exist, and restarted within limits when they crash. `vibrocomp up`,
+//! `demo` and `latency` run the estimator, the compensator and the recorder this way;
+//! what to start (the executable and its arguments) is theirs.
+
+use crate::Shutdown;
+use anyhow::{bail, Context};
+use serde::Serialize;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+use tracing::{error, info, warn};
+use vibro_ipc::{create_node, StreamSubscriber};
+use vibro_msgs::{Heartbeat, ServiceId, ServiceNames, Stream};
+
+/// Makes the child receive SIGTERM when the thread that starts it ends, so that a
+/// supervisor killed with SIGKILL (which cannot clean up) does not leave its services
+/// running: they stop as on Ctrl-C, releasing their ports (Linux
+/// `PR_SET_PDEATHSIG`). The signal follows the *thread* that forked: `up` starts its
+/// children from tokio worker threads, which live as long as the runtime, and `demo`
+/// and `latency` from the main thread. A parent that died before the child set the
+/// signal is caught by comparing the parent's pid.
+pub fn stop_with_parent(c: &mut Command) {
+    use std::os::unix::process::CommandExt;
+    let parent = std::process::id() as libc::pid_t;
+    // SAFETY: the closure runs in the child between fork and exec and calls only
+    // async-signal-safe functions (prctl, getppid, _exit); it allocates nothing.
+    unsafe {
+        c.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM as libc::c_ulong) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            if libc::getppid() != parent {
+                libc::_exit(0);
+            }
+            Ok(())
+        });
+    }
+}
+
+/// Waits until each of `services` has published a heartbeat under `names` (their
+/// ports then exist), or fails after `timeout` naming the ones that did not.
+/// `alive` is asked between looks (to fail early when a child has died).
+pub fn wait_for_heartbeats(
+    names: &ServiceNames,
+    services: &[ServiceId],
+    timeout: Duration,
+    mut alive: impl FnMut() -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let node = create_node("vibrocomp-watch").context("iceoryx2 node")?;
+    let subs = services
+        .iter()
+        .map(|&s| {
+            let stream = Stream::Heartbeat(s);
+            StreamSubscriber::<Heartbeat>::open(&node, names, stream)
+                .with_context(|| format!("subscribing to {}", names.stream(stream)))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let mut seen = vec![false; services.len()];
+    let start = Instant::now();
+    while !seen.iter().all(|&s| s) {
+        for (i, sub) in subs.iter().enumerate() {
+            while sub.receive()?.is_some() {
+                seen[i] = true;
+            }
+        }
+        alive()?;
+        if start.elapsed() > timeout {
+            let missing: Vec<String> = services
+                .iter()
+                .zip(&seen)
+                .filter(|(_, &s)| !s)
+                .map(|(s, _)| names.stream(Stream::Heartbeat(*s)))
+                .collect();
+            bail!(
+                "no heartbeat on {} within {:.0} s",
+                missing.join(", "),
+                timeout.as_secs_f64()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    Ok(())
+}
+
+/// A child process that is stopped (SIGTERM, then SIGKILL) when dropped.
+pub struct Process {
+    /// What it is, for messages (`estimator`, `compensator`, `recorder`).
+    pub name: &'static str,
+    child: Option<Child>,
+}
+
+/// What a stopped process left.
+#[derive(Debug)]
+pub struct Exit {
+    pub name: &'static str,
+    pub code: Option<i32>,
+    /// What it printed on stdout (its `--json` summary).
+    pub stdout: String,
+}
+
+impl Exit {
+    /// The JSON summary it printed, after checking it exited 0.
+    pub fn summary(&self) -> anyhow::Result<serde_json::Value> {
+        anyhow::ensure!(
+            self.code == Some(0),
+            "the {} exited with {:?}; see its log",
+            self.name,
+            self.code
+        );
+        let start = self
+            .stdout
+            .find('{')
+            .with_context(|| format!("the {} printed no JSON summary", self.name))?;
+        serde_json::from_str(&self.stdout[start..])
+            .with_context(|| format!("the {}'s summary", self.name))
+    }
+}
+
+impl Process {
+    /// Starts `command` as `name` with its stdout captured (the JSON summary) and its
+    /// log (stderr) appended to `log` (inherited without one).
+    pub fn spawn(
+        mut command: Command,
+        name: &'static str,
+        log: Option<&Path>,
+    ) -> anyhow::Result<Self> {
+        let stderr = match log {
+            Some(p) => Stdio::from(
+                std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(p)
+                    .with_context(|| format!("opening the log {}", p.display()))?,
+            ),
+            None => Stdio::inherit(),
+        };
+        let child = command
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(stderr)
+            .spawn()
+            .with_context(|| format!("starting the {name}"))?;
+        Ok(Self {
+            name,
+            child: Some(child),
+        })
+    }
+
+    /// The child's process id (0 once stopped).
+    pub fn pid(&self) -> u32 {
+        self.child.as_ref().map_or(0, |c| c.id())
+    }
+
+    /// Fails if the process has exited.
+    pub fn check_alive(&mut self) -> anyhow::Result<()> {
+        if let Some(c) = &mut self.child {
+            if let Some(status) = c.try_wait()? {
+                bail!("the {} exited early ({status}); see its log", self.name);
+            }
+        }
+        Ok(())
+    }
+
+    /// SIGTERM, then waits up to `timeout` (SIGKILL after it) and collects the output.
+    pub fn stop(mut self, timeout: Duration) -> anyhow::Result<Exit> {
+        let Some(child) = self.child.take() else {
+            bail!("{} already stopped", self.name);
+        };
+        terminate(&child);
+        let start = Instant::now();
+        let mut child = child;
+        loop {
+            if child.try_wait()?.is_some() {
+                break;
+            }
+            if start.elapsed() > timeout {
+                let _ = child.kill();
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let out = child.wait_with_output()?;
+        Ok(Exit {
+            name: self.name,
+            code: out.status.code(),
+            stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
+        })
+    }
+}
+
+/// Sends SIGTERM to `child`.
+pub fn terminate(child: &Child) {
+    signal(Some(child.id()), libc::SIGTERM);
+}
+
+/// Sends `sig` to our child `pid` (nothing without one).
+fn signal(pid: Option<u32>, sig: libc::c_int) {
+    if let Some(pid) = pid {
+        // SAFETY: signalling our own child by its pid.
+        unsafe {
+            libc::kill(pid as libc::pid_t, sig);
+        }
+    }
+}
+
+impl Drop for Process {
+    fn drop(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            terminate(&c);
+            let start = Instant::now();
+            while start.elapsed() < Duration::from_secs(3) {
+                if let Ok(Some(_)) = c.try_wait() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+/// A unique, short prefix for a system that must not meet another (the demo's).
+pub fn private_prefix(what: &str) -> String {
+    format!("{what}-{}/", std::process::id())
+}
+
+/// How often a supervised process may crash before the system is stopped, and how
+/// long a stopping one gets.
+#[derive(Debug, Clone, Copy)]
+pub struct RestartLimits {
+    /// Restarts allowed within `window`.
+    pub max_restarts: u32,
+    pub window: Duration,
+    /// Time a stopping process gets before it is killed.
+    pub stop_timeout: Duration,
+}
+
+/// What happened to one supervised process.
+#[derive(Debug, Clone, Serialize)]
+pub struct ProcessReport {
+    pub role: &'static str,
+    pub starts: u32,
+    pub crashes: u32,
+    pub last_exit: Option<String>,
+    pub gave_up: bool,
+}
+
+/// Runs the process `command()` makes until `shutdown`, restarting it when it dies
+/// (with a back-off of 0.2 s per crash in the window) unless `restart` is false; too
+/// many crashes within the window trigger `shutdown` for the whole system. On
+/// shutdown the process gets SIGTERM and `limits.stop_timeout`, then SIGKILL.
+pub async fn supervise(
+    name: &'static str,
+    restart: bool,
+    command: impl Fn() -> anyhow::Result<Command>,
+    limits: RestartLimits,
+    shutdown: Shutdown,
+) -> anyhow::Result<ProcessReport> {
+    let mut report = ProcessReport {
+        role: name,
+        starts: 0,
+        crashes: 0,
+        last_exit: None,
+        gave_up: false,
+    };
+    let mut recent: Vec<Instant> = Vec::new();
+    loop {
+        let mut child = tokio::process::Command::from(command()?)
+            .kill_on_drop(true)
+            .spawn()
+            .with_context(|| format!("starting the {name}"))?;
+        report.starts += 1;
+        let pid = child.id();
+        info!(process = name, pid, "started");
+        tokio::select! {
+            status = child.wait() => {
+                let status = status.with_context(|| format!("waiting for the {name}"))?;
+                report.last_exit = Some(status.to_string());
+                if shutdown.is_triggered() {
+                    break;
+                }
+                report.crashes += 1;
+                warn!(process = name, %status, "exited unexpectedly");
+                if !restart {
+                    error!("the {name} is not restarted (a new one would replace the log); the services keep running");
+                    break;
+                }
+                let now = Instant::now();
+                recent.retain(|t| now.duration_since(*t) < limits.window);
+                recent.push(now);
+                if recent.len() as u32 > limits.max_restarts {
+                    error!(
+                        process = name,
+                        crashes = recent.len(),
+                        window_s = limits.window.as_secs_f64(),
+                        "too many crashes: giving up and stopping the system"
+                    );
+                    report.gave_up = true;
+                    shutdown.trigger();
+                    break;
+                }
+                // Backs off a little more after each crash in the window.
+                tokio::time::sleep(Duration::from_millis(200 * recent.len() as u64)).await;
+            }
+            _ = shutdown.triggered() => {
+                signal(pid, libc::SIGTERM);
+                match tokio::time::timeout(limits.stop_timeout, child.wait()).await {
+                    Ok(status) => report.last_exit = status.ok().map(|s| s.to_string()),
+                    Err(_) => {
+                        warn!(process = name, "did not stop in time: killed");
+                        let _ = child.kill().await;
+                        report.last_exit = Some("killed".into());
+                    }
+                }
+                break;
+            }
+        }
+    }
+    Ok(report)
+}
