@@ -11,6 +11,7 @@
 //! | [`mcap_read`] | `vibro_mcap::{Reader, info, recover, Message::decode}` as an MCAP file | no panic; a recovered file reads back whole |
 //! | [`csv_import`] | `vibro_log::import`'s two passes over a CSV file (`vibrocomp log import`) | no panic; blocks valid and in order; errors name the file |
 //! | [`config_parse`] | every TOML parser: estimator, compensator, passport, triad, scenario, and the PSD table (CSV) | no panic; errors name the file |
+//! | [`lab_table`] | UTF-8 text as a campaign table (`vibro_lab::CampaignTable::parse`), then `compare` and a `diagnose` of two candidates on a small budget | no panic, no hang; an error from the table names the file; a fit returned is finite |
 //! | [`message_validate`] | every wire type of `vibro-msgs` from raw bytes, and protobuf through `vibro_mcap` | no panic; what validates survives the protobuf round trip bit for bit |
 //!
 //! A broken invariant is a panic with the reason, which libFuzzer reports as a crash.
@@ -42,8 +43,9 @@ use vibro_msgs::{
 pub type Target = fn(&[u8]);
 
 /// The targets by name, as in `fuzz/Cargo.toml` and the corpus folders.
-pub const TARGETS: [(&str, Target); 4] = [
+pub const TARGETS: [(&str, Target); 5] = [
     ("mcap_read", mcap_read),
+    ("lab_table", lab_table),
     ("csv_import", csv_import),
     ("config_parse", config_parse),
     ("message_validate", message_validate),
@@ -88,7 +90,7 @@ pub fn mcap_read(data: &[u8]) {
 
     let out_name = Path::new("recovered.mcap");
     match vibro_mcap::recover_from_reader(
-        data,
+        Cursor::new(data),
         name,
         data.len() as u64,
         Cursor::new(Vec::new()),
@@ -458,6 +460,72 @@ impl Normalise for Heartbeat {
         if let Err(e) = ServiceState::try_from(self.state) {
             check_error_names("Heartbeat.state", &e, "Heartbeat.state");
         }
+    }
+}
+
+// ---------------------------------------------------------------------------------
+// Lab campaign table
+
+/// Rows a [`lab_table`] input may have for its fits to run (more: parsed only).
+const LAB_MAX_FIT_ROWS: usize = 16;
+
+/// UTF-8 text as a campaign table (`vibrocomp lab`, docs/lab.md), named `fuzz.csv`:
+/// parsed with the base model (exact mode, no default passport); a table that parses
+/// is compared, and when it has at most [`LAB_MAX_FIT_ROWS`] rows diagnosed with two
+/// candidates (`mount_resonance`, `sensor_error`) on one thread and a small budget
+/// (200 evaluations per fit, 5 s), which keeps a run fast. Checks: no panic (nalgebra's
+/// SVD panics on NaN: the lab must not hand it one); a table error names the file;
+/// every fit returned is finite; the budget's report adds up.
+pub fn lab_table(data: &[u8]) {
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    let model = vibro_lab::LabModel::base(vibro_lab::BaseMode::Exact);
+    let table = match vibro_lab::CampaignTable::parse(
+        text,
+        Path::new("fuzz.csv"),
+        Path::new("/nonexistent-fuzz-dir"),
+        &model,
+    ) {
+        Ok(t) => t,
+        Err(e) => return check_error_names("lab table", &e, "fuzz.csv"),
+    };
+    match vibro_lab::compare(&model, &table) {
+        Ok(c) => assert_eq!(c.rows.len(), table.conditions.len(), "compare: rows lost"),
+        Err(e) => check_error("lab compare", &e),
+    }
+    if table.conditions.len() > LAB_MAX_FIT_ROWS {
+        return;
+    }
+    let opts = vibro_lab::DiagnoseOptions {
+        candidates: vec!["mount_resonance".into(), "sensor_error".into()],
+        threads: 1,
+        budget: vibro_lab::Budget {
+            max_evaluations: 200,
+            time_s: 5.0,
+        },
+        ..vibro_lab::DiagnoseOptions::default()
+    };
+    match vibro_lab::diagnose(&model, &table, &opts) {
+        Ok(d) => {
+            let mut evaluations = 0;
+            for c in &d.candidates {
+                if let Some(f) = &c.fit {
+                    assert!(
+                        f.chi2_after.is_finite() && f.delta_bic.is_finite(),
+                        "lab diagnose: {} fitted to a non-finite chi2 {} / delta BIC {}",
+                        f.kind,
+                        f.chi2_after,
+                        f.delta_bic
+                    );
+                    assert!(f.params.iter().all(|p| p.value.is_finite()), "{f:?}");
+                    evaluations += f.evaluations;
+                }
+            }
+            assert!(d.budget.evaluations >= evaluations, "{:?}", d.budget);
+            assert_eq!(d.budget.exhausted, !d.budget.cut_short.is_empty());
+        }
+        Err(e) => check_error("lab diagnose", &e),
     }
 }
 

@@ -4,8 +4,10 @@
 //! Each command lives in its own module under [`commands`]; `main.rs` only turns the
 //! result into an exit code.
 
-pub mod commands;
+#[macro_use]
 pub mod output;
+pub mod commands;
+pub mod flags;
 pub mod system;
 
 use clap::{Parser, Subcommand};
@@ -79,8 +81,11 @@ where
             return ExitCode::from(e.exit_code().clamp(0, 255) as u8);
         }
     };
-    match run(cli) {
+    // A closed stdout (`vibrocomp ... | head -1`) is how the reader says it has seen
+    // enough: every printing path returns `output::StdoutClosed`, ending quietly here.
+    match run(cli).and_then(|()| output::flush_stdout()) {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if output::is_stdout_closed(&e) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE

@@ -2,26 +2,105 @@
 
 use serde::Serialize;
 
-/// Prints `value` as pretty JSON on stdout. A closed pipe (`vibrocomp ... --json | head`)
-/// ends the output quietly instead of panicking.
-pub fn print_json<T: Serialize>(value: &T) -> anyhow::Result<()> {
-    use std::io::Write;
-    let text = serde_json::to_string_pretty(value)?;
-    let mut out = std::io::stdout().lock();
-    match writeln!(out, "{text}") {
-        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
-        other => Ok(other?),
+/// A write to stdout failed because its reader closed the pipe (`vibrocomp ... | head`).
+/// Every printing path returns it as an error so that the command stops there;
+/// [`crate::main_with_args`] turns it into a quiet exit 0. It is its own type, not a
+/// bare `io::Error`, so that a broken pipe elsewhere (a child process, a socket) is
+/// still reported.
+#[derive(Debug)]
+pub struct StdoutClosed;
+
+impl std::fmt::Display for StdoutClosed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("stdout was closed by its reader")
     }
 }
 
-/// Prints text on stdout; a closed pipe (`vibrocomp ... | head`) ends the output
-/// quietly instead of panicking.
-pub fn print_text(text: &str) -> anyhow::Result<()> {
+impl std::error::Error for StdoutClosed {}
+
+/// Whether `e` (anywhere in its chain) is a closed stdout.
+pub fn is_stdout_closed(e: &anyhow::Error) -> bool {
+    e.chain().any(|cause| cause.is::<StdoutClosed>())
+}
+
+fn stdout_error(e: std::io::Error) -> anyhow::Error {
+    if e.kind() == std::io::ErrorKind::BrokenPipe {
+        anyhow::Error::new(StdoutClosed)
+    } else {
+        anyhow::Error::new(e).context("writing to stdout")
+    }
+}
+
+/// Writes formatted text on stdout: the one path of the commands' human output (through
+/// [`out!`](crate::out) and [`outln!`](crate::outln)). `print!` would panic on a
+/// closed pipe; this returns [`StdoutClosed`].
+pub fn write_stdout(args: std::fmt::Arguments<'_>) -> anyhow::Result<()> {
     use std::io::Write;
-    let mut out = std::io::stdout().lock();
-    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
-        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
-        other => Ok(other?),
+    std::io::stdout()
+        .lock()
+        .write_fmt(args)
+        .map_err(stdout_error)
+}
+
+/// Flushes stdout (at the end of a command), a closed pipe giving [`StdoutClosed`].
+pub fn flush_stdout() -> anyhow::Result<()> {
+    use std::io::Write;
+    std::io::stdout().lock().flush().map_err(stdout_error)
+}
+
+/// `print!` for the commands' output: returns `anyhow::Result<()>` instead of panicking
+/// on a closed pipe. Use with `?`.
+#[macro_export]
+macro_rules! out {
+    ($($arg:tt)*) => {
+        $crate::output::write_stdout(format_args!($($arg)*))
+    };
+}
+
+/// `println!` for the commands' output: returns `anyhow::Result<()>` instead of
+/// panicking on a closed pipe. Use with `?`.
+#[macro_export]
+macro_rules! outln {
+    () => {
+        $crate::output::write_stdout(format_args!("\n"))
+    };
+    ($($arg:tt)*) => {
+        $crate::output::write_stdout(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+
+/// Prints `value` as pretty JSON on stdout (a closed pipe: [`StdoutClosed`]).
+pub fn print_json<T: Serialize>(value: &T) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(value)?;
+    outln!("{text}")?;
+    flush_stdout()
+}
+
+/// Prints text on stdout (a closed pipe: [`StdoutClosed`]).
+pub fn print_text(text: &str) -> anyhow::Result<()> {
+    out!("{text}")?;
+    flush_stdout()
+}
+
+/// Formats a plain number (a flag's value, a duration) as `{}` does while it is short
+/// (0, or 1e-4 <= |x| < 1e6), and in exponent form beyond (`1e300`, `1.5e-9`) instead of
+/// `{}`'s 300-digit decimals; non-finite values as `{}` (`NaN`, `inf`).
+pub fn fmt_num(x: f64) -> String {
+    let abs = x.abs();
+    if !x.is_finite() || abs == 0.0 || (1e-4..1e6).contains(&abs) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
+/// Formats `x` with `decimals` decimals as `{:.N}` does while |x| < 1e9, and as
+/// `{:.3e}` beyond, where fixed point would print hundreds of digits.
+pub fn fmt_fixed(x: f64, decimals: usize) -> String {
+    if x.is_finite() && x.abs() >= 1e9 {
+        format!("{x:.3e}")
+    } else {
+        format!("{x:.decimals$}")
     }
 }
 

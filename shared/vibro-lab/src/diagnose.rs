@@ -26,7 +26,7 @@
 //!   5. `unexplained`: no candidate explains it: the structure, the variables it
 //!      follows, and how much the best candidate would explain.
 
-use crate::fit::{chi2_sf, fit_prepared, EffectFit, Prepared};
+use crate::fit::{chi2_sf, fit_prepared, Budget, BudgetUsed, EffectFit, Meter, Prepared};
 use crate::library::{self, Candidate, LIBRARY};
 use crate::table::{CampaignTable, Condition, RandomCondition, ToneCondition};
 use crate::{Error, Result};
@@ -54,6 +54,10 @@ pub struct DiagnoseOptions {
     pub candidates: Vec<String>,
     /// Threads fitting candidates at once.
     pub threads: usize,
+    /// Limits on the fits' work: evaluations per candidate, time for all of them. A
+    /// candidate the budget stops is reported as not fitted, and
+    /// [`Diagnosis::budget`] says so.
+    pub budget: Budget,
     /// Told after each candidate's fit (for a progress display).
     #[serde(skip)]
     pub progress: Progress,
@@ -87,6 +91,7 @@ impl Default for DiagnoseOptions {
             collinear: 0.98,
             candidates: Vec::new(),
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            budget: Budget::default(),
             progress: Progress::default(),
         }
     }
@@ -235,6 +240,8 @@ pub struct Diagnosis {
     pub candidates: Vec<RankedCandidate>,
     pub verdict: Verdict,
     pub options: DiagnoseOptions,
+    /// How much of `options.budget` the fits used, and whether it ran out.
+    pub budget: BudgetUsed,
 }
 
 fn rms(v: impl Iterator<Item = f64>) -> f64 {
@@ -381,6 +388,12 @@ fn wls_chi2(x: &[Vec<f64>], y: &[f64], w: &[f64]) -> Option<f64> {
     let k = x.len();
     let a = nalgebra::DMatrix::from_fn(n, k, |i, j| x[j][i] * w[i].sqrt());
     let b = nalgebra::DVector::from_fn(n, |i, _| y[i] * w[i].sqrt());
+    // nalgebra's SVD panics (or iterates without end) on NaN and infinities.
+    if !(a.iter().chain(b.iter()).all(|x| x.is_finite())
+        && (a.transpose() * &a).iter().all(|x| x.is_finite()))
+    {
+        return None;
+    }
     let sol = a.clone().svd(true, true).solve(&b, 1e-12).ok()?;
     Some((a * sol - b).norm_squared())
 }
@@ -509,6 +522,7 @@ fn fit_all(
     cands: &[&'static Candidate],
     threads: usize,
     progress: &Progress,
+    meter: &Meter,
 ) -> Vec<(&'static Candidate, Result<EffectFit>)> {
     let next = std::sync::atomic::AtomicUsize::new(0);
     let fitted = std::sync::atomic::AtomicUsize::new(0);
@@ -518,7 +532,7 @@ fn fit_all(
             s.spawn(|| loop {
                 let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 let Some(c) = cands.get(i) else { break };
-                let r = fit_prepared(model, table, prep, c);
+                let r = fit_prepared(model, table, prep, c, meter);
                 if let Ok(mut v) = results.lock() {
                     v.push((i, *c, r));
                 }
@@ -673,34 +687,47 @@ pub fn diagnose(
     let residual_g = prep.residual_g();
     let trends = trends(table, &residual_g, &prep.uncertainty_g);
     let lack_of_fit = lack_of_fit(table, &residual_g, &prep.uncertainty_g);
-    let mut candidates: Vec<RankedCandidate> =
-        fit_all(model, table, &prep, &cands, opts.threads, &opts.progress)
-            .into_iter()
-            .map(|(c, r)| {
-                let (fit, not_applicable) = match r {
-                    Ok(f) => (Some(f), None),
-                    Err(e) => (None, Some(e.to_string())),
-                };
-                let supported = fit
-                    .as_ref()
-                    .is_some_and(|f| f.delta_bic <= opts.bic_support);
-                let explains = supported
-                    && fit.as_ref().is_some_and(|f| {
-                        f.p_value_after >= opts.alpha_fit
-                            || f.rms_residual_after_g
-                                <= opts.model_tolerance * f.rms_residual_before_g
-                    });
-                RankedCandidate {
-                    kind: c.kind.into(),
-                    physics: c.physics.into(),
-                    signature: c.signature.into(),
-                    fit,
-                    not_applicable,
-                    supported,
-                    explains,
+    let meter = Meter::new(opts.budget);
+    let mut cut_short = Vec::new();
+    let mut candidates: Vec<RankedCandidate> = fit_all(
+        model,
+        table,
+        &prep,
+        &cands,
+        opts.threads,
+        &opts.progress,
+        &meter,
+    )
+    .into_iter()
+    .map(|(c, r)| {
+        let (fit, not_applicable) = match r {
+            Ok(f) => (Some(f), None),
+            Err(e) => {
+                if matches!(e, Error::Budget { .. }) {
+                    cut_short.push(c.kind.to_string());
                 }
-            })
-            .collect();
+                (None, Some(e.to_string()))
+            }
+        };
+        let supported = fit
+            .as_ref()
+            .is_some_and(|f| f.delta_bic <= opts.bic_support);
+        let explains = supported
+            && fit.as_ref().is_some_and(|f| {
+                f.p_value_after >= opts.alpha_fit
+                    || f.rms_residual_after_g <= opts.model_tolerance * f.rms_residual_before_g
+            });
+        RankedCandidate {
+            kind: c.kind.into(),
+            physics: c.physics.into(),
+            signature: c.signature.into(),
+            fit,
+            not_applicable,
+            supported,
+            explains,
+        }
+    })
+    .collect();
     candidates.sort_by(|a, b| {
         let key = |c: &RankedCandidate| c.fit.as_ref().map_or(f64::INFINITY, |f| f.delta_bic);
         key(a).total_cmp(&key(b))
@@ -774,6 +801,13 @@ pub fn diagnose(
         candidates,
         verdict,
         options: opts.clone(),
+        budget: BudgetUsed {
+            budget: opts.budget,
+            evaluations: meter.total(),
+            elapsed_s: meter.elapsed_s(),
+            exhausted: !cut_short.is_empty(),
+            cut_short,
+        },
     })
 }
 
@@ -786,7 +820,7 @@ pub fn fit_effect(model: &LabModel, table: &CampaignTable, kind: &str) -> Result
         ))
     })?;
     let prep = Prepared::new(model, table)?;
-    fit_prepared(model, table, &prep, cand)
+    fit_prepared(model, table, &prep, cand, &Meter::new(Budget::default()))
 }
 
 /// `model` with `kind` fitted to `table` added, and the fit.

@@ -27,6 +27,69 @@ use statrs::distribution::{ChiSquared, ContinuousCDF};
 use vibro_effects::model::{build_effects, LabModel};
 use vibro_effects::predict::{self, effect_shifts_g};
 
+/// Limits on the work of fitting (each candidate's fit, and a whole diagnosis).
+///
+/// Levenberg-Marquardt is bounded by its iteration counts (6 per start for the
+/// linear parameters, 60 per refinement, 12 damping tries each); the budget bounds
+/// the model evaluations of one candidate's fit and the wall-clock time of all of
+/// them, so that a table of many rows or a slow effect cannot run without end.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Budget {
+    /// Model evaluations (one evaluation: the candidate's VE change on every row) one
+    /// candidate's fit may take. The walkthrough's fits take at most about 200.
+    pub max_evaluations: usize,
+    /// Wall-clock time all fits of one call may take, s.
+    pub time_s: f64,
+}
+
+impl Default for Budget {
+    fn default() -> Self {
+        Self {
+            max_evaluations: 20_000,
+            time_s: 600.0,
+        }
+    }
+}
+
+/// How much of a [`Budget`] a call used.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BudgetUsed {
+    pub budget: Budget,
+    /// Model evaluations over all fits.
+    pub evaluations: usize,
+    /// Wall-clock time of the fits, s.
+    pub elapsed_s: f64,
+    /// Whether a fit was stopped by the budget.
+    pub exhausted: bool,
+    /// The candidates whose fit the budget stopped.
+    pub cut_short: Vec<String>,
+}
+
+/// A [`Budget`] running: the deadline and the evaluations over all fits.
+pub(crate) struct Meter {
+    pub(crate) budget: Budget,
+    pub(crate) start: std::time::Instant,
+    pub(crate) evaluations: std::sync::atomic::AtomicUsize,
+}
+
+impl Meter {
+    pub(crate) fn new(budget: Budget) -> Self {
+        Self {
+            budget,
+            start: std::time::Instant::now(),
+            evaluations: std::sync::atomic::AtomicUsize::new(0),
+        }
+    }
+
+    pub(crate) fn elapsed_s(&self) -> f64 {
+        self.start.elapsed().as_secs_f64()
+    }
+
+    pub(crate) fn total(&self) -> usize {
+        self.evaluations.load(std::sync::atomic::Ordering::Relaxed)
+    }
+}
+
 /// One fitted parameter.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FittedParam {
@@ -100,6 +163,19 @@ impl Prepared {
                 c.vibrating_s(),
             )
             .map_err(row)?;
+            // Residuals and weights must stay finite: `(r/u)^2` summed over the
+            // table is the fits' cost.
+            let z = (c.ve_measured_g - pred.ve_g) / c.ve_uncertainty_g;
+            if !(pred.ve_g.is_finite() && (z * z).is_finite() && c.ve_uncertainty_g > 0.0) {
+                return Err(Error::Numeric {
+                    what: format!("{} (line {}, {})", table.path.display(), c.line, c.run_id),
+                    reason: format!(
+                        "measured {:e} g, predicted {:e} g, uncertainty {:e} g: the predicted VE \
+                         and (residual/uncertainty)^2 must be finite",
+                        c.ve_measured_g, pred.ve_g, c.ve_uncertainty_g
+                    ),
+                });
+            }
             p.measured_g.push(c.ve_measured_g);
             p.uncertainty_g.push(c.ve_uncertainty_g);
             p.predicted_g.push(pred.ve_g);
@@ -219,12 +295,26 @@ fn starts(cand: &Candidate, table: &CampaignTable) -> Vec<Vec<f64>> {
                     .collect();
                 let min = xs.iter().copied().fold(f64::INFINITY, f64::min);
                 let max = xs.iter().copied().fold(0.0, f64::max);
-                if !min.is_finite() || max <= 0.0 {
+                // The grid stays within the parameter's bounds (a table built in code
+                // may hold a variable far outside them).
+                let (g_lo, g_hi) = (
+                    (min * lo).max(p.bounds.0).max(f64::MIN_POSITIVE),
+                    (max * hi).min(p.bounds.1),
+                );
+                if !min.is_finite()
+                    || max <= 0.0
+                    || !(g_lo.is_finite() && g_hi.is_finite())
+                    || g_hi < g_lo
+                {
                     vec![p.bounds.0.max(1.0)]
                 } else {
-                    let (a, b) = ((min * lo).ln(), (max * hi).ln());
+                    let (a, b) = (g_lo.ln(), g_hi.ln());
                     (0..points)
-                        .map(|j| (a + (b - a) * j as f64 / (points.max(2) - 1) as f64).exp())
+                        .map(|j| {
+                            (a + (b - a) * j as f64 / (points.max(2) - 1) as f64)
+                                .exp()
+                                .clamp(p.bounds.0, p.bounds.1)
+                        })
                         .collect()
                 }
             }
@@ -253,20 +343,55 @@ struct Problem<'a> {
     cand: &'a Candidate,
     residual_g: Vec<f64>,
     evaluations: usize,
+    meter: &'a Meter,
 }
 
 impl Problem<'_> {
     /// Weighted residuals `(r_i - s_i(theta))/u_i`, or an error.
     fn weighted(&mut self, theta: &[f64]) -> Result<DVector<f64>> {
+        let b = self.meter.budget;
+        if self.evaluations >= b.max_evaluations {
+            return Err(Error::Budget {
+                what: self.cand.kind.to_string(),
+                reason: format!(
+                    "{} model evaluations used of max_evaluations = {}",
+                    self.evaluations, b.max_evaluations
+                ),
+            });
+        }
+        let elapsed_s = self.meter.elapsed_s();
+        if elapsed_s >= b.time_s {
+            return Err(Error::Budget {
+                what: self.cand.kind.to_string(),
+                reason: format!("{elapsed_s:.1} s used of time_s = {} s", b.time_s),
+            });
+        }
         self.evaluations += 1;
+        self.meter
+            .evaluations
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let s = shifts_g(self.model, self.table, self.prep, self.cand, theta)?;
-        Ok(DVector::from_iterator(
+        let w = DVector::from_iterator(
             s.len(),
             s.iter()
                 .zip(&self.residual_g)
                 .zip(&self.prep.uncertainty_g)
                 .map(|((s, r), u)| (r - s) / u),
-        ))
+        );
+        // The cost is the sum of squares: it, not only each term, must be finite.
+        if !w.norm_squared().is_finite() {
+            let k = w.iter().position(|x| !(x * x).is_finite()).unwrap_or(0);
+            let c = &self.table.conditions[k.min(self.table.conditions.len().saturating_sub(1))];
+            return Err(Error::Numeric {
+                what: format!("{} on line {} ({})", self.cand.kind, c.line, c.run_id),
+                reason: format!(
+                    "the weighted residual {:e} (or its sum of squares) is not finite at {:?}",
+                    w.get(k).copied().unwrap_or(f64::NAN),
+                    theta
+                ),
+            });
+        }
+        Ok(w)
     }
 
     fn clamp(&self, theta: &mut [f64]) {
@@ -295,6 +420,13 @@ impl Problem<'_> {
             t[k] += h;
             let rk = self.weighted(&t)?;
             j.set_column(k, &((rk - r) / h));
+        }
+        // nalgebra's SVD panics on NaN and LU steps from infinities are meaningless.
+        if !(j.transpose() * &j).iter().all(|x| x.is_finite()) {
+            return Err(Error::Numeric {
+                what: self.cand.kind.to_string(),
+                reason: format!("the Jacobian or J^T J over the table is not finite at {theta:?}"),
+            });
         }
         Ok(j)
     }
@@ -343,6 +475,7 @@ impl Problem<'_> {
                 self.clamp(&mut next);
                 let rn = match self.weighted(&next) {
                     Ok(rn) => rn,
+                    Err(e @ Error::Budget { .. }) => return Err(e),
                     Err(_) => {
                         lambda *= 4.0;
                         continue;
@@ -375,7 +508,7 @@ pub fn fit_candidate(
     cand: &Candidate,
 ) -> Result<EffectFit> {
     let prep = Prepared::new(model, table)?;
-    fit_prepared(model, table, &prep, cand)
+    fit_prepared(model, table, &prep, cand, &Meter::new(Budget::default()))
 }
 
 pub(crate) fn fit_prepared(
@@ -383,6 +516,7 @@ pub(crate) fn fit_prepared(
     table: &CampaignTable,
     prep: &Prepared,
     cand: &Candidate,
+    meter: &Meter,
 ) -> Result<EffectFit> {
     let residual_g = prep.residual_g();
     let n = residual_g.len();
@@ -392,6 +526,15 @@ pub(crate) fn fit_prepared(
         .zip(&prep.uncertainty_g)
         .map(|(r, u)| (r / u).powi(2))
         .sum();
+    if !chi2_before.is_finite() {
+        return Err(Error::Numeric {
+            what: format!("{} on {}", cand.kind, table.path.display()),
+            reason: format!(
+                "the residual's chi2 = sum((r/u)^2) = {chi2_before:e} overflows: uncertainties \
+                 too small for the residuals"
+            ),
+        });
+    }
     let mut pb = Problem {
         model,
         table,
@@ -399,6 +542,7 @@ pub(crate) fn fit_prepared(
         cand,
         residual_g: residual_g.clone(),
         evaluations: 0,
+        meter,
     };
     let linear: Vec<bool> = cand
         .params
@@ -416,6 +560,7 @@ pub(crate) fn fit_prepared(
         };
         match r {
             Ok(x) => scored.push(x),
+            Err(e @ Error::Budget { .. }) => return Err(e),
             Err(e) => last_error = Some(e),
         }
     }
@@ -445,6 +590,12 @@ pub(crate) fn fit_prepared(
     let r = pb.weighted(&theta)?;
     let j = pb.jacobian(&theta, &r, &all)?;
     let a = j.transpose() * &j;
+    if !a.iter().all(|x| x.is_finite()) || !chi2_after.is_finite() {
+        return Err(Error::Numeric {
+            what: format!("{} on {}", cand.kind, table.path.display()),
+            reason: format!("J^T J or chi2 = {chi2_after:e} at the minimum is not finite"),
+        });
+    }
     let dof = n.saturating_sub(k).max(1);
     let birge = (chi2_after / dof as f64).sqrt().max(1.0);
     let svd = a.clone().svd(true, true);

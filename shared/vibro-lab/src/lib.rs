@@ -33,7 +33,7 @@ pub use diagnose::{
     add_effect, compare, diagnose, error_ladder, fit_effect, Comparison, DiagnoseOptions,
     Diagnosis, LadderStep, Verdict,
 };
-pub use fit::EffectFit;
+pub use fit::{Budget, BudgetUsed, EffectFit};
 pub use table::{CampaignTable, Condition, REQUIRED_COLUMNS};
 // The extended model file the lab writes and its prediction live in the effects
 // library (the compensator reads them too); the lab's API hands them out.
@@ -57,6 +57,13 @@ pub enum Error {
     /// condition, an invalid vibration).
     #[error("{what}: {reason}")]
     Predict { what: String, reason: String },
+    /// A problem with no numerical meaning: a residual, Jacobian or normal matrix
+    /// that is not finite or overflows (extreme values in a table built in code).
+    #[error("{what}: numerically meaningless: {reason}")]
+    Numeric { what: String, reason: String },
+    /// A fit stopped by its budget (`fit::Budget`): how much it used and the limit.
+    #[error("{what}: the fit's budget ran out: {reason}")]
+    Budget { what: String, reason: String },
     /// A request that does not make sense (an unknown candidate, too few conditions).
     #[error("{0}")]
     Invalid(String),

@@ -49,6 +49,32 @@ const TONE_COLUMNS: &[&str] = REQUIRED_COLUMNS.split_at(5).1.split_at(6).0;
 /// The random part's group: `sigma1_g` .. `kurtosis3`.
 const RANDOM_COLUMNS: &[&str] = REQUIRED_COLUMNS.split_at(11).1.split_at(6).0;
 
+/// Largest acceleration a row may state (flight `aL`, tone amplitude `aB`, random
+/// RMS `sigma`), g: shake tables and flights stay within a few hundred g, and the
+/// vibration's own check stops at 1000 g.
+pub const MAX_ACCEL_G: f64 = 500.0;
+/// Highest tone or band frequency, Hz: shake tables work below about 10 kHz.
+pub const MAX_FREQ_HZ: f64 = 1e4;
+/// Largest phase difference, deg (one turn either way).
+pub const MAX_PHASE_DEG: f64 = 360.0;
+/// Largest kurtosis of the IA random part (Gaussian: 3; heavy shocks: tens).
+pub const MAX_KURTOSIS: f64 = 1e3;
+/// Largest measured VE and uncertainty, g: a rectification error beyond 10 g is a
+/// broken reading, not a vibration error.
+pub const MAX_VE_G: f64 = 10.0;
+/// Smallest standard uncertainty, g: below 1e-15 g no rig measures (a noise-free
+/// simulation's batch means scatter by 1e-16 g).
+pub const MIN_UNCERTAINTY_G: f64 = 1e-15;
+/// Smallest uncertainty relative to the measured VE: a VE known to 12 significant
+/// digits is not a measurement (and weights `1/u^2` beyond it overflow the fits).
+pub const MIN_RELATIVE_UNCERTAINTY: f64 = 1e-12;
+/// Longest vibrating record (`vibrating_s`), s: 10 days.
+pub const MAX_VIBRATING_S: f64 = 864_000.0;
+/// Largest magnitude of any other extra column: whatever its unit, a condition
+/// variable beyond 1e12 is not a test condition (and its square overflows the trend
+/// fits' sums).
+pub const MAX_EXTRA_ABS: f64 = 1e12;
+
 /// Default length of the vibrating record when the table has no `vibrating_s`: the
 /// papers' 5 minutes (MODEL.md section 8), s.
 pub const DEFAULT_VIBRATING_S: f64 = 300.0;
@@ -348,6 +374,16 @@ impl CampaignTable {
                 }
                 num(n, problems).unwrap_or(f64::NAN)
             };
+            // Physical range of a parsed value: `ok` false names line, column, the
+            // cell as written, and the rule.
+            let range = |n: &str, x: f64, ok: bool, rule: &str, problems: &mut Vec<String>| {
+                if x.is_finite() && !ok {
+                    problems.push(format!(
+                        "line {line}, column {n} = {}: must be {rule}",
+                        cell(n)
+                    ));
+                }
+            };
             let run_id = cell("run_id").to_string();
             if run_id.is_empty() {
                 problems.push(format!(
@@ -359,12 +395,55 @@ impl CampaignTable {
                 required("aL2_g", &mut problems),
                 required("aL3_g", &mut problems),
             ];
+            for (i, a) in a_l_g.iter().enumerate() {
+                range(
+                    ["aL1_g", "aL2_g", "aL3_g"][i],
+                    *a,
+                    a.abs() <= MAX_ACCEL_G,
+                    &format!("within +-{MAX_ACCEL_G} g (a flight or gravity acceleration)"),
+                    &mut problems,
+                );
+            }
             let ve_measured_g = required("ve_measured_g", &mut problems);
             let ve_uncertainty_g = required("ve_uncertainty_g", &mut problems);
+            range(
+                "ve_measured_g",
+                ve_measured_g,
+                ve_measured_g.abs() <= MAX_VE_G,
+                &format!("within +-{MAX_VE_G} g (a vibration error; beyond it a broken reading)"),
+                &mut problems,
+            );
             if ve_uncertainty_g.is_finite() && ve_uncertainty_g <= 0.0 {
                 problems.push(format!(
                     "line {line}, column ve_uncertainty_g = {ve_uncertainty_g}: must be > 0 (a standard uncertainty)"
                 ));
+            } else {
+                range(
+                    "ve_uncertainty_g",
+                    ve_uncertainty_g,
+                    (MIN_UNCERTAINTY_G..=MAX_VE_G).contains(&ve_uncertainty_g),
+                    &format!(
+                        "within {MIN_UNCERTAINTY_G:e} g ..= {MAX_VE_G} g (a standard uncertainty \
+                         below 1e-15 g is not a measurement)"
+                    ),
+                    &mut problems,
+                );
+                if ve_measured_g.is_finite()
+                    && ve_measured_g.abs() <= MAX_VE_G
+                    && (MIN_UNCERTAINTY_G..=MAX_VE_G).contains(&ve_uncertainty_g)
+                {
+                    range(
+                        "ve_uncertainty_g",
+                        ve_uncertainty_g,
+                        ve_uncertainty_g >= MIN_RELATIVE_UNCERTAINTY * ve_measured_g.abs(),
+                        &format!(
+                            ">= {MIN_RELATIVE_UNCERTAINTY:e} x |ve_measured_g| = {:e} g (a VE \
+                             known to more than 12 digits is not a measurement)",
+                            MIN_RELATIVE_UNCERTAINTY * ve_measured_g.abs()
+                        ),
+                        &mut problems,
+                    );
+                }
             }
             // A group is present when any of its cells is filled; its key cell must be.
             let tone = if TONE_COLUMNS.iter().any(|c| !cell(c).is_empty()) {
@@ -372,13 +451,42 @@ impl CampaignTable {
                 if f.is_finite() && f <= 0.0 {
                     problems.push(format!("line {line}, column freq_hz = {f}: must be > 0"));
                 }
+                range(
+                    "freq_hz",
+                    f,
+                    f <= MAX_FREQ_HZ,
+                    &format!("<= {MAX_FREQ_HZ} Hz (shake tables work below about 10 kHz)"),
+                    &mut problems,
+                );
                 let mut g = |n: &str| num(n, &mut problems).unwrap_or(0.0);
-                Some(ToneCondition {
+                let t = ToneCondition {
                     freq_hz: f,
                     a_b_g: [g("aB1_g"), g("aB2_g"), g("aB3_g")],
                     phase31_deg: g("phase31_deg"),
                     phase32_deg: g("phase32_deg"),
-                })
+                };
+                for (i, a) in t.a_b_g.iter().enumerate() {
+                    range(
+                        ["aB1_g", "aB2_g", "aB3_g"][i],
+                        *a,
+                        (0.0..=MAX_ACCEL_G).contains(a),
+                        &format!("within 0 ..= {MAX_ACCEL_G} g (a tone amplitude)"),
+                        &mut problems,
+                    );
+                }
+                for (n, x) in [
+                    ("phase31_deg", t.phase31_deg),
+                    ("phase32_deg", t.phase32_deg),
+                ] {
+                    range(
+                        n,
+                        x,
+                        x.abs() <= MAX_PHASE_DEG,
+                        &format!("within +-{MAX_PHASE_DEG} deg (a phase difference)"),
+                        &mut problems,
+                    );
+                }
+                Some(t)
             } else {
                 None
             };
@@ -397,13 +505,41 @@ impl CampaignTable {
                             "line {line}, column sigma{}_g = {s}: must be >= 0 (an RMS)",
                             i + 1
                         ));
+                    } else {
+                        range(
+                            ["sigma1_g", "sigma2_g", "sigma3_g"][i],
+                            *s,
+                            *s <= MAX_ACCEL_G,
+                            &format!("<= {MAX_ACCEL_G} g (an RMS acceleration)"),
+                            &mut problems,
+                        );
                     }
+                }
+                for (n, x) in [("cov31_g2", r.cov31_g2), ("cov32_g2", r.cov32_g2)] {
+                    range(
+                        n,
+                        x,
+                        x.abs() <= MAX_ACCEL_G * MAX_ACCEL_G,
+                        &format!(
+                            "within +-{} g^2 (a covariance of RMS <= {MAX_ACCEL_G} g)",
+                            MAX_ACCEL_G * MAX_ACCEL_G
+                        ),
+                        &mut problems,
+                    );
                 }
                 if r.kurtosis3 < 1.0 {
                     problems.push(format!(
                         "line {line}, column kurtosis3 = {}: must be >= 1 (E[x^4]/sigma^4)",
                         r.kurtosis3
                     ));
+                } else {
+                    range(
+                        "kurtosis3",
+                        r.kurtosis3,
+                        r.kurtosis3 <= MAX_KURTOSIS,
+                        &format!("<= {MAX_KURTOSIS} (E[x^4]/sigma^4 of real vibration)"),
+                        &mut problems,
+                    );
                 }
                 Some(r)
             } else {
@@ -411,7 +547,27 @@ impl CampaignTable {
             };
             let mut extra = BTreeMap::new();
             for c in &extra_columns {
-                extra.insert(c.clone(), num(c, &mut problems).unwrap_or(f64::NAN));
+                let x = num(c, &mut problems).unwrap_or(f64::NAN);
+                let (ok, rule) = match c.as_str() {
+                    "vibrating_s" => (
+                        x > 0.0 && x <= MAX_VIBRATING_S,
+                        format!(
+                            "within 0 < vibrating_s <= {MAX_VIBRATING_S} s (a record's length)"
+                        ),
+                    ),
+                    "band_lo_hz" | "band_hi_hz" => (
+                        (0.0..=MAX_FREQ_HZ).contains(&x),
+                        format!(
+                            "within 0 ..= {MAX_FREQ_HZ} Hz (a band edge of shake-table vibration)"
+                        ),
+                    ),
+                    _ => (
+                        x.abs() <= MAX_EXTRA_ABS,
+                        format!("within +-{MAX_EXTRA_ABS:e} (an extra condition variable)"),
+                    ),
+                };
+                range(c, x, ok, &rule, &mut problems);
+                extra.insert(c.clone(), x);
             }
             let passport_ref = match (cell("passport"), &model.passport) {
                 ("", Some(p)) => p.clone(),

@@ -21,8 +21,95 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
     }
 }
 
+/// What stands at an output path, as the temporary file renamed over it would see it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Kind {
+    Regular,
+    Directory,
+    /// Not followed: `rename` replaces the link itself, not the file it points to.
+    Symlink,
+    Fifo,
+    CharDevice,
+    BlockDevice,
+    Socket,
+    Other,
+}
+
+impl Kind {
+    /// Why an output of this kind is refused, even with `--force`.
+    fn refusal(self, out: &Path) -> String {
+        let special = |what: &str| {
+            format!(
+                "is {what}, not a regular file: refused even with --force (the log would replace it with a regular file)"
+            )
+        };
+        match self {
+            Kind::Regular => String::new(),
+            Kind::Directory => "is a directory, not a file".to_string(),
+            Kind::Symlink => {
+                let target = std::fs::read_link(out).map_or_else(
+                    |e| format!("an unreadable target ({e})"),
+                    |t| t.display().to_string(),
+                );
+                format!(
+                    "is a symbolic link to {target}: refused, not followed (the log would replace the link, not the file it points to); name the target itself"
+                )
+            }
+            Kind::Fifo => special("a FIFO (named pipe)"),
+            Kind::CharDevice => special("a character device"),
+            Kind::BlockDevice => special("a block device"),
+            Kind::Socket => special("a socket"),
+            Kind::Other => special("a special file"),
+        }
+    }
+}
+
+/// The kind of what exists at `path` without following a last symbolic link, or
+/// `None` if nothing does.
+fn existing_kind(path: &Path) -> std::io::Result<Option<Kind>> {
+    let meta = match std::fs::symlink_metadata(path) {
+        Ok(meta) => meta,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(e),
+    };
+    let t = meta.file_type();
+    let kind = if t.is_file() {
+        Kind::Regular
+    } else if t.is_dir() {
+        Kind::Directory
+    } else if t.is_symlink() {
+        Kind::Symlink
+    } else {
+        special_kind(&t)
+    };
+    Ok(Some(kind))
+}
+
+#[cfg(unix)]
+fn special_kind(t: &std::fs::FileType) -> Kind {
+    use std::os::unix::fs::FileTypeExt;
+    if t.is_fifo() {
+        Kind::Fifo
+    } else if t.is_char_device() {
+        Kind::CharDevice
+    } else if t.is_block_device() {
+        Kind::BlockDevice
+    } else if t.is_socket() {
+        Kind::Socket
+    } else {
+        Kind::Other
+    }
+}
+
+#[cfg(not(unix))]
+fn special_kind(_: &std::fs::FileType) -> Kind {
+    Kind::Other
+}
+
 /// Refuses an output that exists (without `force`), is a directory, is in a folder that
-/// does not exist, or is one of the inputs.
+/// does not exist, or is one of the inputs; and, even with `force`, one that is not a
+/// regular file: a device (`/dev/full`), a FIFO, a socket, or a symbolic link, which
+/// the temporary file renamed over it would replace (a link is not followed).
 pub fn check_output(out: &Path, inputs: &[&Path], force: bool) -> Result<()> {
     let refused = |problem: String| Error::OutputFile {
         path: out.to_path_buf(),
@@ -39,9 +126,12 @@ pub fn check_output(out: &Path, inputs: &[&Path], force: bool) -> Result<()> {
             });
         }
     }
-    if out.is_dir() {
-        return Err(refused("is a directory, not a file".to_string()));
-    }
+    let exists = match existing_kind(out) {
+        Ok(None) => false,
+        Ok(Some(Kind::Regular)) => true,
+        Ok(Some(kind)) => return Err(refused(kind.refusal(out))),
+        Err(e) => return Err(refused(format!("cannot inspect it: {e}"))),
+    };
     let folder = out
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
@@ -52,7 +142,7 @@ pub fn check_output(out: &Path, inputs: &[&Path], force: bool) -> Result<()> {
             folder.display()
         )));
     }
-    if out.exists() && !force {
+    if exists && !force {
         return Err(refused("exists; pass --force to overwrite it".to_string()));
     }
     Ok(())
@@ -84,8 +174,17 @@ impl PartFile {
         &self.path
     }
 
-    /// Renames the complete file to `out`.
+    /// Renames the complete file to `out`, unless something other than a regular file
+    /// appeared there since [`check_output`] (the rename would replace it).
     pub fn commit(mut self, out: &Path) -> Result<()> {
+        if let Ok(Some(kind)) = existing_kind(out) {
+            if kind != Kind::Regular {
+                return Err(Error::OutputFile {
+                    path: out.to_path_buf(),
+                    problem: kind.refusal(out),
+                });
+            }
+        }
         std::fs::rename(&self.path, out).map_err(|source| Error::Rename {
             from: self.path.clone(),
             to: out.to_path_buf(),
@@ -142,6 +241,73 @@ mod tests {
         let kept = part.path().to_path_buf();
         drop(part);
         assert!(!kept.exists());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// `--force` replaces a regular file only: a FIFO, a socket, a directory and a
+    /// symbolic link are refused with what they are, and stay what they were, also when
+    /// one appears between the check and the commit.
+    #[cfg(unix)]
+    #[test]
+    fn force_never_replaces_what_is_not_a_regular_file() {
+        use std::os::unix::fs::FileTypeExt;
+        let dir = std::env::temp_dir().join(format!("vibro-log-special-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let input = dir.join("in.csv");
+        std::fs::write(&input, "x").unwrap();
+        let fifo = dir.join("fifo.mcap");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let socket = dir.join("socket.mcap");
+        let _listener = std::os::unix::net::UnixListener::bind(&socket).unwrap();
+        let target = dir.join("target.mcap");
+        std::fs::write(&target, "kept").unwrap();
+        let link = dir.join("link.mcap");
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        let msg = |out: &Path| check_output(out, &[&input], true).unwrap_err().to_string();
+        assert_eq!(
+            msg(&fifo),
+            format!("output {}: is a FIFO (named pipe), not a regular file: refused even with --force (the log would replace it with a regular file)", fifo.display())
+        );
+        assert!(
+            msg(&socket).contains(": is a socket, not a regular file: refused even with --force")
+        );
+        assert!(msg(&dir).ends_with(": is a directory, not a file"));
+        assert_eq!(
+            msg(&link),
+            format!("output {}: is a symbolic link to {}: refused, not followed (the log would replace the link, not the file it points to); name the target itself", link.display(), target.display())
+        );
+        // A FIFO made after the check is not replaced by the commit either.
+        let late = dir.join("late.mcap");
+        assert!(check_output(&late, &[&input], true).is_ok());
+        let part = PartFile::beside(&late);
+        std::fs::write(part.path(), "log").unwrap();
+        let made = std::process::Command::new("mkfifo")
+            .arg(&late)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let err = part.commit(&late).unwrap_err().to_string();
+        assert!(err.contains("is a FIFO"), "{err}");
+        for (path, is) in [
+            (&fifo, "fifo"),
+            (&late, "fifo"),
+            (&socket, "socket"),
+            (&link, "link"),
+        ] {
+            let t = std::fs::symlink_metadata(path).unwrap().file_type();
+            let kept = match is {
+                "fifo" => t.is_fifo(),
+                "socket" => t.is_socket(),
+                _ => t.is_symlink(),
+            };
+            assert!(kept, "{} is no longer a {is}", path.display());
+        }
+        assert_eq!(std::fs::read_to_string(&target).unwrap(), "kept");
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -77,7 +77,7 @@ pub use reader::{Reader, Record};
 pub use recorder::{
     ChannelId, Compression, Recorder, RecorderOptions, RecorderStats, RecordingSummary,
 };
-pub use recover::{recover, recover_from_reader, RecoverReport};
+pub use recover::{recover, recover_from_reader, Damage, RecoverReport};
 pub use schema::{
     kind_of_schema, schema, Schema, MESSAGE_ENCODING, PROTO_PACKAGE, SCHEMA_ENCODING,
 };

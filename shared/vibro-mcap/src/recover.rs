@@ -1,17 +1,21 @@
-//! Rewriting a damaged recording (a crash: no summary, no footer, perhaps half a chunk)
-//! into a valid file holding everything up to its last complete chunk.
+//! Rewriting a damaged recording (a crash: no summary, no footer, perhaps half a chunk;
+//! or bytes garbled anywhere) into a valid file holding every intact chunk.
 //!
-//! The damaged file is read record by record with chunks kept whole. A chunk is copied
-//! only if it is complete and its CRC checks out: its schemas, channels and messages are
-//! then written to the new file (same IDs, same bytes, new chunks). Attachments and
-//! metadata outside chunks are copied too. Reading stops at the first record that ends
-//! past the end of the file, at a record that cannot be parsed, or at the data-end record
-//! of a complete file. A chunk that is complete but corrupt (CRC or decompression error)
-//! is skipped and counted, and reading goes on: the records after it are still framed.
+//! The damaged file is framed record by record (opcode, length, body) here, with chunks
+//! kept whole. A chunk is copied only if it is complete and its CRC checks out: its
+//! schemas, channels and messages are then written to the new file (same IDs, same
+//! bytes, new chunks). Attachments and metadata outside chunks are copied too. A chunk
+//! that is framed but corrupt (CRC or decompression error) is skipped and counted, with
+//! the messages its message-index records list. A record that cannot be parsed (a
+//! garbled message index, attachment or header), or one that claims to run past the end
+//! of the file, makes the reader *resynchronise*: it scans forward, byte by byte, for
+//! the next chunk record whose frame, header and records parse and whose CRC checks
+//! out, and carries on from there; the bytes in between are reported as a damaged
+//! region. Reading stops at the data-end record of a complete file, or where no intact
+//! chunk follows the damage.
 
 use crate::{guard, Error, Result};
 use mcap::records::Record as McapRecord;
-use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
@@ -38,12 +42,32 @@ pub struct RecoverReport {
     /// Messages copied, in total and per topic.
     pub messages_recovered: u64,
     pub messages_per_topic: BTreeMap<String, u64>,
+    /// Messages in the skipped chunks, as listed by their message-index records (a
+    /// lower bound: a skipped chunk without readable index records counts 0).
+    pub messages_in_skipped_chunks: u64,
     /// Messages dropped because their channel was defined only in a skipped chunk.
     pub messages_orphaned: u64,
+    /// Every stretch of the input that was not copied, in file order, with the reason;
+    /// the file's end after the last record read is in [`RecoverReport::stop_reason`].
+    pub damage: Vec<Damage>,
     pub attachments: u64,
     pub metadata: u64,
     /// Size of the recovered file.
     pub output_bytes: u64,
+}
+
+/// A stretch of the damaged file that was not copied.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Damage {
+    /// First byte of the stretch.
+    pub start_byte: u64,
+    /// First byte after it (where reading resumed).
+    pub end_byte: u64,
+    /// What was there: "chunk CRC failed (...)", "unreadable record at byte ...".
+    pub what: String,
+    /// Messages known to be lost in it (a skipped chunk's message-index count), if
+    /// known.
+    pub messages: Option<u64>,
 }
 
 struct Copier<W: Write + Seek> {
@@ -84,7 +108,9 @@ impl<W: Write + Seek> Copier<W> {
                 chunks_skipped: 0,
                 messages_recovered: 0,
                 messages_per_topic: BTreeMap::new(),
+                messages_in_skipped_chunks: 0,
                 messages_orphaned: 0,
+                damage: Vec::new(),
                 attachments: 0,
                 metadata: 0,
                 output_bytes: 0,
@@ -159,28 +185,218 @@ impl<W: Write + Seek> Copier<W> {
     }
 
     /// Copies a whole chunk if it decompresses, its CRC checks out and its records
-    /// parse (cut into records by `guard::chunk`, not by mcap).
-    fn copy_chunk(&mut self, header: mcap::records::ChunkHeader, data: &[u8]) -> Result<()> {
+    /// parse (cut into records by `guard::chunk`, not by mcap); otherwise counts it as
+    /// skipped and says why.
+    fn copy_chunk(
+        &mut self,
+        header: mcap::records::ChunkHeader,
+        data: &[u8],
+    ) -> Result<Option<(String, Option<u64>)>> {
         let mut buf = Vec::new();
-        let records = guard::chunk(&header, data, &mut buf)
-            .ok()
-            .and_then(|records| {
-                records
-                    .into_iter()
-                    .map(|(opcode, body)| mcap::parse_record(opcode, body).ok())
-                    .collect::<Option<Vec<_>>>()
-            });
-        match records {
-            Some(records) => {
+        match chunk_records(&header, data, &mut buf) {
+            Ok(records) => {
                 for record in records {
                     self.copy(record)?;
                 }
                 self.report.chunks_recovered += 1;
+                Ok(None)
             }
-            None => self.report.chunks_skipped += 1,
+            Err(why) => {
+                self.report.chunks_skipped += 1;
+                // Its messages, if its records can still be framed despite the CRC.
+                let mut unchecked = header.clone();
+                unchecked.uncompressed_crc = 0;
+                let mut buf = Vec::new();
+                let messages = guard::chunk(&unchecked, data, &mut buf)
+                    .ok()
+                    .map(|records| {
+                        records
+                            .iter()
+                            .filter(|(opcode, _)| *opcode == mcap::records::op::MESSAGE)
+                            .count() as u64
+                    });
+                Ok(Some((why, messages)))
+            }
         }
-        Ok(())
     }
+}
+
+/// The parsed records of a chunk, or why it is unusable.
+fn chunk_records<'b>(
+    header: &mcap::records::ChunkHeader,
+    data: &'b [u8],
+    buf: &'b mut Vec<u8>,
+) -> std::result::Result<Vec<McapRecord<'b>>, String> {
+    let records = guard::chunk(header, data, buf).map_err(|e| match e {
+        guard::ChunkError::Crc { saved, calculated } => {
+            format!("chunk CRC failed (expected {saved:08X}, got {calculated:08X})")
+        }
+        guard::ChunkError::Invalid(reason) => reason,
+    })?;
+    records
+        .into_iter()
+        .map(|(opcode, body)| {
+            mcap::parse_record(opcode, body)
+                .map_err(|e| format!("in a chunk: record 0x{opcode:02X}: {e}"))
+        })
+        .collect()
+}
+
+/// Reads `buf.len()` bytes at `pos`; false if the input ends first.
+fn read_at(input: &mut (impl Read + Seek), pos: u64, buf: &mut [u8]) -> std::io::Result<bool> {
+    input.seek(SeekFrom::Start(pos))?;
+    match input.read_exact(buf) {
+        Ok(()) => Ok(true),
+        Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => Ok(false),
+        Err(e) => Err(e),
+    }
+}
+
+/// Opcode, 8-byte length.
+const FRAME_BYTES: u64 = 9;
+/// A chunk body's fields before its compression string: start and end times,
+/// uncompressed size, CRC.
+const CHUNK_FIXED_BYTES: u64 = 8 + 8 + 8 + 4;
+
+/// One record read at a position of the input.
+enum Framed {
+    /// The file ends there.
+    End,
+    /// A record whose body is in the buffer; it ends at the given byte.
+    Record { opcode: u8, end: u64 },
+    /// A record that cannot be framed or parsed, and why.
+    Bad(String),
+}
+
+/// Frames the record at `pos` into `body` (its length is at most what is left of the
+/// file, so a garbled length never becomes a large allocation).
+fn frame(
+    input: &mut (impl Read + Seek),
+    path: &Path,
+    pos: u64,
+    input_bytes: u64,
+    body: &mut Vec<u8>,
+) -> Result<Framed> {
+    if pos >= input_bytes {
+        return Ok(Framed::End);
+    }
+    let mut head = [0u8; FRAME_BYTES as usize];
+    let io = |e| Error::io("read", path, e);
+    if !read_at(input, pos, &mut head).map_err(io)? {
+        return Ok(Framed::Bad(format!(
+            "the file ends inside a record that starts at byte {pos}"
+        )));
+    }
+    let mut len = [0u8; 8];
+    len.copy_from_slice(&head[1..]);
+    let len = u64::from_le_bytes(len);
+    let left = input_bytes - pos - FRAME_BYTES;
+    if len > left {
+        return Ok(Framed::Bad(format!(
+            "the file ends inside a record that starts at byte {pos} (record 0x{:02X} claims {len} bytes, {left} are left)",
+            head[0]
+        )));
+    }
+    // len <= left < input_bytes, which is the size of a file that exists.
+    body.resize(usize::try_from(len).unwrap_or(usize::MAX), 0);
+    if !read_at(input, pos + FRAME_BYTES, body).map_err(io)? {
+        return Ok(Framed::Bad(format!(
+            "the file ends inside a record that starts at byte {pos}"
+        )));
+    }
+    Ok(Framed::Record {
+        opcode: head[0],
+        end: pos + FRAME_BYTES + len,
+    })
+}
+
+/// Whether the bytes at `pos` are a chunk record whose frame, header and records parse
+/// and whose CRC checks out. Cheap tests first (opcode, a length within the file, a
+/// known compression, a records length that fills the rest of the record), so that a
+/// scan over compressed data rarely decompresses anything.
+fn intact_chunk_at(
+    input: &mut (impl Read + Seek),
+    path: &Path,
+    pos: u64,
+    input_bytes: u64,
+    body: &mut Vec<u8>,
+) -> Result<bool> {
+    let io = |e| Error::io("read", path, e);
+    let mut head = [0u8; (FRAME_BYTES + CHUNK_FIXED_BYTES + 4) as usize];
+    if !read_at(input, pos, &mut head).map_err(io)? || head[0] != mcap::records::op::CHUNK {
+        return Ok(false);
+    }
+    let mut n = [0u8; 8];
+    n.copy_from_slice(&head[1..9]);
+    let len = u64::from_le_bytes(n);
+    let mut c = [0u8; 4];
+    c.copy_from_slice(&head[head.len() - 4..]);
+    let compression_len = u64::from(u32::from_le_bytes(c));
+    if len > input_bytes - pos - FRAME_BYTES
+        || compression_len > 4
+        || len < CHUNK_FIXED_BYTES + 4 + compression_len + 8
+    {
+        return Ok(false);
+    }
+    let mut rest = [0u8; 4 + 8];
+    let rest = &mut rest[..compression_len as usize + 8];
+    let at = pos + FRAME_BYTES + CHUNK_FIXED_BYTES + 4;
+    if !read_at(input, at, rest).map_err(io)? {
+        return Ok(false);
+    }
+    let compression = &rest[..compression_len as usize];
+    if !matches!(compression, b"" | b"zstd" | b"lz4") {
+        return Ok(false);
+    }
+    let mut r = [0u8; 8];
+    r.copy_from_slice(&rest[compression_len as usize..]);
+    if u64::from_le_bytes(r) != len - (CHUNK_FIXED_BYTES + 4 + compression_len + 8) {
+        return Ok(false);
+    }
+    let Framed::Record { opcode, .. } = frame(input, path, pos, input_bytes, body)? else {
+        return Ok(false);
+    };
+    if guard::record(opcode, body).is_err() {
+        return Ok(false);
+    }
+    let Ok(McapRecord::Chunk { header, data }) = mcap::parse_record(opcode, body) else {
+        return Ok(false);
+    };
+    let mut buf = Vec::new();
+    Ok(chunk_records(&header, &data, &mut buf).is_ok())
+}
+
+/// The start of the next intact chunk at or after `from`, if any.
+fn resync(
+    input: &mut (impl Read + Seek),
+    path: &Path,
+    from: u64,
+    input_bytes: u64,
+) -> Result<Option<u64>> {
+    let io = |e| Error::io("read", path, e);
+    let mut block = vec![0u8; 64 * 1024];
+    let mut body = Vec::new();
+    let mut at = from;
+    while at < input_bytes {
+        let n = usize::try_from((input_bytes - at).min(block.len() as u64)).unwrap_or(0);
+        let block = &mut block[..n];
+        if !read_at(input, at, block).map_err(io)? {
+            return Ok(None);
+        }
+        let candidates: Vec<u64> = block
+            .iter()
+            .enumerate()
+            .filter(|(_, &b)| b == mcap::records::op::CHUNK)
+            .map(|(i, _)| at + i as u64)
+            .collect();
+        for pos in candidates {
+            if intact_chunk_at(input, path, pos, input_bytes, &mut body)? {
+                return Ok(Some(pos));
+            }
+        }
+        at += n as u64;
+    }
+    Ok(None)
 }
 
 /// Recovers `damaged` into a new file `out` (created or truncated; zstd chunks).
@@ -207,93 +423,145 @@ pub fn recover(damaged: impl AsRef<Path>, out: impl AsRef<Path>) -> Result<Recov
 /// `out`, which is returned after the new file's footer; `input` and `out_path` stand
 /// for the files in the report and in errors.
 pub fn recover_from_reader<W: Write + Seek>(
-    mut damaged: impl Read,
+    mut damaged: impl Read + Seek,
     input: &Path,
     input_bytes: u64,
     out: W,
     out_path: &Path,
 ) -> Result<(RecoverReport, W)> {
     let mut out = Some(out);
+    let bad_magic = || Error::Mcap {
+        path: input.to_path_buf(),
+        source: mcap::McapError::BadMagic,
+    };
+    let mut magic = [0u8; 8];
+    let whole_magic =
+        read_at(&mut damaged, 0, &mut magic).map_err(|e| Error::io("read", input, e))?;
+    let magic_len = usize::try_from(input_bytes.min(8)).unwrap_or(8);
+    if magic[..magic_len] != mcap::MAGIC[..magic_len] {
+        return Err(bad_magic());
+    }
+    if !whole_magic {
+        return Err(Error::Truncated {
+            path: input.to_path_buf(),
+        });
+    }
 
-    let mut reader = LinearReader::new_with_options(
-        LinearReaderOptions::default()
-            .with_emit_chunks(true)
-            .with_skip_end_magic(true)
-            // No record is longer than the file. A crash leaves the open chunk with
-            // the length the writer had not yet patched (u64::MAX), and without a
-            // limit mcap 0.26 panics adding the opcode and length sizes to it.
-            .with_record_length_limit(usize::try_from(input_bytes).unwrap_or(usize::MAX)),
-    );
     // The header comes first; the new file's header copies its profile.
     let mut copier: Option<Copier<W>> = None;
-    let mut valid_prefix_bytes = mcap::MAGIC.len() as u64;
+    // Why the header could not be read, once a chunk after it was found.
+    let mut header_damage: Option<Damage> = None;
+    let mut pos = mcap::MAGIC.len() as u64;
+    let mut valid_prefix_bytes = pos;
     let mut input_complete = false;
     let mut stop_reason = None;
+    let mut damage = Vec::new();
+    // A skipped chunk, and whether the message-index records right after it count its
+    // messages (when its own records do not frame).
+    let mut skipped: Option<(Damage, bool)> = None;
+    let mut body = Vec::new();
     loop {
-        let Some(event) = reader.next_event() else {
-            break;
-        };
-        let event = match event {
-            Ok(event) => event,
-            Err(mcap::McapError::BadMagic) if copier.is_none() => {
-                return Err(Error::Mcap {
-                    path: input.to_path_buf(),
-                    source: mcap::McapError::BadMagic,
-                });
-            }
-            Err(e) => {
-                stop_reason = Some(match e {
-                    mcap::McapError::UnexpectedEof => format!(
-                        "the file ends inside a record that starts at byte {valid_prefix_bytes}"
-                    ),
-                    e => format!("unreadable record at byte {valid_prefix_bytes}: {e}"),
-                });
-                break;
-            }
-        };
-        match event {
-            LinearReadEvent::ReadRequest(need) => {
-                let n = damaged
-                    .read(reader.insert(need))
-                    .map_err(|e| Error::io("read", input, e))?;
-                reader.notify_read(n);
-            }
-            LinearReadEvent::Record { opcode, data } => {
-                let record_start = valid_prefix_bytes;
-                valid_prefix_bytes += 1 + 8 + data.len() as u64;
-                let parsed = guard::record(opcode, data)
-                    .and_then(|()| mcap::parse_record(opcode, data).map_err(|e| e.to_string()));
-                let record = match parsed {
-                    Ok(r) => r,
-                    Err(e) => {
-                        valid_prefix_bytes = record_start;
-                        stop_reason =
-                            Some(format!("unreadable record at byte {record_start}: {e}"));
-                        break;
+        let problem = match frame(&mut damaged, input, pos, input_bytes, &mut body)? {
+            Framed::End => break,
+            Framed::Bad(why) => why,
+            Framed::Record { opcode, end } => match guard::record(opcode, &body)
+                .and_then(|()| mcap::parse_record(opcode, &body).map_err(|e| e.to_string()))
+            {
+                Err(e) => format!("unreadable record at byte {pos}: {e}"),
+                Ok(record) => {
+                    let start = pos;
+                    pos = end;
+                    valid_prefix_bytes = end;
+                    if let McapRecord::MessageIndex(index) = &record {
+                        if let Some((d, from_index)) = skipped.as_mut() {
+                            if *from_index {
+                                *d.messages.get_or_insert(0) += index.records.len() as u64;
+                            }
+                            continue;
+                        }
+                    } else if let Some((d, _)) = skipped.take() {
+                        damage.push(d);
                     }
-                };
-                let Some(c) = copier.as_mut() else {
-                    let McapRecord::Header(h) = record else {
-                        return Err(Error::Mcap {
-                            path: input.to_path_buf(),
-                            source: mcap::McapError::BadMagic,
-                        });
-                    };
-                    // Taken once: there is no copier only until the header.
-                    let Some(out) = out.take() else {
+                    let Some(c) = copier.as_mut() else {
+                        let McapRecord::Header(h) = record else {
+                            return Err(bad_magic());
+                        };
+                        // Taken once: there is no copier only until the header.
+                        let Some(out) = out.take() else {
+                            continue;
+                        };
+                        copier = Some(Copier::new(input, input_bytes, out_path, out, h.profile)?);
                         continue;
                     };
-                    copier = Some(Copier::new(input, input_bytes, out_path, out, h.profile)?);
+                    if let McapRecord::Chunk { header, data } = record {
+                        if let Some((what, messages)) = c.copy_chunk(header, &data)? {
+                            // Counted from the chunk's records if they still frame,
+                            // else from the message-index records that follow it.
+                            let damage = Damage {
+                                start_byte: start,
+                                end_byte: end,
+                                what,
+                                messages,
+                            };
+                            skipped = Some((damage, messages.is_none()));
+                        }
+                    } else if !c.copy(record)? {
+                        input_complete = true;
+                        break;
+                    }
                     continue;
-                };
-                if let McapRecord::Chunk { header, data } = record {
-                    c.copy_chunk(header, &data)?;
-                } else if !c.copy(record)? {
-                    input_complete = true;
-                    break;
                 }
-            }
+            },
+        };
+        if let Some((d, _)) = skipped.take() {
+            damage.push(d);
         }
+        // Damage at `pos`: carry on at the next intact chunk, if there is one.
+        let Some(next) = resync(&mut damaged, input, pos + 1, input_bytes)? else {
+            if copier.is_none() {
+                return Err(if problem.starts_with("the file ends") {
+                    Error::Truncated {
+                        path: input.to_path_buf(),
+                    }
+                } else {
+                    Error::Malformed {
+                        path: input.to_path_buf(),
+                        reason: format!(
+                            "nothing to recover: its MCAP header record is unreadable ({problem}) and no intact chunk follows it"
+                        ),
+                    }
+                });
+            }
+            stop_reason = Some(problem);
+            break;
+        };
+        let region = Damage {
+            start_byte: pos,
+            end_byte: next,
+            what: problem,
+            messages: None,
+        };
+        if copier.is_none() {
+            // The header is lost, the chunks after it are not: the new file gets an
+            // empty profile.
+            let Some(o) = out.take() else {
+                return Err(bad_magic());
+            };
+            copier = Some(Copier::new(input, input_bytes, out_path, o, String::new())?);
+            header_damage = Some(Damage {
+                what: format!(
+                    "the MCAP header record (its profile is not kept): {}",
+                    region.what
+                ),
+                ..region
+            });
+        } else {
+            damage.push(region);
+        }
+        pos = next;
+    }
+    if let Some((d, _)) = skipped.take() {
+        damage.push(d);
     }
     if !input_complete && stop_reason.is_none() {
         stop_reason = Some(format!(
@@ -318,5 +586,7 @@ pub fn recover_from_reader<W: Write + Seek>(
     report.valid_prefix_bytes = valid_prefix_bytes;
     report.input_complete = input_complete;
     report.stop_reason = stop_reason;
+    report.messages_in_skipped_chunks = damage.iter().filter_map(|d| d.messages).sum();
+    report.damage = header_damage.into_iter().chain(damage).collect();
     Ok((report, out))
 }

@@ -112,11 +112,11 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
 
     // 1. The flight.
     if !args.json {
-        println!(
+        outln!(
             "Simulating {} into {} ...",
             scenario.name,
             flight_log.display()
-        );
+        )?;
     }
     let flight = simulate_flight(&scenario, Some(&flight_log), None)?;
 
@@ -157,9 +157,9 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         )
     })?;
     if !args.json {
-        println!(
+        outln!(
             "Services up under {prefix} (estimator, compensator, recorder); replaying the flight as fast as possible, lock-stepped ..."
-        );
+        )?;
     }
 
     // 3. The replay.
@@ -203,13 +203,12 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     if args.json {
         return print_json(&report);
     }
-    print_report(&report);
-    Ok(())
+    print_report(&report)
 }
 
-fn print_report(r: &DemoReport) {
+fn print_report(r: &DemoReport) -> anyhow::Result<()> {
     let e = &r.errors;
-    println!(
+    outln!(
         "Replayed {} messages ({:.0} s of flight) in {:.2} s ({:.0}x real time); recorded {} messages into {}; lost {}",
         r.replay.messages,
         r.replay.log_span_s,
@@ -218,31 +217,38 @@ fn print_report(r: &DemoReport) {
         r.recording.get("messages").and_then(|x| x.as_u64()).unwrap_or(0),
         r.session_log,
         r.lost_messages
-    );
-    println!(
+    )?;
+    outln!(
         "Error against the sensed acceleration, mean over {} s windows ({} of {} windows compensated with a vibration estimate; the first {} blocks came before the first estimate):",
         e.window_s, e.compensated_windows, e.windows, e.main_only_blocks
-    );
-    println!(
+    )?;
+    outln!(
         "  {:<10}{:>16}{:>16}{:>20}{:>12}",
-        "unit", "uncompensated", "main removed", "vibration removed", "reduction"
-    );
+        "unit",
+        "uncompensated",
+        "main removed",
+        "vibration removed",
+        "reduction"
+    )?;
     let line = |name: &str, s: &StageErrors| {
-        println!(
+        outln!(
             "  {:<10}{:>16}{:>16}{:>20}{:>12}",
             name,
             fmt_g(s.uncompensated_rms_g),
             fmt_g(s.main_removed_rms_g),
             fmt_g(s.vibration_removed_rms_g),
             fmt_ratio(s.reduction)
-        );
+        )
     };
     for u in &e.units {
-        line(&format!("AK{}", u.unit), &u.errors);
+        line(&format!("AK{}", u.unit), &u.errors)?;
     }
-    line("all", &e.all_units);
-    println!(
+    line("all", &e.all_units)?;
+    outln!(
         "Logs: {}, {}, {}",
-        r.flight_log, r.session_log, r.services_log
-    );
+        r.flight_log,
+        r.session_log,
+        r.services_log
+    )?;
+    Ok(())
 }

@@ -485,7 +485,7 @@ fn run_positions(args: PositionsArgs) -> anyhow::Result<()> {
     if args.json {
         print_json(&report)
     } else {
-        print_positions(&report);
+        print_positions(&report)?;
         Ok(())
     }
 }
@@ -522,11 +522,14 @@ fn describe_basis(basis: &UncertaintyBasis) -> String {
     }
 }
 
-fn print_positions(r: &PositionsReport) {
-    println!(
+fn print_positions(r: &PositionsReport) -> anyhow::Result<()> {
+    outln!(
         "Identification from {} ({} positions), passport {} (K1 = {} V/g)",
-        r.file, r.n_positions, r.passport, r.k1_v_per_g
-    );
+        r.file,
+        r.n_positions,
+        r.passport,
+        r.k1_v_per_g
+    )?;
     let mut methods: Vec<(&str, &MethodReport)> = Vec::new();
     if let Some(m) = &r.closed_form {
         methods.push(("closed form (22)", m));
@@ -539,17 +542,19 @@ fn print_positions(r: &PositionsReport) {
     }
     if let Some(first) = methods.first() {
         let a = first.1.estimate.amplitudes;
-        println!(
+        outln!(
             "Components at aB3 = {} g (IA), aB1 = {} g (OA, for d0(2)), aB2 = {} g (PA, for d0(3))",
-            a.a_b3_g, a.a_b1_g, a.a_b2_g
-        );
+            a.a_b3_g,
+            a.a_b1_g,
+            a.a_b2_g
+        )?;
         let passport = r.passport_terms.components_at(a).to_array();
-        println!();
+        outln!()?;
         let mut header = format!("{:<10}", "component");
         for (name, _) in &methods {
             header += &format!("  {name:<30}");
         }
-        println!("{header}  passport (section 5, lambda = 1)");
+        outln!("{header}  passport (section 5, lambda = 1)")?;
         for (i, label) in COMPONENT_LABELS.iter().enumerate() {
             let mut row = format!("{label:<10}");
             for (_, m) in &methods {
@@ -558,39 +563,39 @@ fn print_positions(r: &PositionsReport) {
                 let sigma = e.sigma.map(|s| fmt_component(i, s.to_array()[i]));
                 row += &format!("  {:<30}", value_pm(value, sigma));
             }
-            println!("{row}  {}", fmt_component(i, passport[i]));
+            outln!("{row}  {}", fmt_component(i, passport[i]))?;
         }
-        println!();
+        outln!()?;
         for (name, m) in &methods {
-            println!(
+            outln!(
                 "{name}: uncertainties {}",
                 describe_basis(&m.estimate.basis)
-            );
+            )?;
         }
-        println!();
-        println!("VE predicted by (23)");
+        outln!()?;
+        outln!("VE predicted by (23)")?;
         let mut header = format!("{:<10}", "aL");
         for (name, _) in &methods {
             header += &format!("  {name:<30}");
         }
-        println!("{}", header.trim_end());
+        outln!("{}", header.trim_end())?;
         for (k, a_l_g) in first.1.predictions.iter().map(|p| p.a_l_g).enumerate() {
             let mut row = format!("{:<10}", format!("{a_l_g} g"));
             for (_, m) in &methods {
                 let p = &m.predictions[k];
                 row += &format!("  {:<30}", value_pm(fmt_g(p.ve_g), p.sigma_g.map(fmt_g)));
             }
-            println!("{}", row.trim_end());
+            outln!("{}", row.trim_end())?;
         }
     }
     if let Some(c) = &r.coefficients {
         let t = &c.terms;
-        println!();
-        println!(
+        outln!()?;
+        outln!(
             "Passport terms (coefficient WLS over IA amplitudes {:?} g; {})",
             t.a_b3_levels_g,
             describe_basis(&t.basis)
-        );
+        )?;
         let units = [
             "ppm", "ppm/g", "ppm/g^2", "ppm/g^3", "ppm/g^4", "ppm/g", "ppm/g",
         ];
@@ -609,19 +614,20 @@ fn print_positions(r: &PositionsReport) {
         for i in 0..7 {
             let value = format!("{:.4} {}", x[i] * 1e6, units[i]);
             let sigma = s.map(|s| format!("{:.4} {}", s[i] * 1e6, units[i]));
-            println!(
+            outln!(
                 "  {:<30} {:<36} passport {:.4} {}",
                 labels[i],
                 value_pm(value, sigma),
                 p[i] * 1e6,
                 units[i]
-            );
+            )?;
         }
     }
     for s in &r.skipped {
-        println!();
-        println!("{} skipped: {}", s.method, s.reason);
+        outln!()?;
+        outln!("{} skipped: {}", s.method, s.reason)?;
     }
+    Ok(())
 }
 
 // ---------------------------------------------------------------------------------
@@ -703,38 +709,43 @@ fn run_measure(args: MeasureArgs) -> anyhow::Result<()> {
         return print_json(&report);
     }
     let m = &report.measurement;
-    println!(
+    outln!(
         "VE measured from {} by [P2 (16)], passport {} (K1 = {} V/g)",
-        report.file, report.passport, m.k1_v_per_g
-    );
-    println!();
-    println!(
+        report.file,
+        report.passport,
+        m.k1_v_per_g
+    )?;
+    outln!()?;
+    outln!(
         "{:<8} {:>8}  {:>18}  {:>23}",
-        "record", "samples", "mean", "std error (batch means)"
-    );
+        "record",
+        "samples",
+        "mean",
+        "std error (batch means)"
+    )?;
     for (phase, r) in [
         (Phase::Still1, &m.still1),
         (Phase::Vib, &m.vib),
         (Phase::Still2, &m.still2),
     ] {
-        println!(
+        outln!(
             "{:<8} {:>8}  {:>16.9} V  {:>20.3} uV",
             phase.to_string(),
             r.n_samples,
             r.mean_v,
             r.std_error_v * 1e6
-        );
+        )?;
     }
-    println!();
-    println!(
+    outln!()?;
+    outln!(
         "dV = {}",
         value_pm(fmt_g(m.ve_g), Some(fmt_g(m.ve_sigma_g)))
-    );
-    println!(
+    )?;
+    outln!(
         "tilt check: |<U1> - <U3>|/|K1| = {} (limit {:e} g = {:e} rad): accepted",
         value_pm(fmt_g(m.drift_g), Some(fmt_g(m.drift_sigma_g))),
         m.tilt_limit_rad,
         m.tilt_limit_rad
-    );
+    )?;
     Ok(())
 }

@@ -120,12 +120,21 @@ fn base_mode(m: super::model::ModeArg) -> BaseMode {
 }
 
 pub fn run(cmd: &LabCommand) -> anyhow::Result<()> {
-    match cmd {
-        LabCommand::Compare(a) => compare(a),
-        LabCommand::Diagnose(a) => diagnose(a),
-        LabCommand::Add(a) => add(a),
-        LabCommand::Report(a) => report(a),
-    }
+    let (name, result) = match cmd {
+        LabCommand::Compare(a) => ("compare", compare(a)),
+        LabCommand::Diagnose(a) => ("diagnose", diagnose(a)),
+        LabCommand::Add(a) => ("add", add(a)),
+        LabCommand::Report(a) => ("report", report(a)),
+    };
+    // Errors open with the command the user typed (`lab diagnose: campaign.csv: ...`),
+    // not with what the library was doing. A closed stdout stays a quiet exit.
+    result.map_err(|e| {
+        if crate::output::is_stdout_closed(&e) {
+            e
+        } else {
+            e.context(format!("lab {name}"))
+        }
+    })
 }
 
 /// What the lab read: the model, the table, and for an MCAP log what became of its

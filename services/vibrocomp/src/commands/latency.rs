@@ -763,12 +763,12 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
     if args.json {
         return print_json(&report);
     }
-    println!(
+    outln!(
         "Latency, {} mode: {} s per pipeline, accelerometer blocks of {} at {} Hz, vibration blocks of {} at {} Hz (first {} s left out)",
         report.mode, args.duration_s, args.block_samples, args.rate_hz, args.vib_block_samples, args.vib_rate_hz, args.warmup_s
-    );
+    )?;
     for r in &report.runs {
-        println!(
+        outln!(
             "{}: {} blocks sent, {} received, lost samples {}; CPU {}",
             r.pipeline,
             r.accel_blocks_sent,
@@ -779,28 +779,38 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
                 .map(|(n, p)| format!("{n} {p:.1}%"))
                 .collect::<Vec<_>>()
                 .join(", ")
-        );
-        println!(
+        )?;
+        outln!(
             "  {:<26}{:>10}{:>10}{:>10}{:>10}{:>10}",
-            "hop, us", "p50", "p90", "p99", "p99.9", "max"
-        );
+            "hop, us",
+            "p50",
+            "p90",
+            "p99",
+            "p99.9",
+            "max"
+        )?;
         for (name, h) in [
             ("rig -> service receive", &r.rig_to_service),
             ("service receive -> publish", &r.processing),
             ("publish -> subscriber", &r.service_to_subscriber),
             ("end to end", &r.end_to_end),
         ] {
-            println!(
+            outln!(
                 "  {:<26}{:>10.1}{:>10.1}{:>10.1}{:>10.1}{:>10.1}",
-                name, h.p50_us, h.p90_us, h.p99_us, h.p999_us, h.max_us
-            );
+                name,
+                h.p50_us,
+                h.p90_us,
+                h.p99_us,
+                h.p999_us,
+                h.max_us
+            )?;
         }
     }
     if let Some(r) = &report.ratios {
-        println!(
+        outln!(
             "vibrocomp / bare iceoryx2, end to end: p50 {:.2}x ({:+.1} us), p99 {:.2}x ({:+.1} us); vibrocomp / Unix sockets: p50 {:.2}x, p99 {:.2}x",
             r.vs_bare_p50, r.added_p50_us, r.vs_bare_p99, r.added_p99_us, r.vs_sockets_p50, r.vs_sockets_p99
-        );
+        )?;
     }
     Ok(())
 }

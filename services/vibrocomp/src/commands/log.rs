@@ -362,12 +362,33 @@ fn write_recover(out: &mut String, o: &RecoverOutput) -> std::fmt::Result {
             fmt_opt_ns(c.last_log_time_ns)
         )?;
     }
-    if r.input_complete {
+    let chunk_loss = if r.chunks_skipped > 0 {
+        format!(
+            "{} messages in {} chunk(s) whose CRC or compression was broken; ",
+            r.messages_in_skipped_chunks, r.chunks_skipped
+        )
+    } else {
+        String::new()
+    };
+    if r.input_complete && r.damage.is_empty() {
         writeln!(
             out,
             "  lost: nothing (the file was complete: its data section ends with a data-end record)"
         )?;
+    } else if r.input_complete {
+        writeln!(
+            out,
+            "  lost: {chunk_loss}{} damaged region(s) skipped; the file's end was read (it ends with a data-end record)",
+            r.damage.len()
+        )?;
     } else {
+        if !r.damage.is_empty() {
+            writeln!(
+                out,
+                "  lost: {chunk_loss}{} damaged region(s) skipped",
+                r.damage.len()
+            )?;
+        }
         writeln!(
             out,
             "  lost: {} bytes after byte {}{}",
@@ -379,11 +400,14 @@ fn write_recover(out: &mut String, o: &RecoverOutput) -> std::fmt::Result {
                 .unwrap_or_default()
         )?;
     }
-    if r.chunks_skipped > 0 {
+    for d in &r.damage {
+        let messages = d
+            .messages
+            .map_or_else(String::new, |m| format!(", {m} messages"));
         writeln!(
             out,
-            "  skipped: {} complete chunks whose CRC or compression was broken",
-            r.chunks_skipped
+            "  damaged: bytes {}..{}{messages}: {}",
+            d.start_byte, d.end_byte, d.what
         )?;
     }
     if r.messages_orphaned > 0 {

@@ -1,7 +1,8 @@
 //! `vibrocomp model`: the vibration-error model of one accelerometer
 //! (MODEL.md sections 4 to 7).
 
-use crate::output::{fmt_g, print_json};
+use crate::flags::FlagProblems;
+use crate::output::{fmt_g, fmt_num, print_json};
 use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
 use serde::Serialize;
@@ -127,8 +128,48 @@ pub struct VibrationArgs {
 }
 
 impl VibrationArgs {
+    /// The rules of a vibration file on each flag, every problem at once; the rules
+    /// across flags (a covariance within the sigmas) are `Vibration::validate`'s.
+    fn check_flags(&self) -> anyhow::Result<()> {
+        let mut p = FlagProblems::new();
+        self.check_into(&mut p);
+        p.finish()
+    }
+
+    fn check_into(&self, p: &mut FlagProblems) {
+        p.amplitude_g("--aB1-g", self.ab1_g);
+        p.amplitude_g("--aB2-g", self.ab2_g);
+        p.amplitude_g("--aB3-g", self.ab3_g);
+        p.check(
+            "--freq-hz",
+            self.freq_hz,
+            self.freq_hz.is_finite() && self.freq_hz >= 0.0,
+            "must be finite and >= 0",
+        );
+        p.finite("--phase31-deg", self.phase31_deg);
+        p.finite("--phase32-deg", self.phase32_deg);
+        for (flag, sigma) in [
+            ("--sigma1-g", self.sigma1_g),
+            ("--sigma2-g", self.sigma2_g),
+            ("--sigma3-g", self.sigma3_g),
+        ] {
+            if let Some(s) = sigma {
+                p.sigma_g(flag, s);
+            }
+        }
+        p.finite("--cov31-g2", self.cov31_g2);
+        p.finite("--cov32-g2", self.cov32_g2);
+        p.check(
+            "--kurtosis3",
+            self.kurtosis3,
+            self.kurtosis3.is_finite() && (1.0..=30.0).contains(&self.kurtosis3),
+            "must be finite and 1 <= kurtosis <= 30",
+        );
+    }
+
     /// Validates the flags into a passport and a vibration description.
     fn resolve(&self) -> anyhow::Result<(Passport, Vibration)> {
+        self.check_flags()?;
         let passport = vibro_config::resolve_passport(&self.passport)?;
         let mut vib = Vibration::none();
         if self.ab1_g != 0.0 || self.ab2_g != 0.0 || self.ab3_g != 0.0 {
@@ -184,17 +225,33 @@ pub struct FlightArgs {
     pub al2_g: f64,
 }
 
-/// Rejects the first non-finite flag value, naming the flag, its value and the rule.
-fn ensure_finite(flags: &[(&str, f64)]) -> anyhow::Result<()> {
+/// Rejects every flight acceleration outside the rule, naming the flag, its value and
+/// the rule.
+fn check_accels(flags: &[(&str, f64)]) -> anyhow::Result<()> {
+    let mut p = FlagProblems::new();
     for (name, v) in flags {
-        anyhow::ensure!(v.is_finite(), "{name} = {v}: must be finite");
+        p.accel_g(name, *v);
     }
-    Ok(())
+    p.finish()
 }
 
 impl FlightArgs {
+    /// The flight and the vibration flags' problems, all at once.
+    fn check_with(&self, vibration: &VibrationArgs) -> anyhow::Result<()> {
+        let mut p = FlagProblems::new();
+        for (name, v) in [
+            ("--aL1-g", self.al1_g),
+            ("--aL2-g", self.al2_g),
+            ("--aL3-g", self.al3_g),
+        ] {
+            p.accel_g(name, v);
+        }
+        vibration.check_into(&mut p);
+        p.finish()
+    }
+
     fn a_l_g(&self) -> anyhow::Result<[f64; 3]> {
-        ensure_finite(&[
+        check_accels(&[
             ("--aL1-g", self.al1_g),
             ("--aL2-g", self.al2_g),
             ("--aL3-g", self.al3_g),
@@ -357,25 +414,29 @@ fn extended_ve(
     if json {
         return print_json(&report);
     }
-    println!(
+    outln!(
         "Vibration error of {} at aL3 = {} g, extended model {} ({} base)",
-        report.passport, a_l[2], report.model, report.mode
-    );
-    println!("  base model             {}", fmt_g(report.base_ve_g));
+        report.passport,
+        fmt_num(a_l[2]),
+        report.model,
+        report.mode
+    )?;
+    outln!("  base model             {}", fmt_g(report.base_ve_g))?;
     if report.sensor_rms_factor != 1.0 {
-        println!(
+        outln!(
             "  (sensor RMS factor {:.6}: the IA vibration divided by it)",
             report.sensor_rms_factor
-        );
+        )?;
     }
     for e in &report.effects {
-        println!("  + {:<20} {}", e.kind, fmt_g(e.ve_g));
+        outln!("  + {:<20} {}", e.kind, fmt_g(e.ve_g))?;
     }
-    println!("  total                  {}", fmt_g(report.ve_g));
+    outln!("  total                  {}", fmt_g(report.ve_g))?;
     Ok(())
 }
 
 fn ve(args: VeArgs) -> anyhow::Result<()> {
+    args.flight.check_with(&args.vibration)?;
     let (p, vib) = args.vibration.resolve()?;
     let a_l = args.flight.a_l_g()?;
     if let Some(path) = &args.model {
@@ -391,20 +452,20 @@ fn ve(args: VeArgs) -> anyhow::Result<()> {
             ve,
         });
     }
-    println!(
+    outln!(
         "Vibration error of {} at aL3 = {} g ({} model)",
         p.id(),
-        a_l[2],
+        fmt_num(a_l[2]),
         mode.name()
-    );
-    print_components(&[("", ve)], a_l[2]);
+    )?;
+    print_components(&[("", ve)], a_l[2])?;
     Ok(())
 }
 
 /// A row of the component table: its label and how to read it at `aL3`.
 type ComponentRow = (&'static str, fn(&VeComponents, f64) -> f64);
 
-fn print_components(columns: &[(&str, VeComponents)], a_l3_g: f64) {
+fn print_components(columns: &[(&str, VeComponents)], a_l3_g: f64) -> anyhow::Result<()> {
     let rows: [ComponentRow; 9] = [
         ("d0(1)", |v, _| v.d01_g),
         ("d0(2)", |v, _| v.d02_g),
@@ -417,19 +478,20 @@ fn print_components(columns: &[(&str, VeComponents)], a_l3_g: f64) {
         ("total VE", |v, _| v.total_g),
     ];
     if columns.len() > 1 {
-        print!("  {:<16}", "");
+        out!("  {:<16}", "")?;
         for (name, _) in columns {
-            print!("{name:>16}");
+            out!("{name:>16}")?;
         }
-        println!();
+        outln!()?;
     }
     for (label, f) in rows {
-        print!("  {label:<16}");
+        out!("  {label:<16}")?;
         for (_, v) in columns {
-            print!("{:>16}", fmt_g(f(v, a_l3_g)));
+            out!("{:>16}", fmt_g(f(v, a_l3_g)))?;
         }
-        println!();
+        outln!()?;
     }
+    Ok(())
 }
 
 #[derive(Serialize)]
@@ -502,25 +564,29 @@ fn compensate_extended(args: &CompensateArgs, path: &std::path::Path) -> anyhow:
     if args.json {
         return print_json(&report);
     }
-    println!(
+    outln!(
         "Compensation of {} (extended model {}, {} base), reading U/K1 = {} g",
-        report.passport, report.model, report.mode, args.reading_g
-    );
+        report.passport,
+        report.model,
+        report.mode,
+        fmt_num(args.reading_g)
+    )?;
     let s = &report.stages;
-    println!("  {:<36}{:>+.9} g", "a(1) first approximation (17)", s.a1_g);
-    println!("  {:<36}{:>+.9} g", "a(4) random VE removed (20)", s.a4_g);
+    outln!("  {:<36}{:>+.9} g", "a(1) first approximation (17)", s.a1_g)?;
+    outln!("  {:<36}{:>+.9} g", "a(4) random VE removed (20)", s.a4_g)?;
     for e in &report.effects {
-        println!("    effect {:<27} {}", e.kind, fmt_g(e.ve_g));
+        outln!("    effect {:<27} {}", e.kind, fmt_g(e.ve_g))?;
     }
-    println!(
+    outln!(
         "  {:<36}{:>+.9} g",
-        "a(4) with the effects removed", report.a4_extended_g
-    );
+        "a(4) with the effects removed",
+        report.a4_extended_g
+    )?;
     Ok(())
 }
 
 fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
-    ensure_finite(&[
+    check_accels(&[
         ("--reading-g", args.reading_g),
         ("--reading1-g", args.reading1_g),
         ("--reading2-g", args.reading2_g),
@@ -541,23 +607,23 @@ fn compensate(args: CompensateArgs) -> anyhow::Result<()> {
             stages,
         });
     }
-    println!(
+    outln!(
         "Compensation of {} ({} mode), reading U/K1 = {} g",
         p.id(),
         mode.name(),
-        args.reading_g
-    );
+        fmt_num(args.reading_g)
+    )?;
     let s = &stages;
-    println!("  {:<36}{:>+.9} g", "a(1) first approximation (17)", s.a1_g);
+    outln!("  {:<36}{:>+.9} g", "a(1) first approximation (17)", s.a1_g)?;
     for (label, a, correction) in [
         ("a(2) main error removed (18)", s.a2_g, s.main_g),
         ("a(3) deterministic VE removed (19)", s.a3_g, s.det_g),
         ("a(4) random VE removed (20)", s.a4_g, s.rand_g),
     ] {
-        println!(
+        outln!(
             "  {label:<36}{a:>+.9} g   (correction {})",
             fmt_g(correction)
-        );
+        )?;
     }
     Ok(())
 }
@@ -576,6 +642,7 @@ struct CheckReport<'a> {
 }
 
 fn check(args: CheckArgs) -> anyhow::Result<()> {
+    args.flight.check_with(&args.vibration)?;
     let (p, vib) = args.vibration.resolve()?;
     let a_l = args.flight.a_l_g()?;
     let exact = ve_components(&p, a_l, &vib, Mode::Exact)?;
@@ -600,18 +667,19 @@ fn check(args: CheckArgs) -> anyhow::Result<()> {
     if args.json {
         return print_json(&report);
     }
-    println!("Model check of {} at aL3 = {} g", p.id(), a_l[2]);
-    print_components(&[("as published", as_published), ("exact", exact)], a_l[2]);
-    println!(
+    outln!("Model check of {} at aL3 = {} g", p.id(), fmt_num(a_l[2]))?;
+    print_components(&[("as published", as_published), ("exact", exact)], a_l[2])?;
+    outln!(
         "  Monte Carlo of (FP): {} +- {} ({} samples, seed {})",
         fmt_g(mc.ve_g),
         fmt_g(mc.std_error_g),
         mc.samples,
         mc.seed
-    );
-    println!(
+    )?;
+    outln!(
         "  departure from Monte Carlo: as published {:+.1} standard errors, exact {:+.1}",
-        report.as_published_z, report.exact_z
-    );
+        report.as_published_z,
+        report.exact_z
+    )?;
     Ok(())
 }

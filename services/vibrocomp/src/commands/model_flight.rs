@@ -137,21 +137,25 @@ pub fn run(args: FlightArgs) -> anyhow::Result<()> {
     if args.json {
         return print_json(&report);
     }
-    println!("{}", report.scenario);
-    println!("Triad {}; {} mean readings per unit, errors against the true acceleration (RMS over the flight):", report.triad, report.samples);
-    println!(
+    outln!("{}", report.scenario)?;
+    outln!("Triad {}; {} mean readings per unit, errors against the true acceleration (RMS over the flight):", report.triad, report.samples)?;
+    outln!(
         "  {:<14}{:>16}{:>18}{:>20}{:>12}",
-        "mode", "uncompensated", "main removed", "vibration removed", "reduction"
-    );
+        "mode",
+        "uncompensated",
+        "main removed",
+        "vibration removed",
+        "reduction"
+    )?;
     for m in &report.modes {
-        println!(
+        outln!(
             "  {:<14}{:>16}{:>18}{:>20}{:>12}",
             m.mode,
             fmt_g(m.uncompensated_rms_g),
             fmt_g(m.main_removed_rms_g),
             fmt_g(m.vibration_removed_rms_g),
             fmt_ratio(m.reduction)
-        );
+        )?;
     }
     Ok(())
 }

@@ -188,7 +188,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         return print_json(&report);
     }
     let s = &report.summary;
-    println!(
+    outln!(
         "Recorded {} messages from prefix {} into {} ({} bytes, {} chunks) over {:.1} s; lost {}",
         s.messages,
         s.prefix,
@@ -197,12 +197,16 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         s.chunks,
         s.duration_s,
         s.lost
-    );
+    )?;
     for (topic, c) in &s.topics {
-        println!(
+        outln!(
             "  {:<24} {:>9} recorded  lost {:>4}  out of order {:>3}  malformed {:>3}",
-            topic, c.recorded, c.lost, c.out_of_order, c.malformed
-        );
+            topic,
+            c.recorded,
+            c.lost,
+            c.out_of_order,
+            c.malformed
+        )?;
     }
     Ok(())
 }

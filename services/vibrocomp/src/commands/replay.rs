@@ -139,7 +139,7 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
     if args.json {
         return print_json(&summary);
     }
-    println!(
+    outln!(
         "Replayed {} messages of {} in {} pass(es) into {}: {:.1} s of log in {:.2} s ({:.1}x real time){}; undelivered {}",
         summary.messages,
         args.input.display(),
@@ -154,12 +154,12 @@ pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
             String::new()
         },
         summary.undelivered
-    );
+    )?;
     for (topic, n) in &summary.topics {
-        println!("  {topic:<10} {n:>9}");
+        outln!("  {topic:<10} {n:>9}")?;
     }
     for skipped in &summary.skipped_topics {
-        println!("  skipped {skipped}");
+        outln!("  skipped {skipped}")?;
     }
     Ok(())
 }

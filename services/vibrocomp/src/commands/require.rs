@@ -1,7 +1,8 @@
 //! `vibrocomp require`: allowed moduli of the passport coefficients for a VE budget
 //! (MODEL.md section 10).
 
-use crate::output::print_json;
+use crate::flags::FlagProblems;
+use crate::output::{fmt_fixed, fmt_num, print_json};
 use clap::{Args, ValueEnum};
 use serde::Serialize;
 use vibro_physics::requirements::{exact, paper, Environment, Requirement};
@@ -54,6 +55,15 @@ struct Report {
 }
 
 pub fn run(args: RequireArgs) -> anyhow::Result<()> {
+    // The flight and vibration rules of the files; `D*`'s own rule is the physics'
+    // (`Environment::validate`), applied below.
+    let mut problems = FlagProblems::new();
+    problems.accel_g("--aL3-g", args.al3_g);
+    problems.amplitude_g("--aB1-g", args.ab1_g);
+    problems.amplitude_g("--aB2-g", args.ab2_g);
+    problems.amplitude_g("--aB3-g", args.ab3_g);
+    problems.sigma_g("--sigma3-g", args.sigma3_g);
+    problems.finish()?;
     let env = Environment {
         d_star_g: args.dstar_g,
         a_l3_g: args.al3_g,
@@ -71,19 +81,24 @@ pub fn run(args: RequireArgs) -> anyhow::Result<()> {
             requirements,
         });
     }
-    println!(
+    outln!(
         "Allowed coefficient moduli for D* = {} g ({mode} model)",
-        args.dstar_g
-    );
-    println!(
+        fmt_num(args.dstar_g)
+    )?;
+    outln!(
         "  {:<16}{:>8}{:>14}  unit",
-        "coefficient", "share", "allowed"
-    );
+        "coefficient",
+        "share",
+        "allowed"
+    )?;
     for r in &requirements {
-        println!(
-            "  {:<16}{:>7.2}D*{:>12.4}  {}",
-            r.coefficient, r.share, r.allowed, r.unit
-        );
+        outln!(
+            "  {:<16}{:>7.2}D*{:>12}  {}",
+            r.coefficient,
+            r.share,
+            fmt_fixed(r.allowed, 4),
+            r.unit
+        )?;
     }
     Ok(())
 }

@@ -26,7 +26,8 @@ use vibro_mcap::{Recorder, RecorderOptions};
 use vibro_msgs::{ServiceNames, Stream};
 use vibro_sim::{Scenario, ScenarioKind, Simulator};
 
-use crate::output::{fmt_g, print_json};
+use crate::flags::FlagProblems;
+use crate::output::{fmt_g, fmt_num, print_json};
 
 /// Topics of the rig streams in a log: the stream names without the prefix.
 pub use vibro_log::topic;
@@ -110,13 +111,17 @@ fn apply_overrides(scenario: &mut Scenario, args: &SimArgs) -> anyhow::Result<()
     if let Some(d) = args.duration_s {
         let ScenarioKind::Flight(flight) = &mut scenario.kind else {
             bail!(
-                "--duration-s = {d}: applies to flights only; {} is a campaign",
+                "--duration-s = {}: applies to flights only; {} is a campaign",
+                fmt_num(d),
                 scenario.name
             );
         };
-        if !(d.is_finite() && d > 0.0) {
-            bail!("--duration-s = {d}: must be finite and > 0");
+        // The scenario file's own rule on a flight's length.
+        let mut problems = FlagProblems::new();
+        if let Some(rule) = scenario.rates.length_problem(d) {
+            problems.push("--duration-s", d, rule);
         }
+        problems.finish()?;
         flight.duration_s = d;
     }
     if args.no_effects {
@@ -218,12 +223,12 @@ fn list_effects(json: bool) -> anyhow::Result<()> {
         return print_json(&list);
     }
     for e in &list {
-        println!("{:<26} {}", e.kind, e.summary);
+        outln!("{:<26} {}", e.kind, e.summary)?;
         for p in &e.params {
-            println!("    {:<24} [{}] {}", p["name"], p["unit"], p["meaning"]);
+            outln!("    {:<24} [{}] {}", p["name"], p["unit"], p["meaning"])?;
         }
     }
-    println!("\nSwitch one on with --effect kind:key=value,...; docs/effects.md has the formulas.");
+    outln!("\nSwitch one on with --effect kind:key=value,...; docs/effects.md has the formulas.")?;
     Ok(())
 }
 
@@ -465,7 +470,7 @@ fn run_flight(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
     if args.json {
         return print_json(&report);
     }
-    print_flight(&report);
+    print_flight(&report)?;
     Ok(())
 }
 
@@ -606,10 +611,10 @@ pub fn simulate_flight(
     Ok(report)
 }
 
-fn print_flight(report: &FlightReport) {
+fn print_flight(report: &FlightReport) -> anyhow::Result<()> {
     let duration_s = report.duration_s;
     let elapsed_s = report.elapsed_s;
-    println!(
+    outln!(
         "Flight {} ({}), seed {}, {:.1} s: {} sensor samples x3, {} accelerometer samples x3",
         report.scenario,
         report.file,
@@ -617,21 +622,21 @@ fn print_flight(report: &FlightReport) {
         duration_s,
         report.sensor_samples,
         report.output_samples
-    );
-    println!(
+    )?;
+    outln!(
         "  effects: {}",
         if report.effects.is_empty() {
             "none".to_string()
         } else {
             report.effects.join(", ")
         }
-    );
-    println!(
+    )?;
+    outln!(
         "  mean error over the flight (U/K1 minus the sensed acceleration), simulated and by the exact model (no effect):"
-    );
-    println!("  unit    simulated      exact model    of which VE     simulated - exact");
+    )?;
+    outln!("  unit    simulated      exact model    of which VE     simulated - exact")?;
     for u in &report.units {
-        println!(
+        outln!(
             "  {:<6} {:>12}  {:>12}  {:>12}  {:>12} +- {}",
             u.name,
             fmt_g(u.mean_error_g),
@@ -639,9 +644,9 @@ fn print_flight(report: &FlightReport) {
             fmt_g(u.exact_ve_g),
             fmt_g(u.unexplained_g),
             fmt_g(u.unexplained_sigma_g)
-        );
+        )?;
     }
-    println!(
+    outln!(
         "  generated in {:.2} s ({:.1}x real time){}",
         elapsed_s,
         report.real_time_factor,
@@ -650,7 +655,8 @@ fn print_flight(report: &FlightReport) {
             .as_ref()
             .map(|p| format!("; log: {p}"))
             .unwrap_or_default()
-    );
+    )?;
+    Ok(())
 }
 
 #[derive(Debug, Serialize)]
@@ -780,7 +786,7 @@ fn run_campaign(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
     if args.json {
         return print_json(&report);
     }
-    println!(
+    outln!(
         "Campaign {} ({}), passport {}, seed {}, {} conditions in {:.1} s",
         report.scenario,
         report.file,
@@ -788,22 +794,22 @@ fn run_campaign(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
         report.seed,
         report.conditions.len(),
         report.elapsed_s
-    );
-    println!(
+    )?;
+    outln!(
         "  effects: {}",
         if report.effects.is_empty() {
             "none".to_string()
         } else {
             report.effects.join(", ")
         }
-    );
-    println!("  id     angle  direction   tone            sigma3     measured VE           exact        published     z");
+    )?;
+    outln!("  id     angle  direction   tone            sigma3     measured VE           exact        published     z")?;
     for c in &report.conditions {
         let tone = match (c.tone_freq_hz, c.tone_amplitude_g) {
             (Some(f), Some(a)) => format!("{a:.2} g @ {f:.0} Hz"),
             _ => "-".to_string(),
         };
-        println!(
+        outln!(
             "  {:<6} {:>5.0}  {:<10} {:<15} {:>7.3} g  {:>11} +- {:<10} {:>11}  {:>11}  {:>5.1}{}",
             c.id,
             c.angle_deg,
@@ -820,7 +826,7 @@ fn run_campaign(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
             } else {
                 "  (tilt check failed)"
             }
-        );
+        )?;
     }
     Ok(())
 }

@@ -146,13 +146,13 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
         })?;
     } else {
         for r in &reports {
-            println!(
+            outln!(
                 "{:<12} started {} time(s), crashed {}, last exit: {}",
                 r.role,
                 r.starts,
                 r.crashes,
                 r.last_exit.as_deref().unwrap_or("-")
-            );
+            )?;
         }
     }
     anyhow::ensure!(

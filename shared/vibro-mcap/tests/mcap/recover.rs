@@ -172,3 +172,159 @@ fn a_file_without_a_complete_header_cannot_be_recovered() {
     std::fs::write(&damaged, b"not an mcap file at all").unwrap();
     assert!(recover(&damaged, dir.join("out.mcap")).is_err());
 }
+
+/// A finished file of many small zstd chunks with an attachment written before the
+/// messages; its bytes, its chunks (from the `mcap` crate's summary reader, independent
+/// of the code under test), and the offsets of the attachment and of the message-index
+/// records after the second chunk.
+fn file_with_attachment(dir: &std::path::Path) -> (Vec<u8>, Vec<Chunk>, u64, u64) {
+    let path = dir.join("whole.mcap");
+    let options = RecorderOptions {
+        compression: Compression::Zstd,
+        chunk_size_bytes: 8 * 1024,
+        ..RecorderOptions::default()
+    };
+    let mut recorder = Recorder::create(&path, options).unwrap();
+    recorder
+        .add_channel("/accel", MessageKind::AccelBlock)
+        .unwrap();
+    recorder.add_channel("/vib", MessageKind::VibBlock).unwrap();
+    recorder
+        .add_attachment("rig.toml", "text/plain", b"rig = 3\n".to_vec())
+        .unwrap();
+    for seq in 0..30u32 {
+        let t = u64::from(seq) * 10_000_000;
+        recorder
+            .write("/accel", t, t, seq, &accel(seq.into()))
+            .unwrap();
+        recorder
+            .write("/vib", t + 1, t, seq, &vib(seq.into()))
+            .unwrap();
+    }
+    recorder.finish().unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    let mut indexes = summary.chunk_indexes.clone();
+    indexes.sort_by_key(|c| c.chunk_start_offset);
+    let chunks: Vec<Chunk> = indexes
+        .iter()
+        .map(|c| Chunk {
+            start: c.chunk_start_offset,
+            end: c.chunk_start_offset + c.chunk_length,
+            messages: summary.stream_chunk(&bytes, c).unwrap().count() as u64,
+        })
+        .collect();
+    let message_index = *indexes[1].message_index_offsets.values().min().unwrap();
+    let attachment = summary.attachment_indexes[0].offset;
+    (bytes, chunks, attachment, message_index)
+}
+
+/// Recovers `bytes` written to `name` in `dir`.
+fn recover_bytes(dir: &std::path::Path, name: &str, bytes: &[u8]) -> vibro_mcap::RecoverReport {
+    let damaged = dir.join(format!("{name}.mcap"));
+    std::fs::write(&damaged, bytes).unwrap();
+    let out = dir.join(format!("{name}-out.mcap"));
+    let report = recover(&damaged, &out).unwrap_or_else(|e| panic!("{name}: {e}"));
+    // The result reads back whole, with as many messages as reported.
+    assert_eq!(info(&out).unwrap().messages, report.messages_recovered);
+    let read = Reader::open(&out).unwrap().map(Result::unwrap).count() as u64;
+    assert_eq!(read, report.messages_recovered, "{name}");
+    report
+}
+
+/// Writes a u32 of all ones at `at`: a length prefix far beyond its record.
+fn garble_length(bytes: &mut [u8], at: u64) {
+    bytes[at as usize..at as usize + 4].copy_from_slice(&[0xFF; 4]);
+}
+
+/// A garbled message index, attachment or header loses that record only: every chunk
+/// after it is found again (resynchronisation) and all 60 messages are kept; the
+/// damaged region is reported with what it was.
+#[test]
+fn damage_outside_chunks_loses_only_the_damaged_record() {
+    let dir = scratch("resync");
+    let (bytes, chunks, attachment, message_index) = file_with_attachment(&dir);
+    let all: u64 = chunks.iter().map(|c| c.messages).sum();
+    assert_eq!(all, 60);
+    assert!(chunks.len() >= 6, "{} chunks", chunks.len());
+    // Where reading must resume after damage at `at`: the next chunk.
+    let next_chunk = |at: u64| chunks.iter().map(|c| c.start).find(|&s| s > at).unwrap();
+    assert!(
+        attachment < chunks[chunks.len() - 1].start,
+        "a chunk follows the attachment"
+    );
+
+    // Message index: channel id (2 bytes), then the length of its entries.
+    let mut b = bytes.clone();
+    garble_length(&mut b, message_index + 9 + 2);
+    let r = recover_bytes(&dir, "message-index", &b);
+    assert_eq!(r.messages_recovered, all, "{r:?}");
+    assert_eq!(r.chunks_recovered, chunks.len() as u64);
+    assert!(r.input_complete, "{r:?}");
+    assert_eq!(r.damage.len(), 1, "{:?}", r.damage);
+    assert_eq!(r.damage[0].start_byte, message_index);
+    assert_eq!(r.damage[0].end_byte, next_chunk(message_index));
+    assert!(
+        r.damage[0].what.contains("unreadable record"),
+        "{:?}",
+        r.damage
+    );
+
+    // Attachment: two times (16 bytes), then the length of its name.
+    let mut b = bytes.clone();
+    garble_length(&mut b, attachment + 9 + 16);
+    let r = recover_bytes(&dir, "attachment", &b);
+    assert_eq!(r.messages_recovered, all, "{r:?}");
+    assert_eq!(r.attachments, 0);
+    assert_eq!(r.damage.len(), 1, "{:?}", r.damage);
+    assert_eq!(r.damage[0].start_byte, attachment);
+    assert_eq!(r.damage[0].end_byte, next_chunk(attachment));
+
+    // Header: the length of its profile string, first field of the first record.
+    let mut b = bytes.clone();
+    garble_length(&mut b, mcap::MAGIC.len() as u64 + 9);
+    let r = recover_bytes(&dir, "header", &b);
+    assert_eq!(r.messages_recovered, all, "{r:?}");
+    assert!(
+        r.damage[0].what.starts_with("the MCAP header record")
+            && r.damage[0].what.contains("profile claims 4294967295 bytes"),
+        "{:?}",
+        r.damage
+    );
+
+    // A header garbled in a file with no chunk after it is described as such, not as
+    // a file that ends early.
+    let mut b = bytes[..chunks[0].start as usize].to_vec();
+    garble_length(&mut b, mcap::MAGIC.len() as u64 + 9);
+    let damaged = dir.join("header-only.mcap");
+    std::fs::write(&damaged, &b).unwrap();
+    let e = recover(&damaged, dir.join("header-only-out.mcap")).unwrap_err();
+    assert!(matches!(e, Error::Malformed { .. }), "{e}");
+    assert!(
+        e.to_string().contains("MCAP header record is unreadable"),
+        "{e}"
+    );
+}
+
+/// A chunk whose CRC fails is a loss: its messages, counted from its message-index
+/// records, are reported against the count of the undamaged original.
+#[test]
+fn a_crc_failed_chunk_is_reported_with_its_messages() {
+    let dir = scratch("crc-loss");
+    let (mut bytes, chunks, _, _) = file_with_attachment(&dir);
+    let third = chunks[2];
+    // The last byte of the chunk's compressed records: it still decompresses (zstd
+    // checks no checksum here), to different bytes.
+    let at = third.end as usize - 1;
+    bytes[at] ^= 0x01;
+    let r = recover_bytes(&dir, "crc", &bytes);
+    assert_eq!(r.chunks_skipped, 1, "{r:?}");
+    assert_eq!(r.messages_in_skipped_chunks, third.messages);
+    assert_eq!(r.messages_recovered, 60 - third.messages);
+    assert_eq!(r.damage.len(), 1, "{:?}", r.damage);
+    assert_eq!(r.damage[0].messages, Some(third.messages));
+    assert_eq!(
+        (r.damage[0].start_byte, r.damage[0].end_byte),
+        (third.start, third.end)
+    );
+}

@@ -191,25 +191,33 @@ fn validate_sensor(s: &SensorRaw, sensor_hz: f64, p: &mut Problems) -> SensorSpe
     }
 }
 
+impl Rates {
+    /// The rule a record or flight length of `seconds` breaks, if any: finite,
+    /// 0 < length <= 1e6 s and a whole number of output intervals. The one place of the
+    /// rule, shared by the files and `vibrocomp sim --duration-s`.
+    pub fn length_problem(&self, seconds: f64) -> Option<String> {
+        if !(seconds.is_finite() && seconds > 0.0 && seconds <= 1e6) {
+            return Some("must be finite and 0 < length <= 1e6 s".to_string());
+        }
+        if whole(seconds * self.output_hz).is_none() {
+            return Some(format!(
+                "must be a whole number of output intervals (1/output_hz = {} s)",
+                1.0 / self.output_hz
+            ));
+        }
+        None
+    }
+}
+
 /// A record or flight length that must hold a whole number of output intervals.
 fn check_length(key: &str, seconds: f64, rates: &Rates, p: &mut Problems) -> bool {
-    let ok = seconds.is_finite() && seconds > 0.0 && seconds <= 1e6;
-    if !ok {
-        p.push(key, seconds, "must be finite and 0 < length <= 1e6 s");
-        return false;
+    match rates.length_problem(seconds) {
+        Some(rule) => {
+            p.push(key, seconds, rule);
+            false
+        }
+        None => true,
     }
-    if whole(seconds * rates.output_hz).is_none() {
-        p.push(
-            key,
-            seconds,
-            format!(
-                "must be a whole number of output intervals (1/output_hz = {} s)",
-                1.0 / rates.output_hz
-            ),
-        );
-        return false;
-    }
-    true
 }
 
 fn validate_flight(
