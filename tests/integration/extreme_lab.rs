@@ -13,24 +13,8 @@ use std::time::{Duration, Instant};
 
 /// The first 14 conditions of the walkthrough campaign: `vibrocomp sim
 /// lab-walkthrough --threads 2 --lab-csv campaign.csv --ve-resolution-g 1e-6 &&
-/// sed -n 2,16p campaign.csv` (the same rows as vibro-lab's tests/extreme_input.rs).
-const SMALL: &str = "\
-run_id,passport,aL1_g,aL2_g,aL3_g,freq_hz,aB1_g,aB2_g,aB3_g,phase31_deg,phase32_deg,sigma1_g,sigma2_g,sigma3_g,cov31_g2,cov32_g2,kurtosis3,ve_measured_g,ve_uncertainty_g,tp,angle_deg,vibrating_s
-C001,AL-15,0e0,0e0,1e0,2e1,0e0,0e0,9.99980651519183e-1,0e0,0e0,,,,,,,3.202516954835498e-4,1e-6,1e0,0e0,5e0
-C002,AL-15,0e0,0e0,1e0,3e1,0e0,0e0,1.0000029680452949e0,0e0,0e0,,,,,,,5.017162083116443e-4,1e-6,2e0,0e0,5e0
-C003,AL-15,0e0,0e0,1e0,4e1,0e0,0e0,1.000003440408764e0,0e0,0e0,,,,,,,8.034393088758113e-4,1e-6,3e0,0e0,5e0
-C004,AL-15,0e0,0e0,1e0,6e1,0e0,0e0,9.999966794748001e-1,0e0,0e0,,,,,,,3.8925808388661214e-4,1e-6,4e0,0e0,5e0
-C005,AL-15,0e0,0e0,1e0,8e1,0e0,0e0,1.0000001758868302e0,0e0,0e0,,,,,,,1.0960611009239708e-4,1e-6,5e0,0e0,5e0
-C006,AL-15,0e0,0e0,1e0,1.2e2,0e0,0e0,9.999935992697868e-1,0e0,0e0,,,,,,,2.582870967782483e-5,1e-6,6e0,0e0,5e0
-C007,AL-15,0e0,0e0,1e0,1.6e2,0e0,0e0,1.000004976934076e0,0e0,0e0,,,,,,,1.1345874375756981e-5,1e-6,7e0,0e0,5e0
-C008,AL-15,0e0,0e0,1e0,2e1,0e0,0e0,1.9999721464116311e0,0e0,0e0,,,,,,,1.4161481696767e-3,1e-6,8e0,0e0,5e0
-C009,AL-15,0e0,0e0,1e0,3e1,0e0,0e0,1.9999973472054635e0,0e0,0e0,,,,,,,2.319984674849029e-3,1e-6,9e0,0e0,5e0
-C010,AL-15,0e0,0e0,1e0,4e1,0e0,0e0,2.0000046849223474e0,0e0,0e0,,,,,,,3.965590818067524e-3,1e-6,1e1,0e0,5e0
-C011,AL-15,0e0,0e0,1e0,6e1,0e0,0e0,1.999999199359481e0,0e0,0e0,,,,,,,1.7517263717164678e-3,1e-6,1.1e1,0e0,5e0
-C012,AL-15,0e0,0e0,1e0,8e1,0e0,0e0,1.9999946373670887e0,0e0,0e0,,,,,,,4.5560385144730807e-4,1e-6,1.2e1,0e0,5e0
-C013,AL-15,0e0,0e0,1e0,1.2e2,0e0,0e0,2.000000224127965e0,0e0,0e0,,,,,,,1.0422958398860191e-4,1e-6,1.3e1,0e0,5e0
-C014,AL-15,0e0,0e0,1e0,1.6e2,0e0,0e0,1.9999973517830212e0,0e0,0e0,,,,,,,4.556059293547633e-5,1e-6,1.4e1,0e0,5e0
-";
+/// sed -n 2,16p campaign.csv`, shared with vibro-lab's tests/extreme_input.rs.
+const SMALL: &str = include_str!("../../shared/vibro-lab/tests/data/walkthrough-14-rows.csv");
 
 /// `SMALL` with `column` = `value` on the data rows `rows` picks (0-based).
 fn with_cell(column: &str, value: &str, rows: impl Fn(usize) -> bool) -> String {

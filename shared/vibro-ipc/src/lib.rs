@@ -534,6 +534,40 @@ fn event_error(
     }
 }
 
+/// The process ids of the publishers of `service` other than `ours` (by iceoryx2's
+/// node list: each publisher names its node, each node its process). A publisher
+/// whose node is no longer listed is left out.
+fn publisher_pids<T: ZeroCopySend + Debug + 'static>(
+    service: &PubSubFactory<Ipc, T, ()>,
+    ours: Option<&iceoryx2::identifiers::UniquePublisherId>,
+) -> Vec<u32> {
+    let mut nodes = Vec::new();
+    service.dynamic_config().list_publishers(|p| {
+        if Some(&p.publisher_id) != ours {
+            nodes.push(p.node_id);
+        }
+        CallbackProgression::Continue
+    });
+    let mut pids = Vec::new();
+    if nodes.is_empty() {
+        return pids;
+    }
+    let _ = Node::<Ipc>::list(Config::global_config(), |state| {
+        use iceoryx2::node::NodeView;
+        if let NodeState::Alive(v) = &state {
+            if nodes.contains(v.id()) {
+                if let Some(d) = v.details() {
+                    pids.push(d.process_id().value() as u32);
+                }
+            }
+        }
+        CallbackProgression::Continue
+    });
+    pids.sort_unstable();
+    pids.dedup();
+    pids
+}
+
 /// The sending end of a stream.
 pub struct StreamPublisher<T: ZeroCopySend + Debug + 'static> {
     name: String,
@@ -651,6 +685,16 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> StreamPublisher<T> {
         Ok(reached)
     }
 
+    /// Publishers currently connected to the stream (this one included).
+    pub fn publisher_count(&self) -> usize {
+        self.service.dynamic_config().number_of_publishers()
+    }
+
+    /// The process ids of the other publishers on this stream (alive nodes only).
+    pub fn other_publisher_pids(&self) -> Vec<u32> {
+        publisher_pids(&self.service, Some(&self.publisher.id()))
+    }
+
     /// Subscribers currently connected to the stream.
     pub fn subscriber_count(&self) -> usize {
         self.service.dynamic_config().number_of_subscribers()
@@ -743,6 +787,11 @@ impl<T: ZeroCopySend + Debug + 'static> StreamSubscriber<T> {
     /// Publishers currently connected to the stream.
     pub fn publisher_count(&self) -> usize {
         self.service.dynamic_config().number_of_publishers()
+    }
+
+    /// The process ids of the stream's publishers (alive nodes only).
+    pub fn publisher_pids(&self) -> Vec<u32> {
+        publisher_pids(&self.service, None)
     }
 
     pub fn name(&self) -> &str {

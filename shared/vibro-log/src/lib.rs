@@ -158,6 +158,11 @@ pub enum Error {
         stream: String,
         waited_s: f64,
     },
+    /// Another process already publishes a stream a lock-stepped replay would feed:
+    /// the services would take both feeders' blocks as one stream, and the lock-step
+    /// would count the other's messages as this replay's.
+    #[error("another process already publishes on {stream} (pid {pids}): a lock-stepped replay needs to be the only feeder; wait for it to finish, or replay into another prefix")]
+    SecondFeeder { stream: String, pids: String },
     /// A consumer stopped taking messages during a lock-stepped replay.
     #[error("lock-step: {service} has taken {taken} of the {sent} messages sent on {stream} and made no progress for {waited_s} s (did it stop or restart?)")]
     Stalled {
@@ -185,6 +190,16 @@ pub enum Error {
         /// What failed: "cannot open", "cannot read line 12".
         action: String,
         source: std::io::Error,
+    },
+    /// A line longer than the cap of [`import::LineReader`]: the file is not a CSV file
+    /// of rows (a binary file, `/dev/zero`, a never-ending line). Reading stops there.
+    #[error("{path} line {line}: longer than {cap} bytes, the cap on a line (a row of a CSV file read here is under 200 bytes): is it a CSV file? It starts \"{head}\"")]
+    LineTooLong {
+        path: PathBuf,
+        line: u64,
+        cap: usize,
+        /// Its first bytes, escaped.
+        head: String,
     },
     /// An input file that cannot be imported as a whole.
     #[error("{path}: {problem}")]

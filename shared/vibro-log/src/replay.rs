@@ -832,6 +832,51 @@ impl Ports {
             )?,
             shifts: [Shift::default(); 3],
         };
+        // Lock-step counts what the services take as this replay's: a second feeder
+        // (another replay, a live rig) on their inputs would break it, and the
+        // services would see two streams interleaved as one. Refused, not serialised:
+        // the other feeder may run for ever (`--loop`, a rig).
+        if options.pace == Pace::AsFastAsPossible {
+            let others = [
+                (
+                    Stream::Vib,
+                    pubs.vib
+                        .as_ref()
+                        .map(|p| (p.publisher_count(), p.other_publisher_pids())),
+                ),
+                (
+                    Stream::Accel,
+                    pubs.accel
+                        .as_ref()
+                        .map(|p| (p.publisher_count(), p.other_publisher_pids())),
+                ),
+            ];
+            for (stream, found) in others {
+                let Some((count, pids)) = found else { continue };
+                if count > 1 {
+                    let dead = cleanup_dead_nodes(&node);
+                    let pids = match stream {
+                        Stream::Vib => pubs.vib.as_ref().map(|p| p.other_publisher_pids()),
+                        _ => pubs.accel.as_ref().map(|p| p.other_publisher_pids()),
+                    }
+                    .unwrap_or(pids);
+                    if dead > 0 && pids.is_empty() {
+                        continue; // the other publisher was a dead process's
+                    }
+                    return Err(Error::SecondFeeder {
+                        stream: names.stream(stream),
+                        pids: if pids.is_empty() {
+                            "unknown".into()
+                        } else {
+                            pids.iter()
+                                .map(u32::to_string)
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        },
+                    });
+                }
+            }
+        }
         // The services' inputs need someone listening before the first message (the truth
         // is for recorders and monitors, if any).
         let connect_start = Instant::now();

@@ -7,7 +7,7 @@ use mcap::records::{op, Record as McapRecord};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
-use std::io::Read;
+use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 /// One channel of a recording.
@@ -110,25 +110,54 @@ fn span_s(first: Option<u64>, last: Option<u64>) -> f64 {
 }
 
 /// Reads every record of `path` (checking every chunk's CRC) and summarises it.
-/// A truncated file is [`Error::Truncated`]: recover it first.
+/// A file its writer did not finish (no footer: cut short by a kill or a full disk)
+/// is [`Error::Unfinished`], with the number of complete chunks: recover it first.
 pub fn info(path: impl AsRef<Path>) -> Result<LogInfo> {
     let path = path.as_ref();
-    let file = File::open(path).map_err(|e| Error::io("open", path, e))?;
+    let mut file = File::open(path).map_err(|e| Error::io("open", path, e))?;
     let file_bytes = file
         .metadata()
         .map_err(|e| Error::io("stat", path, e))?
         .len();
-    info_from_reader(file, path, file_bytes)
+    let finished =
+        ends_with_magic(&mut file, file_bytes).map_err(|e| Error::io("read", path, e))?;
+    read_info(file, path, file_bytes, Some(finished))
+}
+
+/// Whether the file ends with the MCAP magic, as a finished file does (after its
+/// footer); leaves the file at its start.
+fn ends_with_magic(file: &mut File, file_bytes: u64) -> std::io::Result<bool> {
+    let n = mcap::MAGIC.len() as u64;
+    if file_bytes < 2 * n {
+        return Ok(false);
+    }
+    let mut tail = [0u8; 8];
+    file.seek(SeekFrom::Start(file_bytes - n))?;
+    file.read_exact(&mut tail[..mcap::MAGIC.len()])?;
+    file.seek(SeekFrom::Start(0))?;
+    Ok(tail[..mcap::MAGIC.len()] == *mcap::MAGIC)
 }
 
 /// [`info`] of a recording read from `source` (a file, or bytes in memory) of
 /// `file_bytes` bytes; `name` stands for the file in the summary and in errors.
 pub fn info_from_reader(
-    mut source: impl Read,
+    source: impl Read,
     name: impl AsRef<Path>,
     file_bytes: u64,
 ) -> Result<LogInfo> {
-    let path = name.as_ref();
+    read_info(source, name.as_ref(), file_bytes, None)
+}
+
+/// [`info_from_reader`], knowing whether the file ends with the magic (`finished`),
+/// if that is known: a file cut short, or one whose record claims more bytes than the
+/// file has, is [`Error::Unfinished`] unless it ends as a finished file does (then its
+/// damage is something else, reported as it is).
+fn read_info(
+    mut source: impl Read,
+    path: &Path,
+    file_bytes: u64,
+    finished: Option<bool>,
+) -> Result<LogInfo> {
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_emit_chunks(true)
@@ -160,8 +189,22 @@ pub fn info_from_reader(
         channels: BTreeMap::new(),
         out,
     };
+    // Chunks read whole with their CRC checked: what a recovery keeps of a cut file.
+    let mut complete_chunks = 0u64;
     while let Some(event) = reader.next_event() {
-        match event.map_err(|e| Error::mcap(path, e))? {
+        let event = match event {
+            Ok(event) => event,
+            Err(mcap::McapError::UnexpectedEof | mcap::McapError::RecordTooLarge { .. })
+                if finished != Some(true) =>
+            {
+                return Err(Error::Unfinished {
+                    path: path.to_path_buf(),
+                    chunks: complete_chunks,
+                })
+            }
+            Err(e) => return Err(Error::mcap(path, e)),
+        };
+        match event {
             LinearReadEvent::ReadRequest(need) => {
                 let n = source
                     .read(reader.insert(need))
@@ -179,6 +222,7 @@ pub fn info_from_reader(
                 };
                 let records = guard::chunk(&header, &data, &mut chunk_buf)
                     .map_err(|e| Error::chunk(path, e))?;
+                complete_chunks += 1;
                 for (opcode, body) in records {
                     summarise(guard::parse(path, opcode, body)?, &mut summary)?;
                 }
@@ -313,6 +357,69 @@ mod tests {
         bytes.extend_from_slice(&0x0A0D_0000_0000_0000u64.to_le_bytes());
         let e = info_from_reader(bytes.as_slice(), "huge.mcap", bytes.len() as u64).unwrap_err();
         assert!(e.to_string().starts_with("huge.mcap: "), "{e}");
+    }
+
+    /// A finished file of `chunks` chunks of one message each, written by `mcap`, and
+    /// where each chunk ends.
+    fn finished_file(chunks: u64) -> (Vec<u8>, Vec<usize>) {
+        let mut w = mcap::WriteOptions::new()
+            .chunk_size(Some(1))
+            .create(std::io::Cursor::new(Vec::new()))
+            .unwrap();
+        let channel = w.add_channel(0, "/t", "raw", &BTreeMap::new()).unwrap();
+        for i in 0..chunks {
+            let header = mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: i as u32,
+                log_time: i,
+                publish_time: i,
+            };
+            w.write_to_known_channel(&header, &[1, 2, 3]).unwrap();
+        }
+        w.finish().unwrap();
+        let bytes = w.into_inner().into_inner();
+        // Walk the records: opcode, u64 length, body.
+        let mut ends = Vec::new();
+        let mut at = mcap::MAGIC.len();
+        while at + 9 <= bytes.len() - mcap::MAGIC.len() {
+            let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+            if bytes[at] == op::CHUNK {
+                ends.push(at + 9 + len);
+            }
+            at += 9 + len;
+        }
+        (bytes, ends)
+    }
+
+    #[test]
+    fn a_file_cut_short_is_unfinished_with_its_complete_chunks() {
+        let (bytes, ends) = finished_file(4);
+        // A chunk per message, and the channel's own, first.
+        assert_eq!(ends.len(), 5, "{ends:?}");
+        let whole = info_from_reader(bytes.as_slice(), "f.mcap", bytes.len() as u64).unwrap();
+        assert_eq!(whole.messages, 4);
+        // Mid-chunk, right after a chunk, just before the end (in the footer), and
+        // inside the first chunk (its length then exceeds the file).
+        for (cut, chunks) in [
+            ((ends[1] + ends[2]) / 2, 2),
+            (ends[2], 3),
+            (bytes.len() - mcap::MAGIC.len() - 1, 5),
+            (ends[0] - 2, 0),
+        ] {
+            let part = &bytes[..cut];
+            let e = read_info(part, "f.mcap".as_ref(), part.len() as u64, Some(false))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.starts_with("f.mcap: unfinished MCAP file (no footer"),
+                "cut at {cut}: {e}"
+            );
+            assert!(
+                e.contains(&format!(": {chunks} complete chunk(s) readable")),
+                "cut at {cut}: {e}"
+            );
+            assert!(!e.contains("opcode"), "cut at {cut}: {e}");
+        }
     }
 
     #[test]

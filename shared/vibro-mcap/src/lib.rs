@@ -111,6 +111,11 @@ pub enum Error {
     /// The file ends in the middle of a record (a crash, or a copy in progress).
     #[error("{path}: file ends in the middle of a record; `vibro_mcap::recover` rewrites it up to its last complete chunk")]
     Truncated { path: PathBuf },
+    /// The file has no footer: its writer stopped before finishing it (killed, out of
+    /// disk), so its last record is cut short or its summary is missing. Found by
+    /// [`info`]; the complete chunks before the cut can be recovered.
+    #[error("{path}: unfinished MCAP file (no footer: the writer stopped before finishing it, e.g. killed or out of disk): {chunks} complete chunk(s) readable; `vibro_mcap::recover` keeps them")]
+    Unfinished { path: PathBuf, chunks: u64 },
     /// The `mcap` library reported an error reading or writing a file.
     #[error("{path}: {source}")]
     Mcap {
@@ -183,9 +188,10 @@ pub enum Error {
         sequence: u32,
         capacity: usize,
     },
-    /// The recorder's writer thread has stopped after an error; `finish()` returns it.
-    #[error("recorder for {path} has stopped writing (finish() returns the cause)")]
-    RecorderStopped { path: PathBuf },
+    /// The recorder's writer thread has stopped after an error: `cause` is that error
+    /// (the operating system's reason for a full disk), which `finish()` returns.
+    #[error("recorder for {path} has stopped writing: {cause}")]
+    RecorderStopped { path: PathBuf, cause: String },
     /// The recorder's writer thread panicked.
     #[error("recorder writer thread for {path} panicked")]
     WriterPanicked { path: PathBuf },

@@ -24,7 +24,7 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use vibro_msgs::MessageKind;
@@ -168,6 +168,11 @@ struct Counters {
     accepted: AtomicU64,
     rejected_full: AtomicU64,
     written: AtomicU64,
+    /// Why the writer thread stopped, set before it lets go of the queue: every later
+    /// `write` and control call sees [`Error::RecorderStopped`] with it, so a caller
+    /// that never reaches `finish()` (a loop that returns on the first error) still
+    /// shows the operating system's reason (a full disk), not only that writing stopped.
+    cause: OnceLock<String>,
 }
 
 /// What travels to the writer thread. Messages are copied in by value (see [`Message`]).
@@ -217,8 +222,14 @@ impl Recorder {
     /// Creates (truncates) `path` and starts the writer thread.
     pub fn create(path: impl AsRef<Path>, options: RecorderOptions) -> Result<Recorder> {
         let path = path.as_ref().to_path_buf();
-        let flush_interval = options.check()?;
+        options.check()?;
         let file = std::fs::File::create(&path).map_err(|e| Error::io("create", &path, e))?;
+        Self::start(file, path, options)
+    }
+
+    /// Starts recording into `file`, already open for writing, named `path` in errors.
+    fn start(file: std::fs::File, path: PathBuf, options: RecorderOptions) -> Result<Recorder> {
+        let flush_interval = options.check()?;
         let write_options = mcap::WriteOptions::new()
             .compression(match options.compression {
                 Compression::Zstd => Some(mcap::Compression::Zstd),
@@ -229,7 +240,7 @@ impl Recorder {
             .profile(options.profile.clone());
         let writer = write_options
             .create(BufWriter::new(file))
-            .map_err(|e| Error::mcap(&path, e))?;
+            .map_err(|e| write_error(&path, e))?;
 
         let (tx, rx) = std::sync::mpsc::sync_channel(options.queue_capacity);
         let counters = Arc::new(Counters::default());
@@ -239,17 +250,23 @@ impl Recorder {
             std::thread::Builder::new()
                 .name("mcap-recorder".to_string())
                 .spawn(move || {
-                    WriterThread {
+                    let result = WriterThread {
                         path: thread_path,
                         writer,
                         flush_interval,
-                        counters,
+                        counters: Arc::clone(&counters),
                         topics: BTreeMap::new(),
                         buf: Vec::with_capacity(16 * 1024),
                         attachments: 0,
                         metadata: 0,
                     }
-                    .run(rx)
+                    .run(&rx);
+                    if let Err(e) = &result {
+                        let _ = counters.cause.set(describe_cause(e));
+                    }
+                    // Only now may senders see the queue disconnected: the cause is set.
+                    drop(rx);
+                    result
                 })
                 .map_err(|e| Error::io("start the writer thread for", &path, e))?
         };
@@ -442,8 +459,13 @@ impl Recorder {
     }
 
     fn stopped(&self) -> Error {
+        let cause = self.counters.cause.get().map_or_else(
+            || "its writer thread ended without an error (it panicked)".to_string(),
+            Clone::clone,
+        );
         Error::RecorderStopped {
             path: self.path.clone(),
+            cause,
         }
     }
 }
@@ -470,7 +492,7 @@ struct WriterThread {
 }
 
 impl WriterThread {
-    fn run(mut self, rx: Receiver<Command>) -> Result<RecordingSummary> {
+    fn run(mut self, rx: &Receiver<Command>) -> Result<RecordingSummary> {
         // When the open chunk got its first message: it must be closed by then + interval.
         let mut open_since: Option<Instant> = None;
         loop {
@@ -514,14 +536,14 @@ impl WriterThread {
                 let schema_id = self
                     .writer
                     .add_schema_with_id(schema_id(kind), s.name, SCHEMA_ENCODING, s.data)
-                    .map_err(|e| Error::mcap(path, e))?;
+                    .map_err(|e| write_error(path, e))?;
                 let metadata = BTreeMap::from([(
                     "vibrocomp.type_name".to_string(),
                     kind.type_name().to_string(),
                 )]);
                 self.writer
                     .add_channel_with_id(id, schema_id, &topic, MESSAGE_ENCODING, &metadata)
-                    .map_err(|e| Error::mcap(path, e))?;
+                    .map_err(|e| write_error(path, e))?;
                 self.topics.insert(id, (topic, 0));
                 Ok(true)
             }
@@ -541,7 +563,7 @@ impl WriterThread {
                 };
                 self.writer
                     .write_to_known_channel(&header, &self.buf)
-                    .map_err(|e| Error::mcap(path, e))?;
+                    .map_err(|e| write_error(path, e))?;
                 if let Some((_, n)) = self.topics.get_mut(&channel_id) {
                     *n += 1;
                 }
@@ -563,7 +585,7 @@ impl WriterThread {
                         media_type,
                         data: Cow::Owned(data),
                     })
-                    .map_err(|e| Error::mcap(path, e))?;
+                    .map_err(|e| write_error(path, e))?;
                 self.attachments += 1;
                 // Attachments live outside chunks: the open chunk was closed first.
                 Ok(false)
@@ -574,7 +596,7 @@ impl WriterThread {
                         name,
                         metadata: entries,
                     })
-                    .map_err(|e| Error::mcap(path, e))?;
+                    .map_err(|e| write_error(path, e))?;
                 self.metadata += 1;
                 Ok(false)
             }
@@ -582,12 +604,12 @@ impl WriterThread {
     }
 
     fn flush(&mut self) -> Result<()> {
-        self.writer.flush().map_err(|e| Error::mcap(&self.path, e))
+        self.writer.flush().map_err(|e| write_error(&self.path, e))
     }
 
     fn finish(mut self) -> Result<RecordingSummary> {
         let path = self.path.clone();
-        let summary = self.writer.finish().map_err(|e| Error::mcap(&path, e))?;
+        let summary = self.writer.finish().map_err(|e| write_error(&path, e))?;
         let file = self
             .writer
             .into_inner()
@@ -615,8 +637,123 @@ impl WriterThread {
     }
 }
 
+/// An error of the `mcap` writer for `path`. Its I/O errors become [`Error::Io`], whose
+/// message carries the operating system's reason: `mcap`'s own message for them ("I/O
+/// error from writing, or reading a compression stream") leaves it to the source chain,
+/// which a caller printing with `{}` never shows.
+fn write_error(path: &Path, e: mcap::McapError) -> Error {
+    match e {
+        mcap::McapError::Io(source) => Error::io("write", path, source),
+        e => Error::mcap(path, e),
+    }
+}
+
+/// The writer thread's error as [`Error::RecorderStopped`] repeats it: without the path,
+/// which that message names already.
+fn describe_cause(e: &Error) -> String {
+    match e {
+        Error::Io { action, source, .. } => format!("cannot {action} it: {source}"),
+        e => e.to_string(),
+    }
+}
+
 fn unix_time_ns() -> u64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vibro_msgs::AccelBlock;
+
+    /// `/dev/full` fails every write with ENOSPC, as a full disk does. It is opened for
+    /// writing only (no truncation, no replacement), so the device itself is untouched.
+    fn full_disk() -> Recorder {
+        let path = PathBuf::from("/dev/full");
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .open(&path)
+            .expect("/dev/full opens for writing");
+        let options = RecorderOptions {
+            chunk_size_bytes: 4096,
+            flush_interval_s: 0.01,
+            ..RecorderOptions::default()
+        };
+        Recorder::start(file, path, options).expect("the recorder starts")
+    }
+
+    /// The operating system's reason for ENOSPC, as `io::Error` prints it.
+    const ENOSPC: &str = "(os error 28)";
+
+    #[test]
+    fn a_full_disk_is_reported_with_its_cause_by_write_control_calls_and_finish() {
+        let mut rec = full_disk();
+        let accel = rec
+            .add_channel("accel", MessageKind::AccelBlock)
+            .expect("channel");
+        let deadline = Instant::now() + Duration::from_secs(20);
+        let mut seq = 0u32;
+        let stopped = loop {
+            assert!(Instant::now() < deadline, "no write failed on /dev/full");
+            let mut m = AccelBlock::ZEROED;
+            m.seq = u64::from(seq);
+            match rec.write_to(&accel, u64::from(seq), 0, seq, m.into()) {
+                Ok(()) | Err(Error::QueueFull { .. }) => {
+                    std::thread::sleep(Duration::from_micros(100));
+                    seq += 1;
+                }
+                Err(e) => break e,
+            }
+        };
+        let text = stopped.to_string();
+        assert!(
+            matches!(stopped, Error::RecorderStopped { .. }),
+            "write: {text}"
+        );
+        assert!(text.contains("/dev/full"), "write names no file: {text}");
+        assert!(text.contains(ENOSPC), "write hides the cause: {text}");
+        assert_eq!(
+            text.matches(ENOSPC).count(),
+            1,
+            "write repeats the cause: {text}"
+        );
+
+        let control = rec
+            .add_metadata("run", BTreeMap::new())
+            .expect_err("a control call after the stop fails");
+        assert!(
+            control.to_string().contains(ENOSPC),
+            "add_metadata hides the cause: {control}"
+        );
+
+        let finished = rec.finish().expect_err("finish reports the full disk");
+        let text = finished.to_string();
+        assert!(text.contains("/dev/full"), "finish names no file: {text}");
+        assert!(text.contains(ENOSPC), "finish hides the cause: {text}");
+        match &finished {
+            Error::Io { source, .. } => {
+                // ENOSPC on Linux, the platform with `/dev/full`.
+                assert_eq!(source.raw_os_error(), Some(28), "{text}")
+            }
+            other => panic!("finish: not an I/O error: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn finish_alone_reports_a_full_disk_with_its_cause() {
+        // Nothing but the header and a channel: the first write to the disk is finish's.
+        let mut rec = full_disk();
+        rec.add_channel("accel", MessageKind::AccelBlock)
+            .expect("channel");
+        let text = rec
+            .finish()
+            .expect_err("finish reports the full disk")
+            .to_string();
+        assert!(
+            text.contains("/dev/full") && text.contains(ENOSPC),
+            "finish: {text}"
+        );
+    }
 }

@@ -11,7 +11,7 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 use tracing::{error, info, warn};
-use vibro_ipc::{create_node, StreamSubscriber};
+use vibro_ipc::{cleanup_dead_nodes, create_node, StreamSubscriber};
 use vibro_msgs::{Heartbeat, ServiceId, ServiceNames, Stream};
 
 /// Makes the child receive SIGTERM when the thread that starts it ends, so that a
@@ -82,6 +82,99 @@ pub fn wait_for_heartbeats(
         std::thread::sleep(Duration::from_millis(20));
     }
     Ok(())
+}
+
+/// A service found running under a prefix by [`running_on`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Running {
+    pub service: ServiceId,
+    /// The heartbeat stream it was found on.
+    pub stream: String,
+    /// The process ids of its heartbeat's publishers (alive iceoryx2 nodes).
+    pub pids: Vec<u32>,
+    /// Whether a heartbeat arrived within the wait (a publisher may also be a hung
+    /// process: it still holds the names).
+    pub heartbeat_seen: bool,
+}
+
+impl std::fmt::Display for Running {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let pids: Vec<String> = self.pids.iter().map(u32::to_string).collect();
+        write!(
+            f,
+            "{} on {} (pid {}{})",
+            self.service,
+            self.stream,
+            if pids.is_empty() {
+                "unknown".to_string()
+            } else {
+                pids.join(", ")
+            },
+            if self.heartbeat_seen {
+                ", heartbeat seen"
+            } else {
+                ", no heartbeat yet"
+            }
+        )
+    }
+}
+
+/// Which of `services` already run under `names`: a heartbeat publisher of an alive
+/// process (dead nodes are cleaned up first), or a heartbeat within `wait`. Returns
+/// at once when nobody publishes there; otherwise waits up to `wait` for a heartbeat
+/// of each service found.
+pub fn running_on(
+    names: &ServiceNames,
+    services: &[ServiceId],
+    wait: Duration,
+) -> anyhow::Result<Vec<Running>> {
+    let node = create_node("vibrocomp-probe").context("iceoryx2 node")?;
+    let cleaned = cleanup_dead_nodes(&node);
+    if cleaned > 0 {
+        info!(cleaned, "removed the resources of dead iceoryx2 nodes");
+    }
+    let subs = services
+        .iter()
+        .map(|&s| {
+            let stream = Stream::Heartbeat(s);
+            StreamSubscriber::<Heartbeat>::open(&node, names, stream)
+                .with_context(|| format!("subscribing to {}", names.stream(stream)))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let mut found: Vec<Running> = services
+        .iter()
+        .zip(&subs)
+        .map(|(&service, sub)| Running {
+            service,
+            stream: sub.name().to_string(),
+            pids: sub.publisher_pids(),
+            heartbeat_seen: false,
+        })
+        .collect();
+    let publishers =
+        |subs: &[StreamSubscriber<Heartbeat>]| subs.iter().any(|s| s.publisher_count() > 0);
+    if publishers(&subs) {
+        let start = Instant::now();
+        loop {
+            for (r, sub) in found.iter_mut().zip(&subs) {
+                while sub.receive()?.is_some() {
+                    r.heartbeat_seen = true;
+                }
+            }
+            let waiting = found
+                .iter()
+                .zip(&subs)
+                .any(|(r, s)| !r.heartbeat_seen && s.publisher_count() > 0);
+            if !waiting || start.elapsed() > wait {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+    Ok(found
+        .into_iter()
+        .filter(|r| r.heartbeat_seen || !r.pids.is_empty())
+        .collect())
 }
 
 /// A child process that is stopped (SIGTERM, then SIGKILL) when dropped.

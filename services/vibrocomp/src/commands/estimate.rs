@@ -17,6 +17,7 @@ use vibro_dsp::{
 };
 
 use crate::output::print_json;
+use vibro_log::import::LineReader;
 
 /// Samples handed to the estimator at a time: the block size of a recorder's stream.
 const BLOCK_SAMPLES: usize = 4096;
@@ -207,33 +208,47 @@ fn parse_band(text: &str) -> anyhow::Result<[f64; 2]> {
 
 /// One data line of a CSV file: its 1-based line number and its cells.
 struct Line {
-    number: usize,
+    number: u64,
     text: String,
 }
 
-/// Reads the lines of a numeric CSV file, skipping blank and `#` lines.
+/// Reads the lines of a numeric CSV file, skipping blank and `#` lines, through
+/// vibro-log's capped line reader: a line over [`vibro_log::import::MAX_LINE_BYTES`]
+/// (`/dev/zero`, a binary file) stops the reading with its number and first bytes.
 struct CsvLines<R> {
-    reader: R,
-    number: usize,
+    reader: LineReader<R>,
+    /// The current line's bytes, reused from line to line.
+    bytes: Vec<u8>,
 }
 
 impl<R: BufRead> CsvLines<R> {
+    fn new(reader: R, file: &Path) -> CsvLines<R> {
+        CsvLines {
+            reader: LineReader::new(reader, file),
+            bytes: Vec::new(),
+        }
+    }
+
     fn next_line(&mut self, file: &Path) -> anyhow::Result<Option<Line>> {
         loop {
-            let mut text = String::new();
-            let n = self.reader.read_line(&mut text).with_context(|| {
-                format!("{}: cannot read line {}", file.display(), self.number + 1)
-            })?;
-            if n == 0 {
+            if self.reader.read_line(&mut self.bytes)?.is_none() {
                 return Ok(None);
             }
-            self.number += 1;
+            let number = self.reader.line();
+            let text = std::str::from_utf8(&self.bytes).map_err(|_| {
+                // As `BufRead::read_line` said it before this reader.
+                anyhow::Error::new(std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    "stream did not contain valid UTF-8",
+                ))
+                .context(format!("{}: cannot read line {number}", file.display()))
+            })?;
             let trimmed = text.trim();
             if trimmed.is_empty() || trimmed.starts_with('#') {
                 continue;
             }
             return Ok(Some(Line {
-                number: self.number,
+                number,
                 text: trimmed.to_string(),
             }));
         }
@@ -284,13 +299,13 @@ fn read_and_estimate(
     let handle = File::open(file).with_context(|| format!("{name}: cannot open"))?;
     let total_bytes = handle.metadata().map(|m| m.len()).unwrap_or(0);
     let bytes = std::rc::Rc::new(std::cell::Cell::new(0));
-    let mut lines = CsvLines {
-        reader: BufReader::new(Counted {
+    let mut lines = CsvLines::new(
+        BufReader::new(Counted {
             inner: handle,
             bytes: bytes.clone(),
         }),
-        number: 0,
-    };
+        file,
+    );
     let bar = progress_bar(total_bytes);
 
     let mut columns = ["x".to_string(), "y".to_string(), "z".to_string()];
@@ -415,10 +430,7 @@ fn read_response(file: &Path) -> anyhow::Result<Vec<ResponsePoint>> {
     ];
     let name = file.display().to_string();
     let handle = File::open(file).with_context(|| format!("{name}: cannot open"))?;
-    let mut lines = CsvLines {
-        reader: BufReader::new(handle),
-        number: 0,
-    };
+    let mut lines = CsvLines::new(BufReader::new(handle), file);
     let Some(header) = lines.next_line(file)? else {
         bail!(
             "{name}: empty response table (header: {})",

@@ -105,6 +105,19 @@ fn check_mcap_file(path: &Path) -> anyhow::Result<u64> {
 fn read_info(path: &Path) -> anyhow::Result<LogInfo> {
     check_mcap_file(path)?;
     vibro_mcap::info(path).map_err(|e| {
+        // Said once, with the command that recovers it (not as a context over the
+        // library's own text, which names the library function).
+        if let vibro_mcap::Error::Unfinished { chunks, .. } = e {
+            let p = path.display();
+            let keep = if chunks == 0 {
+                format!("no complete chunk: `vibrocomp log recover {p} OUT.mcap` keeps only what precedes the first chunk, if anything")
+            } else {
+                format!("{chunks} complete chunk(s) readable; recover them with: vibrocomp log recover {p} OUT.mcap")
+            };
+            return anyhow::anyhow!(
+                "{p} is damaged: unfinished MCAP file (no footer: the writer stopped before finishing it, e.g. killed or out of disk): {keep}"
+            );
+        }
         let damaged = matches!(
             e,
             vibro_mcap::Error::Truncated { .. }

@@ -10,10 +10,15 @@
 //!
 //! Effects of the scenario can be switched off (`--no-effects`) or on and tuned
 //! (`--effect kind:key=value,...`); `--list-effects` prints the library.
+//!
+//! A flight with `--out` stopped by SIGINT (Ctrl-C) or SIGTERM stops generating between
+//! chunks, finishes the log (a valid MCAP holding every message written so far), says
+//! on stderr the simulated time it reached and exits with status 1.
 
 use std::collections::BTreeMap;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicI32, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
@@ -53,6 +58,8 @@ pub struct SimArgs {
     #[arg(long)]
     pub no_effects: bool,
     /// Flight: writes the rig streams, the truth and the scenario to this MCAP log.
+    /// Stopped by SIGINT/SIGTERM, the flight ends early with the log finished (valid,
+    /// holding what was generated so far) and exit status 1.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Flight: publishes the rig streams over iceoryx2 at real-time rate.
@@ -465,7 +472,12 @@ fn run_flight(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
     } else {
         None
     };
-    let mut report = simulate_flight(scenario, args.out.as_deref(), live)?;
+    // Only a flight into a file is worth finishing on a signal; a live-only flight
+    // keeps the default action (its publishers are released when the process ends).
+    let stop = args.out.as_ref().map(|_| StopSignal::install());
+    let result = simulate(scenario, args.out.as_deref(), live, stop.as_ref());
+    drop(stop);
+    let mut report = result?;
     report.live_prefix = args.live.then(|| args.prefix.clone());
     if args.json {
         return print_json(&report);
@@ -480,7 +492,70 @@ fn run_flight(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
 pub fn simulate_flight(
     scenario: &Scenario,
     out: Option<&Path>,
+    live: Option<Live>,
+) -> anyhow::Result<FlightReport> {
+    simulate(scenario, out, live, None)
+}
+
+/// The signal (SIGINT or SIGTERM) caught while a [`StopSignal`] is installed, or 0.
+static CAUGHT_SIGNAL: AtomicI32 = AtomicI32::new(0);
+
+extern "C" fn on_stop_signal(signal: libc::c_int) {
+    // Async-signal-safe: one store to an atomic.
+    CAUGHT_SIGNAL.store(signal, Ordering::Release);
+}
+
+/// SIGINT/SIGTERM handlers that only note the signal, so that a flight into a log
+/// stops between chunks and finishes its file; dropping it restores the default
+/// action (a second Ctrl-C after the flight ends kills as usual).
+pub struct StopSignal(());
+
+impl StopSignal {
+    fn install() -> StopSignal {
+        CAUGHT_SIGNAL.store(0, Ordering::Release);
+        // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+        unsafe {
+            libc::signal(
+                libc::SIGINT,
+                on_stop_signal as *const () as libc::sighandler_t,
+            );
+            libc::signal(
+                libc::SIGTERM,
+                on_stop_signal as *const () as libc::sighandler_t,
+            );
+        }
+        StopSignal(())
+    }
+
+    /// The signal caught so far, if any.
+    fn caught(&self) -> Option<&'static str> {
+        match CAUGHT_SIGNAL.load(Ordering::Acquire) {
+            0 => None,
+            libc::SIGINT => Some("SIGINT"),
+            libc::SIGTERM => Some("SIGTERM"),
+            _ => Some("a signal"),
+        }
+    }
+}
+
+impl Drop for StopSignal {
+    fn drop(&mut self) {
+        // SAFETY: restores the default actions; no handler state is left behind.
+        unsafe {
+            libc::signal(libc::SIGINT, libc::SIG_DFL);
+            libc::signal(libc::SIGTERM, libc::SIG_DFL);
+        }
+    }
+}
+
+/// [`simulate_flight`], stopping between chunks once `stop` has caught a signal: the
+/// log is then finished with what was generated, and the result is an error saying
+/// where the flight stopped.
+fn simulate(
+    scenario: &Scenario,
+    out: Option<&Path>,
     mut live: Option<Live>,
+    stop: Option<&StopSignal>,
 ) -> anyhow::Result<FlightReport> {
     let effects_text = effect_labels(scenario);
     let effects = vibro_sim::scenario_effects(scenario)?;
@@ -520,7 +595,16 @@ pub fn simulate_flight(
         }
         Ok(())
     };
-    while let Some(chunk) = sim.next_chunk()? {
+    let mut interrupted = None;
+    loop {
+        // Once per chunk, never per sample.
+        if let Some(signal) = stop.and_then(StopSignal::caught) {
+            interrupted = Some(signal);
+            break;
+        }
+        let Some(chunk) = sim.next_chunk()? else {
+            break;
+        };
         for (row, truth) in chunk.accel_v().iter().zip(chunk.truth()) {
             let batch = ((n / batch_len) as usize).min(BATCHES - 1);
             for u in 0..3 {
@@ -557,8 +641,24 @@ pub fn simulate_flight(
         std::thread::sleep(Duration::from_millis(300));
     }
     bar.finish_and_clear();
-    if let Some(rec) = recorder {
-        rec.finish().context("finishing the log")?;
+    let finished = match recorder {
+        Some(rec) => Some(rec.finish().context("finishing the log")?),
+        None => None,
+    };
+    if let Some(signal) = interrupted {
+        let reached_s = n as f64 / rates.output_hz;
+        let log = match (&finished, out) {
+            (Some(f), Some(path)) => format!(
+                "; {} is finished with the {} messages written so far",
+                path.display(),
+                f.messages
+            ),
+            _ => String::new(),
+        };
+        bail!(
+            "interrupted by {signal} at simulated time {reached_s:.3} s of {:.3} s{log}",
+            sim.duration_s()
+        );
     }
     let elapsed_s = started.elapsed().as_secs_f64();
     let nf = n.max(1) as f64;

@@ -8,8 +8,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 use tokio::sync::mpsc;
 use tracing::info;
-use vibro_msgs::ServiceNames;
-use vibro_service::supervise::{supervise, ProcessReport, RestartLimits};
+use vibro_msgs::{ServiceId, ServiceNames};
+use vibro_service::supervise::{running_on, supervise, ProcessReport, RestartLimits};
 use vibro_service::{init_tracing, run_service, ServiceConfig};
 
 use crate::output::print_json;
@@ -72,6 +72,30 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
     match &args.compensator_config {
         Some(p) => drop(vibro_compensator::Config::load(p)?),
         None => drop(vibro_compensator::Config::load_default()?),
+    }
+    if let Some(out) = &args.record {
+        check_record_path(out)?;
+    }
+    // Two systems on one prefix would each compensate every block: refuse to start
+    // beside a running one (docs/services.md, "Running the system").
+    let names = ServiceNames::new(&args.prefix)?;
+    let running = running_on(
+        &names,
+        &[
+            ServiceId::Estimator,
+            ServiceId::Compensator,
+            ServiceId::Recorder,
+        ],
+        Duration::from_millis(1500),
+    )
+    .context("looking for a system already running on the prefix")?;
+    if !running.is_empty() {
+        let list: Vec<String> = running.iter().map(|r| r.to_string()).collect();
+        anyhow::bail!(
+            "a system is already running on prefix {:?}: {}; stop it first or choose another --prefix",
+            args.prefix,
+            list.join("; ")
+        );
     }
     let spec = SystemSpec {
         prefix: args.prefix.clone(),
@@ -159,5 +183,29 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
         !gave_up,
         "a service crashed too often; the system was stopped"
     );
+    Ok(())
+}
+
+/// Refuses a recording path the recorder could not write, before any service starts:
+/// a directory, a missing folder, a device or link ([`vibro_log::output::check_output`];
+/// an existing regular file is replaced, as `vibrocomp record` does), or a folder this
+/// user cannot create a file in (probed by creating the file's entry and removing it).
+fn check_record_path(out: &std::path::Path) -> anyhow::Result<()> {
+    vibro_log::output::check_output(out, &[], true)
+        .with_context(|| format!("--record {}", out.display()))?;
+    if out.exists() {
+        std::fs::OpenOptions::new()
+            .append(true)
+            .open(out)
+            .with_context(|| format!("--record {}: cannot write it", out.display()))?;
+    } else {
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(out)
+            .with_context(|| format!("--record {}: cannot create it", out.display()))?;
+        std::fs::remove_file(out)
+            .with_context(|| format!("--record {}: removing the probe", out.display()))?;
+    }
     Ok(())
 }

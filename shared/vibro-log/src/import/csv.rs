@@ -3,9 +3,10 @@
 //! and rule.
 
 use std::fs::File;
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::io::BufReader;
+use std::path::Path;
 
+use super::lines::LineReader;
 use super::{ImportKind, MAX_PROBLEMS, MAX_TIME_S};
 use crate::{Error, Result};
 
@@ -127,8 +128,8 @@ pub(super) enum RowRead {
 /// needs no quoting rules beyond trimming quotes off a cell), so that every reported
 /// line number is the file's own, comment and blank lines included.
 pub(super) struct CsvRows {
-    path: PathBuf,
-    reader: BufReader<File>,
+    /// Capped at [`super::MAX_LINE_BYTES`] a line.
+    reader: LineReader<BufReader<File>>,
     /// The current line, without its line ending.
     text: Vec<u8>,
     /// 1-based number of the current line.
@@ -167,30 +168,6 @@ fn split_cells(text: &[u8], cells: &mut Vec<(usize, usize)>) {
     }
 }
 
-/// Reads the next line into `text` (line ending removed); false at the end of the file.
-fn read_line(
-    reader: &mut BufReader<File>,
-    text: &mut Vec<u8>,
-    path: &Path,
-    line: u64,
-) -> Result<Option<usize>> {
-    text.clear();
-    let n = reader
-        .read_until(b'\n', text)
-        .map_err(|source| Error::ReadInput {
-            path: path.to_path_buf(),
-            action: format!("cannot read line {}", line + 1),
-            source,
-        })?;
-    if n == 0 {
-        return Ok(None);
-    }
-    while text.last().is_some_and(|&b| b == b'\n' || b == b'\r') {
-        text.pop();
-    }
-    Ok(Some(n))
-}
-
 /// A line that carries no row: blank, or a `#` comment.
 fn is_skipped(text: &[u8]) -> bool {
     match text.iter().position(|b| !b.is_ascii_whitespace()) {
@@ -212,7 +189,7 @@ impl CsvRows {
             action: "cannot open".to_string(),
             source,
         })?;
-        let mut reader = BufReader::with_capacity(1 << 18, file);
+        let mut reader = LineReader::new(BufReader::with_capacity(1 << 18, file), path);
         let mut text = Vec::new();
         let mut line = 0u64;
         let mut bytes_read = 0u64;
@@ -220,7 +197,7 @@ impl CsvRows {
         let expected = kind.columns();
         let expected_text = expected.join(", ");
         loop {
-            let Some(n) = read_line(&mut reader, &mut text, path, line)? else {
+            let Some(n) = reader.read_line(&mut text)? else {
                 problems.add(
                     0,
                     format!(
@@ -291,7 +268,6 @@ impl CsvRows {
             return Ok(None);
         }
         Ok(Some(CsvRows {
-            path: path.to_path_buf(),
             reader,
             text,
             line,
@@ -315,8 +291,7 @@ impl CsvRows {
     /// The next data row; problems are recorded and the row returned as `Bad`.
     pub(super) fn next(&mut self, problems: &mut Problems) -> Result<RowRead> {
         loop {
-            let Some(n) = read_line(&mut self.reader, &mut self.text, &self.path, self.line)?
-            else {
+            let Some(n) = self.reader.read_line(&mut self.text)? else {
                 return Ok(RowRead::End);
             };
             self.line += 1;

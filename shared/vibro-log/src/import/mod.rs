@@ -28,6 +28,7 @@
 
 mod blocks;
 mod csv;
+mod lines;
 mod plan;
 mod progress;
 mod scan;
@@ -38,6 +39,7 @@ use serde::Serialize;
 use vibro_msgs::Stream;
 use vibro_msgs::{ACCEL_BLOCK_MAX, VIB_BLOCK_MAX};
 
+pub use lines::{LineReader, MAX_LINE_BYTES};
 pub use plan::{ImportOptions, ImportPlan};
 pub use progress::ImportProgress;
 pub use write::{import, read_csv_blocks, ImportReport, StreamReport};

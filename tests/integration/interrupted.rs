@@ -1,0 +1,150 @@
+//! A flight into a log (`vibrocomp sim --out`) stopped by SIGINT or SIGTERM finishes
+//! its file (footer and summary: readable by the Python `mcap` reader and `log info`),
+//! says on stderr the simulated time it reached, and exits with status 1; and a log
+//! that cannot be written (a full disk) says why (the operating system's reason).
+
+use crate::common::{bin, run_failing};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "vibrocomp-it-interrupted-{name}-{}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("scratch directory");
+    dir
+}
+
+/// The messages of `file` as the Python reference reader counts them, and its
+/// summary's message count (`None`: no summary, an unfinished file).
+fn python_counts(file: &Path) -> (u64, Option<u64>) {
+    let script = r#"
+import json, sys
+from mcap.reader import make_reader
+with open(sys.argv[1], "rb") as f:
+    reader = make_reader(f)
+    summary = reader.get_summary()
+    counted = sum(1 for _ in reader.iter_messages())
+stats = summary.statistics.message_count if summary and summary.statistics else None
+print(json.dumps({"counted": counted, "summary": stats}))
+"#;
+    let out = Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(file)
+        .output()
+        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
+    assert!(
+        out.status.success(),
+        "the Python mcap reader cannot read {}:\n{}",
+        file.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    (
+        v["counted"].as_u64().expect("counted"),
+        v["summary"].as_u64(),
+    )
+}
+
+fn interrupt_flight(signal: libc::c_int, name: &str) {
+    let dir = scratch(name);
+    let file = dir.join("flight.mcap");
+    // A long flight: it must still be running when the signal comes.
+    let child = bin()
+        .args(["sim", "cyclone-4", "--duration-s", "36000", "--out"])
+        .arg(&file)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("vibrocomp runs");
+    // The recorder (created after the handlers) has written its header: then wait a
+    // little more so that some messages are on their way.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while std::fs::metadata(&file).map_or(0, |m| m.len()) == 0 {
+        assert!(
+            Instant::now() < deadline,
+            "{} never appeared",
+            file.display()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let pid = i32::try_from(child.id()).expect("pid");
+    // SAFETY: a plain kill(2) of the child we started.
+    assert_eq!(unsafe { libc::kill(pid, signal) }, 0);
+    let started = Instant::now();
+    let out = child.wait_with_output().expect("vibrocomp ends");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        started.elapsed() < Duration::from_secs(20),
+        "took {:?} to stop",
+        started.elapsed()
+    );
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "exit status after {name}: {:?}; stderr:\n{stderr}",
+        out.status
+    );
+    assert!(
+        stderr.contains(&format!("interrupted by {name} at simulated time"))
+            && stderr.contains("of 36000.000 s"),
+        "stderr does not say where the flight stopped:\n{stderr}"
+    );
+    let (counted, summary) = python_counts(&file);
+    assert!(counted > 0, "no messages in the interrupted log");
+    assert_eq!(summary, Some(counted), "summary of the interrupted log");
+    assert!(
+        stderr.contains(&format!("the {counted} messages written so far")),
+        "stderr does not give the {counted} messages:\n{stderr}"
+    );
+    // Our own reader agrees, and finds no losses.
+    let info = crate::common::run_json(&["log", "info", "--json", file.to_str().expect("utf-8")]);
+    assert_eq!(info["messages"].as_u64(), Some(counted), "log info: {info}");
+    assert_eq!(info["lost"].as_u64(), Some(0), "log info: {info}");
+    println!("{name}: {stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn sigint_finishes_the_log_of_an_interrupted_flight() {
+    interrupt_flight(libc::SIGINT, "SIGINT");
+}
+
+#[test]
+fn sigterm_finishes_the_log_of_an_interrupted_flight() {
+    interrupt_flight(libc::SIGTERM, "SIGTERM");
+}
+
+#[test]
+fn a_full_disk_under_sim_out_names_the_cause() {
+    if !Path::new("/dev/full").exists() {
+        eprintln!("skipped: no /dev/full");
+        return;
+    }
+    // /dev/full takes the open (a character device ignores truncation) and fails
+    // every write with ENOSPC, as a full disk does.
+    let out = run_failing(&[
+        "sim",
+        "cyclone-4-short",
+        "--duration-s",
+        "2",
+        "--out",
+        "/dev/full",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("/dev/full") && stderr.contains("No space left on device (os error 28)"),
+        "the cause is missing:\n{stderr}"
+    );
+    assert_eq!(
+        stderr.matches("os error 28").count(),
+        1,
+        "the cause is repeated:\n{stderr}"
+    );
+}
