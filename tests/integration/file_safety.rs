@@ -4,33 +4,9 @@
 //! the middle of a file is tested in vibro-mcap's tests/mcap/recover.rs.)
 
 use crate::common::{bin, run_failing};
-use std::path::{Path, PathBuf};
+use crate::processes::Dir;
+use std::path::Path;
 use std::process::Command;
-
-/// A directory of its own per test, removed when the test ends.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(test: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!(
-            "vibrocomp-file-safety-{test}-{}",
-            std::process::id()
-        ));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("temp dir");
-        Self(dir)
-    }
-
-    fn path(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 temp path")
@@ -66,7 +42,7 @@ fn is_fifo(path: &Path) -> bool {
 #[cfg(unix)]
 #[test]
 fn force_refuses_outputs_that_are_not_regular_files() {
-    let dir = TempDir::new("force");
+    let dir = Dir::new("file-safety-force");
     let csv = dir.path("accel.csv");
     accel_csv(&csv);
     let log = dir.path("log.mcap");
@@ -124,7 +100,7 @@ fn force_refuses_outputs_that_are_not_regular_files() {
         .is_symlink());
     assert_eq!(std::fs::read_to_string(&target).expect("target"), "kept");
     // Nothing left behind: only the files made here.
-    let mut names: Vec<String> = std::fs::read_dir(&dir.0)
+    let mut names: Vec<String> = std::fs::read_dir(dir.path(""))
         .expect("read dir")
         .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
         .collect();

@@ -5,31 +5,10 @@
 //! footer, inside its first chunk).
 
 use crate::common::bin;
-use std::path::{Path, PathBuf};
+use crate::processes::Dir;
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
-
-/// A directory of its own per test, removed when the test ends.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(test: &str) -> Self {
-        let dir =
-            std::env::temp_dir().join(format!("vibrocomp-line-cap-{test}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("temp dir");
-        Self(dir)
-    }
-    fn path(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 temp path")
@@ -84,7 +63,7 @@ fn assert_capped(out: &Output, file: &str, line: u64, head: &str) {
 
 #[test]
 fn a_1_mb_line_is_refused_at_the_cap_with_a_short_error() {
-    let dir = TempDir::new("mb");
+    let dir = Dir::new("line-cap-mb");
     let long = "a".repeat(1 << 20);
     let est = dir.path("est.csv");
     std::fs::write(&est, format!("x,y,z\n1,2,3\n{long},1,2\n4,5,6\n")).expect("write");
@@ -116,7 +95,7 @@ fn dev_zero_is_refused_quickly_in_a_small_address_space() {
     assert_capped(&out, "/dev/zero", 1, &zeros);
     assert!(took < Duration::from_secs(5), "estimate took {took:?}");
 
-    let dir = TempDir::new("zero");
+    let dir = Dir::new("line-cap-zero");
     let mcap = dir.path("out.mcap");
     let (out, took) = run_limited(&["log", "import", "--vib", "/dev/zero", "--out", s(&mcap)]);
     assert_capped(&out, "/dev/zero", 1, &zeros);
@@ -142,7 +121,7 @@ fn chunk_ends(bytes: &[u8]) -> Vec<usize> {
 
 #[test]
 fn log_info_on_an_unfinished_file_says_so_once_with_the_chunks_to_recover() {
-    let dir = TempDir::new("cut");
+    let dir = Dir::new("line-cap-cut");
     let log = dir.path("sim.mcap");
     let out = bin()
         .args(["sim", "cyclone-4-short", "--out", s(&log)])
