@@ -19,12 +19,11 @@
 //! docs/reliability.md.
 
 use crate::common::{bin, repo_path};
-use crate::processes::{children, flight_log, prefix, Dir};
+use crate::processes::{children, flight_log, kill, poll, prefix, Dir, Kid};
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::{CallbackProgression, Config, Node, NodeState};
-use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::Stdio;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, Instant};
@@ -82,131 +81,16 @@ fn spec(prefix: &str, record: Option<PathBuf>, compensator: Option<PathBuf>) -> 
     }
 }
 
-/// A child process of the test, with its pid (to kill it, to read its memory), its
-/// stdout captured and its stderr appended to a log. Dropping it stops it (SIGTERM,
-/// then SIGKILL), so a failing test leaves nothing running.
-struct Kid {
-    what: String,
-    child: Option<Child>,
-    log: PathBuf,
+/// `role` of the system, as `up` would start it, its stderr appended to `log`.
+fn start_role(spec: &SystemSpec, role: Role, log: &Path) -> Kid {
+    Kid::spawn_logging(spec.command(role).unwrap(), role.name(), log)
 }
 
-impl Kid {
-    fn spawn(mut cmd: Command, what: &str, log: &Path) -> Kid {
-        let stderr = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(log)
-            .unwrap();
-        let child = cmd
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(stderr)
-            .spawn()
-            .unwrap_or_else(|e| panic!("starting the {what}: {e}"));
-        Kid {
-            what: what.to_string(),
-            child: Some(child),
-            log: log.to_path_buf(),
-        }
-    }
-
-    /// `role` of the system, as `up` would start it.
-    fn role(spec: &SystemSpec, role: Role, log: &Path) -> Kid {
-        Kid::spawn(spec.command(role).unwrap(), role.name(), log)
-    }
-
-    fn pid(&self) -> u32 {
-        self.child.as_ref().map_or(0, Child::id)
-    }
-
-    fn signal(&self, sig: libc::c_int) {
-        if let Some(c) = &self.child {
-            // SAFETY: signalling a child this test started and has not reaped.
-            unsafe { libc::kill(c.id() as libc::pid_t, sig) };
-        }
-    }
-
-    fn check_alive(&mut self) -> anyhow::Result<()> {
-        if let Some(c) = &mut self.child {
-            if let Some(status) = c.try_wait()? {
-                anyhow::bail!("the {} exited early ({status})", self.what);
-            }
-        }
-        Ok(())
-    }
-
-    fn services_log(&self) -> String {
-        std::fs::read_to_string(&self.log).unwrap_or_default()
-    }
-
-    /// Waits up to `timeout` for the process to end by itself (killed after it, and the
-    /// test fails); returns its exit status and stdout.
-    fn wait(mut self, timeout: Duration) -> (ExitStatus, String) {
-        let mut child = self.child.take().unwrap();
-        let start = Instant::now();
-        let mut stdout = String::new();
-        let mut pipe = child.stdout.take().unwrap();
-        // Read stdout on a thread so a talkative child never blocks on a full pipe.
-        let reader = std::thread::spawn(move || {
-            let _ = pipe.read_to_string(&mut stdout);
-            stdout
-        });
-        let status = loop {
-            if let Some(status) = child.try_wait().unwrap() {
-                break status;
-            }
-            if start.elapsed() > timeout {
-                let _ = child.kill();
-                let _ = child.wait();
-                panic!(
-                    "the {} did not end within {:.0} s\nlog:\n{}",
-                    self.what,
-                    timeout.as_secs_f64(),
-                    self.services_log()
-                );
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        };
-        (status, reader.join().unwrap())
-    }
-
-    /// Sends `sig`, then [`Kid::wait`]s.
-    fn stop(self, sig: libc::c_int, timeout: Duration) -> (ExitStatus, String) {
-        self.signal(sig);
-        self.wait(timeout)
-    }
-
-    /// Stops with SIGTERM and returns the JSON summary the process printed (exit 0).
-    fn summary(self) -> serde_json::Value {
-        let what = self.what.clone();
-        let log = self.log.clone();
-        let (status, stdout) = self.stop(libc::SIGTERM, Duration::from_secs(30));
-        assert!(
-            status.success(),
-            "the {what} exited with {status}\nlog:\n{}",
-            std::fs::read_to_string(log).unwrap_or_default()
-        );
-        json_in(&stdout)
-    }
-}
-
-impl Drop for Kid {
-    fn drop(&mut self) {
-        if let Some(mut c) = self.child.take() {
-            // SAFETY: as in `signal`.
-            unsafe { libc::kill(c.id() as libc::pid_t, libc::SIGTERM) };
-            let start = Instant::now();
-            while start.elapsed() < Duration::from_secs(10) {
-                if let Ok(Some(_)) = c.try_wait() {
-                    return;
-                }
-                std::thread::sleep(Duration::from_millis(10));
-            }
-            let _ = c.kill();
-            let _ = c.wait();
-        }
-    }
+/// Stops `kid` with SIGTERM and returns the JSON summary it printed (exit 0).
+fn summary(mut kid: Kid) -> serde_json::Value {
+    let (status, stdout, log) = kid.stop(libc::SIGTERM, Duration::from_secs(30));
+    assert!(status.success(), "it exited with {status}\nlog:\n{log}");
+    json_in(&stdout)
 }
 
 /// The first JSON value in `text` (`up` prints the recorder's text summary first).
@@ -221,11 +105,6 @@ fn json_in(text: &str) -> serde_json::Value {
         .unwrap()
 }
 
-fn kill(pid: u32, sig: libc::c_int) {
-    // SAFETY: signalling a process this test started (directly or through `up`).
-    unsafe { libc::kill(pid as libc::pid_t, sig) };
-}
-
 /// `vibrocomp up` on `prefix`, recording into `record`.
 fn up(prefix: &str, record: &Path, compensator: &Path, log: &Path) -> Kid {
     let mut cmd = bin();
@@ -235,7 +114,7 @@ fn up(prefix: &str, record: &Path, compensator: &Path, log: &Path) -> Kid {
         .arg(repo_path("config/services/estimator.toml"))
         .arg("--compensator-config")
         .arg(compensator);
-    Kid::spawn(cmd, "up", log)
+    Kid::spawn_logging(cmd, "up", log)
 }
 
 /// `vibrocomp replay LOG --prefix P --json EXTRA...`, running in the background.
@@ -245,24 +124,19 @@ fn replay(prefix: &str, log: &Path, extra: &[&str], services_log: &Path) -> Kid 
         .arg(log)
         .args(["--prefix", prefix, "--json"])
         .args(extra);
-    Kid::spawn(cmd, "replay", services_log)
+    Kid::spawn_logging(cmd, "replay", services_log)
 }
 
 /// Waits for the replay to end (exit 0) and returns its JSON summary.
-fn replay_done(replay: Kid, timeout: Duration) -> serde_json::Value {
-    let log = replay.log.clone();
-    let (status, stdout) = replay.wait(timeout);
-    assert!(
-        status.success(),
-        "replay failed ({status})\nlog:\n{}",
-        std::fs::read_to_string(log).unwrap_or_default()
-    );
+fn replay_done(mut replay: Kid, timeout: Duration) -> serde_json::Value {
+    let (status, stdout, log) = replay.wait(timeout);
+    assert!(status.success(), "replay failed ({status})\nlog:\n{log}");
     json_in(&stdout)
 }
 
 fn wait_up(prefix: &str, services: &[ServiceId], kids: &mut [&mut Kid]) {
     let names = ServiceNames::new(prefix).unwrap();
-    let log = kids.first().map(|k| k.services_log()).unwrap_or_default();
+    let log = kids.first().map(|k| k.stderr()).unwrap_or_default();
     if let Err(e) = wait_for_heartbeats(&names, services, Duration::from_secs(30), || {
         for k in kids.iter_mut() {
             k.check_alive()?;
@@ -270,20 +144,6 @@ fn wait_up(prefix: &str, services: &[ServiceId], kids: &mut [&mut Kid]) {
         Ok(())
     }) {
         panic!("{e:#}\nservices log:\n{log}");
-    }
-}
-
-/// Polls `done` every 10 ms until it holds or `timeout` passes; returns whether it held.
-fn poll(timeout: Duration, mut done: impl FnMut() -> bool) -> bool {
-    let start = Instant::now();
-    loop {
-        if done() {
-            return true;
-        }
-        if start.elapsed() > timeout {
-            return false;
-        }
-        std::thread::sleep(Duration::from_millis(10));
     }
 }
 
@@ -499,7 +359,7 @@ fn a_killed_estimator_turns_the_compensation_stale_until_up_restarts_it() {
             seen >= 4
         }),
         "no estimates\n{}",
-        up.services_log()
+        up.stderr()
     );
     drop(estimates);
     drop(node);
@@ -532,7 +392,7 @@ fn a_killed_estimator_turns_the_compensation_stale_until_up_restarts_it() {
     let accel_sent = u64_at(&r, &["topics", "/accel"]);
     assert_eq!(accel_sent, 250, "{r}");
     comp_hb.wait_for(Duration::from_secs(20), |h| h.received >= accel_sent);
-    let (status, out) = up.stop(libc::SIGINT, Duration::from_secs(30));
+    let (status, out, _) = up.stop(libc::SIGINT, Duration::from_secs(30));
     assert!(status.success(), "up: {status}");
     let report = json_in(&out);
     let role = |name: &str| {
@@ -712,7 +572,7 @@ fn a_killed_compensator_leaves_a_visible_gap_in_the_recording() {
     assert_eq!(r["undelivered"], 0, "{r}");
     // The restarted compensator has taken the last block.
     hb.wait_drained(now_ns(), Duration::from_secs(20));
-    let (status, out) = up.stop(libc::SIGINT, Duration::from_secs(30));
+    let (status, out, _) = up.stop(libc::SIGINT, Duration::from_secs(30));
     assert!(status.success(), "up: {status}");
     let report = json_in(&out);
     let comp_role = report["processes"]
@@ -841,7 +701,7 @@ fn a_killed_recorder_loses_at_most_the_last_second() {
             .unwrap();
         cmd.args(["--topics", "/vib,/accel,/truth"]);
         let spawned = Instant::now();
-        let kid = Kid::spawn(cmd, "recorder", &services_log);
+        let kid = Kid::spawn_logging(cmd, "recorder", &services_log);
         hb.wait_for(Duration::from_secs(30), |h| {
             h.uptime_ns < spawned.elapsed().as_nanos() as u64
         });
@@ -859,11 +719,11 @@ fn a_killed_recorder_loses_at_most_the_last_second() {
     let killed_at_s = started.elapsed().as_secs_f64();
     let killed_ns = now_ns();
     victim.signal(libc::SIGKILL);
-    let (status, _) = victim.wait(Duration::from_secs(10));
+    let (status, _, _) = victim.wait(Duration::from_secs(10));
     assert_eq!(status.code(), None, "killed by a signal");
     let r = replay_done(replay, Duration::from_secs(60));
     let replay_s = started.elapsed().as_secs_f64();
-    let clean_summary = clean.summary();
+    let clean_summary = summary(clean);
     assert_eq!(clean_summary["lost"], 0, "{clean_summary}");
 
     // The clean stop has every message the replay published.
@@ -968,9 +828,9 @@ fn a_subscriber_that_does_not_read_costs_one_timeout_per_block_and_is_reported()
     let services_log = dir.path("services.log");
     let session = dir.path("session.mcap");
     let s = spec(&p, Some(session.clone()), Some(comp_config));
-    let mut est = Kid::role(&s, Role::Estimator, &services_log);
-    let mut comp = Kid::role(&s, Role::Compensator, &services_log);
-    let mut rec = Kid::role(&s, Role::Recorder, &services_log);
+    let mut est = start_role(&s, Role::Estimator, &services_log);
+    let mut comp = start_role(&s, Role::Compensator, &services_log);
+    let mut rec = start_role(&s, Role::Recorder, &services_log);
     wait_up(
         &p,
         &[
@@ -1013,9 +873,9 @@ fn a_subscriber_that_does_not_read_costs_one_timeout_per_block_and_is_reported()
     drop(stuck);
     assert_eq!(held, (0..buffer).collect::<Vec<_>>());
 
-    let rec_s = rec.summary();
-    let comp_s = comp.summary();
-    let est_s = est.summary();
+    let rec_s = summary(rec);
+    let comp_s = summary(comp);
+    let est_s = summary(est);
     assert_eq!(comp_s["undelivered"], expected_undelivered, "{comp_s}");
     assert_eq!(comp_s["published"], accel_sent, "{comp_s}");
     assert_eq!(comp_s["accel"]["received"], accel_sent, "{comp_s}");
@@ -1101,9 +961,9 @@ fn soak_at_ten_times_real_time_loses_nothing_and_memory_stays_flat() {
     let services_log = dir.path("services.log");
     let session = dir.path("session.mcap");
     let s = spec(&p, Some(session.clone()), None);
-    let mut est = Kid::role(&s, Role::Estimator, &services_log);
-    let mut comp = Kid::role(&s, Role::Compensator, &services_log);
-    let mut rec = Kid::role(&s, Role::Recorder, &services_log);
+    let mut est = start_role(&s, Role::Estimator, &services_log);
+    let mut comp = start_role(&s, Role::Compensator, &services_log);
+    let mut rec = start_role(&s, Role::Recorder, &services_log);
     wait_up(
         &p,
         &[
@@ -1158,9 +1018,9 @@ fn soak_at_ten_times_real_time_loses_nothing_and_memory_stays_flat() {
     let est_hb = Heartbeats::new(&p, ServiceId::Estimator);
     est_hb.wait_for(Duration::from_secs(20), |h| h.received >= vib_sent);
     drop((comp_hb, est_hb));
-    let rec_s = rec.summary();
-    let comp_s = comp.summary();
-    let est_s = est.summary();
+    let rec_s = summary(rec);
+    let comp_s = summary(comp);
+    let est_s = summary(est);
 
     for (s, k, sent) in [(&comp_s, "accel", accel_sent), (&est_s, "vib", vib_sent)] {
         assert_eq!(s[k]["received"], sent, "{s}");
@@ -1310,6 +1170,11 @@ fn a_supervisor_killed_with_sigkill_takes_its_services_with_it() {
     );
     kill(up.id(), libc::SIGKILL);
     up.wait().unwrap();
+    // A killed `up` cannot remove its claim file on the prefix (the kernel dropped the
+    // lock itself); the test removes the file so that nothing is left behind.
+    let claim = vibro_service::supervise::prefix_lock_path(&p);
+    assert!(claim.exists(), "{}", claim.display());
+    std::fs::remove_file(&claim).unwrap();
     let all_ended = poll(Duration::from_secs(10), || {
         kids.iter().all(|(pid, _)| ended(*pid))
     });

@@ -3,10 +3,12 @@
 mod bad_input;
 mod closed_pipe;
 mod common;
+mod counts;
 mod estimate;
 mod extreme_lab;
 mod faults;
 mod file_safety;
+mod flag_rules;
 mod identify;
 mod interrupted;
 mod lab;
@@ -19,3 +21,4 @@ mod python_client;
 mod replay;
 mod shared_prefix;
 mod sim;
+mod soak;

@@ -117,6 +117,11 @@ fn hot_loop(
     shutdown: Shutdown,
 ) -> anyhow::Result<Summary> {
     let started_ns = now_ns();
+    // First, so that everything the loop sets up and runs is under the policy.
+    vibro_service::realtime::enter(config.service.realtime_priority)?;
+    if let Some(priority) = config.service.realtime_priority {
+        tracing::info!(priority, "the hot loop runs under SCHED_FIFO");
+    }
     let names = &config.names;
     let node =
         create_node("vibro-compensator").context("creating the compensator's iceoryx2 node")?;
@@ -269,8 +274,11 @@ fn hot_loop(
         if now >= next_heartbeat_ns {
             next_heartbeat_ns = now.saturating_add(heartbeat_ns);
             let s = &st.s;
+            // A seq or sample-index jump (vibro_service::continuity) degrades like a loss.
             let degraded = s.accel.lost_messages + s.accel.lost_samples + s.accel.malformed
                 > last.accel.lost_messages + last.accel.lost_samples + last.accel.malformed
+                || s.accel.seq_jumps + s.accel.index_jumps
+                    > last.accel.seq_jumps + last.accel.index_jumps
                 || s.stale_blocks + s.missing_blocks + s.ahead_blocks
                     > last.stale_blocks + last.missing_blocks + last.ahead_blocks
                 || s.time_jump_blocks > last.time_jump_blocks
@@ -330,6 +338,8 @@ fn hot_loop(
         received = summary.accel.received,
         published = summary.published,
         lost_blocks = summary.accel.lost_messages,
+        seq_jumps = summary.accel.seq_jumps,
+        index_jumps = summary.accel.index_jumps,
         stale_blocks = summary.stale_blocks,
         missing_blocks = summary.missing_blocks,
         p50_us = summary.latency.p50_ns as f64 * 1e-3,

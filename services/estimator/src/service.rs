@@ -43,6 +43,11 @@ pub async fn run_async(config: Config, shutdown: Shutdown) -> anyhow::Result<Sum
 
 fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
     let started_ns = now_ns();
+    // First, so that everything the loop sets up and runs is under the policy.
+    vibro_service::realtime::enter(config.service.realtime_priority)?;
+    if let Some(priority) = config.service.realtime_priority {
+        tracing::info!(priority, "the hot loop runs under SCHED_FIFO");
+    }
     let names = &config.names;
     let node = create_node("vibro-estimator").context("creating the estimator's iceoryx2 node")?;
     let cleaned = cleanup_dead_nodes(&node);
@@ -162,10 +167,17 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
             next_heartbeat_ns = now.saturating_add(heartbeat_ns);
             let c = &core.c;
             let period = core.latency.period();
-            let lost_now = c.vib.lost_messages + c.vib.lost_samples + c.vib.malformed;
+            // A seq or sample-index jump (vibro_service::continuity) degrades like a loss.
+            let lost_now = c.vib.lost_messages
+                + c.vib.lost_samples
+                + c.vib.malformed
+                + c.vib.seq_jumps
+                + c.vib.index_jumps;
             let lost_before = last_period.vib.lost_messages
                 + last_period.vib.lost_samples
-                + last_period.vib.malformed;
+                + last_period.vib.malformed
+                + last_period.vib.seq_jumps
+                + last_period.vib.index_jumps;
             let state = if c.vib.received == 0 {
                 ServiceState::Starting
             } else if lost_now > lost_before
@@ -241,6 +253,8 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
     info!(
         received = summary.vib.received,
         lost_blocks = summary.vib.lost_messages,
+        seq_jumps = summary.vib.seq_jumps,
+        index_jumps = summary.vib.index_jumps,
         estimates = summary.estimates_published,
         p50_us = summary.latency.p50_ns as f64 * 1e-3,
         p99_us = summary.latency.p99_ns as f64 * 1e-3,

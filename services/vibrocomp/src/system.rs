@@ -45,6 +45,9 @@ pub struct SystemSpec {
     pub compensator_config: Option<PathBuf>,
     /// `event` or `spin` for both services.
     pub mode: Option<String>,
+    /// `SCHED_FIFO` priority of the compensator's hot loop (`--realtime-priority`); the
+    /// estimator's is one below (at least 1).
+    pub realtime_priority: Option<u8>,
     /// Record everything into this log.
     pub record: Option<PathBuf>,
     /// Ask the services (and the recorder) for their JSON summaries at exit.
@@ -76,6 +79,19 @@ impl SystemSpec {
                 if let Some(m) = &self.mode {
                     push("--mode");
                     push(m);
+                }
+                if let Some(p) = self.realtime_priority {
+                    // The compensator's blocks are due within a sample period; the
+                    // estimator's windows take tens of ms and are due in the hop
+                    // (0.5 s): one below, so that it never holds a core a block of
+                    // the compensator (or its reader, at the same priority) waits for.
+                    let p = if role == Role::Estimator {
+                        p.saturating_sub(1).max(1)
+                    } else {
+                        p
+                    };
+                    push("--realtime-priority");
+                    push(&p.to_string());
                 }
                 let config = if role == Role::Estimator {
                     &self.estimator_config

@@ -161,8 +161,20 @@ pub enum Error {
     /// Another process already publishes a stream a lock-stepped replay would feed:
     /// the services would take both feeders' blocks as one stream, and the lock-step
     /// would count the other's messages as this replay's.
-    #[error("another process already publishes on {stream} (pid {pids}): a lock-stepped replay needs to be the only feeder; wait for it to finish, or replay into another prefix")]
+    #[error("another process already publishes on {stream} (pid {pids}): a replay needs to be the only feeder of the services' inputs; wait for it to finish, or replay into another prefix")]
     SecondFeeder { stream: String, pids: String },
+    /// A consumer's process went away during a replay (stopped, killed, or, in a
+    /// lock-stepped replay, restarted).
+    #[error("{service} (pid {pids}) is gone ({how}): it has taken {taken} of the {sent} messages sent on {stream}; {unprocessed} not processed")]
+    Vanished {
+        service: &'static str,
+        pids: String,
+        stream: String,
+        how: String,
+        taken: u64,
+        sent: u64,
+        unprocessed: u64,
+    },
     /// A consumer stopped taking messages during a lock-stepped replay.
     #[error("lock-step: {service} has taken {taken} of the {sent} messages sent on {stream} and made no progress for {waited_s} s (did it stop or restart?)")]
     Stalled {

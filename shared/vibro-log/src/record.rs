@@ -55,8 +55,12 @@ pub struct TopicCounts {
     pub received: u64,
     /// Messages written to the log.
     pub recorded: u64,
-    /// Messages missing by the producer's `seq` (a forward jump of `n` counts `n - 1`).
+    /// Messages missing by the producer's `seq` (a forward step of `n` counts `n - 1`,
+    /// up to [`MAX_LOST_MESSAGES`]).
     pub lost: u64,
+    /// Forward `seq` steps that skip more than [`MAX_LOST_MESSAGES`]: a corrupt or
+    /// renumbered counter, not a loss (not in `lost`); counting goes on from the new `seq`.
+    pub jumps: u64,
     /// Messages whose `seq` did not advance (a producer restart counts here).
     pub out_of_order: u64,
     /// Messages whose counts exceed their arrays: not recorded (their `seq` then shows
@@ -66,6 +70,11 @@ pub struct TopicCounts {
     pub queue_waits: u64,
 }
 
+/// The most messages one forward `seq` step counts as lost; a bigger step is a jump
+/// (the rule of `vibro_service::continuity`: 2^20 blocks is hours of any stream, while
+/// a subscriber loses at most its buffer at a time).
+pub const MAX_LOST_MESSAGES: u64 = 1 << 20;
+
 /// What a recording holds, returned when it stops.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct RecordSummary {
@@ -74,6 +83,8 @@ pub struct RecordSummary {
     pub topics: BTreeMap<String, TopicCounts>,
     pub messages: u64,
     pub lost: u64,
+    /// `seq` jumps over all topics ([`TopicCounts::jumps`]).
+    pub jumps: u64,
     pub chunks: u64,
     pub bytes: u64,
     pub duration_s: f64,
@@ -118,12 +129,7 @@ impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
             n += 1;
             st.counts.received += 1;
             let seq = message.seq();
-            match st.next_seq {
-                Some(next) if seq > next => st.counts.lost += seq - next,
-                Some(next) if seq < next => st.counts.out_of_order += 1,
-                _ => {}
-            }
-            st.next_seq = Some(seq.wrapping_add(1));
+            count_seq(&mut st.counts, &mut st.next_seq, seq);
             if let Err(e) = message.validate() {
                 st.counts.malformed += 1;
                 if st.counts.malformed == 1 {
@@ -154,6 +160,23 @@ impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
         }
         Ok(n)
     }
+}
+
+/// Counts the arrival of `seq` when `next` was expected: a loss, a jump (more than
+/// [`MAX_LOST_MESSAGES`] skipped) or a step back.
+fn count_seq(counts: &mut TopicCounts, next: &mut Option<u64>, seq: u64) {
+    match *next {
+        Some(n) if seq > n => {
+            if seq - n > MAX_LOST_MESSAGES {
+                counts.jumps += 1;
+            } else {
+                counts.lost += seq - n;
+            }
+        }
+        Some(n) if seq < n => counts.out_of_order += 1,
+        _ => {}
+    }
+    *next = Some(seq.wrapping_add(1));
 }
 
 fn open<T: WireMessage + Into<Message>>(
@@ -308,6 +331,7 @@ pub fn record(
         prefix: options.names.prefix().to_string(),
         messages: finished.messages,
         lost: topics.values().map(|t| t.lost).sum(),
+        jumps: topics.values().map(|t| t.jumps).sum(),
         topics,
         chunks: finished.chunks,
         bytes: finished.bytes,
@@ -316,6 +340,7 @@ pub fn record(
     info!(
         messages = summary.messages,
         lost = summary.lost,
+        seq_jumps = summary.jumps,
         bytes = summary.bytes,
         "recording finished"
     );
@@ -458,4 +483,35 @@ fn record_into(
     drop(guards);
     drop(channels);
     Ok(states)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn random_seqs_are_jumps_and_a_real_gap_is_a_loss() {
+        let (mut counts, mut next) = (TopicCounts::default(), None);
+        // 7 lost (11..=17), then the limit exactly, then one beyond it.
+        for seq in [
+            10u64,
+            18,
+            19 + MAX_LOST_MESSAGES,
+            21 + 2 * MAX_LOST_MESSAGES,
+        ] {
+            count_seq(&mut counts, &mut next, seq);
+        }
+        assert_eq!((counts.lost, counts.jumps), (7 + MAX_LOST_MESSAGES, 1));
+        // Random u64 seqs (the probe that printed lost_blocks=18366207225729211778).
+        let (mut counts, mut next) = (TopicCounts::default(), None);
+        let mut x = 0x2545_F491_4F6C_DD1Du64;
+        for _ in 0..1000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            count_seq(&mut counts, &mut next, x);
+        }
+        assert_eq!(counts.lost, 0, "{counts:?}");
+        assert_eq!(counts.jumps + counts.out_of_order, 999, "{counts:?}");
+    }
 }

@@ -25,6 +25,27 @@ pub enum Pace {
     AsFastAsPossible,
 }
 
+impl Pace {
+    /// Slowest paced replay, times real time: 1 s of log in about 17 min. Slower, the
+    /// wait before a message (`log time / rate`, u64 ns) outgrows any real session and
+    /// a 5e-324 rate waits for ever.
+    pub const MIN_RATE: f64 = 1e-3;
+    /// Fastest paced replay, times real time (beyond it, `--as-fast-as-possible`).
+    pub const MAX_RATE: f64 = 1e6;
+
+    /// The rule of a paced rate (`Pace::Rate`, `replay --rate`, `sim --live --rate`):
+    /// `None` when `x` keeps it, else the rule it breaks.
+    pub fn rate_problem(x: f64) -> Option<String> {
+        (!(x.is_finite() && (Self::MIN_RATE..=Self::MAX_RATE).contains(&x))).then(|| {
+            format!(
+                "must be finite and {:e} <= rate <= {:e} (a multiple of real time)",
+                Self::MIN_RATE,
+                Self::MAX_RATE
+            )
+        })
+    }
+}
+
 /// What to replay and how.
 #[derive(Debug, Clone)]
 pub struct ReplayOptions {
@@ -64,11 +85,11 @@ impl ReplayOptions {
 
     fn check(&self) -> Result<()> {
         if let Pace::Rate(x) = self.pace {
-            if !(x.is_finite() && x > 0.0) {
+            if let Some(rule) = Pace::rate_problem(x) {
                 return Err(Error::Option {
                     name: "rate",
                     value: x.to_string(),
-                    rule: "must be finite and > 0".into(),
+                    rule: rule.into(),
                 });
             }
         }
@@ -318,7 +339,21 @@ struct Consumer {
     /// message (0: not reported).
     samples_to_output: u64,
     samples_per_output: u64,
+    /// The processes publishing its progress when the replay started (empty: not
+    /// known, and then only the stall timeout applies).
+    pids: Vec<u32>,
+    /// Messages taken by earlier processes of a service restarted during a paced
+    /// replay.
+    carried: u64,
+    /// Since when none of `pids` publishes the progress any more, while that lasts.
+    gone_since: Option<Instant>,
+    /// The next look at the publishers' processes ([`Consumer::check_alive`]).
+    next_probe: Instant,
 }
+
+/// How often a replay looks whether its consumers' processes are still there (a list
+/// of the progress stream's publishers and of iceoryx2's nodes: a few file reads).
+const PROBE_PERIOD: Duration = Duration::from_millis(250);
 
 /// Where a lock-stepped replay must wait (docs/messages.md, "progress"). Waiting at
 /// every switch between `/vib` and `/accel` is always right, but each wait is a
@@ -452,6 +487,81 @@ impl Consumer {
             received: 0,
             samples_to_output: 0,
             samples_per_output: 0,
+            pids: Vec::new(),
+            carried: 0,
+            gone_since: None,
+            next_probe: Instant::now(),
+        })
+    }
+
+    /// Messages of this replay the service has taken (its restarted processes'
+    /// included, in a paced replay).
+    fn taken(&self) -> u64 {
+        self.carried + self.received.saturating_sub(self.baseline)
+    }
+
+    /// Looks (at most every [`PROBE_PERIOD`]) whether the process that took this
+    /// replay's messages still publishes the service's progress. Fails with
+    /// [`Error::Vanished`] once it has been gone for `grace`: no alive process
+    /// publishes it (stopped, killed: a killed process's node is dead, not alive), or,
+    /// unless `restart_ok`, another process does (a restart: its counts start again).
+    /// With `restart_ok` (paced replay) a new process takes over the count. Returns
+    /// whether the process is there at the last look.
+    fn check_alive(&mut self, sent: u64, grace: Duration, restart_ok: bool) -> Result<bool> {
+        let now = Instant::now();
+        if self.pids.is_empty() || now < self.next_probe {
+            return Ok(self.gone_since.is_none());
+        }
+        self.next_probe = now + PROBE_PERIOD;
+        let live = self.progress.publisher_pids();
+        if live.iter().any(|p| self.pids.contains(p)) {
+            self.gone_since = None;
+            return Ok(true);
+        }
+        if restart_ok && !live.is_empty() {
+            self.poll()?;
+            self.carried = self.taken();
+            info!(
+                service = self.name(),
+                was = ?self.pids,
+                now = ?live,
+                taken = self.carried,
+                "the service was restarted; counting what the new process takes"
+            );
+            (self.baseline, self.received) = (0, 0);
+            self.pids = live;
+            self.gone_since = None;
+            return Ok(true);
+        }
+        let since = *self.gone_since.get_or_insert(now);
+        if now.duration_since(since) < grace {
+            return Ok(false);
+        }
+        self.poll()?;
+        let taken = self.taken();
+        let list = |v: &[u32]| v.iter().map(u32::to_string).collect::<Vec<_>>().join(", ");
+        let mut how = if live.is_empty() {
+            "no live process publishes its progress any more: it exited or was killed".to_string()
+        } else {
+            format!(
+                "pid {} publishes its progress now: it was restarted, and a lock-stepped replay cannot count what a new process takes",
+                list(&live)
+            )
+        };
+        if restart_ok {
+            how.push_str(&format!(
+                ", and none replaced it within {} s",
+                grace.as_secs_f64()
+            ));
+        }
+        Err(Error::Vanished {
+            service: self.name(),
+            pids: list(&self.pids),
+            stream: self.stream.clone(),
+            how,
+            taken,
+            sent,
+            unprocessed: sent.saturating_sub(taken),
         })
     }
 
@@ -496,7 +606,13 @@ impl Consumer {
             if self.received != last {
                 last = self.received;
                 since = Instant::now();
-            } else if since.elapsed() > stall {
+                self.gone_since = None;
+            } else if since.elapsed() >= PROBE_PERIOD {
+                // No progress for a while: is the process still there? Two looks
+                // PROBE_PERIOD apart that find it gone end the wait.
+                self.check_alive(sent, PROBE_PERIOD, false)?;
+            }
+            if self.received == last && since.elapsed() > stall {
                 return Err(Error::Stalled {
                     service: self.name(),
                     stream: self.stream.clone(),
@@ -509,34 +625,50 @@ impl Consumer {
     }
 }
 
-/// The service's `received` count before the replay: from its next heartbeat.
-fn baseline(
+/// Each service's `received` count before the replay, from its next heartbeat (all
+/// waited for at once: at most one heartbeat period), and the processes publishing
+/// its progress. [`Error::NoProgress`] names the first service with no heartbeat
+/// within `timeout`.
+fn baselines(
     node: &IpcNode,
     names: &ServiceNames,
-    c: &mut Consumer,
+    consumers: &mut [&mut Consumer],
     timeout: Duration,
 ) -> Result<()> {
-    let s = Stream::Heartbeat(c.service);
-    let heartbeats: StreamSubscriber<Heartbeat> = StreamSubscriber::open(node, names, s)?;
+    let heartbeats = consumers
+        .iter()
+        .map(|c| StreamSubscriber::<Heartbeat>::open(node, names, Stream::Heartbeat(c.service)))
+        .collect::<std::result::Result<Vec<_>, _>>()?;
+    let mut done = vec![false; consumers.len()];
     let start = Instant::now();
     loop {
-        if let Some(h) = heartbeats.receive()? {
-            c.baseline = h.received;
-            c.received = h.received;
-            // Progress messages older than the heartbeat would only repeat it.
-            while c.progress.receive()?.is_some() {}
+        for ((c, hb), done) in consumers.iter_mut().zip(&heartbeats).zip(&mut done) {
+            if *done {
+                continue;
+            }
+            if let Some(h) = hb.receive()? {
+                c.baseline = h.received;
+                c.received = h.received;
+                c.pids = c.progress.publisher_pids();
+                // Progress messages older than the heartbeat would only repeat it.
+                while c.progress.receive()?.is_some() {}
+                *done = true;
+            }
+        }
+        if let Some(i) = done.iter().position(|d| !d) {
+            if start.elapsed() > timeout {
+                return Err(Error::NoProgress {
+                    service: consumers[i].name(),
+                    stream: names.stream(Stream::Heartbeat(consumers[i].service)),
+                    waited_s: timeout.as_secs_f64(),
+                });
+            }
+            let _ = heartbeats[i]
+                .listener()
+                .timed_wait(|_| {}, Duration::from_millis(50));
+        } else {
             return Ok(());
         }
-        if start.elapsed() > timeout {
-            return Err(Error::NoProgress {
-                service: c.name(),
-                stream: names.stream(s),
-                waited_s: timeout.as_secs_f64(),
-            });
-        }
-        let _ = heartbeats
-            .listener()
-            .timed_wait(|_| {}, Duration::from_millis(50));
     }
 }
 
@@ -716,7 +848,14 @@ macro_rules! shifted {
 ///
 /// The phases: the log (`ReplayLog::open`), the ports (`Ports::open`: publishers,
 /// their subscribers), the lock-step's gate and consumers (`LockStep::open`), then
-/// the passes through the log (`Replayer::run`).
+/// the services a paced replay watches (`Watch::open`), then the passes through the
+/// log (`Replayer::run`).
+///
+/// A consumer whose process goes away fails the replay with [`Error::Vanished`] and
+/// the count of the messages it did not take: when lock-stepped, once it has made
+/// no progress for two looks [`PROBE_PERIOD`] apart (a stopped, killed or restarted
+/// service); when paced, once it has been gone for `stall_timeout` without a new
+/// process (a restart) taking its place.
 pub fn replay(
     path: &Path,
     options: &ReplayOptions,
@@ -727,7 +866,8 @@ pub fn replay(
     let log = ReplayLog::open(path, options)?;
     let ports = Ports::open(&log.selected, options, stop)?;
     let lock = LockStep::open(&ports, options)?;
-    Replayer::new(path, options, stop, log, ports, lock).run(&mut progress)
+    let watch = Watch::open(&ports, options)?;
+    Replayer::new(path, options, stop, log, ports, lock, watch).run(&mut progress)
 }
 
 /// A replay's log, checked, and what of it to publish: the first phase of [`replay`],
@@ -832,11 +972,13 @@ impl Ports {
             )?,
             shifts: [Shift::default(); 3],
         };
-        // Lock-step counts what the services take as this replay's: a second feeder
-        // (another replay, a live rig) on their inputs would break it, and the
-        // services would see two streams interleaved as one. Refused, not serialised:
-        // the other feeder may run for ever (`--loop`, a rig).
-        if options.pace == Pace::AsFastAsPossible {
+        // A second feeder (another replay, a live rig) on the services' inputs: the
+        // services would see two streams interleaved as one (sequence and sample
+        // index jumps, every window mixing both), paced or not, and a lock-step would
+        // count the other's messages as this replay's. Refused, not serialised: the
+        // other feeder may run for ever (`--loop`, a rig). Only the streams this
+        // replay publishes are checked (`--topics /truth` beside a rig is fine).
+        {
             let others = [
                 (
                     Stream::Vib,
@@ -928,23 +1070,109 @@ impl LockStep {
             return Ok(None);
         }
         let (node, names) = (&ports.node, &options.names);
-        let mut estimator = None;
-        let mut compensator = None;
-        if ports.pubs.vib.is_some() {
-            let mut c = Consumer::open(node, names, ServiceId::Estimator, Stream::Vib)?;
-            baseline(node, names, &mut c, options.connect_timeout)?;
-            estimator = Some(c);
-        }
-        if ports.pubs.accel.is_some() {
-            let mut c = Consumer::open(node, names, ServiceId::Compensator, Stream::Accel)?;
-            baseline(node, names, &mut c, options.connect_timeout)?;
-            compensator = Some(c);
-        }
+        let mut estimator = ports
+            .pubs
+            .vib
+            .is_some()
+            .then(|| Consumer::open(node, names, ServiceId::Estimator, Stream::Vib))
+            .transpose()?;
+        let mut compensator = ports
+            .pubs
+            .accel
+            .is_some()
+            .then(|| Consumer::open(node, names, ServiceId::Compensator, Stream::Accel))
+            .transpose()?;
+        let mut both: Vec<&mut Consumer> =
+            estimator.iter_mut().chain(compensator.iter_mut()).collect();
+        baselines(node, names, &mut both, options.connect_timeout)?;
         Ok(Some(Self {
             gate: Gate::default(),
             estimator,
             compensator,
         }))
+    }
+}
+
+/// The services a paced replay watches (it does not wait for them): the estimator
+/// and the compensator, each if it publishes its progress when the replay starts. A
+/// paced replay fails ([`Error::Vanished`]) when one of them is gone for longer than
+/// the stall timeout and no new process (a restart by `vibrocomp up`) took its place,
+/// saying how many of the messages sent it had taken.
+///
+/// It does not wait for a baseline either: each service's count starts at its first
+/// heartbeat during the replay (at most a heartbeat period in), taken to have caught
+/// up with what was sent by then (a paced replay does not outrun a live service; the
+/// count is off by the blocks in flight at that instant otherwise, at most a
+/// subscriber buffer). Until then a vanished service is reported with 0 taken.
+struct Watch {
+    consumers: Vec<Consumer>,
+    /// Each consumer's heartbeats, until the first one gives its baseline.
+    heartbeats: Vec<Option<StreamSubscriber<Heartbeat>>>,
+}
+
+impl Watch {
+    fn open(ports: &Ports, options: &ReplayOptions) -> Result<Self> {
+        let (mut consumers, mut heartbeats) = (Vec::new(), Vec::new());
+        if options.pace == Pace::AsFastAsPossible {
+            return Ok(Self {
+                consumers,
+                heartbeats,
+            });
+        }
+        let (node, names) = (&ports.node, &options.names);
+        for (published, service, stream) in [
+            (ports.pubs.vib.is_some(), ServiceId::Estimator, Stream::Vib),
+            (
+                ports.pubs.accel.is_some(),
+                ServiceId::Compensator,
+                Stream::Accel,
+            ),
+        ] {
+            if !published {
+                continue;
+            }
+            let mut c = Consumer::open(node, names, service, stream)?;
+            c.pids = c.progress.publisher_pids();
+            if c.pids.is_empty() {
+                debug!(
+                    service = c.name(),
+                    "not running: the paced replay does not watch it"
+                );
+                continue;
+            }
+            // No count before the first heartbeat (`taken` saturates to 0).
+            c.baseline = u64::MAX;
+            heartbeats.push(Some(StreamSubscriber::open(
+                node,
+                names,
+                Stream::Heartbeat(service),
+            )?));
+            consumers.push(c);
+        }
+        Ok(Self {
+            consumers,
+            heartbeats,
+        })
+    }
+
+    /// Takes the services' progress messages (their publishers must not wait for
+    /// this replay) and, now and then, looks whether they are still there.
+    fn check(&mut self, vib_sent: u64, accel_sent: u64, grace: Duration) -> Result<bool> {
+        let mut all_there = true;
+        for (c, hb) in self.consumers.iter_mut().zip(&mut self.heartbeats) {
+            c.poll()?;
+            let sent = match c.service {
+                ServiceId::Estimator => vib_sent,
+                _ => accel_sent,
+            };
+            if let Some(h) = hb.as_ref().map(|s| s.receive()).transpose()?.flatten() {
+                (c.baseline, c.carried) = (h.received, sent);
+                c.received = c.received.max(h.received);
+                *hb = None;
+            }
+            all_there &= c.check_alive(sent, grace, true)?;
+        }
+        Ok(all_there)
     }
 }
 
@@ -964,6 +1192,7 @@ struct Replayer<'a> {
     log: ReplayLog,
     // Declared before the ports: the consumers' subscribers close before the node.
     lock: Option<LockStep>,
+    watch: Watch,
     ports: Ports,
     /// Messages published per topic.
     topics: BTreeMap<String, u64>,
@@ -992,6 +1221,7 @@ impl<'a> Replayer<'a> {
         log: ReplayLog,
         ports: Ports,
         lock: Option<LockStep>,
+        watch: Watch,
     ) -> Self {
         let topics = log.selected.iter().map(|&s| (topic(s), 0)).collect();
         Self {
@@ -1000,6 +1230,7 @@ impl<'a> Replayer<'a> {
             stop,
             log,
             lock,
+            watch,
             ports,
             topics,
             vib_sent: 0,
@@ -1247,6 +1478,10 @@ impl<'a> Replayer<'a> {
                 Some(Ok(_)) => {}
             }
             self.messages += 1;
+            if !self.watch.consumers.is_empty() {
+                self.watch
+                    .check(self.vib_sent, self.accel_sent, self.options.stall_timeout)?;
+            }
             if let Some(n) = self.topics.get_mut(&topic(stream)) {
                 *n += 1;
             }
@@ -1273,6 +1508,22 @@ impl<'a> Replayer<'a> {
                     c.wait_for(self.accel_sent, self.options.stall_timeout, self.stop)?;
                 }
                 self.wait_s += t.elapsed().as_secs_f64();
+            }
+        }
+        // Paced: the services must still be there (or restarted) at the end; one that
+        // is gone gets the rest of its grace to come back.
+        if !self.watch.consumers.is_empty() {
+            for c in &mut self.watch.consumers {
+                c.next_probe = Instant::now();
+            }
+            while !self
+                .watch
+                .check(self.vib_sent, self.accel_sent, self.options.stall_timeout)?
+            {
+                if self.stop.load(Ordering::Acquire) {
+                    break;
+                }
+                std::thread::sleep(PROBE_PERIOD);
             }
         }
         let pubs = &self.ports.pubs;

@@ -1,14 +1,25 @@
 //! What a recording holds: one pass over every record, chunk CRCs checked.
+//!
+//! **Losses.** Each channel's MCAP sequence numbers give the messages the recorder
+//! missed; a forward step that skips more than [`MAX_LOST_MESSAGES`] (2^20, the rule of
+//! `vibro_service::continuity`: hours of any vibrocomp stream, while a subscriber loses
+//! at most its buffer at a time) is a *jump* (a corrupt, crafted or renumbered counter),
+//! counted apart and never summed into `lost`. On a `CompensatedBlock` channel the
+//! `input_seq` of each message (the accelerometer block it answers, read from the
+//! message) tells the accelerometer blocks that got no compensated output, even across
+//! a restart of the compensator (whose own `seq` starts again at 0): they count as lost.
 
 use crate::guard;
-use crate::schema::kind_of_schema;
+use crate::schema::{kind_of_schema, MESSAGE_ENCODING};
 use crate::{Error, Result};
 use mcap::records::{op, Record as McapRecord};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+use prost::Message as _;
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
+use vibro_msgs::MessageKind;
 
 /// One channel of a recording.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -33,14 +44,47 @@ pub struct ChannelInfo {
     /// First and last sequence number, in file order.
     pub first_sequence: Option<u32>,
     pub last_sequence: Option<u32>,
-    /// Messages missing according to the sequence numbers: the sum of `jump - 1` over
-    /// every forward jump (with 32-bit wrap-around).
+    /// Messages missing according to the sequence numbers: the sum of `step - 1` over
+    /// every forward step of 2 to [`MAX_LOST_MESSAGES`] + 1 (with 32-bit wrap-around).
     pub lost: u64,
-    /// Number of forward jumps (gaps).
+    /// Number of those forward steps (gaps).
     pub gaps: u64,
+    /// Forward steps that skip more than [`MAX_LOST_MESSAGES`]: not losses (not in
+    /// `lost`), a corrupt or renumbered sequence.
+    pub jumps: u64,
     /// Messages whose sequence did not advance (repeated or went back).
     pub out_of_order: u64,
+    /// `CompensatedBlock` channels: accelerometer blocks without a compensated output,
+    /// by `input_seq` in file order: a forward step of `k` (from 2 to
+    /// [`MAX_LOST_MESSAGES`] plus one) counts `k - 1`. Blocks before the channel's first
+    /// output or after its last are not counted (the channel does not see them); `input_seq` going back (the
+    /// accelerometer's producer restarted) starts the count afresh. 0 on other channels.
+    pub inputs_without_output: u64,
+    /// The forward `input_seq` steps counted in `inputs_without_output`, the first
+    /// [`MAX_LISTED_INPUT_GAPS`] of them.
+    pub input_gaps: Vec<InputGap>,
+    /// `input_seq` steps that skip more than [`MAX_LOST_MESSAGES`]: not counted.
+    pub input_jumps: u64,
+    /// `CompensatedBlock` messages whose `input_seq` could not be decoded: not tracked.
+    pub undecodable: u64,
 }
+
+/// Accelerometer blocks without compensated output: `input_seq` stepped from `from`
+/// to `to` between two consecutive messages of a `CompensatedBlock` channel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct InputGap {
+    pub from: u64,
+    pub to: u64,
+    /// `to - from - 1`.
+    pub missing: u64,
+}
+
+/// The most messages one forward step of a sequence counts as lost; a bigger step is a
+/// jump (see the module doc).
+pub const MAX_LOST_MESSAGES: u64 = 1 << 20;
+
+/// How many [`InputGap`]s a channel lists (all are counted).
+pub const MAX_LISTED_INPUT_GAPS: usize = 16;
 
 /// One metadata record.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -75,16 +119,24 @@ pub struct LogInfo {
     pub first_log_time_ns: Option<u64>,
     pub last_log_time_ns: Option<u64>,
     pub duration_s: f64,
-    /// Messages lost over all channels (sum of [`ChannelInfo::lost`]).
+    /// Messages lost over all channels: the sum of [`ChannelInfo::lost`] and of
+    /// [`ChannelInfo::inputs_without_output`] (accelerometer blocks that reached the
+    /// recorder but no compensator: lost for the compensated stream).
     pub lost: u64,
+    /// Accelerometer blocks without compensated output, over all channels (sum of
+    /// [`ChannelInfo::inputs_without_output`], included in `lost`).
+    pub inputs_without_output: u64,
+    /// Sequence jumps too big to be losses, over all channels (sum of
+    /// [`ChannelInfo::jumps`] and [`ChannelInfo::input_jumps`]; not in `lost`).
+    pub jumps: u64,
     /// Channels, by ID.
     pub channels: Vec<ChannelInfo>,
     pub metadata: Vec<MetadataInfo>,
     pub attachments: Vec<AttachmentInfo>,
 }
 
-/// Sequence numbers advance by one; a forward jump of less than half the 32-bit range is
-/// a gap, anything else a repeat or a step back.
+/// Sequence numbers advance by one; a forward step of less than half the 32-bit range is
+/// a gap (or a jump, beyond [`MAX_LOST_MESSAGES`]), anything else a repeat or a step back.
 fn track_sequence(c: &mut ChannelInfo, sequence: u32) {
     match c.last_sequence {
         None => c.first_sequence = Some(sequence),
@@ -92,14 +144,51 @@ fn track_sequence(c: &mut ChannelInfo, sequence: u32) {
             let step = sequence.wrapping_sub(last);
             if step == 1 {
             } else if step != 0 && step < (1 << 31) {
-                c.gaps += 1;
-                c.lost += u64::from(step - 1);
+                if u64::from(step - 1) > MAX_LOST_MESSAGES {
+                    c.jumps += 1;
+                } else {
+                    c.gaps += 1;
+                    c.lost += u64::from(step - 1);
+                }
             } else {
                 c.out_of_order += 1;
             }
         }
     }
     c.last_sequence = Some(sequence);
+}
+
+/// The accelerometer blocks a compensated block's `input_seq` shows without output,
+/// given the previous message's `input_seq` (`last`) on the same channel.
+fn track_input_seq(c: &mut ChannelInfo, last: Option<u64>, input_seq: u64) {
+    let Some(last) = last else { return };
+    if input_seq <= last.saturating_add(1) {
+        // Consecutive, repeated, or back (the accelerometer's producer restarted).
+        return;
+    }
+    let missing = input_seq - last - 1;
+    if missing > MAX_LOST_MESSAGES {
+        c.input_jumps += 1;
+        return;
+    }
+    c.inputs_without_output += missing;
+    if c.input_gaps.len() < MAX_LISTED_INPUT_GAPS {
+        c.input_gaps.push(InputGap {
+            from: last,
+            to: input_seq,
+            missing,
+        });
+    }
+}
+
+/// The one field of a `vibrocomp.v1.CompensatedBlock` that `info` reads: decoding the
+/// whole message would allocate its seven sample arrays for nothing (prost skips the
+/// other fields by their length). The tag is the one of [`crate::proto::CompensatedBlock`]
+/// (checked by a test).
+#[derive(Clone, PartialEq, prost::Message)]
+struct InputSeqOnly {
+    #[prost(uint64, tag = "2")]
+    input_seq: u64,
 }
 
 fn span_s(first: Option<u64>, last: Option<u64>) -> f64 {
@@ -179,6 +268,8 @@ fn read_info(
         last_log_time_ns: None,
         duration_s: 0.0,
         lost: 0,
+        inputs_without_output: 0,
+        jumps: 0,
         channels: Vec::new(),
         metadata: Vec::new(),
         attachments: Vec::new(),
@@ -187,6 +278,7 @@ fn read_info(
         path,
         schemas: HashMap::new(),
         channels: BTreeMap::new(),
+        last_input_seq: HashMap::new(),
         out,
     };
     // Chunks read whole with their CRC checked: what a recovery keeps of a cut file.
@@ -239,7 +331,9 @@ fn read_info(
     }
     out.channels = channels.into_values().collect();
     out.messages = out.channels.iter().map(|c| c.messages).sum();
-    out.lost = out.channels.iter().map(|c| c.lost).sum();
+    out.inputs_without_output = out.channels.iter().map(|c| c.inputs_without_output).sum();
+    out.lost = out.channels.iter().map(|c| c.lost).sum::<u64>() + out.inputs_without_output;
+    out.jumps = out.channels.iter().map(|c| c.jumps + c.input_jumps).sum();
     out.first_log_time_ns = out
         .channels
         .iter()
@@ -255,6 +349,8 @@ struct Summary<'p> {
     path: &'p Path,
     schemas: HashMap<u16, String>,
     channels: BTreeMap<u16, ChannelInfo>,
+    /// `CompensatedBlock` channels (protobuf-encoded): the last `input_seq` read, if any.
+    last_input_seq: HashMap<u16, Option<u64>>,
     out: LogInfo,
 }
 
@@ -264,6 +360,7 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
         path,
         schemas,
         channels,
+        last_input_seq,
         out,
     } = summary;
     match record {
@@ -276,7 +373,12 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
         }
         McapRecord::Channel(c) => {
             let message_type = schemas.get(&c.schema_id).cloned().unwrap_or_default();
-            let kind = kind_of_schema(&message_type).map(|k| k.name().to_string());
+            let kind = kind_of_schema(&message_type);
+            if kind == Some(MessageKind::CompensatedBlock) && c.message_encoding == MESSAGE_ENCODING
+            {
+                last_input_seq.entry(c.id).or_insert(None);
+            }
+            let kind = kind.map(|k| k.name().to_string());
             channels.entry(c.id).or_insert(ChannelInfo {
                 id: c.id,
                 topic: c.topic,
@@ -291,10 +393,15 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
                 last_sequence: None,
                 lost: 0,
                 gaps: 0,
+                jumps: 0,
                 out_of_order: 0,
+                inputs_without_output: 0,
+                input_gaps: Vec::new(),
+                input_jumps: 0,
+                undecodable: 0,
             });
         }
-        McapRecord::Message { header, .. } => {
+        McapRecord::Message { header, data } => {
             let Some(c) = channels.get_mut(&header.channel_id) else {
                 return Err(Error::Mcap {
                     path: path.to_path_buf(),
@@ -306,6 +413,15 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
             c.first_log_time_ns = Some(c.first_log_time_ns.map_or(t, |f| f.min(t)));
             c.last_log_time_ns = Some(c.last_log_time_ns.map_or(t, |l| l.max(t)));
             track_sequence(c, header.sequence);
+            if let Some(last) = last_input_seq.get_mut(&header.channel_id) {
+                match InputSeqOnly::decode(&*data) {
+                    Ok(m) => {
+                        track_input_seq(c, *last, m.input_seq);
+                        *last = Some(m.input_seq);
+                    }
+                    Err(_) => c.undecodable += 1,
+                }
+            }
         }
         McapRecord::Attachment { header, data, .. } => {
             out.attachments.push(AttachmentInfo {
@@ -344,7 +460,12 @@ mod tests {
             last_sequence: None,
             lost: 0,
             gaps: 0,
+            jumps: 0,
             out_of_order: 0,
+            inputs_without_output: 0,
+            input_gaps: Vec::new(),
+            input_jumps: 0,
+            undecodable: 0,
         }
     }
 
@@ -435,5 +556,140 @@ mod tests {
         assert_eq!(c.gaps, 2);
         assert_eq!(c.lost, 2 + 1);
         assert_eq!(c.out_of_order, 3);
+    }
+
+    #[test]
+    fn random_sequence_numbers_are_jumps_not_losses() {
+        // A crafted log: 1000 messages with random 32-bit sequence numbers.
+        let mut w = mcap::WriteOptions::new()
+            .create(std::io::Cursor::new(Vec::new()))
+            .unwrap();
+        let channel = w.add_channel(0, "/t", "raw", &BTreeMap::new()).unwrap();
+        let mut x = 0x2545_F491_4F6C_DD1Du64;
+        for i in 0..1000u64 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let header = mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: (x >> 32) as u32,
+                log_time: i,
+                publish_time: i,
+            };
+            w.write_to_known_channel(&header, &[1, 2, 3]).unwrap();
+        }
+        w.finish().unwrap();
+        let bytes = w.into_inner().into_inner();
+        let info = info_from_reader(bytes.as_slice(), "r.mcap", bytes.len() as u64).unwrap();
+        let c = &info.channels[0];
+        // Each forward step is below 2^31; summed as losses they came to ~2^39.
+        assert!(c.lost <= c.gaps * MAX_LOST_MESSAGES, "{c:?}");
+        assert_eq!(c.gaps + c.jumps + c.out_of_order, 999, "{c:?}");
+        // About half the steps go forward (binomial, 999 draws: 400 is 6 sigma below).
+        assert!(c.jumps > 400, "{c:?}");
+        assert_eq!((info.lost, info.jumps), (c.lost, c.jumps));
+    }
+
+    #[test]
+    fn the_input_seq_field_is_read_as_the_schema_has_it() {
+        let mut b = vibro_msgs::CompensatedBlock::ZEROED;
+        (b.seq, b.input_seq, b.estimate_seq, b.count) = (7, 123_456_789_012, 99, 32);
+        b.a1_g[31] = [1.0, 2.0, 3.0];
+        let bytes = crate::proto::CompensatedBlock::try_from(&b)
+            .unwrap()
+            .encode_to_vec();
+        let m = InputSeqOnly::decode(bytes.as_slice()).unwrap();
+        assert_eq!(m.input_seq, 123_456_789_012);
+    }
+
+    /// A temporary file name for a test.
+    fn temp_path(name: &str) -> PathBuf {
+        std::env::temp_dir().join(format!("vibro-mcap-info-{}-{name}", std::process::id()))
+    }
+
+    /// A log of `accel` accelerometer blocks (seq 0..accel) and the compensated blocks
+    /// `outputs` (each: the compensator's seq, the input_seq), written by [`Recorder`].
+    fn compensated_log(name: &str, accel: u64, outputs: &[(u64, u64)]) -> PathBuf {
+        use crate::{Recorder, RecorderOptions};
+        let path = temp_path(name);
+        let mut r = Recorder::create(&path, RecorderOptions::default()).unwrap();
+        let a = r.add_channel("/accel", MessageKind::AccelBlock).unwrap();
+        let c = r
+            .add_channel("/compensated", MessageKind::CompensatedBlock)
+            .unwrap();
+        let mut t = 0;
+        for seq in 0..accel {
+            let mut b = vibro_msgs::AccelBlock::ZEROED;
+            (b.seq, b.count) = (seq, 1);
+            t += 1;
+            r.write_to(&a, t, t, seq as u32, b.into()).unwrap();
+        }
+        for &(seq, input_seq) in outputs {
+            let mut b = vibro_msgs::CompensatedBlock::ZEROED;
+            (b.seq, b.input_seq, b.count) = (seq, input_seq, 1);
+            t += 1;
+            r.write_to(&c, t, t, seq as u32, b.into()).unwrap();
+        }
+        r.finish().unwrap();
+        path
+    }
+
+    #[test]
+    fn accel_blocks_without_output_are_losses_across_a_compensator_restart() {
+        // The compensator answered blocks 0..=269 (its seq 0..=269), was restarted and
+        // answered 276..=300 (its seq 0..=24 again): blocks 270..=275 got no output.
+        let outputs: Vec<(u64, u64)> = (0..=269)
+            .map(|i| (i, i))
+            .chain((276..=300).map(|i| (i - 276, i)))
+            .collect();
+        let path = compensated_log("restart.mcap", 301, &outputs);
+        let info = info(&path);
+        let _ = std::fs::remove_file(&path);
+        let info = info.unwrap();
+        let accel = info.channels.iter().find(|c| c.topic == "/accel").unwrap();
+        assert_eq!((accel.lost, accel.inputs_without_output), (0, 0));
+        let c = info
+            .channels
+            .iter()
+            .find(|c| c.topic == "/compensated")
+            .unwrap();
+        // Its own numbering shows one step back and nothing lost.
+        assert_eq!((c.messages, c.lost, c.gaps, c.out_of_order), (295, 0, 0, 1));
+        assert_eq!(c.inputs_without_output, 6, "{c:?}");
+        assert_eq!(
+            c.input_gaps,
+            vec![InputGap {
+                from: 269,
+                to: 276,
+                missing: 6
+            }]
+        );
+        assert_eq!((c.input_jumps, c.undecodable), (0, 0));
+        assert_eq!(
+            (info.lost, info.inputs_without_output, info.jumps),
+            (6, 6, 0)
+        );
+    }
+
+    #[test]
+    fn a_restarted_accel_producer_is_not_a_loss_and_a_random_input_seq_is_a_jump() {
+        // input_seq 0..=9, back to 0..=9 (a new replay), then a random one, then 3 lost.
+        let outputs: Vec<(u64, u64)> = (0..10)
+            .chain(0..10)
+            .chain([0xDEAD_BEEF_0000, 0xDEAD_BEEF_0004])
+            .enumerate()
+            .map(|(i, s)| (i as u64, s))
+            .collect();
+        let path = compensated_log("accel-restart.mcap", 10, &outputs);
+        let info = info(&path);
+        let _ = std::fs::remove_file(&path);
+        let info = info.unwrap();
+        let c = &info.channels[1];
+        assert_eq!(
+            (c.inputs_without_output, c.input_jumps, c.out_of_order),
+            (3, 1, 0),
+            "{c:?}"
+        );
+        assert_eq!((info.lost, info.jumps), (3, 1));
     }
 }

@@ -72,7 +72,10 @@ pub mod proto {
 }
 
 pub use convert::Message;
-pub use info::{info, info_from_reader, AttachmentInfo, ChannelInfo, LogInfo, MetadataInfo};
+pub use info::{
+    info, info_from_reader, AttachmentInfo, ChannelInfo, InputGap, LogInfo, MetadataInfo,
+    MAX_LOST_MESSAGES,
+};
 pub use reader::{Reader, Record};
 pub use recorder::{
     ChannelId, Compression, Recorder, RecorderOptions, RecorderStats, RecordingSummary,

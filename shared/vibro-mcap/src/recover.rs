@@ -9,10 +9,14 @@
 //! the messages its message-index records list. A record that cannot be parsed (a
 //! garbled message index, attachment or header), or one that claims to run past the end
 //! of the file, makes the reader *resynchronise*: it scans forward, byte by byte, for
-//! the next chunk record whose frame, header and records parse and whose CRC checks
-//! out, and carries on from there; the bytes in between are reported as a damaged
-//! region. Reading stops at the data-end record of a complete file, or where no intact
-//! chunk follows the damage.
+//! the next record that proves itself intact (a chunk whose frame, header and records
+//! parse and whose CRC checks out, or an attachment with a CRC that checks out), and
+//! carries on from there, reading the records that follow it (metadata among them) as
+//! usual; the bytes in between are reported as a damaged region. Records without a CRC
+//! of their own (metadata, message indexes) cannot prove themselves, so the scan never
+//! stops on one: those between the damage and the next intact chunk or attachment are
+//! lost with the region. Reading stops at the data-end record of a complete file, or
+//! where nothing intact follows the damage.
 
 use crate::{guard, Error, Result};
 use mcap::records::Record as McapRecord;
@@ -258,6 +262,12 @@ const FRAME_BYTES: u64 = 9;
 /// uncompressed size, CRC.
 const CHUNK_FIXED_BYTES: u64 = 8 + 8 + 8 + 4;
 
+/// Where an attachment body's name length lies (after its log and create times), and
+/// the fixed fields of an attachment body: times, name and media-type lengths, data
+/// length, CRC.
+const ATTACHMENT_NAME_AT: u64 = 8 + 8;
+const ATTACHMENT_FIXED_BYTES: u64 = 8 + 8 + 4 + 4 + 8 + 4;
+
 /// One record read at a position of the input.
 enum Framed {
     /// The file ends there.
@@ -310,6 +320,32 @@ fn frame(
     })
 }
 
+/// The record's length and the u32 at byte `field_at` of its body, if the bytes at
+/// `pos` start a record with `opcode` whose length fits in the file (`input_bytes`):
+/// the first, cheap test of a candidate while resynchronising.
+fn peek(
+    input: &mut (impl Read + Seek),
+    path: &Path,
+    (pos, input_bytes): (u64, u64),
+    opcode: u8,
+    field_at: u64,
+) -> Result<Option<(u64, u64)>> {
+    // The longest head asked for is a chunk's (its compression length).
+    debug_assert!(field_at <= CHUNK_FIXED_BYTES);
+    let mut head = [0u8; (FRAME_BYTES + CHUNK_FIXED_BYTES + 4) as usize];
+    let head = &mut head[..(FRAME_BYTES + field_at + 4) as usize];
+    if !read_at(input, pos, head).map_err(|e| Error::io("read", path, e))? || head[0] != opcode {
+        return Ok(None);
+    }
+    let mut n = [0u8; 8];
+    n.copy_from_slice(&head[1..9]);
+    let len = u64::from_le_bytes(n);
+    let mut c = [0u8; 4];
+    c.copy_from_slice(&head[head.len() - 4..]);
+    let field = u64::from(u32::from_le_bytes(c));
+    Ok((len <= input_bytes - pos - FRAME_BYTES).then_some((len, field)))
+}
+
 /// Whether the bytes at `pos` are a chunk record whose frame, header and records parse
 /// and whose CRC checks out. Cheap tests first (opcode, a length within the file, a
 /// known compression, a records length that fills the rest of the record), so that a
@@ -322,20 +358,17 @@ fn intact_chunk_at(
     body: &mut Vec<u8>,
 ) -> Result<bool> {
     let io = |e| Error::io("read", path, e);
-    let mut head = [0u8; (FRAME_BYTES + CHUNK_FIXED_BYTES + 4) as usize];
-    if !read_at(input, pos, &mut head).map_err(io)? || head[0] != mcap::records::op::CHUNK {
+    let Some((len, compression_len)) = peek(
+        input,
+        path,
+        (pos, input_bytes),
+        mcap::records::op::CHUNK,
+        CHUNK_FIXED_BYTES,
+    )?
+    else {
         return Ok(false);
-    }
-    let mut n = [0u8; 8];
-    n.copy_from_slice(&head[1..9]);
-    let len = u64::from_le_bytes(n);
-    let mut c = [0u8; 4];
-    c.copy_from_slice(&head[head.len() - 4..]);
-    let compression_len = u64::from(u32::from_le_bytes(c));
-    if len > input_bytes - pos - FRAME_BYTES
-        || compression_len > 4
-        || len < CHUNK_FIXED_BYTES + 4 + compression_len + 8
-    {
+    };
+    if compression_len > 4 || len < CHUNK_FIXED_BYTES + 4 + compression_len + 8 {
         return Ok(false);
     }
     let mut rest = [0u8; 4 + 8];
@@ -366,7 +399,44 @@ fn intact_chunk_at(
     Ok(chunk_records(&header, &data, &mut buf).is_ok())
 }
 
-/// The start of the next intact chunk at or after `from`, if any.
+/// Whether the bytes at `pos` are an attachment record that frames, parses, and carries
+/// a CRC (not 0, which means "none") that checks out (`mcap::parse_record` checks it).
+fn intact_attachment_at(
+    input: &mut (impl Read + Seek),
+    path: &Path,
+    pos: u64,
+    input_bytes: u64,
+    body: &mut Vec<u8>,
+) -> Result<bool> {
+    // Cheap tests first: the opcode, a length within the file and long enough for the
+    // fixed fields (log and create time, name and media-type lengths, data length, CRC),
+    // and a name that fits in it.
+    let Some((len, name_len)) = peek(
+        input,
+        path,
+        (pos, input_bytes),
+        mcap::records::op::ATTACHMENT,
+        ATTACHMENT_NAME_AT,
+    )?
+    else {
+        return Ok(false);
+    };
+    if len < ATTACHMENT_FIXED_BYTES || name_len > len - ATTACHMENT_FIXED_BYTES {
+        return Ok(false);
+    }
+    let Framed::Record { opcode, .. } = frame(input, path, pos, input_bytes, body)? else {
+        return Ok(false);
+    };
+    if opcode != mcap::records::op::ATTACHMENT || guard::record(opcode, body).is_err() {
+        return Ok(false);
+    }
+    Ok(matches!(
+        mcap::parse_record(opcode, body),
+        Ok(McapRecord::Attachment { crc, .. }) if crc != 0
+    ))
+}
+
+/// The start of the next intact chunk or attachment at or after `from`, if any.
 fn resync(
     input: &mut (impl Read + Seek),
     path: &Path,
@@ -386,11 +456,13 @@ fn resync(
         let candidates: Vec<u64> = block
             .iter()
             .enumerate()
-            .filter(|(_, &b)| b == mcap::records::op::CHUNK)
+            .filter(|(_, &b)| b == mcap::records::op::CHUNK || b == mcap::records::op::ATTACHMENT)
             .map(|(i, _)| at + i as u64)
             .collect();
         for pos in candidates {
-            if intact_chunk_at(input, path, pos, input_bytes, &mut body)? {
+            if intact_chunk_at(input, path, pos, input_bytes, &mut body)?
+                || intact_attachment_at(input, path, pos, input_bytes, &mut body)?
+            {
                 return Ok(Some(pos));
             }
         }
@@ -516,7 +588,7 @@ pub fn recover_from_reader<W: Write + Seek>(
         if let Some((d, _)) = skipped.take() {
             damage.push(d);
         }
-        // Damage at `pos`: carry on at the next intact chunk, if there is one.
+        // Damage at `pos`: carry on at the next intact chunk or attachment, if any.
         let Some(next) = resync(&mut damaged, input, pos + 1, input_bytes)? else {
             if copier.is_none() {
                 return Err(if problem.starts_with("the file ends") {

@@ -52,6 +52,21 @@ fn cholesky3(c: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
     l
 }
 
+/// Most Monte Carlo evaluations [`monte_carlo_ve`] takes: about a minute of an
+/// optimised build; beyond, a call (`--samples 18446744073709551615`) does not end.
+pub const MAX_SAMPLES: u64 = 1_000_000_000;
+
+/// The rule of [`monte_carlo_ve`]'s `samples`: `None` when `samples` keeps it.
+pub fn samples_problem(samples: u64) -> Option<&'static str> {
+    if samples < 4 {
+        Some("at least 4 Monte Carlo samples are needed for a standard error")
+    } else if samples > MAX_SAMPLES {
+        Some("at most 1e9 Monte Carlo samples (a run of about a minute; more does not end)")
+    } else {
+        None
+    }
+}
+
 /// Monte Carlo VE of unit `p` at flight acceleration `a_l_g = [aL1, aL2, aL3]` with
 /// `samples` evaluations (rounded up to an even number), reproducible from `seed`.
 /// `lambda(f)` scales each tone inside the asymmetry term, as in [`crate::exact`].
@@ -63,11 +78,11 @@ pub fn monte_carlo_ve(
     seed: u64,
 ) -> Result<MonteCarloVe> {
     vib.validate()?;
-    if samples < 4 {
+    if let Some(rule) = samples_problem(samples) {
         return Err(Error::InvalidArgument {
             name: "samples",
             value: samples as f64,
-            rule: "at least 4 Monte Carlo samples are needed for a standard error",
+            rule,
         });
     }
     let pairs = samples.div_ceil(2);
@@ -134,6 +149,15 @@ pub fn monte_carlo_ve(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn samples_rule_bounds_both_ends() {
+        assert!(samples_problem(3).is_some());
+        assert!(samples_problem(4).is_none());
+        assert!(samples_problem(MAX_SAMPLES).is_none());
+        assert!(samples_problem(MAX_SAMPLES + 1).is_some());
+        assert!(samples_problem(u64::MAX).is_some());
+    }
     use crate::exact::exact_ve;
     use crate::testutil::{aks05, al15};
     use crate::ve::{published, Constants};

@@ -162,27 +162,22 @@ impl Vibration {
             && self.covariance_g2.iter().flatten().all(|c| *c == 0.0)
     }
 
-    /// Checks every value, reporting all problems at once.
+    /// Checks every value, reporting all problems at once. The rule of each value
+    /// alone is one of [`rules`]' functions (the command line's flags use them too).
     pub fn validate(&self) -> Result<()> {
         let mut problems = Vec::new();
         for (k, t) in self.tones().iter().enumerate() {
-            if !(t.freq_hz.is_finite() && t.freq_hz >= 0.0) {
-                problems.push(format!(
-                    "tone[{k}].freq_hz = {}: must be finite and >= 0",
-                    t.freq_hz
-                ));
+            if let Some(rule) = rules::freq_hz(t.freq_hz) {
+                problems.push(format!("tone[{k}].freq_hz = {}: {rule}", t.freq_hz));
             }
             for i in 0..3 {
                 let a = t.amplitude_g[i];
-                if !(a.is_finite() && (0.0..=1e3).contains(&a)) {
-                    problems.push(format!(
-                        "tone[{k}].aB{}_g = {a}: must be finite and 0 <= aB <= 1000 g",
-                        i + 1
-                    ));
+                if let Some(rule) = rules::amplitude_g(a) {
+                    problems.push(format!("tone[{k}].aB{}_g = {a}: {rule}", i + 1));
                 }
-                if !t.phase_rad[i].is_finite() {
+                if let Some(rule) = rules::phase(t.phase_rad[i]) {
                     problems.push(format!(
-                        "tone[{k}].phase{}_rad = {}: must be finite",
+                        "tone[{k}].phase{}_rad = {}: {rule}",
                         i + 1,
                         t.phase_rad[i]
                     ));
@@ -191,26 +186,19 @@ impl Vibration {
         }
         let c = &self.covariance_g2;
         for i in 0..3 {
-            if !(c[i][i].is_finite() && c[i][i] >= 0.0 && c[i][i] <= 1e6) {
-                problems.push(format!(
-                    "sigma{}^2 = {} g^2: must be finite and 0 <= sigma^2 <= 1e6 g^2",
-                    i + 1,
-                    c[i][i]
-                ));
+            if let Some(rule) = rules::variance_g2(c[i][i]) {
+                problems.push(format!("sigma{}^2 = {} g^2: {rule}", i + 1, c[i][i]));
             }
             let k = self.kurtosis[i];
-            if !(k.is_finite() && (1.0..=30.0).contains(&k)) {
-                problems.push(format!(
-                    "kurtosis{} = {k}: must be finite and 1 <= kurtosis <= 30",
-                    i + 1
-                ));
+            if let Some(rule) = rules::kurtosis(k) {
+                problems.push(format!("kurtosis{} = {k}: {rule}", i + 1));
             }
             for j in 0..3 {
                 if i == j {
                     continue;
                 }
                 let cij = c[i][j];
-                if !cij.is_finite() || cij != c[j][i] {
+                if rules::covariance_g2(cij).is_some() || cij != c[j][i] {
                     problems.push(format!(
                         "cov{}{} = {cij} g^2: must be finite and equal to cov{}{} = {}",
                         i + 1,
@@ -240,6 +228,62 @@ impl Vibration {
     }
 }
 
+/// The rule of each value of a [`Vibration`] on its own: `None` when the value keeps
+/// it, else the rule it breaks (without the value's name, which the caller knows: a
+/// file's key, a command-line flag). [`Vibration::validate`] applies them, plus the
+/// rules across values (a covariance within the sigmas, a symmetric matrix).
+pub mod rules {
+    /// Largest tone amplitude, g.
+    pub const MAX_AMPLITUDE_G: f64 = 1e3;
+    /// Largest variance of the random part, g^2 (sigma <= 1000 g).
+    pub const MAX_VARIANCE_G2: f64 = 1e6;
+    /// Kurtosis range (Gaussian: 3).
+    pub const KURTOSIS_RANGE: std::ops::RangeInclusive<f64> = 1.0..=30.0;
+
+    /// A tone's frequency, Hz.
+    pub fn freq_hz(f_hz: f64) -> Option<&'static str> {
+        (!(f_hz.is_finite() && f_hz >= 0.0)).then_some("must be finite and >= 0")
+    }
+
+    /// A tone's amplitude, g.
+    pub fn amplitude_g(a_g: f64) -> Option<&'static str> {
+        (!(a_g.is_finite() && (0.0..=MAX_AMPLITUDE_G).contains(&a_g)))
+            .then_some("must be finite and 0 <= aB <= 1000 g")
+    }
+
+    /// A phase (any unit).
+    pub fn phase(x: f64) -> Option<&'static str> {
+        (!x.is_finite()).then_some("must be finite")
+    }
+
+    /// A variance of the random part, g^2.
+    pub fn variance_g2(v_g2: f64) -> Option<&'static str> {
+        (!(v_g2.is_finite() && (0.0..=MAX_VARIANCE_G2).contains(&v_g2)))
+            .then_some("must be finite and 0 <= sigma^2 <= 1e6 g^2")
+    }
+
+    /// An RMS of the random part, g: [`variance_g2`] of its square, and not negative.
+    pub fn sigma_g(s_g: f64) -> Option<&'static str> {
+        if !(s_g.is_finite() && s_g >= 0.0) {
+            return Some("must be finite and >= 0");
+        }
+        variance_g2(s_g * s_g)
+            .map(|_| "must be finite and 0 <= sigma^2 <= 1e6 g^2 (sigma <= 1000 g)")
+    }
+
+    /// A covariance between two axes, g^2, on its own (its bound by the sigmas is
+    /// [`super::Vibration::validate`]'s).
+    pub fn covariance_g2(c_g2: f64) -> Option<&'static str> {
+        (!c_g2.is_finite()).then_some("must be finite")
+    }
+
+    /// The kurtosis of an axis.
+    pub fn kurtosis(k: f64) -> Option<&'static str> {
+        (!(k.is_finite() && KURTOSIS_RANGE.contains(&k)))
+            .then_some("must be finite and 1 <= kurtosis <= 30")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -254,6 +298,30 @@ mod tests {
             psd_g2_per_hz: [0.0, 0.0, 0.12],
         }]);
         assert!((v.covariance_g2[2][2] - 38.4).abs() < 1e-12);
+    }
+
+    #[test]
+    fn per_value_rules_are_the_ones_validate_applies() {
+        // sigma <= 1000 g is sigma^2 <= 1e6 g^2, on both sides of the boundary.
+        assert!(rules::sigma_g(1000.0).is_none());
+        assert!(rules::sigma_g(1000.000001).is_some());
+        assert!(rules::sigma_g(-1e-300).is_some());
+        for (variance_g2, ok) in [(1e6, true), (1e6 + 1.0, false), (f64::NAN, false)] {
+            let mut v = Vibration::none();
+            v.covariance_g2[2][2] = variance_g2;
+            assert_eq!(v.validate().is_ok(), ok, "{variance_g2}");
+            assert_eq!(
+                rules::variance_g2(variance_g2).is_none(),
+                ok,
+                "{variance_g2}"
+            );
+        }
+        for (k, ok) in [(1.0, true), (30.0, true), (30.5, false), (0.99, false)] {
+            let mut v = Vibration::none();
+            v.kurtosis[2] = k;
+            assert_eq!(v.validate().is_ok(), ok, "{k}");
+            assert_eq!(rules::kurtosis(k).is_none(), ok, "{k}");
+        }
     }
 
     #[test]

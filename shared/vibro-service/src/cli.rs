@@ -5,7 +5,7 @@
 use crate::LoopMode;
 use std::path::PathBuf;
 
-/// `[--config FILE] [--prefix PREFIX] [--mode event|spin] [--json]`.
+/// `[--config FILE] [--prefix PREFIX] [--mode event|spin] [--realtime-priority N] [--json]`.
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct ServiceArgs {
     /// Configuration file [default: config/services/<service>.toml if it exists, else
@@ -18,6 +18,10 @@ pub struct ServiceArgs {
     /// How the hot loop waits: `event` (WaitSet) or `spin` (busy-poll).
     #[arg(long, value_name = "event|spin")]
     pub mode: Option<LoopMode>,
+    /// Run the hot loop under SCHED_FIFO at this priority (1..=99), overriding
+    /// `[service] realtime_priority`; needs CAP_SYS_NICE or `ulimit -r`.
+    #[arg(long, value_name = "1..99", value_parser = clap::value_parser!(u8).range(1..=99))]
+    pub realtime_priority: Option<u8>,
     /// Print the final summary as JSON on stdout when stopping.
     #[arg(long)]
     pub json: bool,

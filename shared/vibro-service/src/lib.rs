@@ -15,6 +15,7 @@
 //! - what the hot loop keeps: the clock ([`now_ns`]), stream [`Continuity`] and its
 //!   [`StreamCounters`], [`Latency`] histograms, [`HeartbeatPublisher`], [`count_first`]
 //!   (log a problem once, count the rest), and [`JsonObject`] for the summaries;
+//! - [`realtime`]: the hot-loop thread under `SCHED_FIFO` when asked for;
 //! - [`supervise`]: a system of services as child processes (stopped with their parent,
 //!   watched until their heartbeats come, restarted within limits);
 //! - with the `testing` feature, [`testing`]: a service running in-process for tests.
@@ -61,6 +62,7 @@ mod continuity;
 mod heartbeat;
 mod json;
 mod latency;
+pub mod realtime;
 mod runtime;
 mod settings;
 mod shutdown;

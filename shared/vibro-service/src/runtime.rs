@@ -95,7 +95,7 @@ pub trait ServiceSummary {
 
 /// What a service's binary (and `vibrocomp service <name>`) does with its command line:
 /// loads the configuration (`--config FILE`, else [`ServiceConfig::load_default`]),
-/// applies `--prefix` and `--mode`, runs `run_async(config, shutdown)` under
+/// applies `--prefix`, `--mode` and `--realtime-priority`, runs `run_async(config, shutdown)` under
 /// [`run_service`] until SIGINT/SIGTERM, and prints the summary's JSON on stdout with
 /// `--json`.
 pub fn main_with<C, S, F, Fut>(args: &ServiceArgs, run_async: F) -> anyhow::Result<()>
@@ -114,6 +114,9 @@ where
     }
     if let Some(mode) = args.mode {
         config.service_mut().loop_mode = mode;
+    }
+    if let Some(priority) = args.realtime_priority {
+        config.service_mut().realtime_priority = Some(priority);
     }
     let summary = run_service(|shutdown| run_async(config, shutdown))?;
     if args.json {

@@ -155,6 +155,10 @@ pub struct ServiceSettingsRaw {
     /// Longest the event loop sleeps before it looks at the shutdown flag again.
     #[serde(default = "default_shutdown_poll_s")]
     pub shutdown_poll_s: f64,
+    /// `SCHED_FIFO` priority of the hot-loop thread (1..=99); absent: normal
+    /// scheduling. `--realtime-priority` overrides it ([`crate::realtime`]).
+    #[serde(default)]
+    pub realtime_priority: Option<i64>,
 }
 
 fn default_heartbeat_period_s() -> f64 {
@@ -174,6 +178,7 @@ impl Default for ServiceSettingsRaw {
             heartbeat_period_s: default_heartbeat_period_s(),
             summary_period_s: default_summary_period_s(),
             shutdown_poll_s: default_shutdown_poll_s(),
+            realtime_priority: None,
         }
     }
 }
@@ -185,6 +190,8 @@ pub struct ServiceSettings {
     pub heartbeat_period: Duration,
     pub summary_period: Duration,
     pub shutdown_poll: Duration,
+    /// `SCHED_FIFO` priority of the hot-loop thread, if asked for.
+    pub realtime_priority: Option<u8>,
 }
 
 impl Default for ServiceSettings {
@@ -197,6 +204,7 @@ impl Default for ServiceSettings {
                 heartbeat_period: Duration::from_secs(1),
                 summary_period: Duration::from_secs(10),
                 shutdown_poll: Duration::from_millis(100),
+                realtime_priority: None,
             })
     }
 }
@@ -243,11 +251,24 @@ impl ServiceSettingsRaw {
             1.0,
             problems,
         );
+        let realtime = match self.realtime_priority {
+            None => Some(None),
+            Some(p) => match u8::try_from(p) {
+                Ok(p) if crate::realtime::PRIORITY_RANGE.contains(&p) => Some(Some(p)),
+                _ => {
+                    problems.push(format!(
+                        "{table}.realtime_priority = {p}: must be 1..=99 (a SCHED_FIFO priority)"
+                    ));
+                    None
+                }
+            },
+        };
         Some(ServiceSettings {
             loop_mode: self.loop_mode,
             heartbeat_period: hb?,
             summary_period: summary?,
             shutdown_poll: poll?,
+            realtime_priority: realtime?,
         })
     }
 }
@@ -293,6 +314,24 @@ mod tests {
         assert!(e.problems[0].contains("unknown variant `fast`"), "{e}");
         let e = parse_toml::<ServiceSettingsRaw>("period = 1.0", "x.toml").unwrap_err();
         assert!(e.to_string().contains("unknown field `period`"), "{e}");
+        assert_eq!(s.realtime_priority, None);
+        for (p, ok) in [(0, false), (1, true), (99, true), (100, false), (-5, false)] {
+            let raw: ServiceSettingsRaw =
+                parse_toml(&format!("realtime_priority = {p}"), "x.toml").unwrap();
+            let mut problems = Vec::new();
+            let got = raw.validate("service", &mut problems);
+            if ok {
+                assert_eq!(got.unwrap().realtime_priority, Some(p as u8));
+            } else {
+                assert!(got.is_none());
+                assert_eq!(
+                    problems,
+                    [format!(
+                        "service.realtime_priority = {p}: must be 1..=99 (a SCHED_FIFO priority)"
+                    )]
+                );
+            }
+        }
     }
 
     #[test]

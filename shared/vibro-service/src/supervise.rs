@@ -177,6 +177,117 @@ pub fn running_on(
         .collect())
 }
 
+/// The claim of one `vibrocomp up` on a prefix ([`claim_prefix`]): an exclusive
+/// advisory lock (`flock`) on a file named from the prefix, held while this value
+/// lives. The kernel releases it when the process dies, so an `up` killed with
+/// SIGKILL leaves no stale claim (at most the file, which the next claim reuses).
+/// Dropping it removes the file.
+#[derive(Debug)]
+pub struct PrefixClaim {
+    path: std::path::PathBuf,
+    // Kept open: the lock lives as long as this descriptor (opened close-on-exec, so
+    // the services started meanwhile do not inherit it).
+    _file: std::fs::File,
+}
+
+/// Another process holds the claim on a prefix ([`claim_prefix`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Claimed {
+    pub path: std::path::PathBuf,
+    /// The holder's process id, as it wrote it in the file (`None`: not written yet).
+    pub pid: Option<u32>,
+}
+
+impl PrefixClaim {
+    /// The lock file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl Drop for PrefixClaim {
+    fn drop(&mut self) {
+        // Removed while still locked: a process waiting on this file then sees, once
+        // it gets the lock, that the path no longer names it, and claims afresh.
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// The file that claims `prefix`: `vibrocomp-up-{prefix, / and other non-alphanumerics
+/// as _}-{FNV-1a hash of the prefix}.lock` in `$XDG_RUNTIME_DIR` (a per-user tmpfs),
+/// else the temporary folder. The hash keeps `a/b` and `a_b` apart.
+pub fn prefix_lock_path(prefix: &str) -> std::path::PathBuf {
+    let dir = std::env::var_os("XDG_RUNTIME_DIR")
+        .map(std::path::PathBuf::from)
+        .filter(|d| d.is_absolute() && d.is_dir())
+        .unwrap_or_else(std::env::temp_dir);
+    let readable: String = prefix
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    // FNV-1a, 64 bit.
+    let hash = prefix.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    });
+    dir.join(format!("vibrocomp-up-{readable}-{hash:016x}.lock"))
+}
+
+/// Claims `prefix` for one system: takes the exclusive lock on
+/// [`prefix_lock_path`] without waiting, and writes our pid into the file. `Ok(Err)`
+/// when another process holds it (a racing `up`, or one already running), with its
+/// pid; `Err` when the file cannot be made or locked at all. Two `up`s started at the
+/// same instant both find no system running; only one of them gets the claim.
+pub fn claim_prefix(prefix: &str) -> anyhow::Result<std::result::Result<PrefixClaim, Claimed>> {
+    use std::io::{Read, Seek, Write};
+    use std::os::unix::fs::MetadataExt;
+    use std::os::unix::io::AsRawFd;
+    let path = prefix_lock_path(prefix);
+    // A holder that removes the file on exit may do so between our open and our lock:
+    // we would then hold a lock on a file nobody else can find. Checked after locking
+    // (the path must still name the locked file), retried if not.
+    for _ in 0..100 {
+        let mut file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .with_context(|| format!("opening the prefix lock {}", path.display()))?;
+        // SAFETY: flock on a descriptor we own.
+        if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+            let e = std::io::Error::last_os_error();
+            if e.raw_os_error() != Some(libc::EWOULDBLOCK) {
+                return Err(e).with_context(|| format!("locking {}", path.display()));
+            }
+            let mut text = String::new();
+            let _ = file.read_to_string(&mut text);
+            return Ok(Err(Claimed {
+                path,
+                pid: text.trim().parse().ok(),
+            }));
+        }
+        let ours = file.metadata()?;
+        match std::fs::metadata(&path) {
+            Ok(m) if m.ino() == ours.ino() && m.dev() == ours.dev() => {}
+            _ => continue, // removed or replaced since we opened it: start again
+        }
+        file.set_len(0)?;
+        file.rewind()?;
+        write!(file, "{}", std::process::id())?;
+        return Ok(Ok(PrefixClaim { path, _file: file }));
+    }
+    bail!(
+        "could not claim the prefix lock {}: it kept being replaced",
+        path.display()
+    )
+}
+
 /// A child process that is stopped (SIGTERM, then SIGKILL) when dropped.
 pub struct Process {
     /// What it is, for messages (`estimator`, `compensator`, `recorder`).

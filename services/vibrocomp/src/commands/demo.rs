@@ -90,19 +90,24 @@ fn losses(v: &serde_json::Value) -> u64 {
 
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let started = Instant::now();
-    anyhow::ensure!(
-        args.window_s.is_finite() && args.window_s > 0.0,
-        "--window-s = {}: must be finite and > 0",
-        args.window_s
-    );
     let scenario = vibro_sim::resolve_scenario(&args.scenario)
         .with_context(|| format!("scenario {}", args.scenario))?;
-    if !matches!(scenario.kind, ScenarioKind::Flight(_)) {
+    let ScenarioKind::Flight(flight) = &scenario.kind else {
         bail!(
             "--scenario {}: the demo needs a flight, not a campaign",
             args.scenario
         );
-    }
+    };
+    // Before anything runs: a window holds at least one accelerometer output of the
+    // scenario and fits in its flight (beyond, no window is ever complete).
+    let mut problems = crate::flags::FlagProblems::new();
+    problems.seconds(
+        "--window-s",
+        args.window_s,
+        1.0 / scenario.rates.output_hz,
+        flight.duration_s,
+    );
+    problems.finish()?;
     std::fs::create_dir_all(&args.out_dir)
         .with_context(|| format!("creating {}", args.out_dir.display()))?;
     let flight_log = args.out_dir.join("flight.mcap");

@@ -112,11 +112,9 @@ struct Report<'a> {
 
 pub fn run(args: EstimateArgs) -> anyhow::Result<()> {
     let raw = config_from_args(&args)?;
-    let config = EstimatorConfig::try_from(raw.clone()).context(
-        "checking the estimation options (named by their configuration keys: \
-         window_s is --window-s, overlap_fraction is --overlap, broadband_band_hz is --band-hz, \
-         tone_snr_threshold_db is --snr-db)",
-    )?;
+    // The estimator service's configuration rules (`EstimatorConfig::try_from`), every
+    // problem named by its flag as well as its key.
+    let config = EstimatorConfig::try_from(raw.clone()).map_err(flag_problems)?;
     let mut estimator = Estimator::new(config);
     let (estimates, columns, rows) = read_and_estimate(&args.file, &mut estimator)?;
     if args.json {
@@ -191,6 +189,77 @@ fn config_from_args(args: &EstimateArgs) -> anyhow::Result<EstimatorConfigRaw> {
         raw.response = read_response(path)?;
     }
     Ok(raw)
+}
+
+/// The configuration key each flag sets (`EstimatorConfigRaw`), for the problems of
+/// `EstimatorConfig::try_from`.
+const FLAG_OF_KEY: [(&str, &str); 13] = [
+    ("sample_rate_hz", "--rate-hz"),
+    ("sensitivity_raw_per_g", "--sensitivity-v-per-g"),
+    ("full_scale_g", "--full-scale-g"),
+    ("ac_corner_hz", "--ac-corner-hz"),
+    ("window_s", "--window-s"),
+    ("overlap_fraction", "--overlap"),
+    ("max_tones", "--max-tones"),
+    ("tone_snr_threshold_db", "--snr-db"),
+    ("tone_band_hz", "--tone-band-hz"),
+    ("broadband_band_hz", "--band-hz"),
+    ("psd_bands_hz", "--psd-bands-hz"),
+    ("welch_segment_s", "--welch-segment-s"),
+    ("response", "--response"),
+];
+
+/// The estimator's configuration problems as `--flag: key = value: rule`, all at
+/// once, the huge or tiny numbers the library prints in full (`1e300` as 301 digits)
+/// in engineering form.
+fn flag_problems(e: vibro_dsp::Error) -> anyhow::Error {
+    let vibro_dsp::Error::InvalidConfig { problems } = e else {
+        return anyhow::Error::new(e).context("checking the estimation options");
+    };
+    let lines: Vec<String> = problems
+        .iter()
+        .map(|text| {
+            let text = shorten_numbers(text);
+            let key_end = text
+                .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+                .unwrap_or(text.len());
+            match FLAG_OF_KEY.iter().find(|(key, _)| *key == &text[..key_end]) {
+                Some((_, flag)) => format!("{flag}: {text}"),
+                None => text,
+            }
+        })
+        .collect();
+    match lines.as_slice() {
+        [one] => anyhow::anyhow!("{one}"),
+        _ => anyhow::anyhow!("{} bad values:\n  {}", lines.len(), lines.join("\n  ")),
+    }
+}
+
+/// Rewrites every number of more than 24 characters (a float printed in full) in
+/// engineering form (`crate::output::fmt_num`).
+fn shorten_numbers(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
+        let len = rest[start..]
+            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .unwrap_or(rest.len() - start);
+        // A leading minus sign belongs to the number.
+        let from = if start > 0 && rest.as_bytes()[start - 1] == b'-' {
+            start - 1
+        } else {
+            start
+        };
+        let token = &rest[from..start + len];
+        out.push_str(&rest[..from]);
+        match token.parse::<f64>() {
+            Ok(x) if token.len() > 24 => out.push_str(&crate::output::fmt_num(x)),
+            _ => out.push_str(token),
+        }
+        rest = &rest[start + len..];
+    }
+    out.push_str(rest);
+    out
 }
 
 fn parse_band(text: &str) -> anyhow::Result<[f64; 2]> {

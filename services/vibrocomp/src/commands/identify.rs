@@ -405,10 +405,11 @@ fn passport_terms(p: &Passport) -> PassportTerms {
 }
 
 fn run_positions(args: PositionsArgs) -> anyhow::Result<()> {
+    // A flight acceleration's and a tone amplitude's rules (a scenario's, the
+    // physics'), every bad value at once.
+    let mut problems = crate::flags::FlagProblems::new();
     for a in &args.at_g {
-        if !a.is_finite() {
-            bail!("--at-g {a}: must be a finite flight acceleration in g");
-        }
+        problems.accel_g("--at-g", *a);
     }
     for (name, value) in [
         ("--at-ab3-g", args.at_ab3_g),
@@ -416,11 +417,10 @@ fn run_positions(args: PositionsArgs) -> anyhow::Result<()> {
         ("--at-ab2-g", args.at_ab2_g),
     ] {
         if let Some(v) = value {
-            if !(v.is_finite() && v >= 0.0) {
-                bail!("{name} {v}: must be a finite vibration amplitude >= 0 g");
-            }
+            problems.amplitude_g(name, v);
         }
     }
+    problems.finish()?;
     let passport = load_passport(&args.passport)?;
     let k1 = passport.k1_v_per_g;
     let file = args.file.display().to_string();

@@ -23,6 +23,20 @@
 //! of the first `--warmup-s` of data (before the first vibration estimate, and while
 //! caches warm) are left out. CPU use is each process's user + system time from
 //! `/proc/PID/stat` over the run, in percent of one core.
+//!
+//! The estimator runs with `sample_rate_hz = --vib-rate-hz` (a private copy of its
+//! default configuration when the rates differ: it refuses blocks at any other rate).
+//!
+//! **Soak** (`--soak`, issue 18): the vibrocomp pipeline alone for `--duration-s`,
+//! optionally beside a background load (`--load INPUT`: a child process running
+//! `vibrocomp lab diagnose INPUT` in a loop, `--load-jobs` at a time, for the whole
+//! soak, stopped at its end). It reports every accelerometer block answered (from the
+//! compensated blocks' `input_seq`) and the services' own counters, the services'
+//! resident memory (`VmRSS` from `/proc/PID/status`, one sample a second: first,
+//! last, max, growth and slope after the warm-up), the end-to-end latency's
+//! percentiles and buckets per accelerometer block, and p99.9 against one
+//! accelerometer sample period. The target is reported, never enforced: a soak that
+//! misses it still exits 0.
 
 use anyhow::{bail, Context};
 use hdrhistogram::Histogram;
@@ -69,6 +83,28 @@ pub struct LatencyArgs {
     /// Only the vibrocomp pipeline (no bare-iceoryx2 and socket baselines).
     #[arg(long)]
     pub no_baselines: bool,
+    /// Soak: the vibrocomp pipeline only, for `--duration-s`, with every accelerometer
+    /// block's input sequence checked, the services' resident memory sampled every
+    /// second, and the end-to-end histogram; a 10x vibration rate is `--vib-rate-hz
+    /// 256000`.
+    #[arg(long)]
+    pub soak: bool,
+    /// With `--soak`: a background load, `vibrocomp lab diagnose INPUT` run in a loop
+    /// in a child process for the whole soak (a campaign table or a log, docs/lab.md).
+    #[arg(long, value_name = "INPUT", requires = "soak")]
+    pub load: Option<PathBuf>,
+    /// With `--load`: how many diagnose loops run side by side.
+    #[arg(long = "load-jobs", default_value_t = 1, requires = "load")]
+    pub load_jobs: u32,
+    /// The vibrocomp pipeline's service-name prefix [default: a private one,
+    /// `vclat-PID/`]. The baselines always use private prefixes.
+    #[arg(long)]
+    pub prefix: Option<String>,
+    /// Run the services' hot loops and the rig's receiver under SCHED_FIFO at this
+    /// priority (1..=99; needs CAP_SYS_NICE), as a real-time deployment would: a block
+    /// then wakes its process ahead of any normal-priority work, a `--load` included.
+    #[arg(long, value_name = "1..99", value_parser = clap::value_parser!(u8).range(1..=99))]
+    pub realtime_priority: Option<u8>,
     #[arg(long)]
     pub json: bool,
 }
@@ -96,6 +132,20 @@ pub enum PeerCommand {
     Uds {
         #[arg(long = "socket-dir")]
         socket_dir: PathBuf,
+        /// The estimator's configuration [default: its default one].
+        #[arg(long = "estimator-config")]
+        estimator_config: Option<PathBuf>,
+    },
+    /// The soak's background load: runs `vibrocomp lab diagnose INPUT` again and again,
+    /// JOBS at a time, until SIGTERM; then kills the runs under way and prints
+    /// `{"runs_started", "runs_completed", "failures", "first_failure", "cpu_s",
+    /// "wall_s"}` on stdout (`cpu_s`: its own and its waited-for runs' CPU).
+    /// Stops at the first failed run.
+    Load {
+        #[arg(long)]
+        input: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        jobs: u32,
     },
 }
 
@@ -170,6 +220,7 @@ struct LatencyReport {
 /// The four stamps of one compensated block.
 #[derive(Clone, Copy)]
 struct Stamps {
+    input_seq: u64,
     t0_ns: u64,
     input_publish_ns: u64,
     recv_ns: u64,
@@ -388,13 +439,16 @@ impl Cpu {
 /// Receives compensated blocks until `stop` and the expected count, stamping each.
 fn receive_iceoryx(
     prefix: String,
-    mode: LoopMode,
+    (mode, realtime_priority): (LoopMode, Option<u8>),
     stop: Arc<AtomicBool>,
+    ready: Arc<AtomicBool>,
     capacity: usize,
 ) -> anyhow::Result<Vec<Stamps>> {
+    vibro_service::realtime::enter(realtime_priority)?;
     let names = ServiceNames::new(&prefix)?;
     let node = create_node("vibrocomp-latency-rx")?;
     let sub = StreamSubscriber::<CompensatedBlock>::open(&node, &names, Stream::Compensated)?;
+    ready.store(true, Ordering::Release);
     let waitset = create_waitset()?;
     let _guard = waitset
         .attach_notification(sub.listener())
@@ -406,6 +460,7 @@ fn receive_iceoryx(
             let sub_recv_ns = now_ns();
             any = true;
             out.push(Stamps {
+                input_seq: b.input_seq,
                 t0_ns: b.t0_ns,
                 input_publish_ns: b.input_publish_ns,
                 recv_ns: b.recv_ns,
@@ -449,17 +504,40 @@ fn run_iceoryx(
     let mut accel = StreamPublisher::<AccelBlock>::open(&node, &names, Stream::Accel)?;
     let mut vib = StreamPublisher::<VibBlock>::open(&node, &names, Stream::Vib)?;
     let stop = Arc::new(AtomicBool::new(false));
+    let ready = Arc::new(AtomicBool::new(false));
     let capacity = (args.duration_s * args.rate_hz / f64::from(args.block_samples)) as usize + 16;
     let rx = {
-        let (prefix, mode, stop) = (prefix.to_string(), args.mode, Arc::clone(&stop));
+        let (prefix, stop) = (prefix.to_string(), Arc::clone(&stop));
+        let mode = (args.mode, args.realtime_priority);
+        let ready = Arc::clone(&ready);
         std::thread::Builder::new()
             .name("latency-rx".into())
-            .spawn(move || receive_iceoryx(prefix, mode, stop, capacity))?
+            .spawn(move || receive_iceoryx(prefix, mode, stop, ready, capacity))?
     };
-    // The receiver subscribes before the first block.
+    // The receiver subscribes, and the services' (or peers') inputs are connected,
+    // before the first block. The receiver is not an `accel` subscriber: it says so
+    // itself (waiting for two `accel` subscribers timed out on every run).
     let t = Instant::now();
-    while accel.subscriber_count() < 2 && t.elapsed() < Duration::from_secs(10) {
-        std::thread::sleep(Duration::from_millis(10));
+    let connected = || {
+        ready.load(Ordering::Acquire)
+            && accel.subscriber_count() >= 1
+            && vib.subscriber_count() >= 1
+    };
+    while !connected() {
+        if rx.is_finished() || t.elapsed() > Duration::from_secs(10) {
+            stop.store(true, Ordering::Release);
+            if rx.is_finished() {
+                rx.join()
+                    .map_err(|_| anyhow::anyhow!("the receiver thread panicked"))??;
+            }
+            bail!(
+                "the rig's ports on {prefix:?} did not connect within 10 s: receiver subscribed {}, {} accel and {} vib subscribers (want at least 1 each)",
+                ready.load(Ordering::Acquire),
+                accel.subscriber_count(),
+                vib.subscriber_count()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(5));
     }
     let mut stream = RigStream::new(args, k1_v_per_g);
     let (ka, kv) = pace(
@@ -480,7 +558,7 @@ fn run_iceoryx(
 fn summarize(
     pipeline: &'static str,
     args: &LatencyArgs,
-    (ka, kv, stamps): (u64, u64, Vec<Stamps>),
+    (ka, kv, stamps): (u64, u64, &[Stamps]),
     extra_lost: u64,
     cpu_percent: Vec<(String, f64)>,
 ) -> anyhow::Result<PipelineRun> {
@@ -505,10 +583,11 @@ fn summarize(
     })
 }
 
-fn spec_for(prefix: &str, mode: LoopMode) -> SystemSpec {
+fn spec_for(prefix: &str, mode: LoopMode, realtime_priority: Option<u8>) -> SystemSpec {
     SystemSpec {
         prefix: prefix.to_string(),
         mode: Some(mode.as_str().to_string()),
+        realtime_priority,
         json: true,
         ..SystemSpec::default()
     }
@@ -519,13 +598,30 @@ fn losses(summary: &serde_json::Value, stream: &str) -> u64 {
     g("lost_messages") + g("lost_samples") + summary["undelivered"].as_u64().unwrap_or(0)
 }
 
-fn run_vibrocomp(args: &LatencyArgs, k1: [f64; 3], log: &Path) -> anyhow::Result<PipelineRun> {
-    let prefix = private_prefix("vclat");
-    let spec = spec_for(&prefix, args.mode);
+/// The vibrocomp pipeline's run, with what the soak reads beside the hops.
+struct VibrocompRun {
+    run: PipelineRun,
+    stamps: Vec<Stamps>,
+    /// The services' JSON summaries at exit.
+    compensator: serde_json::Value,
+    estimator: serde_json::Value,
+    /// The services' resident memory, sampled every second while the rig ran.
+    memory: Vec<MemorySeries>,
+}
+
+fn run_vibrocomp(
+    args: &LatencyArgs,
+    k1: [f64; 3],
+    log: &Path,
+    prefix: &str,
+    estimator_config: Option<&Path>,
+) -> anyhow::Result<VibrocompRun> {
+    let mut spec = spec_for(prefix, args.mode, args.realtime_priority);
+    spec.estimator_config = estimator_config.map(Path::to_path_buf);
     let mut est = spec.spawn(Role::Estimator, Some(log))?;
     let mut comp = spec.spawn(Role::Compensator, Some(log))?;
     wait_for_heartbeats(
-        &ServiceNames::new(&prefix)?,
+        &ServiceNames::new(prefix)?,
         &[ServiceId::Estimator, ServiceId::Compensator],
         Duration::from_secs(30),
         || {
@@ -539,12 +635,22 @@ fn run_vibrocomp(args: &LatencyArgs, k1: [f64; 3], log: &Path) -> anyhow::Result
         ("rig", std::process::id()),
     ];
     let cpu = Cpu::start(&pids);
-    let result = run_iceoryx(args, &prefix, k1)?;
+    let memory = MemorySampler::start(&pids[..2]);
+    let result = run_iceoryx(args, prefix, k1);
+    let memory = memory.finish();
+    let (ka, kv, stamps) = result?;
     let cpu = cpu.finish();
     let c = comp.stop(Duration::from_secs(10))?.summary()?;
     let e = est.stop(Duration::from_secs(10))?.summary()?;
     let lost = losses(&c, "accel") + losses(&e, "vib");
-    summarize("vibrocomp (iceoryx2)", args, result, lost, cpu)
+    let run = summarize("vibrocomp (iceoryx2)", args, (ka, kv, &stamps), lost, cpu)?;
+    Ok(VibrocompRun {
+        run,
+        stamps,
+        compensator: c,
+        estimator: e,
+        memory,
+    })
 }
 
 fn run_bare(args: &LatencyArgs, k1: [f64; 3], log: &Path) -> anyhow::Result<PipelineRun> {
@@ -588,11 +694,11 @@ fn run_bare(args: &LatencyArgs, k1: [f64; 3], log: &Path) -> anyhow::Result<Pipe
         ("forwarder", forwarder.pid()),
         ("rig", std::process::id()),
     ]);
-    let result = run_iceoryx(args, &prefix, k1)?;
+    let (ka, kv, stamps) = run_iceoryx(args, &prefix, k1)?;
     let cpu = cpu.finish();
     drop(sink);
     drop(forwarder);
-    summarize("bare iceoryx2", args, result, 0, cpu)
+    summarize("bare iceoryx2", args, (ka, kv, &stamps), 0, cpu)
 }
 
 struct KillOnDrop<'a>(Option<&'a mut std::process::Child>);
@@ -631,13 +737,23 @@ fn connect(path: &Path) -> anyhow::Result<UnixStream> {
     }
 }
 
-fn run_uds(args: &LatencyArgs, k1: [f64; 3], log: &Path) -> anyhow::Result<PipelineRun> {
+fn run_uds(
+    args: &LatencyArgs,
+    k1: [f64; 3],
+    log: &Path,
+    estimator_config: Option<&Path>,
+) -> anyhow::Result<PipelineRun> {
     let dir = std::env::temp_dir().join(format!("vibrocomp-uds-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let exe = std::env::current_exe()?;
-    let mut child = std::process::Command::new(exe)
+    let mut child = std::process::Command::new(exe);
+    child
         .args(["latency-peer", "uds", "--socket-dir"])
-        .arg(&dir)
+        .arg(&dir);
+    if let Some(c) = estimator_config {
+        child.arg("--estimator-config").arg(c);
+    }
+    let mut child = child
         .stdout(std::process::Stdio::null())
         .stderr(
             std::fs::OpenOptions::new()
@@ -666,6 +782,7 @@ fn run_uds(args: &LatencyArgs, k1: [f64; 3], log: &Path) -> anyhow::Result<Pipel
             let sub_recv_ns = now_ns();
             let b = CompensatedBlock::from_bytes(&buf).context("compensated block size")?;
             out.push(Stamps {
+                input_seq: b.input_seq,
                 t0_ns: b.t0_ns,
                 input_publish_ns: b.input_publish_ns,
                 recv_ns: b.recv_ns,
@@ -692,7 +809,785 @@ fn run_uds(args: &LatencyArgs, k1: [f64; 3], log: &Path) -> anyhow::Result<Pipel
     let cpu = cpu.finish();
     drop(guard);
     let _ = std::fs::remove_dir_all(&dir);
-    summarize("Unix sockets", args, (ka, kv, stamps), 0, cpu)
+    summarize("Unix sockets", args, (ka, kv, &stamps), 0, cpu)
+}
+
+/// A process's resident memory, sampled every second.
+struct MemorySeries {
+    process: String,
+    /// Seconds since the rig started sending.
+    t_s: Vec<f64>,
+    /// `VmRSS` and `RssAnon` of `/proc/PID/status`, KiB.
+    rss_kib: Vec<u64>,
+    anon_kib: Vec<u64>,
+}
+
+/// `key` (e.g. `VmRSS`) of `/proc/PID/status`, KiB.
+fn status_kib(status: &str, key: &str) -> Option<u64> {
+    let line = status
+        .lines()
+        .find(|l| l.strip_prefix(key).is_some_and(|r| r.starts_with(':')))?;
+    line[key.len() + 1..]
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
+/// Samples the processes' memory once a second on a thread of its own, until
+/// [`MemorySampler::finish`].
+struct MemorySampler {
+    stop: Arc<AtomicBool>,
+    thread: std::thread::JoinHandle<Vec<MemorySeries>>,
+}
+
+impl MemorySampler {
+    fn start(pids: &[(&str, u32)]) -> Self {
+        let stop = Arc::new(AtomicBool::new(false));
+        let pids: Vec<(String, u32)> = pids.iter().map(|&(n, p)| (n.to_string(), p)).collect();
+        let flag = Arc::clone(&stop);
+        let thread = std::thread::spawn(move || {
+            let mut series: Vec<MemorySeries> = pids
+                .iter()
+                .map(|(n, _)| MemorySeries {
+                    process: n.clone(),
+                    t_s: Vec::new(),
+                    rss_kib: Vec::new(),
+                    anon_kib: Vec::new(),
+                })
+                .collect();
+            let start = Instant::now();
+            let mut k = 0u32;
+            'sampling: loop {
+                let t = start.elapsed().as_secs_f64();
+                for ((_, pid), s) in pids.iter().zip(&mut series) {
+                    let Ok(status) = std::fs::read_to_string(format!("/proc/{pid}/status")) else {
+                        continue;
+                    };
+                    if let (Some(rss), Some(anon)) =
+                        (status_kib(&status, "VmRSS"), status_kib(&status, "RssAnon"))
+                    {
+                        s.t_s.push(t);
+                        s.rss_kib.push(rss);
+                        s.anon_kib.push(anon);
+                    }
+                }
+                k += 1;
+                let next = Duration::from_secs(u64::from(k));
+                loop {
+                    if flag.load(Ordering::Acquire) {
+                        break 'sampling;
+                    }
+                    let now = start.elapsed();
+                    if now >= next {
+                        break;
+                    }
+                    std::thread::sleep((next - now).min(Duration::from_millis(50)));
+                }
+            }
+            series
+        });
+        Self { stop, thread }
+    }
+
+    fn finish(self) -> Vec<MemorySeries> {
+        self.stop.store(true, Ordering::Release);
+        self.thread.join().unwrap_or_default()
+    }
+}
+
+/// "Flat": after the warm-up, the anonymous resident memory (`RssAnon`) never rises
+/// more than this above its first sample after the warm-up.
+const MEMORY_FLAT_BOUND_KIB: u64 = 1024;
+
+/// One process's memory over the soak, KiB.
+#[derive(Debug, Serialize)]
+struct MemorySummary {
+    process: String,
+    samples: usize,
+    first_kib: u64,
+    last_kib: u64,
+    max_kib: u64,
+    /// The first sample at or after `--warmup-s`.
+    after_warmup_kib: u64,
+    /// Highest sample after the warm-up minus `after_warmup_kib`.
+    growth_after_warmup_kib: u64,
+    /// Least-squares slope of the samples after the warm-up, KiB per minute.
+    slope_kib_per_min: f64,
+    anon_first_kib: u64,
+    anon_last_kib: u64,
+    /// `RssAnon` (the heap and stacks: what a leak grows), the same way as
+    /// `growth_after_warmup_kib`. `VmRSS` also counts the shared-memory pages of the
+    /// iceoryx2 segments as the process first touches them, which stops at the
+    /// segments' size.
+    anon_growth_after_warmup_kib: u64,
+    /// `VmRSS`: the highest sample of the second half of the soak minus the sample at
+    /// its middle. A leak keeps growing there; a one-time step while the services
+    /// settle (a thread's first allocation, a table built once) does not.
+    second_half_growth_kib: u64,
+    /// `RssAnon` grew at most [`MEMORY_FLAT_BOUND_KIB`] after the warm-up.
+    flat: bool,
+    /// `VmRSS`, one sample a second.
+    series_kib: Vec<u64>,
+}
+
+fn memory_summary(s: &MemorySeries, warmup_s: f64) -> MemorySummary {
+    let first = s.rss_kib.first().copied().unwrap_or(0);
+    let last = s.rss_kib.last().copied().unwrap_or(0);
+    // Samples at or after the warm-up; all of them in a run too short to have any.
+    let from = s.t_s.iter().position(|&t| t >= warmup_s).unwrap_or(0);
+    let (t, m) = (&s.t_s[from..], &s.rss_kib[from..]);
+    let base = m.first().copied().unwrap_or(0);
+    let growth = m.iter().max().copied().unwrap_or(0).saturating_sub(base);
+    let anon = &s.anon_kib[from.min(s.anon_kib.len())..];
+    let anon_growth = anon
+        .iter()
+        .max()
+        .copied()
+        .unwrap_or(0)
+        .saturating_sub(anon.first().copied().unwrap_or(0));
+    let n = t.len() as f64;
+    let slope = if t.len() >= 2 {
+        let (tm, mm) = (
+            t.iter().sum::<f64>() / n,
+            m.iter().map(|&x| x as f64).sum::<f64>() / n,
+        );
+        let sxy: f64 = t
+            .iter()
+            .zip(m)
+            .map(|(&t, &x)| (t - tm) * (x as f64 - mm))
+            .sum();
+        let sxx: f64 = t.iter().map(|&t| (t - tm) * (t - tm)).sum();
+        if sxx > 0.0 {
+            60.0 * sxy / sxx
+        } else {
+            0.0
+        }
+    } else {
+        0.0
+    };
+    MemorySummary {
+        process: s.process.clone(),
+        samples: s.rss_kib.len(),
+        first_kib: first,
+        last_kib: last,
+        max_kib: s.rss_kib.iter().max().copied().unwrap_or(0),
+        after_warmup_kib: base,
+        growth_after_warmup_kib: growth,
+        slope_kib_per_min: slope,
+        anon_first_kib: s.anon_kib.first().copied().unwrap_or(0),
+        anon_last_kib: s.anon_kib.last().copied().unwrap_or(0),
+        anon_growth_after_warmup_kib: anon_growth,
+        second_half_growth_kib: {
+            let half = &s.rss_kib[s.rss_kib.len() / 2..];
+            let mid = half.first().copied().unwrap_or(0);
+            half.iter().max().copied().unwrap_or(0).saturating_sub(mid)
+        },
+        flat: !anon.is_empty() && anon_growth <= MEMORY_FLAT_BOUND_KIB,
+        series_kib: s.rss_kib.clone(),
+    }
+}
+
+/// Every accelerometer block answered once, in order: from the compensated blocks'
+/// `input_seq`.
+#[derive(Debug, Serialize)]
+struct AccelCheck {
+    sent: u64,
+    /// Distinct blocks `0..sent` answered.
+    answered: u64,
+    /// Blocks never answered.
+    missing: u64,
+    /// Blocks answered more than once (extra answers).
+    duplicates: u64,
+    /// Answers whose `input_seq` is not the previous one's plus 1.
+    out_of_order: u64,
+    /// Answers to blocks the rig never sent.
+    unknown: u64,
+    continuous: bool,
+}
+
+fn accel_check(sent: u64, stamps: &[Stamps]) -> AccelCheck {
+    let mut seen = vec![0u32; sent as usize];
+    let (mut unknown, mut out_of_order) = (0u64, 0u64);
+    let mut prev: Option<u64> = None;
+    for s in stamps {
+        match seen.get_mut(s.input_seq as usize) {
+            Some(n) => *n += 1,
+            None => unknown += 1,
+        }
+        if prev.is_some_and(|p| s.input_seq != p + 1) || (prev.is_none() && s.input_seq != 0) {
+            out_of_order += 1;
+        }
+        prev = Some(s.input_seq);
+    }
+    let answered = seen.iter().filter(|&&n| n > 0).count() as u64;
+    let duplicates: u64 = seen.iter().map(|&n| u64::from(n.saturating_sub(1))).sum();
+    let missing = sent - answered;
+    AccelCheck {
+        sent,
+        answered,
+        missing,
+        duplicates,
+        out_of_order,
+        unknown,
+        continuous: missing == 0 && duplicates == 0 && out_of_order == 0 && unknown == 0,
+    }
+}
+
+/// The services' own counters at exit.
+#[derive(Debug, Serialize)]
+struct ServiceCounts {
+    compensator_accel_received: u64,
+    /// Lost messages and samples on `{prefix}accel`, plus outputs not delivered.
+    compensator_lost: u64,
+    estimator_vib_received: u64,
+    estimator_lost: u64,
+    estimator_rate_mismatches: u64,
+    estimates_published: u64,
+    estimates_flagged: u64,
+    /// From the block that completes a window to its estimate: the estimator's own
+    /// `latency` (count, p50_ns, p99_ns, max_ns).
+    estimator_window: serde_json::Value,
+}
+
+/// One line of the percentile table.
+#[derive(Debug, Serialize)]
+struct PercentileRow {
+    percentile: f64,
+    value_us: f64,
+    /// Blocks whose end-to-end latency is at or below `value_us` (counted exactly).
+    blocks_at_or_below: u64,
+}
+
+/// One bucket: blocks with `lower_us < latency <= upper_us` (`upper_us` null: above
+/// the last bound).
+#[derive(Debug, Serialize)]
+struct BucketRow {
+    lower_us: f64,
+    upper_us: Option<f64>,
+    blocks: u64,
+}
+
+/// The end-to-end latency per accelerometer block after the warm-up.
+#[derive(Debug, Serialize)]
+struct EndToEndHistogram {
+    count: u64,
+    percentiles: Vec<PercentileRow>,
+    buckets: Vec<BucketRow>,
+}
+
+const BUCKET_BOUNDS_US: [f64; 16] = [
+    100.0, 150.0, 200.0, 250.0, 300.0, 400.0, 500.0, 750.0, 1000.0, 1250.0, 1500.0, 2000.0, 3000.0,
+    5000.0, 10000.0, 50000.0,
+];
+
+fn end_to_end_histogram(
+    args: &LatencyArgs,
+    stamps: &[Stamps],
+) -> anyhow::Result<EndToEndHistogram> {
+    let warmup_ns = (args.warmup_s * 1e9) as u64;
+    // The same values as the hop table's end to end (`Histograms::record`).
+    let values_ns: Vec<u64> = stamps
+        .iter()
+        .filter(|s| s.t0_ns >= warmup_ns)
+        .map(|s| s.sub_recv_ns.saturating_sub(s.input_publish_ns).max(1))
+        .collect();
+    let mut h = Histogram::<u64>::new_with_bounds(1, 60_000_000_000, 3).context("histogram")?;
+    for &v in &values_ns {
+        let _ = h.record(v);
+    }
+    let percentiles = if h.is_empty() {
+        Vec::new()
+    } else {
+        [
+            50.0, 75.0, 90.0, 95.0, 99.0, 99.5, 99.9, 99.95, 99.99, 100.0,
+        ]
+        .iter()
+        .map(|&p| {
+            let v = if p >= 100.0 {
+                h.max()
+            } else {
+                h.value_at_quantile(p / 100.0)
+            };
+            PercentileRow {
+                percentile: p,
+                value_us: v as f64 * 1e-3,
+                blocks_at_or_below: values_ns.iter().filter(|&&x| x <= v).count() as u64,
+            }
+        })
+        .collect()
+    };
+    let mut lower_us = 0.0;
+    let mut buckets = Vec::with_capacity(BUCKET_BOUNDS_US.len() + 1);
+    for upper in BUCKET_BOUNDS_US.iter().map(|&u| Some(u)).chain([None]) {
+        let (lo_ns, hi_ns) = (lower_us * 1e3, upper.map_or(f64::INFINITY, |u| u * 1e3));
+        let blocks = values_ns
+            .iter()
+            .filter(|&&x| (x as f64) > lo_ns && (x as f64) <= hi_ns)
+            .count() as u64;
+        buckets.push(BucketRow {
+            lower_us,
+            upper_us: upper,
+            blocks,
+        });
+        lower_us = upper.unwrap_or(lower_us);
+    }
+    Ok(EndToEndHistogram {
+        count: values_ns.len() as u64,
+        percentiles,
+        buckets,
+    })
+}
+
+/// The machine's CPU time (`/proc/stat`, all cores): busy and total ticks.
+struct MachineCpu(Option<(u64, u64)>);
+
+impl MachineCpu {
+    fn read() -> Option<(u64, u64)> {
+        let stat = std::fs::read_to_string("/proc/stat").ok()?;
+        let line = stat.lines().find(|l| l.starts_with("cpu "))?;
+        let f: Vec<u64> = line
+            .split_whitespace()
+            .skip(1)
+            .filter_map(|x| x.parse().ok())
+            .collect();
+        // user nice system idle iowait irq softirq steal ...: idle and iowait are idle.
+        let total: u64 = f.iter().take(8).sum();
+        let idle = f.get(3)? + f.get(4).copied().unwrap_or(0);
+        Some((total - idle, total))
+    }
+
+    fn now() -> Self {
+        Self(Self::read())
+    }
+
+    fn busy_percent_since(&self) -> f64 {
+        match (self.0, Self::read()) {
+            (Some((b0, t0)), Some((b1, t1))) if t1 > t0 => {
+                100.0 * (b1 - b0) as f64 / (t1 - t0) as f64
+            }
+            _ => 0.0,
+        }
+    }
+}
+
+/// The background load: `latency-peer load` and what it said at its end.
+#[derive(Debug, Serialize)]
+struct LoadReport {
+    input: String,
+    jobs: u32,
+    pid: u32,
+    runs_started: u64,
+    runs_completed: u64,
+    failures: u64,
+    /// The loop's own CPU plus its diagnose runs', percent of one core over its life.
+    cpu_percent: f64,
+    wall_s: f64,
+    /// The loop exited on our SIGTERM, after stopping its runs under way.
+    stopped: bool,
+}
+
+fn start_load(input: &Path, jobs: u32, log: &Path) -> anyhow::Result<std::process::Child> {
+    let mut c = std::process::Command::new(std::env::current_exe()?);
+    c.args(["latency-peer", "load", "--input"])
+        .arg(input)
+        .args(["--jobs", &jobs.to_string()])
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(log)?,
+        );
+    vibro_service::supervise::stop_with_parent(&mut c);
+    c.spawn().context("starting the background load")
+}
+
+fn stop_load(
+    mut child: std::process::Child,
+    input: &Path,
+    jobs: u32,
+) -> anyhow::Result<LoadReport> {
+    let pid = child.id();
+    vibro_service::supervise::terminate(&child);
+    let t = Instant::now();
+    let mut status = None;
+    while t.elapsed() < Duration::from_secs(10) {
+        if let Some(s) = child.try_wait()? {
+            status = Some(s);
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    if status.is_none() {
+        let _ = child.kill();
+        let _ = child.wait();
+    }
+    let mut out = String::new();
+    if let Some(mut o) = child.stdout.take() {
+        let _ = o.read_to_string(&mut out);
+    }
+    let v: serde_json::Value = serde_json::from_str(out.trim()).with_context(|| {
+        format!("the background load (pid {pid}) printed no summary: {out:?}; see its log")
+    })?;
+    let n = |k: &str| v[k].as_u64().unwrap_or(0);
+    if n("failures") > 0 {
+        bail!(
+            "--load {}: `vibrocomp lab diagnose {}` failed: {}",
+            input.display(),
+            input.display(),
+            v["first_failure"].as_str().unwrap_or("(no message)")
+        );
+    }
+    let wall_s = v["wall_s"].as_f64().unwrap_or(0.0);
+    Ok(LoadReport {
+        input: input.display().to_string(),
+        jobs,
+        pid,
+        runs_started: n("runs_started"),
+        runs_completed: n("runs_completed"),
+        failures: n("failures"),
+        cpu_percent: if wall_s > 0.0 {
+            100.0 * v["cpu_s"].as_f64().unwrap_or(0.0) / wall_s
+        } else {
+            0.0
+        },
+        wall_s,
+        stopped: status.is_some_and(|s| s.success()),
+    })
+}
+
+/// CPU seconds (user + system) of this process, and of its children that were waited
+/// for.
+fn rusage_cpu_s() -> f64 {
+    let tv = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    let mut total = 0.0;
+    for who in [libc::RUSAGE_SELF, libc::RUSAGE_CHILDREN] {
+        // SAFETY: getrusage writes one rusage into the zeroed struct we own.
+        let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+        if unsafe { libc::getrusage(who, &mut u) } == 0 {
+            total += tv(u.ru_utime) + tv(u.ru_stime);
+        }
+    }
+    total
+}
+
+/// The load peer (see [`PeerCommand::Load`]).
+fn peer_load(input: &Path, jobs: u32) -> anyhow::Result<()> {
+    let exe = std::env::current_exe()?;
+    let stop = install_stop()?;
+    let start = Instant::now();
+    let err_path = |k: u64| {
+        std::env::temp_dir().join(format!("vibrocomp-load-{}-{k}.err", std::process::id()))
+    };
+    let (mut started, mut completed, mut failures) = (0u64, 0u64, 0u64);
+    let mut first_failure: Option<String> = None;
+    let mut running: Vec<(std::process::Child, u64)> = Vec::new();
+    while !stop.load(Ordering::Acquire) && failures == 0 {
+        while running.len() < jobs as usize {
+            let err = err_path(started);
+            let mut c = std::process::Command::new(&exe);
+            c.args(["lab", "diagnose"])
+                .arg(input)
+                .stdin(std::process::Stdio::null())
+                .stdout(std::process::Stdio::null())
+                .stderr(std::fs::File::create(&err).with_context(|| err.display().to_string())?);
+            vibro_service::supervise::stop_with_parent(&mut c);
+            let child = c.spawn().with_context(|| {
+                format!("starting `vibrocomp lab diagnose {}`", input.display())
+            })?;
+            running.push((child, started));
+            started += 1;
+        }
+        let mut i = 0;
+        while i < running.len() {
+            match running[i].0.try_wait()? {
+                Some(status) => {
+                    let (_, k) = running.swap_remove(i);
+                    if status.success() {
+                        completed += 1;
+                    } else {
+                        failures += 1;
+                        let text = std::fs::read_to_string(err_path(k)).unwrap_or_default();
+                        first_failure.get_or_insert_with(|| format!("{status}: {}", text.trim()));
+                    }
+                    let _ = std::fs::remove_file(err_path(k));
+                }
+                None => i += 1,
+            }
+        }
+        // Short: the load's CPU is the diagnose runs', not this loop's waits.
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    for (mut c, k) in running {
+        let _ = c.kill();
+        let _ = c.wait();
+        let _ = std::fs::remove_file(err_path(k));
+    }
+    let v = serde_json::json!({
+        "runs_started": started,
+        "runs_completed": completed,
+        "failures": failures,
+        "first_failure": first_failure,
+        "cpu_s": rusage_cpu_s(),
+        "wall_s": start.elapsed().as_secs_f64(),
+    });
+    println!("{v}");
+    Ok(())
+}
+
+/// The estimator's configuration for `--vib-rate-hz`: `None` (its default one) when
+/// the default's `sample_rate_hz` is that rate; else the default's text with
+/// `[estimator] sample_rate_hz` set to it, written to `path` and validated.
+fn estimator_config_for(vib_rate_hz: f64, path: &Path) -> anyhow::Result<Option<PathBuf>> {
+    let default = Path::new(<vibro_estimator::Config as ServiceConfig>::DEFAULT_CONFIG_PATH);
+    let (text, source) = if default.is_file() {
+        (
+            std::fs::read_to_string(default)
+                .with_context(|| format!("reading {}", default.display()))?,
+            default.display().to_string(),
+        )
+    } else {
+        (
+            <vibro_estimator::Config as ServiceConfig>::shipped_text().to_string(),
+            "the shipped estimator configuration".to_string(),
+        )
+    };
+    let mut table: toml::Table = text.parse().with_context(|| source.clone())?;
+    let Some(est) = table.get_mut("estimator").and_then(|v| v.as_table_mut()) else {
+        bail!("{source}: no [estimator] table");
+    };
+    if est.get("sample_rate_hz").and_then(|v| v.as_float()) == Some(vib_rate_hz) {
+        return Ok(None);
+    }
+    est.insert("sample_rate_hz".into(), toml::Value::Float(vib_rate_hz));
+    std::fs::write(path, toml::to_string(&table)?)
+        .with_context(|| format!("writing {}", path.display()))?;
+    <vibro_estimator::Config as ServiceConfig>::load(path).with_context(|| {
+        format!("--vib-rate-hz = {vib_rate_hz}: {source} at this sample rate is not valid")
+    })?;
+    Ok(Some(path.to_path_buf()))
+}
+
+#[derive(Debug, Serialize)]
+struct SoakReport {
+    soak: bool,
+    mode: String,
+    /// `SCHED_FIFO` priority of the services' hot loops and the rig's receiver.
+    realtime_priority: Option<u8>,
+    prefix: String,
+    duration_s: f64,
+    warmup_s: f64,
+    rate_hz: f64,
+    block_samples: u32,
+    vib_rate_hz: f64,
+    vib_block_samples: u32,
+    /// The estimator ran with `sample_rate_hz = vib_rate_hz` (a private configuration
+    /// when the default's rate differs).
+    estimator_config: String,
+    run: PipelineRun,
+    accel: AccelCheck,
+    services: ServiceCounts,
+    /// Every vibration block the rig sent was taken by the estimator.
+    vib_blocks_taken: bool,
+    /// Accelerometer blocks not answered, plus the services' own losses.
+    lost: u64,
+    memory_flat_bound_kib: u64,
+    memory: Vec<MemorySummary>,
+    load: Option<LoadReport>,
+    /// All cores' busy time over the soak (from `/proc/stat`), percent of all of them:
+    /// ours and whatever else the machine ran.
+    machine_busy_percent: f64,
+    cores: usize,
+    end_to_end_histogram: EndToEndHistogram,
+    /// One accelerometer sample period, us.
+    target_p999_us: f64,
+    p999_met: bool,
+}
+
+fn run_soak(
+    args: &LatencyArgs,
+    k1: [f64; 3],
+    log: &Path,
+    prefix: &str,
+    estimator_config: Option<&Path>,
+) -> anyhow::Result<SoakReport> {
+    let machine = MachineCpu::now();
+    // The load first, so that the services start and run beside it.
+    let load = match &args.load {
+        Some(input) => Some(start_load(input, args.load_jobs, log)?),
+        None => None,
+    };
+    let result = run_vibrocomp(args, k1, log, prefix, estimator_config);
+    let machine_busy_percent = machine.busy_percent_since();
+    // Stopped whatever happened; the pipeline's error, if any, comes first.
+    let load = match (load, &args.load) {
+        (Some(child), Some(input)) => Some(stop_load(child, input, args.load_jobs)),
+        _ => None,
+    };
+    let v = result?;
+    let load = load.transpose()?;
+    let g = |s: &serde_json::Value, a: &str, b: &str| s[a][b].as_u64().unwrap_or(0);
+    let services = ServiceCounts {
+        compensator_accel_received: g(&v.compensator, "accel", "received"),
+        compensator_lost: losses(&v.compensator, "accel"),
+        estimator_vib_received: g(&v.estimator, "vib", "received"),
+        estimator_lost: losses(&v.estimator, "vib"),
+        estimator_rate_mismatches: v.estimator["rate_mismatches"].as_u64().unwrap_or(0),
+        estimates_published: v.estimator["estimates_published"].as_u64().unwrap_or(0),
+        estimates_flagged: v.estimator["estimates_flagged"].as_u64().unwrap_or(0),
+        estimator_window: v.estimator["latency"].clone(),
+    };
+    let accel = accel_check(v.run.accel_blocks_sent, &v.stamps);
+    let target_p999_us = 1e6 / args.rate_hz;
+    Ok(SoakReport {
+        soak: true,
+        mode: args.mode.as_str().to_string(),
+        realtime_priority: args.realtime_priority,
+        prefix: prefix.to_string(),
+        duration_s: args.duration_s,
+        warmup_s: args.warmup_s,
+        rate_hz: args.rate_hz,
+        block_samples: args.block_samples,
+        vib_rate_hz: args.vib_rate_hz,
+        vib_block_samples: args.vib_block_samples,
+        estimator_config: estimator_config
+            .map_or("default".to_string(), |p| p.display().to_string()),
+        vib_blocks_taken: services.estimator_vib_received == v.run.vib_blocks_sent
+            && services.estimator_rate_mismatches == 0,
+        lost: accel.missing + services.compensator_lost + services.estimator_lost,
+        accel,
+        services,
+        memory_flat_bound_kib: MEMORY_FLAT_BOUND_KIB,
+        memory: v
+            .memory
+            .iter()
+            .map(|s| memory_summary(s, args.warmup_s))
+            .collect(),
+        load,
+        machine_busy_percent,
+        cores: std::thread::available_parallelism().map_or(0, |n| n.get()),
+        end_to_end_histogram: end_to_end_histogram(args, &v.stamps)?,
+        target_p999_us,
+        p999_met: v.run.end_to_end.count > 0 && v.run.end_to_end.p999_us < target_p999_us,
+        run: v.run,
+    })
+}
+
+fn print_soak(r: &SoakReport) -> anyhow::Result<()> {
+    outln!(
+        "Soak, {} mode ({}), prefix {}: {} s, accelerometer blocks of {} at {} Hz, vibration blocks of {} at {} Hz (estimator configuration: {}); first {} s left out",
+        r.mode,
+        r.realtime_priority.map_or_else(|| "normal scheduling".to_string(), |p| format!("SCHED_FIFO priority {p}")),
+        r.prefix, r.duration_s, r.block_samples, r.rate_hz, r.vib_block_samples, r.vib_rate_hz, r.estimator_config, r.warmup_s
+    )?;
+    let a = &r.accel;
+    outln!(
+        "accelerometer blocks: {} sent, {} answered, {} missing, {} duplicate, {} out of order; input sequence {}",
+        a.sent, a.answered, a.missing, a.duplicates, a.out_of_order,
+        if a.continuous { "continuous" } else { "NOT continuous" }
+    )?;
+    let s = &r.services;
+    outln!(
+        "services: compensator received {} accelerometer blocks, lost {}; estimator received {} of {} vibration blocks, lost {}, rate mismatches {}, {} estimates ({} flagged); window -> estimate {}",
+        s.compensator_accel_received, s.compensator_lost, s.estimator_vib_received, r.run.vib_blocks_sent,
+        s.estimator_lost, s.estimator_rate_mismatches, s.estimates_published, s.estimates_flagged,
+        s.estimator_window
+    )?;
+    outln!(
+        "lost: {}; CPU {}",
+        r.lost,
+        r.run
+            .cpu_percent
+            .iter()
+            .map(|(n, p)| format!("{n} {p:.1}%"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )?;
+    match &r.load {
+        Some(l) => outln!(
+            "load: `vibrocomp lab diagnose {}` x{}: {} runs started, {} completed, CPU {:.1}% of one core over {:.1} s, {}",
+            l.input, l.jobs, l.runs_started, l.runs_completed, l.cpu_percent, l.wall_s,
+            if l.stopped { "stopped" } else { "NOT stopped cleanly" }
+        )?,
+        None => outln!("load: none")?,
+    }
+    outln!(
+        "machine: {} cores, {:.1}% busy over the soak (everything it ran)",
+        r.cores,
+        r.machine_busy_percent
+    )?;
+    outln!(
+        "memory (KiB, every second; flat = RssAnon at most {} KiB above its first sample after the warm-up; VmRSS also counts the iceoryx2 segments' pages as they are first touched):",
+        r.memory_flat_bound_kib
+    )?;
+    for m in &r.memory {
+        outln!(
+            "  {:<12} {} samples of VmRSS: first {}, after warm-up {}, last {}, max {}, growth {}, slope {:+.1} KiB/min; RssAnon {} -> {}, growth after warm-up {}; VmRSS growth over the second half {}: {}",
+            m.process, m.samples, m.first_kib, m.after_warmup_kib, m.last_kib, m.max_kib,
+            m.growth_after_warmup_kib, m.slope_kib_per_min, m.anon_first_kib, m.anon_last_kib,
+            m.anon_growth_after_warmup_kib,
+            m.second_half_growth_kib,
+            if m.flat { "flat" } else { "NOT flat" }
+        )?;
+    }
+    print_hops(&r.run)?;
+    let h = &r.end_to_end_histogram;
+    outln!("end to end per accelerometer block, {} blocks:", h.count)?;
+    outln!("  {:>10}{:>12}{:>12}", "percentile", "us", "blocks <=")?;
+    for p in &h.percentiles {
+        outln!(
+            "  {:>10}{:>12.1}{:>12}",
+            p.percentile,
+            p.value_us,
+            p.blocks_at_or_below
+        )?;
+    }
+    outln!("  {:>20}{:>10}", "latency, us", "blocks")?;
+    for b in h.buckets.iter().filter(|b| b.blocks > 0) {
+        let range = match b.upper_us {
+            Some(u) => format!("{} .. {}", b.lower_us, u),
+            None => format!("> {}", b.lower_us),
+        };
+        outln!("  {:>20}{:>10}", range, b.blocks)?;
+    }
+    outln!(
+        "p99.9 {:.1} us against one accelerometer sample period {:.1} us: {}",
+        r.run.end_to_end.p999_us,
+        r.target_p999_us,
+        if r.p999_met { "met" } else { "NOT met" }
+    )?;
+    Ok(())
+}
+
+fn print_hops(r: &PipelineRun) -> anyhow::Result<()> {
+    outln!(
+        "  {:<26}{:>10}{:>10}{:>10}{:>10}{:>10}",
+        "hop, us",
+        "p50",
+        "p90",
+        "p99",
+        "p99.9",
+        "max"
+    )?;
+    for (name, h) in [
+        ("rig -> service receive", &r.rig_to_service),
+        ("service receive -> publish", &r.processing),
+        ("publish -> subscriber", &r.service_to_subscriber),
+        ("end to end", &r.end_to_end),
+    ] {
+        outln!(
+            "  {:<26}{:>10.1}{:>10.1}{:>10.1}{:>10.1}{:>10.1}",
+            name,
+            h.p50_us,
+            h.p90_us,
+            h.p99_us,
+            h.p999_us,
+            h.max_us
+        )?;
+    }
+    Ok(())
 }
 
 pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
@@ -723,18 +1618,75 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
         "--warmup-s = {}: must be >= 0 and shorter than --duration-s",
         args.warmup_s
     );
+    anyhow::ensure!(
+        (1..=64).contains(&args.load_jobs),
+        "--load-jobs = {}: must be 1..=64",
+        args.load_jobs
+    );
+    if let Some(input) = &args.load {
+        anyhow::ensure!(
+            input.is_file(),
+            "--load {}: not a file (a campaign table or an MCAP log for `lab diagnose`)",
+            input.display()
+        );
+    }
+    let prefix = match &args.prefix {
+        Some(p) => {
+            ServiceNames::new(p).with_context(|| format!("--prefix {p:?}"))?;
+            p.clone()
+        }
+        None => private_prefix("vclat"),
+    };
     let k1 = vibro_compensator::Config::load_default()?
         .model
         .triad
         .passports
         .map(|p| p.k1_v_per_g);
-    let log = std::env::temp_dir().join(format!("vibrocomp-latency-{}.log", std::process::id()));
-    let mut runs = vec![run_vibrocomp(args, k1, &log)?];
-    if !args.no_baselines {
-        runs.push(run_bare(args, k1, &log)?);
-        runs.push(run_uds(args, k1, &log)?);
-    }
+    let tmp = |what: &str| {
+        std::env::temp_dir().join(format!("vibrocomp-latency-{}.{what}", std::process::id()))
+    };
+    let log = tmp("log");
+    // The estimator's configuration follows --vib-rate-hz (its blocks are refused at
+    // any other rate).
+    let estimator_config = estimator_config_for(args.vib_rate_hz, &tmp("estimator.toml"))?;
+    let est = estimator_config.as_deref();
+    let result = if args.soak {
+        run_soak(args, k1, &log, &prefix, est).map(|r| Outcome::Soak(Box::new(r)))
+    } else {
+        run_pipelines(args, k1, &log, &prefix, est).map(Outcome::Pipelines)
+    };
     let _ = std::fs::remove_file(&log);
+    if let Some(p) = &estimator_config {
+        let _ = std::fs::remove_file(p);
+    }
+    match result? {
+        Outcome::Soak(soak) if args.json => print_json(&soak),
+        Outcome::Soak(soak) => print_soak(&soak),
+        Outcome::Pipelines(runs) => print_latency(args, runs),
+    }
+}
+
+enum Outcome {
+    Pipelines(Vec<PipelineRun>),
+    Soak(Box<SoakReport>),
+}
+
+fn run_pipelines(
+    args: &LatencyArgs,
+    k1: [f64; 3],
+    log: &Path,
+    prefix: &str,
+    estimator_config: Option<&Path>,
+) -> anyhow::Result<Vec<PipelineRun>> {
+    let mut runs = vec![run_vibrocomp(args, k1, log, prefix, estimator_config)?.run];
+    if !args.no_baselines {
+        runs.push(run_bare(args, k1, log)?);
+        runs.push(run_uds(args, k1, log, estimator_config)?);
+    }
+    Ok(runs)
+}
+
+fn print_latency(args: &LatencyArgs, runs: Vec<PipelineRun>) -> anyhow::Result<()> {
     let ratios = (runs.len() == 3).then(|| {
         let (v, b, u) = (
             &runs[0].end_to_end,
@@ -780,31 +1732,7 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
                 .collect::<Vec<_>>()
                 .join(", ")
         )?;
-        outln!(
-            "  {:<26}{:>10}{:>10}{:>10}{:>10}{:>10}",
-            "hop, us",
-            "p50",
-            "p90",
-            "p99",
-            "p99.9",
-            "max"
-        )?;
-        for (name, h) in [
-            ("rig -> service receive", &r.rig_to_service),
-            ("service receive -> publish", &r.processing),
-            ("publish -> subscriber", &r.service_to_subscriber),
-            ("end to end", &r.end_to_end),
-        ] {
-            outln!(
-                "  {:<26}{:>10.1}{:>10.1}{:>10.1}{:>10.1}{:>10.1}",
-                name,
-                h.p50_us,
-                h.p90_us,
-                h.p99_us,
-                h.p999_us,
-                h.max_us
-            )?;
-        }
+        print_hops(r)?;
     }
     if let Some(r) = &report.ratios {
         outln!(
@@ -963,8 +1891,11 @@ impl vibro_estimator::EstimateSink for EstimateChannel {
 }
 
 /// The socket peer: the estimator's and compensator's logic on two threads.
-fn peer_uds(dir: &Path) -> anyhow::Result<()> {
-    let est_config = vibro_estimator::Config::load_default()?;
+fn peer_uds(dir: &Path, estimator_config: Option<&Path>) -> anyhow::Result<()> {
+    let est_config = match estimator_config {
+        Some(p) => <vibro_estimator::Config as ServiceConfig>::load(p)?,
+        None => vibro_estimator::Config::load_default()?,
+    };
     let comp_config = vibro_compensator::Config::load_default()?;
     let vib_path = dir.join("vib.sock");
     let accel_path = dir.join("accel.sock");
@@ -1022,6 +1953,10 @@ pub fn run_peer(cmd: &PeerCommand) -> anyhow::Result<()> {
     match cmd {
         PeerCommand::Bare { prefix, mode } => peer_bare(prefix, *mode),
         PeerCommand::BareVib { prefix, mode } => peer_bare_vib(prefix, *mode),
-        PeerCommand::Uds { socket_dir } => peer_uds(socket_dir),
+        PeerCommand::Uds {
+            socket_dir,
+            estimator_config,
+        } => peer_uds(socket_dir, estimator_config.as_deref()),
+        PeerCommand::Load { input, jobs } => peer_load(input, *jobs),
     }
 }

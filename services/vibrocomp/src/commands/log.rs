@@ -181,14 +181,51 @@ fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
     )?;
     let gaps: u64 = info.channels.iter().map(|c| c.gaps).sum();
     let out_of_order: u64 = info.channels.iter().map(|c| c.out_of_order).sum();
-    if info.lost == 0 && out_of_order == 0 {
+    if info.lost == 0 && out_of_order == 0 && info.jumps == 0 {
         writeln!(out, "  losses: none (every sequence advances by 1)")?;
     } else {
-        writeln!(
+        let by_sequence = info.lost - info.inputs_without_output;
+        write!(
             out,
-            "  losses: {} messages lost in {gaps} sequence gaps, {out_of_order} out of order",
-            info.lost
+            "  losses: {by_sequence} messages lost in {gaps} sequence gaps, {out_of_order} out of order"
         )?;
+        if info.inputs_without_output > 0 {
+            // Where: the first gap of each channel that has one (all are in --json).
+            let wheres: Vec<String> = info
+                .channels
+                .iter()
+                .filter_map(|c| {
+                    let g = c.input_gaps.first()?;
+                    let more = if c.inputs_without_output > g.missing {
+                        format!(
+                            " and {} more in later gaps",
+                            c.inputs_without_output - g.missing
+                        )
+                    } else {
+                        String::new()
+                    };
+                    Some(format!(
+                        "input_seq {} -> {} on {}{more}",
+                        g.from, g.to, c.topic
+                    ))
+                })
+                .collect();
+            write!(
+                out,
+                "; {} accelerometer blocks without compensated output ({})",
+                info.inputs_without_output,
+                wheres.join("; ")
+            )?;
+        }
+        if info.jumps > 0 {
+            write!(
+                out,
+                "; {} sequence jumps too big to be losses (over {} messages skipped: a corrupt or renumbered sequence, not counted)",
+                info.jumps,
+                vibro_mcap::MAX_LOST_MESSAGES
+            )?;
+        }
+        writeln!(out)?;
     }
     // Topics as wide as the longest (`/heartbeat/compensator` is 22 characters).
     let tw = info

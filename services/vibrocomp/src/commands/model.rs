@@ -12,6 +12,7 @@ use vibro_physics::exact::exact_ve;
 use vibro_physics::montecarlo::{monte_carlo_ve, MonteCarloVe};
 use vibro_physics::passport::Passport;
 use vibro_physics::ve::{published, VeComponents};
+use vibro_physics::vibration::rules;
 use vibro_physics::vibration::{Tone, Vibration};
 
 #[derive(Debug, Subcommand)]
@@ -140,14 +141,17 @@ impl VibrationArgs {
         p.amplitude_g("--aB1-g", self.ab1_g);
         p.amplitude_g("--aB2-g", self.ab2_g);
         p.amplitude_g("--aB3-g", self.ab3_g);
-        p.check(
-            "--freq-hz",
-            self.freq_hz,
-            self.freq_hz.is_finite() && self.freq_hz >= 0.0,
-            "must be finite and >= 0",
+        p.rule("--freq-hz", self.freq_hz, rules::freq_hz(self.freq_hz));
+        p.rule(
+            "--phase31-deg",
+            self.phase31_deg,
+            rules::phase(self.phase31_deg),
         );
-        p.finite("--phase31-deg", self.phase31_deg);
-        p.finite("--phase32-deg", self.phase32_deg);
+        p.rule(
+            "--phase32-deg",
+            self.phase32_deg,
+            rules::phase(self.phase32_deg),
+        );
         for (flag, sigma) in [
             ("--sigma1-g", self.sigma1_g),
             ("--sigma2-g", self.sigma2_g),
@@ -157,13 +161,20 @@ impl VibrationArgs {
                 p.sigma_g(flag, s);
             }
         }
-        p.finite("--cov31-g2", self.cov31_g2);
-        p.finite("--cov32-g2", self.cov32_g2);
-        p.check(
+        p.rule(
+            "--cov31-g2",
+            self.cov31_g2,
+            rules::covariance_g2(self.cov31_g2),
+        );
+        p.rule(
+            "--cov32-g2",
+            self.cov32_g2,
+            rules::covariance_g2(self.cov32_g2),
+        );
+        p.rule(
             "--kurtosis3",
             self.kurtosis3,
-            self.kurtosis3.is_finite() && (1.0..=30.0).contains(&self.kurtosis3),
-            "must be finite and 1 <= kurtosis <= 30",
+            rules::kurtosis(self.kurtosis3),
         );
     }
 
@@ -238,6 +249,11 @@ fn check_accels(flags: &[(&str, f64)]) -> anyhow::Result<()> {
 impl FlightArgs {
     /// The flight and the vibration flags' problems, all at once.
     fn check_with(&self, vibration: &VibrationArgs) -> anyhow::Result<()> {
+        self.problems_with(vibration).finish()
+    }
+
+    /// The flight and the vibration flags' problems, for more to be added.
+    fn problems_with(&self, vibration: &VibrationArgs) -> FlagProblems {
         let mut p = FlagProblems::new();
         for (name, v) in [
             ("--aL1-g", self.al1_g),
@@ -247,7 +263,7 @@ impl FlightArgs {
             p.accel_g(name, v);
         }
         vibration.check_into(&mut p);
-        p.finish()
+        p
     }
 
     fn a_l_g(&self) -> anyhow::Result<[f64; 3]> {
@@ -642,7 +658,13 @@ struct CheckReport<'a> {
 }
 
 fn check(args: CheckArgs) -> anyhow::Result<()> {
-    args.flight.check_with(&args.vibration)?;
+    let mut problems = args.flight.problems_with(&args.vibration);
+    problems.count(
+        "--samples",
+        args.samples,
+        vibro_physics::montecarlo::samples_problem(args.samples),
+    );
+    problems.finish()?;
     let (p, vib) = args.vibration.resolve()?;
     let a_l = args.flight.a_l_g()?;
     let exact = ve_components(&p, a_l, &vib, Mode::Exact)?;

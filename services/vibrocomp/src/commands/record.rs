@@ -6,12 +6,12 @@ use anyhow::Context;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 use vibro_log::attachments::{LogExtras, RECORDER_METADATA};
 use vibro_log::{record, stream_of_topic, topic, RecordOptions, DEFAULT_RECORD_STREAMS};
 use vibro_msgs::{ServiceNames, Stream};
 use vibro_service::{init_tracing, run_service, ServiceConfig};
 
+use crate::flags::FlagProblems;
 use crate::output::print_json;
 
 #[derive(Debug, Clone, clap::Args)]
@@ -136,12 +136,13 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     let names =
         ServiceNames::new(&args.prefix).with_context(|| format!("--prefix {:?}", args.prefix))?;
     let streams = parse_topics(&args.topics)?;
-    if let Some(d) = args.duration_s {
-        anyhow::ensure!(
-            d.is_finite() && d > 0.0,
-            "--duration-s = {d}: must be finite and > 0"
-        );
-    }
+    // Before any port opens: a duration `Duration` can hold and no recorder outlives
+    // (about 31 years).
+    let mut problems = FlagProblems::new();
+    let duration = args
+        .duration_s
+        .and_then(|d| problems.seconds("--duration-s", d, 1e-3, 1e9));
+    problems.finish()?;
     let mut extras = LogExtras::recorded();
     extras.metadata(
         RECORDER_METADATA,
@@ -158,7 +159,6 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     let mut options = RecordOptions::new(names, streams);
     options.extras = extras;
     let out = args.out.clone();
-    let duration = args.duration_s.map(Duration::from_secs_f64);
     let summary = run_service(|shutdown| async move {
         let (tx, rx) = tokio::sync::oneshot::channel();
         let flag = shutdown.clone();
@@ -199,8 +199,14 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         s.lost
     )?;
     for (topic, c) in &s.topics {
+        // `seq` jumps (a corrupt or renumbered counter, not in `lost`) only when seen.
+        let jumps = if c.jumps > 0 {
+            format!("  seq jumps {}", c.jumps)
+        } else {
+            String::new()
+        };
         outln!(
-            "  {:<24} {:>9} recorded  lost {:>4}  out of order {:>3}  malformed {:>3}",
+            "  {:<24} {:>9} recorded  lost {:>4}  out of order {:>3}  malformed {:>3}{jumps}",
             topic,
             c.recorded,
             c.lost,

@@ -11,7 +11,14 @@ use std::sync::Arc;
 use vibro_log::{replay, Pace, ReplayOptions, ReplaySummary};
 use vibro_msgs::ServiceNames;
 
+use crate::flags::FlagProblems;
 use crate::output::print_json;
+
+/// Longest stretch of log time `--start-s` / `--duration-s` may name, s (about 31
+/// years; a log's times are u64 ns, which end at 1.8e10 s).
+const MAX_LOG_TIME_S: f64 = 1e9;
+/// Longest `--wait-s`, s: a day.
+const MAX_WAIT_S: f64 = 86_400.0;
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct ReplayArgs {
@@ -57,18 +64,25 @@ impl ReplayArgs {
             Some(x) => Pace::Rate(x),
             None => Pace::AsFastAsPossible,
         };
-        anyhow::ensure!(
-            self.wait_s.is_finite() && self.wait_s > 0.0,
-            "--wait-s = {}: must be finite and > 0",
-            self.wait_s
-        );
+        // Every flag's rule, all at once, before any port opens.
+        let mut p = FlagProblems::new();
+        if let Some(x) = self.rate {
+            p.rate("--rate", x);
+        }
+        // Log time in u64 ns: a start or length beyond MAX_LOG_TIME_S is no log's.
+        p.seconds("--start-s", self.start_s, 0.0, MAX_LOG_TIME_S);
+        if let Some(d) = self.duration_s {
+            p.seconds("--duration-s", d, 1e-9, MAX_LOG_TIME_S);
+        }
+        let wait = p.seconds("--wait-s", self.wait_s, 1e-3, MAX_WAIT_S);
+        p.finish()?;
         let mut o = ReplayOptions::new(names, pace);
         o.start_s = self.start_s;
         o.duration_s = self.duration_s;
         o.topics = (!self.topics.is_empty())
             .then(|| self.topics.iter().map(|t| t.trim().to_string()).collect());
         o.passes = if self.loop_ { 0 } else { 1 };
-        o.connect_timeout = std::time::Duration::from_secs_f64(self.wait_s);
+        o.connect_timeout = wait.unwrap_or_default();
         Ok(o)
     }
 }

@@ -110,8 +110,29 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
     }
 }
 
-/// `--seed`, `--duration-s`, `--no-effects`, `--effect`.
+/// `--seed`, `--duration-s`, `--no-effects`, `--effect`; the numeric flags are checked
+/// first, all at once, before anything runs.
 fn apply_overrides(scenario: &mut Scenario, args: &SimArgs) -> anyhow::Result<()> {
+    let mut problems = FlagProblems::new();
+    // The scenario file's own rule on a flight's length.
+    if let Some(d) = args.duration_s {
+        problems.rule("--duration-s", d, scenario.rates.length_problem(d));
+    }
+    // A paced replay's rule: a 5e-324 rate would wait for ever before a message.
+    problems.rate("--rate", args.rate);
+    // Written to `--lab-csv` as the uncertainty's floor: the lab table's rule on an
+    // uncertainty's size (0 is floored to `vibro_sim::campaign::Z_FLOOR_G`).
+    let max_g = vibro_lab::table::MAX_VE_G;
+    problems.check(
+        "--ve-resolution-g",
+        args.ve_resolution_g,
+        args.ve_resolution_g.is_finite() && (0.0..=max_g).contains(&args.ve_resolution_g),
+        format_args!(
+            "must be finite and 0 <= resolution <= {} g (the lab table's largest uncertainty)",
+            fmt_num(max_g)
+        ),
+    );
+    problems.finish()?;
     if let Some(seed) = args.seed {
         scenario.seed = seed;
     }
@@ -123,12 +144,6 @@ fn apply_overrides(scenario: &mut Scenario, args: &SimArgs) -> anyhow::Result<()
                 scenario.name
             );
         };
-        // The scenario file's own rule on a flight's length.
-        let mut problems = FlagProblems::new();
-        if let Some(rule) = scenario.rates.length_problem(d) {
-            problems.push("--duration-s", d, rule);
-        }
-        problems.finish()?;
         flight.duration_s = d;
     }
     if args.no_effects {
@@ -319,9 +334,10 @@ pub struct Live {
 
 impl Live {
     fn new(prefix: &str, rate: f64) -> anyhow::Result<Self> {
-        if !(rate.is_finite() && rate > 0.0) {
-            bail!("--rate = {rate}: must be finite and > 0");
-        }
+        // Checked with the other flags (`apply_overrides`); kept for other callers.
+        let mut problems = FlagProblems::new();
+        problems.rate("--rate", rate);
+        problems.finish()?;
         let names = ServiceNames::new(prefix).with_context(|| format!("--prefix {prefix:?}"))?;
         let node = vibro_ipc::create_node("vibrocomp-sim").context("iceoryx2 node")?;
         let config = vibro_ipc::StreamConfig::default();
@@ -829,12 +845,7 @@ fn run_campaign(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
         write(p, true)?;
     }
     if let Some(p) = &args.lab_csv {
-        if !(args.ve_resolution_g.is_finite() && args.ve_resolution_g >= 0.0) {
-            bail!(
-                "--ve-resolution-g = {}: must be finite and >= 0 g",
-                args.ve_resolution_g
-            );
-        }
+        // `--ve-resolution-g` was checked before the campaign ran (`apply_overrides`).
         let table =
             vibro_lab::CampaignTable::from_campaign(p, scenario, &summaries, args.ve_resolution_g)?;
         let file =

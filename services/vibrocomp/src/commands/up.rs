@@ -9,7 +9,7 @@ use std::time::Duration;
 use tokio::sync::mpsc;
 use tracing::info;
 use vibro_msgs::{ServiceId, ServiceNames};
-use vibro_service::supervise::{running_on, supervise, ProcessReport, RestartLimits};
+use vibro_service::supervise::{claim_prefix, running_on, supervise, ProcessReport, RestartLimits};
 use vibro_service::{init_tracing, run_service, ServiceConfig};
 
 use crate::output::print_json;
@@ -32,6 +32,10 @@ pub struct UpArgs {
     /// The services' loop mode: event (default) or spin.
     #[arg(long, value_name = "event|spin")]
     pub mode: Option<String>,
+    /// Run both services' hot loops under SCHED_FIFO at this priority (1..=99),
+    /// overriding their `[service] realtime_priority`; needs CAP_SYS_NICE.
+    #[arg(long, value_name = "1..99", value_parser = clap::value_parser!(u8).range(1..=99))]
+    pub realtime_priority: Option<u8>,
     /// Restarts allowed per service within --restart-window-s before `up` gives up.
     #[arg(long, default_value_t = 5)]
     pub max_restarts: u32,
@@ -55,15 +59,13 @@ struct UpReport {
 pub fn run(args: &UpArgs) -> anyhow::Result<()> {
     init_tracing();
     ServiceNames::new(&args.prefix).with_context(|| format!("--prefix {:?}", args.prefix))?;
-    for (name, v) in [
-        ("--restart-window-s", args.restart_window_s),
-        ("--stop-timeout-s", args.stop_timeout_s),
-    ] {
-        anyhow::ensure!(
-            v.is_finite() && v > 0.0,
-            "{name} = {v}: must be finite and > 0"
-        );
-    }
+    // Before anything starts (a duration `Duration` cannot hold would panic in the
+    // supervisor, with the services running): a day at most.
+    let mut problems = crate::flags::FlagProblems::new();
+    let window = problems.seconds("--restart-window-s", args.restart_window_s, 0.1, 86_400.0);
+    let stop_timeout = problems.seconds("--stop-timeout-s", args.stop_timeout_s, 0.01, 3600.0);
+    problems.finish()?;
+    let (window, stop_timeout) = (window.unwrap_or_default(), stop_timeout.unwrap_or_default());
     // A bad configuration fails here, once, instead of in a restart loop.
     match &args.estimator_config {
         Some(p) => drop(vibro_estimator::Config::load(p)?),
@@ -77,8 +79,13 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
         check_record_path(out)?;
     }
     // Two systems on one prefix would each compensate every block: refuse to start
-    // beside a running one (docs/services.md, "Running the system").
+    // beside a running one (docs/services.md, "Running the system"). The claim (a
+    // lock held for `up`'s life) settles two `up`s started at the same instant, which
+    // would both find nobody running; the look for running services also catches a
+    // system started some other way.
     let names = ServiceNames::new(&args.prefix)?;
+    let claim =
+        claim_prefix(&args.prefix).with_context(|| format!("claiming prefix {:?}", args.prefix))?;
     let running = running_on(
         &names,
         &[
@@ -97,11 +104,23 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
             list.join("; ")
         );
     }
+    let _claim = match claim {
+        Ok(c) => c,
+        Err(other) => anyhow::bail!(
+            "another `vibrocomp up` (pid {}) is starting on prefix {:?} (it holds {}); stop it first or choose another --prefix",
+            other
+                .pid
+                .map_or_else(|| "unknown".to_string(), |p| p.to_string()),
+            args.prefix,
+            other.path.display()
+        ),
+    };
     let spec = SystemSpec {
         prefix: args.prefix.clone(),
         estimator_config: args.estimator_config.clone(),
         compensator_config: args.compensator_config.clone(),
         mode: args.mode.clone(),
+        realtime_priority: args.realtime_priority,
         record: args.record.clone(),
         json: false,
         exe: None,
@@ -113,8 +132,8 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
         for role in roles {
             let limits = RestartLimits {
                 max_restarts: args.max_restarts,
-                window: Duration::from_secs_f64(args.restart_window_s),
-                stop_timeout: Duration::from_secs_f64(args.stop_timeout_s),
+                window,
+                stop_timeout,
             };
             let (spec, shutdown, tx) = (spec.clone(), shutdown.clone(), tx.clone());
             tasks.push(tokio::spawn(async move {

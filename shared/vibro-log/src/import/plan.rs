@@ -112,9 +112,15 @@ impl TryFrom<&ImportOptions> for ImportPlan {
             ),
         ] {
             if let Some(r) = rate_hz {
-                if !(r.is_finite() && r > 0.0 && r <= 1e9) {
+                if !(r.is_finite() && (MIN_RATE_HZ..=MAX_RATE_HZ).contains(&r)) {
+                    // `{:e}` beyond the range: `{}` prints 1e300 with 301 digits.
+                    let shown = if r.is_finite() {
+                        format!("{r:e}")
+                    } else {
+                        format!("{r}")
+                    };
                     problems.push(format!(
-                        "{} = {r}: must be finite, > 0 and at most 1e9 Hz (a period of at least 1 ns)",
+                        "{} = {shown}: must be finite and 1e-3 <= rate <= 1e9 Hz (a period between 1 ns and 1000 s)",
                         kind.rate_flag()
                     ));
                 }
@@ -173,6 +179,12 @@ impl TryFrom<&ImportOptions> for ImportPlan {
     }
 }
 
+/// The sample rates a CSV stream may be given: a period of at least 1 ns (the
+/// timestamps' resolution) and at most 1000 s (no rig samples more slowly; 5e-324 Hz,
+/// accepted before, made the period infinite).
+const MIN_RATE_HZ: f64 = 1e-3;
+const MAX_RATE_HZ: f64 = 1e9;
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -188,6 +200,15 @@ mod tests {
             panic!("bad options accepted");
         };
         let text = problems.join("\n");
+        let mut tiny = ImportOptions::new(Some(PathBuf::from("a.csv")), None, PathBuf::from("o"));
+        tiny.accel_rate_hz = Some(5e-324);
+        let Err(Error::ImportOptions { problems }) = ImportPlan::try_from(&tiny) else {
+            panic!("a rate of 5e-324 Hz accepted");
+        };
+        assert!(
+            problems[0].starts_with("--accel-rate-hz = 5e-324: must be finite and 1e-3"),
+            "{problems:?}"
+        );
         for want in [
             "--accel-rate-hz = NaN: must be finite",
             "--accel-rate-hz = NaN given without --accel CSV",

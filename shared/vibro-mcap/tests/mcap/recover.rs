@@ -328,3 +328,83 @@ fn a_crc_failed_chunk_is_reported_with_its_messages() {
         (third.start, third.end)
     );
 }
+
+/// Damage in the first of several attachments loses that attachment only: reading
+/// resumes at the next attachment whose CRC checks out, and the records after it (the
+/// other attachments, the metadata) are copied. The counts come from the `mcap` crate's
+/// summary of the undamaged original.
+#[test]
+fn damage_in_one_attachment_keeps_the_attachments_and_metadata_after_it() {
+    let dir = scratch("resync-attachments");
+    let path = dir.join("whole.mcap");
+    let options = RecorderOptions {
+        compression: Compression::Zstd,
+        chunk_size_bytes: 8 * 1024,
+        ..RecorderOptions::default()
+    };
+    let mut recorder = Recorder::create(&path, options).unwrap();
+    recorder
+        .add_channel("/accel", MessageKind::AccelBlock)
+        .unwrap();
+    for name in ["a.toml", "b.toml", "c.toml"] {
+        recorder
+            .add_attachment(
+                name,
+                "text/plain",
+                format!("name = {name:?}\n").into_bytes(),
+            )
+            .unwrap();
+    }
+    let entries = std::collections::BTreeMap::from([("rig".to_string(), "3".to_string())]);
+    recorder.add_metadata("session", entries).unwrap();
+    for seq in 0..30u32 {
+        let t = u64::from(seq) * 10_000_000;
+        recorder
+            .write("/accel", t, t, seq, &accel(seq.into()))
+            .unwrap();
+    }
+    recorder.finish().unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    let mut attachments: Vec<u64> = summary
+        .attachment_indexes
+        .iter()
+        .map(|a| a.offset)
+        .collect();
+    attachments.sort_unstable();
+    assert_eq!(attachments.len(), 3);
+    let metadata = summary.metadata_indexes.len() as u64;
+    assert!(metadata >= 1);
+    let messages: u64 = summary.stats.as_ref().unwrap().message_count;
+
+    // The first attachment's name length, after its two times.
+    let mut b = bytes.clone();
+    garble_length(&mut b, attachments[0] + 9 + 16);
+    let r = recover_bytes(&dir, "first-attachment", &b);
+    assert_eq!(r.messages_recovered, messages, "{r:?}");
+    assert_eq!(r.attachments, 2, "{r:?}");
+    assert_eq!(r.metadata, metadata, "{r:?}");
+    assert_eq!(r.damage.len(), 1, "{:?}", r.damage);
+    assert_eq!(
+        (r.damage[0].start_byte, r.damage[0].end_byte),
+        (attachments[0], attachments[1])
+    );
+    let names: Vec<String> =
+        mcap::Summary::read(&std::fs::read(dir.join("first-attachment-out.mcap")).unwrap())
+            .unwrap()
+            .unwrap()
+            .attachment_indexes
+            .iter()
+            .map(|a| a.name.clone())
+            .collect();
+    assert_eq!(names, ["b.toml", "c.toml"]);
+
+    // A byte of the second attachment's data: its CRC fails, the third is kept.
+    let mut b = bytes.clone();
+    let data_end = attachments[2] - 4 - 1;
+    b[data_end as usize] ^= 0x20;
+    let r = recover_bytes(&dir, "second-attachment", &b);
+    assert_eq!(r.attachments, 2, "{r:?}");
+    assert_eq!(r.metadata, metadata, "{r:?}");
+    assert_eq!(r.messages_recovered, messages, "{r:?}");
+}

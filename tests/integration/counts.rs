@@ -1,0 +1,262 @@
+//! Counts that do not lie (issue 18, item 9), through the real processes:
+//!
+//! - the compensator killed under `vibrocomp up --record` during a paced replay: `up`
+//!   restarts it, and `vibrocomp log info --json` on the recording counts the
+//!   accelerometer blocks that got no compensated output as lost, as many as an
+//!   independent count from the file's `/accel` and `/compensated` channels says;
+//! - a crafted log whose accelerometer blocks carry random `seq`s, replayed into
+//!   `vibrocomp up --record`: the compensator's and the recorder's counters stay
+//!   bounded and the jumps are flagged (before: `lost_blocks=18366207225729211778`).
+
+use crate::common::{bin, repo_path, run_json};
+use crate::processes::{children, flight_log, kill, poll, prefix, Dir, Kid};
+use std::collections::BTreeSet;
+use std::path::Path;
+use std::time::Duration;
+use vibro_mcap::{Message, Reader, Recorder, RecorderOptions};
+use vibro_msgs::{MessageKind, ServiceId, ServiceNames};
+use vibro_service::supervise::wait_for_heartbeats;
+
+/// `vibrocomp up --json --prefix P --record SESSION` with the shipped services.
+fn up(prefix: &str, session: &Path) -> Kid {
+    let mut cmd = bin();
+    cmd.args(["up", "--json", "--prefix", prefix, "--record"])
+        .arg(session)
+        .arg("--estimator-config")
+        .arg(repo_path("config/services/estimator.toml"))
+        .arg("--compensator-config")
+        .arg(repo_path("config/services/compensator.toml"));
+    let mut kid = Kid::spawn(cmd, "up");
+    let names = ServiceNames::new(prefix).unwrap();
+    let services = [
+        ServiceId::Estimator,
+        ServiceId::Compensator,
+        ServiceId::Recorder,
+    ];
+    if let Err(e) = wait_for_heartbeats(&names, &services, Duration::from_secs(30), || {
+        kid.check_alive()
+    }) {
+        panic!("{e:#}\nup stderr:\n{}", kid.stderr());
+    }
+    kid
+}
+
+/// `vibrocomp replay LOG --prefix P --rate 2`, run to its end.
+fn replay(prefix: &str, log: &Path) -> Kid {
+    let mut cmd = bin();
+    cmd.arg("replay")
+        .arg(log)
+        .args(["--prefix", prefix, "--rate", "2"]);
+    Kid::spawn(cmd, "replay")
+}
+
+fn compensator_of(up: u32, not: u32) -> Option<u32> {
+    children(up)
+        .into_iter()
+        .find(|(pid, cmd)| *pid != not && cmd.contains("service compensator"))
+        .map(|(pid, _)| pid)
+}
+
+fn log_info_json(session: &Path) -> serde_json::Value {
+    run_json(&["log", "info", "--json", session.to_str().unwrap()])
+}
+
+fn channel<'a>(info: &'a serde_json::Value, topic: &str) -> &'a serde_json::Value {
+    info["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["topic"] == topic)
+        .unwrap_or_else(|| panic!("no {topic} in {info}"))
+}
+
+/// The compensator is killed under `up --record` while a replay streams: `log info`
+/// reports the accelerometer blocks without compensated output, as lost, and their
+/// number is the one the file's two channels give by themselves.
+#[test]
+fn a_compensator_restart_shows_as_lost_blocks_in_log_info() {
+    let dir = Dir::new("cnt");
+    let log = flight_log(&dir, "8");
+    let p = prefix("cn");
+    let session = dir.path("session.mcap");
+    let mut up = up(&p, &session);
+    let victim = compensator_of(up.pid(), 0).expect("a compensator under up");
+    let mut replay = replay(&p, &log);
+    // 1.5 s of wall time: 3 s of the 8 s of data at rate 2.
+    std::thread::sleep(Duration::from_millis(1500));
+    kill(victim, libc::SIGKILL);
+    assert!(
+        poll(Duration::from_secs(20), || compensator_of(up.pid(), victim)
+            .is_some()),
+        "up did not restart the compensator\n{}",
+        up.stderr()
+    );
+    let (status, _, err) = replay.wait(Duration::from_secs(60));
+    assert!(status.success(), "replay: {status}\n{err}");
+    // Let the restarted compensator and the recorder take the last blocks.
+    std::thread::sleep(Duration::from_secs(2));
+    let (status, _, err) = up.stop(libc::SIGINT, Duration::from_secs(30));
+    assert!(status.success(), "up: {status}\n{err}");
+
+    // The independent count: accelerometer blocks (by seq, on /accel) between the
+    // first and the last answered one that no /compensated block answers (by
+    // input_seq), read with vibro_mcap's reader.
+    let (mut accel, mut answered) = (BTreeSet::new(), BTreeSet::new());
+    for r in Reader::open(&session).unwrap() {
+        let r = r.unwrap();
+        match (&*r.topic, &r.message) {
+            ("/accel", Message::AccelBlock(b)) => {
+                accel.insert(b.seq);
+            }
+            ("/compensated", Message::CompensatedBlock(b)) => {
+                answered.insert(b.input_seq);
+            }
+            _ => {}
+        }
+    }
+    let (first, last) = (*answered.first().unwrap(), *answered.last().unwrap());
+    let unanswered = accel
+        .range(first..=last)
+        .filter(|s| !answered.contains(s))
+        .count() as u64;
+    assert!(unanswered > 0, "the kill left no block without output");
+
+    let info = log_info_json(&session);
+    let c = channel(&info, "/compensated");
+    assert_eq!(c["inputs_without_output"], unanswered, "{c}");
+    assert_eq!(c["out_of_order"], 1, "its seq restarted once: {c}");
+    assert_eq!(info["inputs_without_output"], unanswered, "{info}");
+    let by_sequence: u64 = info["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["lost"].as_u64().unwrap())
+        .sum();
+    assert_eq!(info["lost"], by_sequence + unanswered, "{info}");
+    // The text names it.
+    let out = bin().args(["log", "info"]).arg(&session).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    let gap = &c["input_gaps"][0];
+    let want = format!(
+        "{unanswered} accelerometer blocks without compensated output (input_seq {} -> {} on /compensated",
+        gap["from"], gap["to"]
+    );
+    assert!(text.contains(&want), "{want:?} not in\n{text}");
+    eprintln!(
+        "FIGURES counts-restart: {unanswered} accel blocks without output, input_seq {} -> {}",
+        gap["from"], gap["to"]
+    );
+}
+
+/// A crafted log: `log`'s accelerometer blocks with random `seq`s (xorshift64), the
+/// rest as it was.
+fn random_seq_log(log: &Path, out: &Path) -> u64 {
+    let mut w = Recorder::create(out, RecorderOptions::default()).unwrap();
+    let mut channels = std::collections::HashMap::new();
+    let mut x = 0x9E37_79B9_7F4A_7C15u64;
+    let mut n = 0;
+    for r in Reader::open(log).unwrap() {
+        let r = r.unwrap();
+        let kind = r.message.kind();
+        let ch = channels
+            .entry(r.topic.to_string())
+            .or_insert_with(|| w.add_channel(&r.topic, kind).unwrap())
+            .clone();
+        let mut m = r.message;
+        if let Message::AccelBlock(b) = &mut m {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            b.seq = x;
+            n += 1;
+        }
+        assert_eq!(kind, m.kind());
+        while let Err(e) = w.write_to(&ch, r.log_time_ns, r.publish_time_ns, r.sequence, m) {
+            assert!(matches!(e, vibro_mcap::Error::QueueFull { .. }), "{e}");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+    w.finish().unwrap();
+    assert!(channels
+        .values()
+        .any(|c| c.kind() == MessageKind::AccelBlock));
+    n
+}
+
+/// The value of `key=` (a tracing field) on the first line of `text` holding `what`.
+fn field(text: &str, what: &str, key: &str) -> u64 {
+    let text = strip_ansi(text);
+    let line = text
+        .lines()
+        .find(|l| l.contains(what))
+        .unwrap_or_else(|| panic!("no {what:?} in\n{text}"));
+    let at = line
+        .find(&format!(" {key}="))
+        .unwrap_or_else(|| panic!("no {key} in {line}"));
+    line[at + key.len() + 2..]
+        .split(|c: char| !c.is_ascii_digit())
+        .next()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("{key} is not a count in {line}"))
+}
+
+/// `text` without its ANSI colour sequences (`ESC [ ... m`).
+fn strip_ansi(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut chars = text.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            for d in chars.by_ref() {
+                if d.is_ascii_alphabetic() {
+                    break;
+                }
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+/// Random accelerometer `seq`s through `replay` into `up --record`: no absurd loss
+/// count anywhere, the jumps are flagged.
+#[test]
+fn random_seqs_through_the_services_are_flagged_jumps_not_losses() {
+    let dir = Dir::new("cnr");
+    let log = flight_log(&dir, "4");
+    let crafted = dir.path("random-seq.mcap");
+    let blocks = random_seq_log(&log, &crafted);
+    let p = prefix("cr");
+    let session = dir.path("session.mcap");
+    let mut up = up(&p, &session);
+    let mut replay = replay(&p, &crafted);
+    let (status, _, err) = replay.wait(Duration::from_secs(60));
+    assert!(status.success(), "replay: {status}\n{err}");
+    std::thread::sleep(Duration::from_secs(2));
+    let (status, out, err) = up.stop(libc::SIGINT, Duration::from_secs(30));
+    assert!(status.success(), "up: {status}\n{err}");
+    // Each of the `blocks` random seqs is, against the one accepted before it, either
+    // a jump (forward) or out of order (back): never a loss of 2^63 blocks.
+    let lost = field(&err, "compensator stopped", "lost_blocks");
+    let jumps = field(&err, "compensator stopped", "seq_jumps");
+    let received = field(&err, "compensator stopped", "received");
+    assert_eq!(received, blocks, "{err}");
+    assert_eq!(lost, 0, "{err}");
+    assert!(jumps > 0 && jumps < blocks, "{jumps} of {blocks}\n{err}");
+    // The recorder: its text summary (before up's JSON) flags the jumps on /accel.
+    assert!(out.contains("seq jumps"), "{out}");
+    // The recording: MCAP keeps 32 bits of the random seqs; info flags them as jumps.
+    let info = log_info_json(&session);
+    let a = channel(&info, "/accel");
+    let info_lost = a["lost"].as_u64().unwrap();
+    assert!(
+        info_lost <= a["gaps"].as_u64().unwrap() * vibro_mcap::MAX_LOST_MESSAGES,
+        "{a}"
+    );
+    assert!(a["jumps"].as_u64().unwrap() > 0, "{a}");
+    eprintln!(
+        "FIGURES counts-random: {blocks} blocks, compensator lost_blocks={lost} seq_jumps={jumps}; \
+         info /accel lost {} gaps {} jumps {} out_of_order {}",
+        a["lost"], a["gaps"], a["jumps"], a["out_of_order"]
+    );
+}
