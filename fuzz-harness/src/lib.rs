@@ -81,10 +81,26 @@ pub fn mcap_read(data: &[u8]) {
     read_all(data, name);
 
     match vibro_mcap::info_from_reader(data, name, data.len() as u64) {
-        Ok(info) => assert_eq!(
-            info.messages,
-            info.channels.iter().map(|c| c.messages).sum::<u64>()
-        ),
+        Ok(info) => {
+            assert_eq!(
+                info.messages,
+                info.channels.iter().map(|c| c.messages).sum::<u64>()
+            );
+            // Counts that cannot lie: a gap counts at most MAX_LOST_MESSAGES (a larger
+            // step is a jump, not a loss), and the totals add up.
+            let limit = vibro_mcap::MAX_LOST_MESSAGES;
+            for c in &info.channels {
+                assert!(c.lost <= c.gaps.saturating_mul(limit), "{c:?}");
+                assert!(
+                    c.gaps + c.jumps + c.out_of_order < c.messages.max(1),
+                    "{c:?}"
+                );
+            }
+            assert_eq!(
+                info.lost,
+                info.channels.iter().map(|c| c.lost).sum::<u64>() + info.inputs_without_output
+            );
+        }
         Err(e) => check_error("info", &e),
     }
 

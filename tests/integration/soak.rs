@@ -222,17 +222,15 @@ fn may_use_fifo() -> bool {
 fn up_runs_the_hot_loops_under_sched_fifo_when_asked() {
     use std::time::{Duration, Instant};
     let p = prefix("sk3");
-    let mut up = bin()
-        .args(["up", "--prefix", &p, "--realtime-priority", "10"])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut cmd = bin();
+    cmd.args(["up", "--prefix", &p, "--realtime-priority", "10"]);
+    // Stopped by its drop if an assertion fails first.
+    let mut up = crate::processes::Kid::spawn(cmd, "up");
     let fifo = may_use_fifo();
     let t = Instant::now();
     let mut found: Vec<(String, i64, i64)> = Vec::new();
     while fifo && t.elapsed() < Duration::from_secs(30) {
-        found = crate::processes::children(up.id())
+        found = crate::processes::children(up.pid())
             .iter()
             .flat_map(|(pid, _)| threads_scheduling(*pid))
             .filter(|(name, _, _)| name.starts_with("vibro-"))
@@ -246,27 +244,22 @@ fn up_runs_the_hot_loops_under_sched_fifo_when_asked() {
         }
         std::thread::sleep(Duration::from_millis(100));
     }
-    if fifo {
-        // SAFETY: signalling our own child.
-        unsafe { libc::kill(up.id() as libc::pid_t, libc::SIGTERM) };
+    // With FIFO allowed, stopped here; without, the services fail at start and `up`
+    // gives up once its restart limit is spent.
+    let (status, _, stderr) = if fifo {
+        up.stop(libc::SIGTERM, Duration::from_secs(30))
     } else {
-        // The services fail at start; `up` gives up once its restart limit is spent.
-        while up.try_wait().unwrap().is_none() && t.elapsed() < Duration::from_secs(90) {
-            std::thread::sleep(Duration::from_millis(100));
-        }
-        let _ = up.kill();
-    }
-    let out = up.wait_with_output().unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
+        up.wait(Duration::from_secs(90))
+    };
     if !fifo {
-        assert!(!out.status.success(), "{stderr}");
+        assert!(!status.success(), "{stderr}");
         assert!(
             stderr.contains("cannot run the hot loop at SCHED_FIFO priority"),
             "{stderr}"
         );
         return;
     }
-    assert!(out.status.success(), "{stderr}");
+    assert!(status.success(), "{stderr}");
     const SCHED_OTHER: i64 = 0;
     const SCHED_FIFO: i64 = 1;
     let policy = |prefix: &str| {
@@ -291,4 +284,30 @@ fn up_runs_the_hot_loops_under_sched_fifo_when_asked() {
         workers.iter().all(|(_, policy, _)| *policy == SCHED_OTHER),
         "{found:?}"
     );
+}
+
+/// Without the right to SCHED_FIFO (CAP_SYS_NICE dropped by util-linux's `setpriv`,
+/// and no `ulimit -r`), `up --realtime-priority` fails, each service saying what it
+/// needs, instead of running with a priority it was not given.
+#[test]
+fn realtime_priority_without_the_right_fails_and_says_why() {
+    use std::time::Duration;
+    let p = prefix("sk4");
+    let mut cmd = std::process::Command::new("setpriv");
+    cmd.args(["--inh-caps=-sys_nice", "--bounding-set=-sys_nice"])
+        .arg(bin().get_program())
+        .args(["up", "--prefix", &p, "--realtime-priority", "10"]);
+    let mut up = crate::processes::Kid::spawn(cmd, "up under setpriv");
+    let (status, _, stderr) = up.wait(Duration::from_secs(90));
+    assert_eq!(status.code(), Some(1), "{stderr}");
+    for (service, priority) in [("compensator", 10), ("estimator", 9)] {
+        let want = format!(
+            "cannot run the hot loop at SCHED_FIFO priority {priority} (it needs CAP_SYS_NICE"
+        );
+        assert!(
+            stderr.contains(&want),
+            "{service}: {want:?} not in\n{stderr}"
+        );
+    }
+    assert!(stderr.contains("a service crashed too often"), "{stderr}");
 }

@@ -14,9 +14,9 @@ pub const PRIORITY_RANGE: std::ops::RangeInclusive<u8> = 1..=99;
 /// The calling thread could not be given the real-time policy.
 #[derive(Debug, thiserror::Error)]
 #[error(
-    "cannot run the hot loop at SCHED_FIFO priority {priority}: {source} (it needs \
-     CAP_SYS_NICE, or an `ulimit -r` of at least {priority}; leave realtime_priority \
-     out to run with normal scheduling)"
+    "cannot run the hot loop at SCHED_FIFO priority {priority} (it needs CAP_SYS_NICE, \
+     or an `ulimit -r` of at least {priority}; leave realtime_priority out to run with \
+     normal scheduling)"
 )]
 pub struct RealtimeError {
     pub priority: u8,
