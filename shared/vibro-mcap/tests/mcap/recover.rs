@@ -13,9 +13,13 @@ struct Chunk {
     messages: u64,
 }
 
-/// Writes a finished file of many small chunks and returns its bytes, its chunks in file
-/// order, and where its summary section starts (just after the data-end record).
-fn chunked_file(dir: &std::path::Path, compression: Compression) -> (Vec<u8>, Vec<Chunk>, u64) {
+/// `whole.mcap` in `dir`, in chunks of 8 KiB: the channels `/accel` and `/vib`, what
+/// `before` adds (attachments, metadata), then 30 messages on each channel; its bytes.
+fn recorded(
+    dir: &std::path::Path,
+    compression: Compression,
+    before: impl FnOnce(&mut Recorder),
+) -> Vec<u8> {
     let path = dir.join("whole.mcap");
     let options = RecorderOptions {
         compression,
@@ -27,6 +31,7 @@ fn chunked_file(dir: &std::path::Path, compression: Compression) -> (Vec<u8>, Ve
         .add_channel("/accel", MessageKind::AccelBlock)
         .unwrap();
     recorder.add_channel("/vib", MessageKind::VibBlock).unwrap();
+    before(&mut recorder);
     for seq in 0..30u32 {
         let t = u64::from(seq) * 10_000_000;
         recorder
@@ -38,6 +43,13 @@ fn chunked_file(dir: &std::path::Path, compression: Compression) -> (Vec<u8>, Ve
     }
     recorder.finish().unwrap();
     let bytes = std::fs::read(&path).unwrap();
+    bytes
+}
+
+/// Writes a finished file of many small chunks and returns its bytes, its chunks in file
+/// order, and where its summary section starts (just after the data-end record).
+fn chunked_file(dir: &std::path::Path, compression: Compression) -> (Vec<u8>, Vec<Chunk>, u64) {
+    let bytes = recorded(dir, compression, |_| {});
 
     // Independent of the code under test: the mcap crate's in-memory summary reader.
     let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
@@ -178,31 +190,11 @@ fn a_file_without_a_complete_header_cannot_be_recovered() {
 /// of the code under test), and the offsets of the attachment and of the message-index
 /// records after the second chunk.
 fn file_with_attachment(dir: &std::path::Path) -> (Vec<u8>, Vec<Chunk>, u64, u64) {
-    let path = dir.join("whole.mcap");
-    let options = RecorderOptions {
-        compression: Compression::Zstd,
-        chunk_size_bytes: 8 * 1024,
-        ..RecorderOptions::default()
-    };
-    let mut recorder = Recorder::create(&path, options).unwrap();
-    recorder
-        .add_channel("/accel", MessageKind::AccelBlock)
-        .unwrap();
-    recorder.add_channel("/vib", MessageKind::VibBlock).unwrap();
-    recorder
-        .add_attachment("rig.toml", "text/plain", b"rig = 3\n".to_vec())
-        .unwrap();
-    for seq in 0..30u32 {
-        let t = u64::from(seq) * 10_000_000;
+    let bytes = recorded(dir, Compression::Zstd, |recorder| {
         recorder
-            .write("/accel", t, t, seq, &accel(seq.into()))
+            .add_attachment("rig.toml", "text/plain", b"rig = 3\n".to_vec())
             .unwrap();
-        recorder
-            .write("/vib", t + 1, t, seq, &vib(seq.into()))
-            .unwrap();
-    }
-    recorder.finish().unwrap();
-    let bytes = std::fs::read(&path).unwrap();
+    });
     let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
     let mut indexes = summary.chunk_indexes.clone();
     indexes.sort_by_key(|c| c.chunk_start_offset);
@@ -336,35 +328,14 @@ fn a_crc_failed_chunk_is_reported_with_its_messages() {
 #[test]
 fn damage_in_one_attachment_keeps_the_attachments_and_metadata_after_it() {
     let dir = scratch("resync-attachments");
-    let path = dir.join("whole.mcap");
-    let options = RecorderOptions {
-        compression: Compression::Zstd,
-        chunk_size_bytes: 8 * 1024,
-        ..RecorderOptions::default()
-    };
-    let mut recorder = Recorder::create(&path, options).unwrap();
-    recorder
-        .add_channel("/accel", MessageKind::AccelBlock)
-        .unwrap();
-    for name in ["a.toml", "b.toml", "c.toml"] {
-        recorder
-            .add_attachment(
-                name,
-                "text/plain",
-                format!("name = {name:?}\n").into_bytes(),
-            )
-            .unwrap();
-    }
-    let entries = std::collections::BTreeMap::from([("rig".to_string(), "3".to_string())]);
-    recorder.add_metadata("session", entries).unwrap();
-    for seq in 0..30u32 {
-        let t = u64::from(seq) * 10_000_000;
-        recorder
-            .write("/accel", t, t, seq, &accel(seq.into()))
-            .unwrap();
-    }
-    recorder.finish().unwrap();
-    let bytes = std::fs::read(&path).unwrap();
+    let bytes = recorded(&dir, Compression::Zstd, |recorder| {
+        for name in ["a.toml", "b.toml", "c.toml"] {
+            let text = format!("name = {name:?}\n").into_bytes();
+            recorder.add_attachment(name, "text/plain", text).unwrap();
+        }
+        let entries = std::collections::BTreeMap::from([("rig".to_string(), "3".to_string())]);
+        recorder.add_metadata("session", entries).unwrap();
+    });
     let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
     let mut attachments: Vec<u64> = summary
         .attachment_indexes
