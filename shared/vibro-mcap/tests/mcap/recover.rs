@@ -42,8 +42,7 @@ fn recorded(
             .unwrap();
     }
     recorder.finish().unwrap();
-    let bytes = std::fs::read(&path).unwrap();
-    bytes
+    std::fs::read(&path).unwrap()
 }
 
 /// Writes a finished file of many small chunks and returns its bytes, its chunks in file
