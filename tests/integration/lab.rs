@@ -34,8 +34,9 @@ fn the_walkthrough_finds_the_hidden_resonance_and_the_error_falls() {
     println!("FIGURES lab before: {b}");
     assert_eq!(num(b, "n"), 189.0);
     // Every uncertainty is the 1 ug resolution (the simulated batch means scatter by
-    // 1e-16 g), so their RMS is 1 ug to rounding.
-    assert!((num(b, "noise_floor_g") - 1e-6).abs() < 1e-15, "{b}");
+    // 1e-16 g) and the sensor's amplitude error through the model (about 1e-8 g), so
+    // their RMS is 1 ug to 1e-4.
+    assert!((num(b, "noise_floor_g") - 1e-6).abs() < 1e-10, "{b}");
     // The model of MODEL.md misses the resonance by milli-g: far beyond the floor.
     assert!(
         num(b, "rms_residual_g") > 100.0 * num(b, "noise_floor_g"),
@@ -98,6 +99,28 @@ fn the_walkthrough_finds_the_hidden_resonance_and_the_error_falls() {
     assert_eq!(rep["ladder"].as_array().map(Vec::len), Some(2), "{rep}");
     let html = std::fs::read_to_string(report_dir.join("index.html")).unwrap();
     assert_eq!(html.matches("<svg").count() as f64, num(&rep, "plots"));
+    // The noise floor is the 1 ug resolution (as in `lab compare` above).
+    assert!((num(&rep, "noise_floor_g") - 1e-6).abs() < 1e-10, "{rep}");
+    // The verdict in words at the top, the stepwise path and the final fit's
+    // parameters as tables, numbers in engineering form (the floor is 1.00 ug).
+    let verdict_at = html.find("Missing effect: <code>mount_resonance</code>");
+    let first_plot = html.find("<svg");
+    assert!(
+        verdict_at.is_some() && verdict_at < first_plot,
+        "no verdict above the plots"
+    );
+    assert!(
+        html.contains("<td class=l>add mount_resonance</td>"),
+        "no step table"
+    );
+    assert!(
+        html.contains("<td class=l>freq_hz</td>"),
+        "no parameter table"
+    );
+    assert!(
+        html.contains("1.00 µg"),
+        "noise floor not in engineering form"
+    );
     screenshot_shows_the_plots(&report_dir.join("index.html"), &dir.path("report.png"));
 }
 
@@ -122,9 +145,13 @@ fn chromium() -> std::path::PathBuf {
 }
 
 /// Takes a headless-Chromium screenshot of `html` and checks the plots are drawn:
-/// the page has the window's size, and both the "before" red and the "after" blue of
-/// the plots' points and bars cover hundreds of pixels (the page's text is black
-/// on white; only the SVG plots use those colours).
+/// the page has the window's size; the residual panels stand in pairs, before (the
+/// model as given, red points and bars) on the left half and after (the effects
+/// added, blue) on the right half, each on its own scale, so both colours cover
+/// thousands of pixels in their own half (on a shared axis the after points would
+/// collapse onto one line); and the after panels show the band of plus or minus the
+/// noise floor (pale green). The page's text is black on white; only the plots use
+/// those colours, so empty plots fail.
 fn screenshot_shows_the_plots(html: &std::path::Path, png: &std::path::Path) {
     let profile = png.with_extension("profile");
     let out = std::process::Command::new(chromium())
@@ -157,24 +184,36 @@ fn screenshot_shows_the_plots(html: &std::path::Path, png: &std::path::Path) {
     assert_eq!((info.width, info.height), (1400, 2600));
     let channels = info.color_type.samples();
     let near = |px: &[u8], c: [u8; 3]| (0..3).all(|i| (px[i] as i32 - c[i] as i32).abs() <= 30);
-    let (mut red, mut blue, mut ink) = (0usize, 0usize, 0usize);
-    for px in buf[..info.buffer_size()].chunks(channels) {
-        if near(px, [214, 39, 40]) {
+    // The page's body is 1340 px wide from x = 24: the left panels end before 700.
+    let half = 700;
+    let (mut red, mut blue, mut band, mut ink) = (0usize, 0usize, 0usize, 0usize);
+    for (i, px) in buf[..info.buffer_size()].chunks(channels).enumerate() {
+        let left = (i % info.width as usize) < half;
+        if left && near(px, [214, 39, 40]) {
             red += 1;
         }
-        if near(px, [31, 119, 180]) {
+        if !left && near(px, [31, 119, 180]) {
             blue += 1;
+        }
+        // The band's own pale green, tighter than `near`: the page's white is close.
+        if (0..3).all(|c| (px[c] as i32 - [199, 233, 192][c]).abs() <= 6) {
+            band += 1;
         }
         if px[..3].iter().any(|&v| v < 200) {
             ink += 1;
         }
     }
     println!(
-        "FIGURES report screenshot: red {red} px, blue {blue} px, ink {ink} px of {}",
+        "FIGURES report screenshot: red (left) {red} px, blue (right) {blue} px, \
+         noise band {band} px, ink {ink} px of {}",
         1400 * 2600
     );
-    assert!(red > 2000, "before points: {red} px");
-    assert!(blue > 2000, "after points and bars: {blue} px");
+    assert!(red > 2000, "before points in the left panels: {red} px");
+    assert!(
+        blue > 2000,
+        "after points and bars in the right panels: {blue} px"
+    );
+    assert!(band > 20_000, "noise-floor band: {band} px");
     assert!(ink > 100_000, "{ink} px drawn");
 }
 
@@ -421,8 +460,14 @@ fn a_flight_log_is_measured_against_its_reference_and_nothing_is_attributed() {
     }
     let (z_rms, rel_rms) = ((z2 / n).sqrt(), (rel2 / n).sqrt());
     println!("FIGURES lab log measured vs simulator: z RMS {z_rms:.3}, relative RMS {rel_rms:.4}");
-    // The stated uncertainty holds (it is conservative: RMS z below 1).
-    assert!(z_rms < 1.0, "{z_rms}");
+    // The stated uncertainty is the residual's (measured minus predicted), scaled to
+    // the log's own scatter (docs/lab.md, "Logs as input"): the measurement's error
+    // and the estimate's share the window's random vibration, so the residual scatters
+    // less than the measurement alone, and the measurement against the simulator's
+    // mean scatters more than the stated value (z RMS 1.65 on this log). Before the
+    // scaling the stated value was the conservative sum (z RMS below 1, chi2 per dof
+    // of a right model 0.23).
+    assert!(z_rms < 2.0, "{z_rms}");
 
     let s_ = &c["summary"];
     println!("FIGURES lab log compare: {s_}");
@@ -455,10 +500,14 @@ fn a_resonance_hidden_in_a_flight_log_is_found_and_the_error_falls() {
     let d = run_json(&["lab", "diagnose", s(&log), "--json"]);
     let v = &d["verdict"];
     println!("FIGURES lab log diagnosis: {v}");
-    assert_eq!(d["candidates"][0]["kind"], "mount_resonance", "{v}");
+    // On one flight's one spectrum a 48 Hz suspension and a unit response near it
+    // (both 2nd-order filters) change the VE alike (correlation 0.9998 over this
+    // log): either may rank first, and the lab must say that it cannot tell them
+    // apart, or name the resonance.
+    let first = d["candidates"][0]["kind"].as_str().unwrap_or("");
+    assert!(["mount_resonance", "unit_response"].contains(&first), "{v}");
     match v["verdict"].as_str() {
         Some("effect") => assert_eq!(v["kind"], "mount_resonance", "{v}"),
-        // One flight may not tell a resonance from a gain: then it must say so.
         Some("confounded") => assert!(v.to_string().contains("mount_resonance"), "{v}"),
         other => panic!("verdict {other:?}: {v}"),
     }

@@ -12,6 +12,7 @@ mod flag_rules;
 mod identify;
 mod interrupted;
 mod lab;
+mod lab_flight;
 mod latency;
 mod line_cap;
 mod log;

@@ -107,4 +107,21 @@ pub trait Effect: Send {
     fn sensor_rms_factor(&self, _ctx: &MeanContext<'_>) -> Option<f64> {
         None
     }
+
+    /// Whether the effect changes the vibration reaching the unit (`at_unit_input`
+    /// filters such as a mount resonance), so that every effect after it in the
+    /// unit's path sees its output ([`Effect::transmitted`]).
+    fn on_vibration_path(&self) -> bool {
+        false
+    }
+
+    /// For effects on the vibration path: the vibration and its band PSD reaching the
+    /// unit when `ctx.vibration_unit` and `ctx.psd_unit` reach the effect (the mean
+    /// formula's own view of `at_unit_input`). `None` for other effects.
+    fn transmitted(
+        &self,
+        _ctx: &MeanContext<'_>,
+    ) -> Option<crate::Result<(Vibration, Vec<PsdBand>)>> {
+        None
+    }
 }

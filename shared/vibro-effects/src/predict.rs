@@ -1,6 +1,7 @@
 //! The extended model's vibration error for one condition.
 //!
-//! `VE = VE_base(v_true) + sum_e [m_e(v_true) - m_e(0)]`, where
+//! `VE = VE_base(v_true) + sum_p [VE_exact(v_p) - VE_exact(v_(p-1))]
+//!       + sum_e [m_e(v_unit) - m_e(0)]`, where
 //!
 //! - `v_true` is the vibration at the unit: the measured one with its IA amplitudes and
 //!   RMS (the unit's vibration sensor is along IA) divided by the product of the sensor
@@ -8,7 +9,12 @@
 //! - `VE_base` is MODEL.md section 6 (`exact`) or section 5 (`paper`, `as-published`),
 //!   with the passport's `lambda(w)` taken as 1, as in the simulator (the frequency
 //!   dependence of the scale factor is the `scale_factor_frequency` effect);
-//! - `m_e(v)` is effect `e`'s documented mean contribution (docs/effects.md) under
+//! - the effects on the vibration path `p` (`Effect::on_vibration_path`: a mount
+//!   resonance, the unit's own response) pass `v_(p-1)` on as `v_p`, in order
+//!   (`v_0 = v_true`), each adding its documented mean change; `v_unit` is what the
+//!   last passes: as in the simulator, where every `at_unit_input` runs before the
+//!   conversion and `at_unit_output`;
+//! - `m_e(v)` is every other effect's documented mean contribution (docs/effects.md) under
 //!   vibration `v`, and `m_e(0)` the same without vibration: a campaign measures the
 //!   VE as the vibrating record minus the still ones (MODEL.md section 8), so an
 //!   effect's static part cancels.
@@ -145,7 +151,14 @@ pub fn sensor_rms_factor(
         .product()
 }
 
-/// The non-sensor effects' VE changes under the true vibration `vib_true`.
+/// The non-sensor effects' VE changes under the true vibration `vib_true`, in order.
+///
+/// The effects on the vibration path (`Effect::on_vibration_path`: a mount resonance,
+/// the unit's own response) act first, in order, each on what the one before passed
+/// (its change: its own mean formula there); every other effect then acts on the
+/// vibration that reaches the unit, as in the simulator, where `at_unit_input` runs
+/// before `at_unit_output` (a 6th-order term behind a resonance rectifies the
+/// amplified vibration, not the measured one).
 pub fn effect_shifts_g(
     effects: &[Box<dyn Effect>],
     passport: &Passport,
@@ -155,21 +168,82 @@ pub fn effect_shifts_g(
     duration_s: f64,
 ) -> Result<Vec<(String, f64)>> {
     let none = Vibration::none();
-    let on = context(passport, a_l_unit_g, vib_true, psd_true, duration_s);
     let off = context(passport, a_l_unit_g, &none, &[], duration_s);
+    let fail = |e: &dyn Effect, err: Error| Error::Predict {
+        what: format!("effect {}", e.kind()),
+        reason: err.to_string(),
+    };
+    let mut shifts: Vec<Option<f64>> = vec![None; effects.len()];
+    let mut vib = *vib_true;
+    let mut psd = psd_true.to_vec();
+    for (k, e) in effects.iter().enumerate() {
+        let on = context(passport, a_l_unit_g, &vib, &psd, duration_s);
+        if e.sensor_rms_factor(&on).is_some() || !e.on_vibration_path() {
+            continue;
+        }
+        // A path effect's change is the exact model's (MODEL.md 6) at what it passes
+        // minus at what it receives: its own mean formula (`exact_shift`), from the
+        // one quadrature that also gives the vibration passed on.
+        let Some(t) = e.transmitted(&on) else {
+            continue;
+        };
+        let (v, p) = t.map_err(|x| fail(e.as_ref(), x))?;
+        let exact = |x: &Vibration| {
+            exact_ve(passport, a_l_unit_g, x)
+                .map(|r| r.total_g)
+                .map_err(|err| Error::Predict {
+                    what: format!("effect {}", e.kind()),
+                    reason: err.to_string(),
+                })
+        };
+        shifts[k] = Some(exact(&v)? - exact(&vib)?);
+        vib = v;
+        psd = p;
+    }
+    let on = context(passport, a_l_unit_g, &vib, &psd, duration_s);
     let mut out = Vec::new();
-    for e in effects {
+    for (k, e) in effects.iter().enumerate() {
         if e.sensor_rms_factor(&on).is_some() {
             continue;
         }
-        let fail = |err: Error| Error::Predict {
-            what: format!("effect {}", e.kind()),
-            reason: err.to_string(),
+        let shift = match shifts[k] {
+            Some(s) => s,
+            None => {
+                e.mean_shift_g(&on).map_err(|x| fail(e.as_ref(), x))?
+                    - e.mean_shift_g(&off).map_err(|x| fail(e.as_ref(), x))?
+            }
         };
-        let shift = e.mean_shift_g(&on).map_err(fail)? - e.mean_shift_g(&off).map_err(fail)?;
         out.push((e.kind().to_string(), shift));
     }
     Ok(out)
+}
+
+/// The vibration and band PSD reaching the unit: `vib_true` through the effects on
+/// the vibration path, in order ([`effect_shifts_g`]).
+pub fn unit_vibration(
+    effects: &[Box<dyn Effect>],
+    passport: &Passport,
+    a_l_unit_g: [f64; 3],
+    vib_true: &Vibration,
+    psd_true: &[PsdBand],
+) -> Result<(Vibration, Vec<PsdBand>)> {
+    let mut vib = *vib_true;
+    let mut psd = psd_true.to_vec();
+    for e in effects {
+        let on = context(passport, a_l_unit_g, &vib, &psd, f64::INFINITY);
+        if e.sensor_rms_factor(&on).is_some() {
+            continue;
+        }
+        if let Some(t) = e.transmitted(&on) {
+            let (v, p) = t.map_err(|err| Error::Predict {
+                what: format!("effect {}", e.kind()),
+                reason: err.to_string(),
+            })?;
+            vib = v;
+            psd = p;
+        }
+    }
+    Ok((vib, psd))
 }
 
 /// The vibration the unit really sees: the measured one with the sensor effects'

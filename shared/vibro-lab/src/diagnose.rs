@@ -26,7 +26,9 @@
 //!   5. `unexplained`: no candidate explains it: the structure, the variables it
 //!      follows, and how much the best candidate would explain.
 
-use crate::fit::{chi2_sf, fit_prepared, Budget, BudgetUsed, EffectFit, Meter, Prepared};
+use crate::fit::{
+    chi2_sf, fit_joint, fit_prepared, Budget, BudgetUsed, EffectFit, Meter, NotApplicable, Prepared,
+};
 use crate::library::{self, Candidate, LIBRARY};
 use crate::table::{CampaignTable, Condition, RandomCondition, ToneCondition};
 use crate::{Error, Result};
@@ -52,6 +54,12 @@ pub struct DiagnoseOptions {
     pub collinear: f64,
     /// The candidates to try (all of the library when empty).
     pub candidates: Vec<String>,
+    /// Most effects the stepwise search adds.
+    pub max_effects: usize,
+    /// Fit and rank the candidates even when the model as is is noise (nothing will
+    /// be attributed then; on a flight log the fits of eleven candidates to noise take
+    /// minutes). Default false: `candidates` is then empty.
+    pub rank_when_noise: bool,
     /// Threads fitting candidates at once.
     pub threads: usize,
     /// Limits on the fits' work: evaluations per candidate, time for all of them. A
@@ -90,6 +98,8 @@ impl Default for DiagnoseOptions {
             bic_tie: 10.0,
             collinear: 0.98,
             candidates: Vec::new(),
+            max_effects: 4,
+            rank_when_noise: false,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             budget: Budget::default(),
             progress: Progress::default(),
@@ -210,24 +220,42 @@ pub enum Verdict {
         p_value: f64,
         chi2_per_dof: f64,
     },
+    /// The effects found explain the residual (one or several, fitted jointly).
     Effect {
+        /// The first effect found (the largest step).
         kind: String,
+        /// Every effect found, in the order added.
+        kinds: Vec<String>,
         params: Vec<crate::fit::FittedParam>,
+        /// Correlation coefficients between `params`.
+        correlation: Vec<Vec<f64>>,
         delta_bic: f64,
         rms_residual_before_g: f64,
         rms_residual_after_g: f64,
-        physics: String,
+        chi2_per_dof_after: f64,
+        /// `kind: physics` of each effect.
+        physics: Vec<String>,
     },
+    /// The table cannot tell `kinds` apart (after the effects `found` before).
     Confounded {
         kinds: Vec<String>,
         correlation: f64,
         suggestions: Vec<Suggestion>,
+        found: Vec<String>,
     },
+    /// Structure no candidate explains: nothing found, or the effects `found` explain
+    /// part of it (`found_explained_fraction` of the chi2) and the rest follows
+    /// `variables`.
     Unexplained {
+        /// After the effects found.
         chi2_per_dof: f64,
         variables: Vec<String>,
+        /// The best candidate left (not supported), and the fraction of the chi2
+        /// left that it would remove.
         best: Option<String>,
         best_explained_fraction: f64,
+        found: Vec<String>,
+        found_explained_fraction: f64,
     },
 }
 
@@ -235,9 +263,19 @@ pub enum Verdict {
 #[derive(Debug, Clone, Serialize)]
 pub struct Diagnosis {
     pub comparison: Comparison,
+    /// The residual of the model as is against each variable.
     pub trends: Vec<Trend>,
+    /// The same after the effects found (empty when none was).
+    pub trends_after: Vec<Trend>,
     pub lack_of_fit: Option<LackOfFit>,
+    /// The first round: every candidate alone against the model as is, best first.
     pub candidates: Vec<RankedCandidate>,
+    /// The stepwise search: the model as is, then each addition and removal.
+    pub steps: Vec<Step>,
+    /// The joint fit of the effects found (none: nothing was supported).
+    pub selected: Option<EffectFit>,
+    /// The model's own effects that could not act on some rows (left out there).
+    pub not_applicable: Vec<NotApplicable>,
     pub verdict: Verdict,
     pub options: DiagnoseOptions,
     /// How much of `options.budget` the fits used, and whether it ran out.
@@ -298,24 +336,37 @@ fn groups_of(rows: &[RowComparison], keys: &[String]) -> Vec<Group> {
 /// Compares `model` with `table`.
 pub fn compare(model: &LabModel, table: &CampaignTable) -> Result<Comparison> {
     let prep = Prepared::new(model, table)?;
-    Ok(comparison_of(model, table, &prep.predicted_g))
+    Ok(comparison_of(
+        model,
+        table,
+        &prep.predicted_g,
+        &prep.uncertainty_g,
+    ))
 }
 
-fn comparison_of(model: &LabModel, table: &CampaignTable, predicted_g: &[f64]) -> Comparison {
+/// The comparison; `u_g` the rows' standard uncertainties of the residual (the
+/// measured VE's with the stated vibration's propagated through the model).
+fn comparison_of(
+    model: &LabModel,
+    table: &CampaignTable,
+    predicted_g: &[f64],
+    u_g: &[f64],
+) -> Comparison {
     let rows: Vec<RowComparison> = table
         .conditions
         .iter()
         .zip(predicted_g)
-        .map(|(c, p)| {
+        .zip(u_g)
+        .map(|((c, p), u)| {
             let r = c.ve_measured_g - p;
             RowComparison {
                 run_id: c.run_id.clone(),
                 line: c.line,
                 measured_g: c.ve_measured_g,
-                uncertainty_g: c.ve_uncertainty_g,
+                uncertainty_g: *u,
                 predicted_g: *p,
                 residual_g: r,
-                z: r / c.ve_uncertainty_g,
+                z: r / u,
             }
         })
         .collect();
@@ -453,7 +504,7 @@ fn condition_key(c: &Condition) -> String {
         c.passport_ref, c.a_l_g, c.tone, c.more_tones, c.random, c.bands
     );
     for (n, x) in &c.extra {
-        if n != "tp" {
+        if n != "tp" && n != crate::table::A_B3_U_COLUMN && n != crate::table::SIGMA3_U_COLUMN {
             k.push_str(&format!("|{n}={x}"));
         }
     }
@@ -515,10 +566,20 @@ fn selected(opts: &DiagnoseOptions) -> Result<Vec<&'static Candidate>> {
         .collect()
 }
 
-fn fit_all(
+/// The effects chosen so far and their fitted values (the starts of the next fits).
+struct Chosen {
+    terms: Vec<&'static Candidate>,
+    values: Vec<Vec<f64>>,
+}
+
+/// Every candidate of `cands` fitted jointly with the `chosen` effects (all
+/// parameters free, the chosen ones starting at their values), `threads` at once.
+#[allow(clippy::too_many_arguments)]
+fn fit_round(
     model: &LabModel,
     table: &CampaignTable,
     prep: &Prepared,
+    chosen: &Chosen,
     cands: &[&'static Candidate],
     threads: usize,
     progress: &Progress,
@@ -532,7 +593,12 @@ fn fit_all(
             s.spawn(|| loop {
                 let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 let Some(c) = cands.get(i) else { break };
-                let r = fit_prepared(model, table, prep, c, meter);
+                let mut terms = chosen.terms.clone();
+                terms.push(c);
+                let mut known: Vec<Option<Vec<f64>>> =
+                    chosen.values.iter().cloned().map(Some).collect();
+                known.push(None);
+                let r = fit_joint(model, table, prep, &terms, &known, meter);
                 if let Ok(mut v) = results.lock() {
                     v.push((i, *c, r));
                 }
@@ -651,12 +717,17 @@ fn suggestions(model: &LabModel, table: &CampaignTable, fits: &[&EffectFit]) -> 
         };
         let mut preds = Vec::new();
         for f in fits {
-            let Some(cand) = library::candidate(&f.kind) else {
+            let Some(terms) = f
+                .kinds
+                .iter()
+                .map(|k| library::candidate(k))
+                .collect::<Option<Vec<&'static Candidate>>>()
+            else {
                 continue;
             };
             let theta: Vec<f64> = f.params.iter().map(|p| p.value).collect();
-            if let Ok(s) = crate::fit::shifts_g(model, &probe, &prep, cand, &theta) {
-                preds.push((f.kind.clone(), s[0]));
+            if let Ok(s) = crate::fit::term_shifts_g(model, &probe, &prep, &terms, &theta) {
+                preds.push((f.kind.clone(), s.iter().map(|e| e[0]).sum()));
             }
         }
         if preds.len() != fits.len() {
@@ -675,130 +746,381 @@ fn suggestions(model: &LabModel, table: &CampaignTable, fits: &[&EffectFit]) -> 
     out
 }
 
-/// Where `model` fails on `table` and which effect is missing (module doc).
+/// Whether a fit explains the residual it was fitted to (module doc, rule 2).
+/// Whether a fit explains the residual it was fitted to (module doc, rule 2): its
+/// chi-square passes (p >= `alpha_fit`) once each row's uncertainty includes the
+/// effects' own model uncertainty, `model_tolerance` times the VE change they make
+/// there (a mean formula is a model too: a saturation's 60 mg met to 40 ug is not
+/// evidence of another effect, while an effect where the found ones change nothing
+/// still counts in full).
+fn explains(f: &EffectFit, u_g: &[f64], opts: &DiagnoseOptions) -> bool {
+    tolerant_p(f, u_g, opts) >= opts.alpha_fit
+}
+
+/// The p-value of `f`'s residual with the effects' model uncertainty added to `u_g`.
+fn tolerant_p(f: &EffectFit, u_g: &[f64], opts: &DiagnoseOptions) -> f64 {
+    let chi2: f64 = f
+        .residual_after_g
+        .iter()
+        .zip(&f.shift_g)
+        .zip(u_g)
+        .map(|((r, s), u)| r * r / (u * u + (opts.model_tolerance * s).powi(2)))
+        .sum();
+    chi2_sf(chi2, f.n.saturating_sub(f.k).max(1))
+}
+
+/// One step of the stepwise search ([`Diagnosis::steps`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct Step {
+    /// What the step did: `model as is`, `add KIND`, `remove KIND`.
+    pub action: String,
+    /// The effects chosen after the step, in the order added.
+    pub effects: Vec<String>,
+    /// BIC after the step minus BIC before it (0 for the model as is).
+    pub delta_bic: f64,
+    pub bic: f64,
+    pub chi2: f64,
+    pub chi2_per_dof: f64,
+    pub p_value: f64,
+    pub rms_residual_g: f64,
+    /// At an addition, the other candidates of the round, `(kind, delta BIC against
+    /// the set before the step)`, best first (at most four); at a removal, the BIC
+    /// cost of removing each other chosen effect.
+    pub runners_up: Vec<(String, f64)>,
+}
+
+fn step_from(action: String, f: &EffectFit, bic_before: f64) -> Step {
+    Step {
+        action,
+        effects: f.kinds.clone(),
+        delta_bic: f.bic_after - bic_before,
+        bic: f.bic_after,
+        chi2: f.chi2_after,
+        chi2_per_dof: f.chi2_per_dof_after,
+        p_value: f.p_value_after,
+        rms_residual_g: f.rms_residual_after_g,
+        runners_up: Vec::new(),
+    }
+}
+
+/// Where `model` fails on `table` and which effects are missing (module doc).
 pub fn diagnose(
     model: &LabModel,
     table: &CampaignTable,
     opts: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
     let cands = selected(opts)?;
-    let prep = Prepared::new(model, table)?;
-    let comparison = comparison_of(model, table, &prep.predicted_g);
+    let mut prep = Prepared::new(model, table)?;
+    let comparison = comparison_of(model, table, &prep.predicted_g, &prep.uncertainty_g);
     let residual_g = prep.residual_g();
-    let trends = trends(table, &residual_g, &prep.uncertainty_g);
+    let trends_before = trends(table, &residual_g, &prep.uncertainty_g);
     let lack_of_fit = lack_of_fit(table, &residual_g, &prep.uncertainty_g);
     let meter = Meter::new(opts.budget);
     let mut cut_short = Vec::new();
-    let mut candidates: Vec<RankedCandidate> = fit_all(
-        model,
-        table,
-        &prep,
-        &cands,
-        opts.threads,
-        &opts.progress,
-        &meter,
-    )
-    .into_iter()
-    .map(|(c, r)| {
-        let (fit, not_applicable) = match r {
-            Ok(f) => (Some(f), None),
-            Err(e) => {
-                if matches!(e, Error::Budget { .. }) {
-                    cut_short.push(c.kind.to_string());
-                }
-                (None, Some(e.to_string()))
+    let s = comparison.summary.clone();
+    let rms0 = s.rms_residual_g;
+    let mut chosen = Chosen {
+        terms: Vec::new(),
+        values: Vec::new(),
+    };
+    let mut steps = vec![Step {
+        action: "model as is".into(),
+        effects: Vec::new(),
+        delta_bic: 0.0,
+        bic: s.chi2,
+        chi2: s.chi2,
+        chi2_per_dof: s.chi2_per_dof,
+        p_value: s.p_value,
+        rms_residual_g: rms0,
+        runners_up: Vec::new(),
+    }];
+    // Round 1: every candidate alone, against the model as is (the ranking shown);
+    // none when the model as is is noise, unless asked for.
+    let noise = s.p_value >= opts.alpha_noise;
+    let mut round = if noise && !opts.rank_when_noise {
+        Vec::new()
+    } else {
+        fit_round(
+            model,
+            table,
+            &prep,
+            &chosen,
+            &cands,
+            opts.threads,
+            &opts.progress,
+            &meter,
+        )
+    };
+    let note_cut = |r: &[(&'static Candidate, Result<EffectFit>)], cut: &mut Vec<String>| {
+        for (c, f) in r {
+            if matches!(f, Err(Error::Budget { .. })) && !cut.iter().any(|k| k == c.kind) {
+                cut.push(c.kind.to_string());
             }
-        };
-        let supported = fit
-            .as_ref()
-            .is_some_and(|f| f.delta_bic <= opts.bic_support);
-        let explains = supported
-            && fit.as_ref().is_some_and(|f| {
-                f.p_value_after >= opts.alpha_fit
-                    || f.rms_residual_after_g <= opts.model_tolerance * f.rms_residual_before_g
-            });
-        RankedCandidate {
-            kind: c.kind.into(),
-            physics: c.physics.into(),
-            signature: c.signature.into(),
-            fit,
-            not_applicable,
-            supported,
-            explains,
         }
-    })
-    .collect();
+    };
+    note_cut(&round, &mut cut_short);
+    let mut candidates: Vec<RankedCandidate> = round
+        .iter()
+        .map(|(c, r)| {
+            let (fit, not_applicable) = match r {
+                Ok(f) => (Some(f.clone()), None),
+                Err(e) => (None, Some(e.to_string())),
+            };
+            let supported = fit
+                .as_ref()
+                .is_some_and(|f| f.delta_bic <= opts.bic_support);
+            let explains = supported
+                && fit
+                    .as_ref()
+                    .is_some_and(|f| explains(f, &prep.uncertainty_g, opts));
+            RankedCandidate {
+                kind: c.kind.into(),
+                physics: c.physics.into(),
+                signature: c.signature.into(),
+                fit,
+                not_applicable,
+                supported,
+                explains,
+            }
+        })
+        .collect();
     candidates.sort_by(|a, b| {
         let key = |c: &RankedCandidate| c.fit.as_ref().map_or(f64::INFINITY, |f| f.delta_bic);
         key(a).total_cmp(&key(b))
     });
-    let s = &comparison.summary;
+
+    let mut current: Option<EffectFit> = None;
+    let mut confounded: Option<(Vec<EffectFit>, f64)> = None;
+    let mut best_left: Option<EffectFit> = None;
+    if s.p_value < opts.alpha_noise {
+        let max_steps = opts.max_effects + 2;
+        for _ in 0..max_steps {
+            let bic_now = current.as_ref().map_or(s.chi2, |f| f.bic_after);
+            let mut ok: Vec<&EffectFit> =
+                round.iter().filter_map(|(_, r)| r.as_ref().ok()).collect();
+            ok.sort_by(|a, b| a.bic_after.total_cmp(&b.bic_after));
+            let Some(best) = ok.first().copied() else {
+                break;
+            };
+            if best.bic_after - bic_now > opts.bic_support {
+                best_left = Some(best.clone());
+                break;
+            }
+            // Candidates the table cannot tell from the best: supported too, within
+            // `bic_tie`, their own shares nearly collinear with the best's.
+            let share = |f: &EffectFit| f.effect_shift_g.last().cloned().unwrap_or_default();
+            let best_share = share(best);
+            let tied: Vec<&EffectFit> = ok[1..]
+                .iter()
+                .copied()
+                .filter(|f| {
+                    f.bic_after - bic_now <= opts.bic_support
+                        && f.bic_after - best.bic_after <= opts.bic_tie
+                        && correlation(&share(f), &best_share, &prep.uncertainty_g)
+                            >= opts.collinear
+                })
+                .collect();
+            if !tied.is_empty() {
+                let corr = tied
+                    .iter()
+                    .map(|f| correlation(&share(f), &best_share, &prep.uncertainty_g))
+                    .fold(1.0, f64::min);
+                let mut all = vec![best.clone()];
+                all.extend(tied.into_iter().cloned());
+                confounded = Some((all, corr));
+                break;
+            }
+            let mut step = step_from(format!("add {}", best.kind), best, bic_now);
+            step.runners_up = ok[1..]
+                .iter()
+                .take(4)
+                .map(|f| (f.kind.clone(), f.bic_after - bic_now))
+                .collect();
+            steps.push(step);
+            chosen.terms = best
+                .kinds
+                .iter()
+                .filter_map(|k| library::candidate(k))
+                .collect();
+            chosen.values = best.kinds.iter().map(|k| best.values_of(k)).collect();
+            current = Some(best.clone());
+            // Backward check: an earlier effect the new set no longer needs (removing
+            // it costs less than `-bic_support` in BIC) is dropped.
+            if chosen.terms.len() >= 2 {
+                let cur = best.clone();
+                let mut costs: Vec<(usize, EffectFit)> = Vec::new();
+                for drop in 0..chosen.terms.len() - 1 {
+                    let terms: Vec<&'static Candidate> = chosen
+                        .terms
+                        .iter()
+                        .enumerate()
+                        .filter(|(i, _)| *i != drop)
+                        .map(|(_, c)| *c)
+                        .collect();
+                    let known: Vec<Option<Vec<f64>>> = chosen
+                        .values
+                        .iter()
+                        .enumerate()
+                        .filter(|(i, _)| *i != drop)
+                        .map(|(_, v)| Some(v.clone()))
+                        .collect();
+                    match fit_joint(model, table, &prep, &terms, &known, &meter) {
+                        Ok(f) => costs.push((drop, f)),
+                        Err(Error::Budget { .. }) => {
+                            cut_short.push(format!("without {}", chosen.terms[drop].kind))
+                        }
+                        Err(_) => {}
+                    }
+                }
+                costs.sort_by(|a, b| a.1.bic_after.total_cmp(&b.1.bic_after));
+                if let Some((drop, f)) = costs.first() {
+                    if f.bic_after - cur.bic_after < -opts.bic_support {
+                        let mut step = step_from(
+                            format!("remove {}", chosen.terms[*drop].kind),
+                            f,
+                            cur.bic_after,
+                        );
+                        step.runners_up = costs[1..]
+                            .iter()
+                            .map(|(d, g)| {
+                                (
+                                    chosen.terms[*d].kind.to_string(),
+                                    g.bic_after - cur.bic_after,
+                                )
+                            })
+                            .collect();
+                        steps.push(step);
+                        chosen.terms.remove(*drop);
+                        chosen.values.remove(*drop);
+                        current = Some(f.clone());
+                    }
+                }
+            }
+            // The stated vibration's uncertainty through the model with the effects
+            // found (near a resonance the VE rises faster with the amplitude than the
+            // model as is says), and the set refitted under those weights.
+            if let Some(f) = current.as_ref() {
+                if table.conditions.iter().any(|c| c.ia_u_g() != (0.0, 0.0)) {
+                    prep.reweight(model, table, &f.tables)?;
+                    let known: Vec<Option<Vec<f64>>> =
+                        chosen.values.iter().cloned().map(Some).collect();
+                    if let Ok(g) = fit_joint(model, table, &prep, &chosen.terms, &known, &meter) {
+                        if let Some(st) = steps.last_mut() {
+                            st.chi2 = g.chi2_after;
+                            st.chi2_per_dof = g.chi2_per_dof_after;
+                            st.p_value = g.p_value_after;
+                            st.bic = g.bic_after;
+                        }
+                        chosen.values = g.kinds.iter().map(|k| g.values_of(k)).collect();
+                        current = Some(g);
+                    }
+                }
+            }
+            let cur = current.as_ref().unwrap_or(best);
+            // Stop when the residual is noise, or noise once the effects' mean
+            // formulas are taken as good to `model_tolerance` ([`explains`]).
+            if cur.p_value_after >= opts.alpha_noise
+                || explains(cur, &prep.uncertainty_g, opts)
+                || chosen.terms.len() >= opts.max_effects
+            {
+                break;
+            }
+            // Every candidate not chosen yet is tried again: one effect can hide
+            // another (axis phases under a 6th-order term are not supported alone).
+            let rest: Vec<&'static Candidate> = cands
+                .iter()
+                .copied()
+                .filter(|c| !chosen.terms.iter().any(|t| t.kind == c.kind))
+                .collect();
+            if rest.is_empty() {
+                break;
+            }
+            round = fit_round(
+                model,
+                table,
+                &prep,
+                &chosen,
+                &rest,
+                opts.threads,
+                &opts.progress,
+                &meter,
+            );
+            note_cut(&round, &mut cut_short);
+        }
+    }
+    let residual_after: Vec<f64> = current
+        .as_ref()
+        .map_or(residual_g.clone(), |f| f.residual_after_g.clone());
+    let trends_after = trends(table, &residual_after, &prep.uncertainty_g);
+    let found: Vec<String> = current.as_ref().map_or(Vec::new(), |f| f.kinds.clone());
     let verdict = if s.p_value >= opts.alpha_noise {
         Verdict::Noise {
             p_value: s.p_value,
             chi2_per_dof: s.chi2_per_dof,
         }
+    } else if let Some((tied, corr)) = confounded {
+        let refs: Vec<&EffectFit> = tied.iter().collect();
+        Verdict::Confounded {
+            kinds: tied.iter().map(|f| f.kind.clone()).collect(),
+            correlation: corr,
+            suggestions: suggestions(model, table, &refs),
+            found,
+        }
     } else {
-        let explaining: Vec<&EffectFit> = candidates
-            .iter()
-            .filter(|c| c.explains)
-            .filter_map(|c| c.fit.as_ref())
-            .collect();
-        match explaining.first() {
-            None => {
-                let best = candidates.first().and_then(|c| c.fit.as_ref());
+        match &current {
+            Some(f) if explains(f, &prep.uncertainty_g, opts) => Verdict::Effect {
+                kind: f.kinds.first().cloned().unwrap_or_default(),
+                kinds: f.kinds.clone(),
+                params: f.params.clone(),
+                correlation: f.correlation.clone(),
+                delta_bic: f.delta_bic,
+                rms_residual_before_g: f.rms_residual_before_g,
+                rms_residual_after_g: f.rms_residual_after_g,
+                chi2_per_dof_after: f.chi2_per_dof_after,
+                physics: f
+                    .kinds
+                    .iter()
+                    .filter_map(|k| library::candidate(k))
+                    .map(|c| format!("{}: {}", c.kind, c.physics))
+                    .collect(),
+            },
+            _ => {
+                let chi2_after = current.as_ref().map_or(s.chi2, |f| f.chi2_after);
+                let best = best_left.as_ref().or(candidates
+                    .first()
+                    .and_then(|c| c.fit.as_ref())
+                    .filter(|_| current.is_none()));
                 Verdict::Unexplained {
-                    chi2_per_dof: s.chi2_per_dof,
-                    variables: trends
+                    chi2_per_dof: current
+                        .as_ref()
+                        .map_or(s.chi2_per_dof, |f| f.chi2_per_dof_after),
+                    variables: trends_after
                         .iter()
                         .filter(|t| t.p_value < 1e-3)
                         .map(|t| t.variable.clone())
                         .collect(),
                     best: best.map(|b| b.kind.clone()),
                     best_explained_fraction: best
-                        .map_or(0.0, |b| 1.0 - b.chi2_after / b.chi2_before.max(1e-300)),
-                }
-            }
-            Some(first) => {
-                let u = &prep.uncertainty_g;
-                let tied: Vec<&EffectFit> = explaining
-                    .iter()
-                    .copied()
-                    .filter(|f| {
-                        f.kind == first.kind
-                            || (f.delta_bic - first.delta_bic <= opts.bic_tie
-                                && correlation(&f.shift_g, &first.shift_g, u) >= opts.collinear)
-                    })
-                    .collect();
-                if tied.len() > 1 {
-                    let correlation = tied[1..]
-                        .iter()
-                        .map(|f| correlation(&f.shift_g, &first.shift_g, u))
-                        .fold(1.0, f64::min);
-                    Verdict::Confounded {
-                        kinds: tied.iter().map(|f| f.kind.clone()).collect(),
-                        correlation,
-                        suggestions: suggestions(model, table, &tied),
-                    }
-                } else {
-                    Verdict::Effect {
-                        kind: first.kind.clone(),
-                        params: first.params.clone(),
-                        delta_bic: first.delta_bic,
-                        rms_residual_before_g: first.rms_residual_before_g,
-                        rms_residual_after_g: first.rms_residual_after_g,
-                        physics: library::candidate(&first.kind)
-                            .map_or(String::new(), |c| c.physics.into()),
-                    }
+                        .map_or(0.0, |b| 1.0 - b.chi2_after / chi2_after.max(1e-300)),
+                    found: found.clone(),
+                    found_explained_fraction: 1.0 - chi2_after / s.chi2.max(1e-300),
                 }
             }
         }
     };
     Ok(Diagnosis {
         comparison,
-        trends,
+        trends: trends_before,
+        trends_after: if current.is_some() {
+            trends_after
+        } else {
+            Vec::new()
+        },
         lack_of_fit,
         candidates,
+        steps,
+        selected: current,
+        not_applicable: prep.skipped.clone(),
         verdict,
         options: opts.clone(),
         budget: BudgetUsed {
@@ -813,50 +1135,130 @@ pub fn diagnose(
 
 /// Fits one candidate of the library to the residual of `model` on `table`.
 pub fn fit_effect(model: &LabModel, table: &CampaignTable, kind: &str) -> Result<EffectFit> {
-    let cand = library::candidate(kind).ok_or_else(|| {
-        Error::Invalid(format!(
-            "effect {kind:?}: not in the lab's library ({})",
-            library::kinds().join(", ")
-        ))
-    })?;
+    let cand = candidate_of(kind)?;
     let prep = Prepared::new(model, table)?;
     fit_prepared(model, table, &prep, cand, &Meter::new(Budget::default()))
 }
 
-/// `model` with `kind` fitted to `table` added, and the fit.
+fn candidate_of(kind: &str) -> Result<&'static Candidate> {
+    library::candidate(kind).ok_or_else(|| {
+        Error::Invalid(format!(
+            "effect {kind:?}: not in the lab's library ({})",
+            library::kinds().join(", ")
+        ))
+    })
+}
+
+/// The numbers of an effect table's parameters `cand` fits, if all are there.
+fn values_in(cand: &Candidate, t: &toml::Table) -> Option<Vec<f64>> {
+    cand.params
+        .iter()
+        .map(|p| {
+            t.get(p.name)
+                .and_then(|v| v.as_float().or_else(|| v.as_integer().map(|i| i as f64)))
+        })
+        .collect()
+}
+
+/// `model` with the effects `kinds` fitted to `table` added, and the fit.
+///
+/// The model's own effects of the library are refitted jointly with the new ones
+/// (all parameters free, starting at their values) unless `freeze`; then they stay
+/// as they are and only the new ones are fitted. A kind the model already has is
+/// refitted, not added twice. Effects outside the library stay as they are.
+pub fn add_effects(
+    model: &LabModel,
+    table: &CampaignTable,
+    kinds: &[&str],
+    freeze: bool,
+) -> Result<(LabModel, EffectFit)> {
+    if kinds.is_empty() {
+        return Err(Error::Invalid("no effect to add".into()));
+    }
+    let new: Vec<&'static Candidate> = kinds
+        .iter()
+        .map(|k| candidate_of(k))
+        .collect::<Result<_>>()?;
+    let mut frozen = LabModel {
+        effects: Vec::new(),
+        fits: Vec::new(),
+        ..model.clone()
+    };
+    let mut terms: Vec<&'static Candidate> = Vec::new();
+    let mut known: Vec<Option<Vec<f64>>> = Vec::new();
+    for t in &model.effects {
+        let kind = t.get("kind").and_then(|k| k.as_str()).unwrap_or("");
+        let cand = library::candidate(kind);
+        let refit = cand.is_some_and(|c| !freeze || new.iter().any(|n| n.kind == c.kind));
+        match cand.filter(|_| refit) {
+            Some(c) if !terms.iter().any(|x| x.kind == c.kind) => {
+                terms.push(c);
+                known.push(values_in(c, t));
+            }
+            _ => frozen.effects.push(t.clone()),
+        }
+    }
+    frozen.fits = model
+        .fits
+        .iter()
+        .filter(|r| !terms.iter().any(|c| c.kind == r.kind))
+        .cloned()
+        .collect();
+    for c in new {
+        if !terms.iter().any(|x| x.kind == c.kind) {
+            terms.push(c);
+            known.push(None);
+        }
+    }
+    let before = compare(model, table)?;
+    let mut prep = Prepared::new(&frozen, table)?;
+    let meter = Meter::new(Budget::default());
+    let mut fit = fit_joint(&frozen, table, &prep, &terms, &known, &meter)?;
+    // The stated vibration's uncertainty through the model with the fitted effects
+    // (as `diagnose` does after each step), and the effects refitted under it.
+    if table.conditions.iter().any(|c| c.ia_u_g() != (0.0, 0.0)) {
+        prep.reweight(&frozen, table, &fit.tables)?;
+        let known: Vec<Option<Vec<f64>>> =
+            terms.iter().map(|c| Some(fit.values_of(c.kind))).collect();
+        fit = fit_joint(&frozen, table, &prep, &terms, &known, &meter)?;
+    }
+    let mut out = frozen.clone();
+    for (c, t) in terms.iter().zip(&fit.tables) {
+        let params = fit.params_of(c.kind);
+        let record = FitRecord {
+            kind: c.kind.to_string(),
+            table: table.path.display().to_string(),
+            params: params.iter().map(|p| (p.name.clone(), p.value)).collect(),
+            sigma: params
+                .iter()
+                .map(|p| {
+                    (
+                        p.name.clone(),
+                        if p.sigma.is_finite() {
+                            p.sigma
+                        } else {
+                            f64::MAX
+                        },
+                    )
+                })
+                .collect(),
+            rms_residual_before_g: before.summary.rms_residual_g,
+            rms_residual_after_g: fit.rms_residual_after_g,
+            delta_bic: fit.delta_bic,
+        };
+        out = out.with_effect(t.clone(), Some(record));
+    }
+    Ok((out, fit))
+}
+
+/// `model` with `kind` fitted to `table` added (the model's own effects of the library
+/// refitted jointly with it), and the fit.
 pub fn add_effect(
     model: &LabModel,
     table: &CampaignTable,
     kind: &str,
 ) -> Result<(LabModel, EffectFit)> {
-    let fit = fit_effect(model, table, kind)?;
-    let record = FitRecord {
-        kind: fit.kind.clone(),
-        table: table.path.display().to_string(),
-        params: fit
-            .params
-            .iter()
-            .map(|p| (p.name.clone(), p.value))
-            .collect(),
-        sigma: fit
-            .params
-            .iter()
-            .map(|p| {
-                (
-                    p.name.clone(),
-                    if p.sigma.is_finite() {
-                        p.sigma
-                    } else {
-                        f64::MAX
-                    },
-                )
-            })
-            .collect(),
-        rms_residual_before_g: fit.rms_residual_before_g,
-        rms_residual_after_g: fit.rms_residual_after_g,
-        delta_bic: fit.delta_bic,
-    };
-    Ok((model.with_effect(fit.table.clone(), Some(record)), fit))
+    add_effects(model, table, &[kind], false)
 }
 
 /// One step of [`error_ladder`].
@@ -868,33 +1270,19 @@ pub struct LadderStep {
     pub chi2_per_dof: f64,
 }
 
-/// The effect the ladder adds after diagnosis `d`: the verdict's effect, the first of
-/// confounded ones, or the best supported candidate when the structure is not fully
-/// explained; none when the residual is noise.
-pub fn next_effect(d: &Diagnosis) -> Option<String> {
+/// The effects the diagnosis found (its final joint fit), added to `model`: the
+/// verdict's effects, or those found before the structure left was unexplained or
+/// confounded; none when the residual is noise.
+pub fn next_effects(d: &Diagnosis) -> Vec<String> {
     match &d.verdict {
-        Verdict::Effect { kind, .. } => Some(kind.clone()),
-        Verdict::Confounded { kinds, .. } => kinds.first().cloned(),
-        Verdict::Unexplained { .. } => d
-            .candidates
-            .iter()
-            .find(|c| c.supported)
-            .map(|c| c.kind.clone()),
-        Verdict::Noise { .. } => None,
+        Verdict::Noise { .. } => Vec::new(),
+        _ => d.selected.as_ref().map_or(Vec::new(), |f| f.kinds.clone()),
     }
 }
 
-fn step_of(m: &LabModel, d: &Diagnosis) -> LadderStep {
-    LadderStep {
-        effects: m.effect_kinds(),
-        rms_residual_g: d.comparison.summary.rms_residual_g,
-        chi2_per_dof: d.comparison.summary.chi2_per_dof,
-    }
-}
-
-/// The model as is, then with the best supported candidate added, and so on while a
-/// candidate is supported (at most `max_steps` additions). `first` is the diagnosis
-/// of `model` when already made. Returns the steps and the last model.
+/// The model as is, then each step of the diagnosis's stepwise search; and the model
+/// with the effects found ([`next_effects`]) fitted jointly. `first` is the diagnosis
+/// of `model` when already made; `max_steps` bounds the effects added.
 pub fn ladder_from(
     model: &LabModel,
     table: &CampaignTable,
@@ -902,18 +1290,28 @@ pub fn ladder_from(
     max_steps: usize,
     first: Option<&Diagnosis>,
 ) -> Result<(Vec<LadderStep>, LabModel)> {
-    let mut m = model.clone();
-    let mut d = match first {
+    let d = match first {
         Some(d) => d.clone(),
-        None => diagnose(&m, table, opts)?,
+        None => diagnose(model, table, opts)?,
     };
-    let mut steps = vec![step_of(&m, &d)];
-    for _ in 0..max_steps {
-        let Some(kind) = next_effect(&d) else { break };
-        m = add_effect(&m, table, &kind)?.0;
-        d = diagnose(&m, table, opts)?;
-        steps.push(step_of(&m, &d));
+    let base = model.effect_kinds();
+    let mut steps: Vec<LadderStep> = d
+        .steps
+        .iter()
+        .map(|s| LadderStep {
+            effects: base.iter().chain(&s.effects).cloned().collect(),
+            rms_residual_g: s.rms_residual_g,
+            chi2_per_dof: s.chi2_per_dof,
+        })
+        .collect();
+    let mut kinds = next_effects(&d);
+    kinds.truncate(max_steps);
+    steps.truncate(max_steps + 1);
+    if kinds.is_empty() {
+        return Ok((steps, model.clone()));
     }
+    let refs: Vec<&str> = kinds.iter().map(String::as_str).collect();
+    let (m, _) = add_effects(model, table, &refs, true)?;
     Ok((steps, m))
 }
 

@@ -18,7 +18,7 @@
 //! the model's as is (`chi2_0`, no parameter). Kass & Raftery (1995): a difference
 //! beyond 10 is very strong evidence.
 
-use crate::library::{Candidate, Search};
+use crate::library::{Candidate, ParamSpec, Search};
 use crate::table::CampaignTable;
 use crate::{Error, Result};
 use nalgebra::{DMatrix, DVector};
@@ -93,21 +93,56 @@ impl Meter {
 /// One fitted parameter.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct FittedParam {
+    /// The effect it belongs to.
+    pub effect: String,
     pub name: String,
     pub value: f64,
     /// Standard uncertainty (infinite: the table does not determine it).
     pub sigma: f64,
 }
 
-/// A candidate fitted to a campaign.
+/// Rows on which an effect could not be evaluated, and why: it was fitted (or, for
+/// an effect of the model, predicted) on the other rows only.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct NotApplicable {
+    pub effect: String,
+    /// `(line, run_id)` of each row left out.
+    pub rows: Vec<(usize, String)>,
+    pub reason: String,
+}
+
+/// Why a filtering effect cannot act on a random row without a spectrum (no default
+/// spectrum is assumed: docs/lab.md, "Mixed tables").
+pub const NO_SPECTRUM: &str = "random vibration without a spectrum (no band_lo_hz/band_hi_hz, no \
+     band PSDs): the effect filters the vibration over frequency, and no default spectrum is \
+     assumed";
+
+/// Whether effect `kind` can be evaluated on condition `c`: an effect that filters the
+/// vibration over frequency (`Candidate::needs_spectrum`) cannot act on a random part
+/// whose spectrum the row does not give.
+pub fn applies(kind: &str, c: &crate::table::Condition) -> bool {
+    let needs = crate::library::candidate(kind).is_some_and(|k| k.needs_spectrum);
+    !(needs && c.random.is_some() && c.psd().is_empty())
+}
+
+/// A set of effects fitted jointly to a campaign (one effect: `kinds.len() == 1`).
 #[derive(Debug, Clone, Serialize)]
 pub struct EffectFit {
+    /// The effect this fit ranks: the last of `kinds` (the one a stepwise search adds).
     pub kind: String,
+    /// Every effect of the fit, in order; all their parameters were free.
+    pub kinds: Vec<String>,
+    /// Every parameter, effect by effect.
     pub params: Vec<FittedParam>,
-    /// The `[[effect]]` table with the fitted values (what `lab add` writes).
+    /// Correlation coefficients between the parameters, in `params` order (NaN for a
+    /// parameter the table does not determine).
+    pub correlation: Vec<Vec<f64>>,
+    /// The `[[effect]]` tables with the fitted values, one per effect (what `lab add`
+    /// writes).
     #[serde(skip)]
-    pub table: toml::Table,
+    pub tables: Vec<toml::Table>,
     pub n: usize,
+    /// Parameters fitted, over all effects.
     pub k: usize,
     pub chi2_before: f64,
     pub chi2_after: f64,
@@ -117,15 +152,42 @@ pub struct EffectFit {
     pub p_value_after: f64,
     pub bic_before: f64,
     pub bic_after: f64,
+    /// `bic_after - bic_before`: against the model the effects were fitted to.
     pub delta_bic: f64,
     pub rms_residual_before_g: f64,
     pub rms_residual_after_g: f64,
-    /// The fitted effect's VE change per condition, g.
+    /// The fitted effects' VE change per condition, g.
     pub shift_g: Vec<f64>,
+    /// Each effect's share of `shift_g`, in `kinds` order.
+    #[serde(skip)]
+    pub effect_shift_g: Vec<Vec<f64>>,
     /// Residual per condition after the fit, g.
     pub residual_after_g: Vec<f64>,
+    /// Rows some effect of the fit could not act on.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub not_applicable: Vec<NotApplicable>,
     /// Model evaluations the fit took.
     pub evaluations: usize,
+}
+
+impl EffectFit {
+    /// The fitted values of effect `kind`, in its parameters' order.
+    pub fn values_of(&self, kind: &str) -> Vec<f64> {
+        self.params
+            .iter()
+            .filter(|p| p.effect == kind)
+            .map(|p| p.value)
+            .collect()
+    }
+
+    /// The parameters of effect `kind`.
+    pub fn params_of(&self, kind: &str) -> Vec<FittedParam> {
+        self.params
+            .iter()
+            .filter(|p| p.effect == kind)
+            .cloned()
+            .collect()
+    }
 }
 
 /// What a fit needs per condition, computed once: the model's prediction and the
@@ -135,6 +197,33 @@ pub(crate) struct Prepared {
     pub(crate) uncertainty_g: Vec<f64>,
     pub(crate) predicted_g: Vec<f64>,
     truth: Vec<predict::TrueVibration>,
+    /// Per row, the vibration and band PSD reaching the unit: the truth through the
+    /// model's effects on the vibration path (what a new effect off that path sees).
+    seen: Vec<(
+        vibro_physics::vibration::Vibration,
+        Vec<vibro_physics::vibration::PsdBand>,
+    )>,
+    /// Per row, the model's effect tables that act there.
+    model_tables: Vec<Vec<toml::Table>>,
+    /// The model's effects that could not act on some rows.
+    pub(crate) skipped: Vec<NotApplicable>,
+}
+
+/// Adds `(line, run_id)` to the rows `kind` skipped.
+fn note_skipped(out: &mut Vec<NotApplicable>, kind: &str, c: &crate::table::Condition) {
+    let row = (c.line, c.run_id.clone());
+    match out.iter_mut().find(|n| n.effect == kind) {
+        Some(n) => n.rows.push(row),
+        None => out.push(NotApplicable {
+            effect: kind.to_string(),
+            rows: vec![row],
+            reason: NO_SPECTRUM.to_string(),
+        }),
+    }
+}
+
+fn kind_of(t: &toml::Table) -> &str {
+    t.get("kind").and_then(|k| k.as_str()).unwrap_or("?")
 }
 
 impl Prepared {
@@ -144,9 +233,21 @@ impl Prepared {
             uncertainty_g: Vec::new(),
             predicted_g: Vec::new(),
             truth: Vec::new(),
+            seen: Vec::new(),
+            model_tables: Vec::new(),
+            skipped: Vec::new(),
         };
         for c in &table.conditions {
-            let effects = build_effects(&model.effects, &c.passport)?;
+            let mut tables = Vec::with_capacity(model.effects.len());
+            for t in &model.effects {
+                if applies(kind_of(t), c) {
+                    tables.push(t.clone());
+                } else {
+                    note_skipped(&mut p.skipped, kind_of(t), c);
+                }
+            }
+            let effects = build_effects(&tables, &c.passport)?;
+            let u_g = effective_u_g(model.mode, &effects, c)?;
             let row = |e: vibro_effects::Error| Error::Predict {
                 what: format!("{} (line {}, {})", table.path.display(), c.line, c.run_id),
                 reason: e.to_string(),
@@ -165,8 +266,8 @@ impl Prepared {
             .map_err(row)?;
             // Residuals and weights must stay finite: `(r/u)^2` summed over the
             // table is the fits' cost.
-            let z = (c.ve_measured_g - pred.ve_g) / c.ve_uncertainty_g;
-            if !(pred.ve_g.is_finite() && (z * z).is_finite() && c.ve_uncertainty_g > 0.0) {
+            let z = (c.ve_measured_g - pred.ve_g) / u_g;
+            if !(pred.ve_g.is_finite() && (z * z).is_finite() && u_g > 0.0) {
                 return Err(Error::Numeric {
                     what: format!("{} (line {}, {})", table.path.display(), c.line, c.run_id),
                     reason: format!(
@@ -177,11 +278,42 @@ impl Prepared {
                 });
             }
             p.measured_g.push(c.ve_measured_g);
-            p.uncertainty_g.push(c.ve_uncertainty_g);
+            p.uncertainty_g.push(u_g);
             p.predicted_g.push(pred.ve_g);
+            p.seen.push(
+                predict::unit_vibration(
+                    &effects,
+                    &c.passport,
+                    c.a_l_g,
+                    &truth.vibration,
+                    &truth.psd,
+                )
+                .map_err(row)?,
+            );
             p.truth.push(truth);
+            p.model_tables.push(tables);
         }
         Ok(p)
+    }
+
+    /// The rows' uncertainties again, the stated vibration's propagated through the
+    /// model with `extra` (fitted effects) added: the weights of the next fits.
+    pub(crate) fn reweight(
+        &mut self,
+        model: &LabModel,
+        table: &CampaignTable,
+        extra: &[toml::Table],
+    ) -> Result<()> {
+        for (i, c) in table.conditions.iter().enumerate() {
+            if c.ia_u_g() == (0.0, 0.0) {
+                continue;
+            }
+            let mut tables = self.model_tables[i].clone();
+            tables.extend(extra.iter().filter(|t| applies(kind_of(t), c)).cloned());
+            let effects = build_effects(&tables, &c.passport)?;
+            self.uncertainty_g[i] = effective_u_g(model.mode, &effects, c)?;
+        }
+        Ok(())
     }
 
     pub(crate) fn residual_g(&self) -> Vec<f64> {
@@ -191,6 +323,72 @@ impl Prepared {
             .map(|(m, p)| m - p)
             .collect()
     }
+}
+
+/// A row's standard uncertainty of the residual: the measured VE's
+/// (`ve_uncertainty_g`) and the stated IA vibration's (`aB3_u_g`, `sigma3_u_g`)
+/// through the model with `effects`, `dVE/daB3` and `dVE/dsigma3` by central
+/// differences (the effective-variance method: the model is evaluated at the stated
+/// vibration, so the sensor's error moves the prediction, by how much the model says).
+pub(crate) fn effective_u_g(
+    mode: vibro_effects::model::BaseMode,
+    effects: &[Box<dyn vibro_effects::Effect>],
+    c: &crate::table::Condition,
+) -> Result<f64> {
+    let (ua_g, us_g) = c.ia_u_g();
+    let mut var = c.ve_uncertainty_g * c.ve_uncertainty_g;
+    let ve = |row: &crate::table::Condition| -> Result<f64> {
+        predict::predict_ve(
+            mode,
+            effects,
+            &row.passport,
+            row.a_l_g,
+            &row.vibration(),
+            &row.psd(),
+            row.vibrating_s(),
+        )
+        .map(|p| p.ve_g)
+        .map_err(|e| Error::Predict {
+            what: format!(
+                "line {} ({}): the stated vibration's uncertainty",
+                c.line, c.run_id
+            ),
+            reason: e.to_string(),
+        })
+    };
+    if let (Some(t), true) = (c.tone, ua_g > 0.0) {
+        let h = 1e-3 * t.a_b_g[2].abs().max(ua_g);
+        let mut up = c.clone();
+        let mut down = c.clone();
+        if let (Some(a), Some(b)) = (up.tone.as_mut(), down.tone.as_mut()) {
+            a.a_b_g[2] += h;
+            b.a_b_g[2] = (b.a_b_g[2] - h).max(0.0);
+        }
+        let span = up.tone.map_or(0.0, |t| t.a_b_g[2]) - down.tone.map_or(0.0, |t| t.a_b_g[2]);
+        let d = (ve(&up)? - ve(&down)?) / span;
+        var += (d * ua_g).powi(2);
+    }
+    if let (Some(r), true) = (c.random, us_g > 0.0) {
+        let s3 = r.sigma_g[2];
+        if s3 > 0.0 {
+            let k = 1e-3;
+            let scaled = |f: f64| {
+                let mut row = c.clone();
+                if let Some(x) = row.random.as_mut() {
+                    x.sigma_g[2] *= f;
+                    x.cov31_g2 *= f;
+                    x.cov32_g2 *= f;
+                }
+                for b in &mut row.bands {
+                    b.psd_g2_per_hz[2] *= f * f;
+                }
+                row
+            };
+            let d = (ve(&scaled(1.0 + k))? - ve(&scaled(1.0 - k))?) / (2.0 * k * s3);
+            var += (d * us_g).powi(2);
+        }
+    }
+    Ok(var.sqrt())
 }
 
 /// The effect table of `cand` with parameter values `theta`.
@@ -203,47 +401,121 @@ pub(crate) fn effect_table(cand: &Candidate, theta: &[f64]) -> toml::Table {
     t
 }
 
-/// The VE change of `cand(theta)` on every condition, added to the model.
-pub(crate) fn shifts_g(
+/// `theta` (all effects' parameters, effect by effect) cut into each effect's.
+fn split<'t>(terms: &[&Candidate], theta: &'t [f64]) -> Vec<&'t [f64]> {
+    let mut out = Vec::with_capacity(terms.len());
+    let mut at = 0;
+    for t in terms {
+        let k = t.params.len().min(theta.len().saturating_sub(at));
+        out.push(&theta[at..at + k]);
+        at += k;
+    }
+    out
+}
+
+/// Each effect's VE change on every condition when `terms` with parameters `theta`
+/// (effect by effect) are added to the model together: `[effect][row]`. An effect
+/// that cannot act on a row ([`applies`]) changes nothing there.
+///
+/// The effects' mean contributions add (`vibro_effects::predict`); a sensor effect
+/// changes the vibration every other effect sees, so with one the whole prediction
+/// is redone: its share is the model's change with the sensor effects, the others'
+/// their contributions under the vibration so corrected (the shares add up to the
+/// extended model's prediction exactly).
+pub(crate) fn term_shifts_g(
     model: &LabModel,
     table: &CampaignTable,
     prep: &Prepared,
-    cand: &Candidate,
+    terms: &[&Candidate],
     theta: &[f64],
-) -> Result<Vec<f64>> {
-    let t = effect_table(cand, theta);
-    // The candidate built once per passport of the table (most tables have one), not
-    // once per row: building parses and validates the effect's table.
-    let mut built: Vec<(&str, Vec<Box<dyn vibro_effects::Effect>>)> = Vec::new();
-    let mut out = Vec::with_capacity(table.conditions.len());
+) -> Result<Vec<Vec<f64>>> {
+    let tables: Vec<toml::Table> = terms
+        .iter()
+        .zip(split(terms, theta))
+        .map(|(c, th)| effect_table(c, th))
+        .collect();
+    // The effects built once per passport of the table (most tables have one), not
+    // once per row: building parses and validates each effect's table.
+    type Built<'a> = (&'a str, Vec<Vec<Box<dyn vibro_effects::Effect>>>);
+    let mut built: Vec<Built> = Vec::new();
+    let n = table.conditions.len();
+    let mut out = vec![vec![0.0; n]; terms.len()];
     for (i, c) in table.conditions.iter().enumerate() {
         let k = match built.iter().position(|(r, _)| *r == c.passport_ref) {
             Some(k) => k,
             None => {
-                built.push((
-                    &c.passport_ref,
-                    build_effects(std::slice::from_ref(&t), &c.passport)?,
-                ));
+                let mut per = Vec::with_capacity(tables.len());
+                for t in &tables {
+                    per.push(build_effects(std::slice::from_ref(t), &c.passport)?);
+                }
+                built.push((&c.passport_ref, per));
                 built.len() - 1
             }
         };
-        let one = &built[k].1;
-        let row = |e: vibro_effects::Error| Error::Predict {
-            what: format!("{} on line {} ({})", cand.kind, c.line, c.run_id),
+        let row = |kind: &str, e: vibro_effects::Error| Error::Predict {
+            what: format!("{kind} on line {} ({})", c.line, c.run_id),
             reason: e.to_string(),
         };
-        let f = predict::sensor_rms_factor(
-            one,
-            &c.passport,
-            c.a_l_g,
-            &prep.truth[i].vibration,
-            &prep.truth[i].psd,
-        );
-        let shift = if f != 1.0 {
-            // A sensor effect changes the vibration the whole model sees.
-            let mut all = build_effects(&model.effects, &c.passport)?;
-            all.extend(build_effects(std::slice::from_ref(&t), &c.passport)?);
-            predict::predict_ve(
+        let truth = &prep.truth[i];
+        let acts: Vec<bool> = terms.iter().map(|t| applies(t.kind, c)).collect();
+        let sensor: Vec<bool> = built[k]
+            .1
+            .iter()
+            .zip(&acts)
+            .map(|(e, a)| {
+                *a && predict::sensor_rms_factor(
+                    e,
+                    &c.passport,
+                    c.a_l_g,
+                    &truth.vibration,
+                    &truth.psd,
+                ) != 1.0
+            })
+            .collect();
+        let path: Vec<bool> = built[k]
+            .1
+            .iter()
+            .zip(&acts)
+            .map(|(e, a)| *a && e.iter().any(|x| x.on_vibration_path()))
+            .collect();
+        if sensor.iter().chain(&path).any(|s| *s) {
+            // A sensor effect changes the vibration every effect sees, one on the
+            // vibration path what every effect after it sees: the whole prediction
+            // with the model's effects and these, each effect's share its own entry
+            // (what is left, the base's change, to the first such effect).
+            let mut all = build_effects(&prep.model_tables[i], &c.passport)?;
+            let mut slot: Vec<Option<usize>> = vec![None; terms.len()];
+            let probe =
+                predict::true_vibration(&[], &c.passport, c.a_l_g, &c.vibration(), &c.psd())
+                    .map_err(|e| row(terms[0].kind, e))?;
+            let ctx = vibro_effects::MeanContext {
+                unit: 0,
+                passport: &c.passport,
+                a_l_unit_g: c.a_l_g,
+                vibration_unit: &probe.vibration,
+                psd_unit: &probe.psd,
+                internal_rate_hz: predict::INTERNAL_RATE_HZ,
+                duration_s: f64::INFINITY,
+            };
+            // As `effect_shifts_g` tells them apart: its entries skip these.
+            let is_sensor = |e: &dyn vibro_effects::Effect| e.sensor_rms_factor(&ctx).is_some();
+            let mut entry = all.iter().filter(|e| !is_sensor(e.as_ref())).count();
+            for (t, tab) in tables.iter().enumerate() {
+                if !acts[t] {
+                    continue;
+                }
+                let mut one = build_effects(std::slice::from_ref(tab), &c.passport)?;
+                if !sensor[t] {
+                    slot[t] = Some(entry);
+                    entry += one.iter().filter(|e| !is_sensor(e.as_ref())).count();
+                }
+                all.append(&mut one);
+            }
+            let first = (0..terms.len())
+                .find(|&t| sensor[t])
+                .or_else(|| (0..terms.len()).find(|&t| path[t]))
+                .unwrap_or(0);
+            let pred = predict::predict_ve(
                 model.mode,
                 &all,
                 &c.passport,
@@ -252,24 +524,28 @@ pub(crate) fn shifts_g(
                 &c.psd(),
                 c.vibrating_s(),
             )
-            .map_err(row)?
-            .ve_g
-                - prep.predicted_g[i]
-        } else {
-            effect_shifts_g(
-                one,
-                &c.passport,
-                c.a_l_g,
-                &prep.truth[i].vibration,
-                &prep.truth[i].psd,
-                c.vibrating_s(),
-            )
-            .map_err(row)?
-            .iter()
-            .map(|(_, s)| s)
-            .sum()
-        };
-        out.push(shift);
+            .map_err(|e| row(terms[first].kind, e))?;
+            let mut assigned = 0.0;
+            for t in 0..terms.len() {
+                if let Some(sh) = slot[t].and_then(|s| pred.effects.get(s)) {
+                    out[t][i] = sh.1;
+                    assigned += sh.1;
+                }
+            }
+            out[first][i] += pred.ve_g - prep.predicted_g[i] - assigned;
+            continue;
+        }
+        let seen = &prep.seen[i];
+        for (t, e) in built[k].1.iter().enumerate() {
+            if !acts[t] {
+                continue;
+            }
+            out[t][i] = effect_shifts_g(e, &c.passport, c.a_l_g, &seen.0, &seen.1, c.vibrating_s())
+                .map_err(|err| row(terms[t].kind, err))?
+                .iter()
+                .map(|(_, s)| s)
+                .sum();
+        }
     }
     Ok(out)
 }
@@ -320,6 +596,11 @@ fn starts(cand: &Candidate, table: &CampaignTable) -> Vec<Vec<f64>> {
             }
         });
     }
+    product(grids)
+}
+
+/// Every combination of one value from each grid, in order.
+fn product(grids: Vec<Vec<f64>>) -> Vec<Vec<f64>> {
     let mut out = vec![Vec::new()];
     for g in grids {
         out = out
@@ -340,7 +621,11 @@ struct Problem<'a> {
     model: &'a LabModel,
     table: &'a CampaignTable,
     prep: &'a Prepared,
-    cand: &'a Candidate,
+    terms: &'a [&'static Candidate],
+    /// Every parameter's spec, effect by effect (the order of `theta`).
+    specs: Vec<&'static ParamSpec>,
+    /// The effects' kinds joined, for messages.
+    what: String,
     residual_g: Vec<f64>,
     evaluations: usize,
     meter: &'a Meter,
@@ -352,7 +637,7 @@ impl Problem<'_> {
         let b = self.meter.budget;
         if self.evaluations >= b.max_evaluations {
             return Err(Error::Budget {
-                what: self.cand.kind.to_string(),
+                what: self.what.clone(),
                 reason: format!(
                     "{} model evaluations used of max_evaluations = {}",
                     self.evaluations, b.max_evaluations
@@ -362,7 +647,7 @@ impl Problem<'_> {
         let elapsed_s = self.meter.elapsed_s();
         if elapsed_s >= b.time_s {
             return Err(Error::Budget {
-                what: self.cand.kind.to_string(),
+                what: self.what.clone(),
                 reason: format!("{elapsed_s:.1} s used of time_s = {} s", b.time_s),
             });
         }
@@ -370,20 +655,21 @@ impl Problem<'_> {
         self.meter
             .evaluations
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let s = shifts_g(self.model, self.table, self.prep, self.cand, theta)?;
+        let per = term_shifts_g(self.model, self.table, self.prep, self.terms, theta)?;
+        let n = self.residual_g.len();
         let w = DVector::from_iterator(
-            s.len(),
-            s.iter()
-                .zip(&self.residual_g)
-                .zip(&self.prep.uncertainty_g)
-                .map(|((s, r), u)| (r - s) / u),
+            n,
+            (0..n).map(|i| {
+                let s: f64 = per.iter().map(|p| p[i]).sum();
+                (self.residual_g[i] - s) / self.prep.uncertainty_g[i]
+            }),
         );
         // The cost is the sum of squares: it, not only each term, must be finite.
         if !w.norm_squared().is_finite() {
             let k = w.iter().position(|x| !(x * x).is_finite()).unwrap_or(0);
             let c = &self.table.conditions[k.min(self.table.conditions.len().saturating_sub(1))];
             return Err(Error::Numeric {
-                what: format!("{} on line {} ({})", self.cand.kind, c.line, c.run_id),
+                what: format!("{} on line {} ({})", self.what, c.line, c.run_id),
                 reason: format!(
                     "the weighted residual {:e} (or its sum of squares) is not finite at {:?}",
                     w.get(k).copied().unwrap_or(f64::NAN),
@@ -395,7 +681,7 @@ impl Problem<'_> {
     }
 
     fn clamp(&self, theta: &mut [f64]) {
-        for (x, p) in theta.iter_mut().zip(self.cand.params) {
+        for (x, p) in theta.iter_mut().zip(&self.specs) {
             *x = x.clamp(p.bounds.0, p.bounds.1);
         }
     }
@@ -406,7 +692,7 @@ impl Problem<'_> {
             if !free[k] {
                 continue;
             }
-            let p = &self.cand.params[k];
+            let p = self.specs[k];
             let mut h = if theta[k] != 0.0 {
                 1e-4 * theta[k].abs()
             } else {
@@ -424,7 +710,7 @@ impl Problem<'_> {
         // nalgebra's SVD panics on NaN and LU steps from infinities are meaningless.
         if !(j.transpose() * &j).iter().all(|x| x.is_finite()) {
             return Err(Error::Numeric {
-                what: self.cand.kind.to_string(),
+                what: self.what.clone(),
                 reason: format!("the Jacobian or J^T J over the table is not finite at {theta:?}"),
             });
         }
@@ -505,7 +791,7 @@ impl Problem<'_> {
 pub fn fit_candidate(
     model: &LabModel,
     table: &CampaignTable,
-    cand: &Candidate,
+    cand: &'static Candidate,
 ) -> Result<EffectFit> {
     let prep = Prepared::new(model, table)?;
     fit_prepared(model, table, &prep, cand, &Meter::new(Budget::default()))
@@ -515,12 +801,74 @@ pub(crate) fn fit_prepared(
     model: &LabModel,
     table: &CampaignTable,
     prep: &Prepared,
-    cand: &Candidate,
+    cand: &'static Candidate,
     meter: &Meter,
 ) -> Result<EffectFit> {
+    fit_joint(model, table, prep, &[cand], &[None], meter)
+}
+
+/// Parameter covariance from `J^T J` at the minimum: each column of `J` scaled to
+/// unit norm first (the parameters' units differ by many decades), the scaled matrix
+/// inverted by SVD. A parameter with a share above 1e-3 in a direction the table does
+/// not determine (singular value below 1e-10 of the largest) gets an infinite
+/// variance, the others their part of the pseudo-inverse.
+fn covariance(a: &DMatrix<f64>) -> (DMatrix<f64>, Vec<bool>) {
+    let k = a.nrows();
+    let d: Vec<f64> = (0..k).map(|i| a[(i, i)].max(0.0).sqrt()).collect();
+    let scaled = DMatrix::from_fn(k, k, |i, j| {
+        if d[i] > 0.0 && d[j] > 0.0 {
+            a[(i, j)] / (d[i] * d[j])
+        } else {
+            0.0
+        }
+    });
+    let svd = scaled.svd(true, true);
+    let smax = svd.singular_values.max().max(1e-300);
+    let mut determined: Vec<bool> = d.iter().map(|x| *x > 0.0).collect();
+    if let Some(v_t) = &svd.v_t {
+        for (s, row) in svd.singular_values.iter().zip(v_t.row_iter()) {
+            if *s <= 1e-10 * smax {
+                for i in 0..k {
+                    if row[i].abs() > 1e-3 {
+                        determined[i] = false;
+                    }
+                }
+            }
+        }
+    }
+    let pinv = svd
+        .pseudo_inverse(1e-10 * smax)
+        .unwrap_or_else(|_| DMatrix::zeros(k, k));
+    let cov = DMatrix::from_fn(k, k, |i, j| {
+        if determined[i] && determined[j] {
+            pinv[(i, j)] / (d[i] * d[j])
+        } else if i == j {
+            f64::INFINITY
+        } else {
+            f64::NAN
+        }
+    });
+    (cov, determined)
+}
+
+/// Fits the effects `terms` jointly (all parameters free) to the residual of `model`
+/// on `table`. `known[t]`: where effect `t` starts (its values in an earlier fit);
+/// `None`: its own start grid. At each start the linear parameters are solved first
+/// (6 Levenberg-Marquardt iterations), then the three best distinct starts are
+/// refined with every parameter free (60 iterations).
+pub(crate) fn fit_joint(
+    model: &LabModel,
+    table: &CampaignTable,
+    prep: &Prepared,
+    terms: &[&'static Candidate],
+    known: &[Option<Vec<f64>>],
+    meter: &Meter,
+) -> Result<EffectFit> {
+    let what = terms.iter().map(|c| c.kind).collect::<Vec<_>>().join("+");
     let residual_g = prep.residual_g();
     let n = residual_g.len();
-    let k = cand.params.len();
+    let specs: Vec<&'static ParamSpec> = terms.iter().flat_map(|c| c.params.iter()).collect();
+    let k = specs.len();
     let chi2_before: f64 = residual_g
         .iter()
         .zip(&prep.uncertainty_g)
@@ -528,7 +876,7 @@ pub(crate) fn fit_prepared(
         .sum();
     if !chi2_before.is_finite() {
         return Err(Error::Numeric {
-            what: format!("{} on {}", cand.kind, table.path.display()),
+            what: format!("{what} on {}", table.path.display()),
             reason: format!(
                 "the residual's chi2 = sum((r/u)^2) = {chi2_before:e} overflows: uncertainties \
                  too small for the residuals"
@@ -539,20 +887,42 @@ pub(crate) fn fit_prepared(
         model,
         table,
         prep,
-        cand,
+        terms,
+        specs: specs.clone(),
+        what: what.clone(),
         residual_g: residual_g.clone(),
         evaluations: 0,
         meter,
     };
-    let linear: Vec<bool> = cand
-        .params
+    let linear: Vec<bool> = specs
         .iter()
         .map(|p| matches!(p.search, Search::Linear))
         .collect();
     let all = vec![true; k];
+    // Starts: the product of each effect's own (a known effect: its earlier values).
+    let mut per_term: Vec<Vec<Vec<f64>>> = Vec::with_capacity(terms.len());
+    for (t, c) in terms.iter().enumerate() {
+        match known.get(t).and_then(|x| x.as_ref()) {
+            Some(v) if v.len() == c.params.len() => per_term.push(vec![v.clone()]),
+            _ => per_term.push(starts(c, table)),
+        }
+    }
+    let mut all_starts: Vec<Vec<f64>> = vec![Vec::new()];
+    for options in per_term {
+        all_starts = all_starts
+            .into_iter()
+            .flat_map(|s| {
+                options.iter().map(move |o| {
+                    let mut s = s.clone();
+                    s.extend_from_slice(o);
+                    s
+                })
+            })
+            .collect();
+    }
     let mut scored = Vec::new();
     let mut last_error = None;
-    for s in starts(cand, table) {
+    for s in all_starts {
         let r = if linear.iter().any(|l| *l) && linear.iter().any(|l| !*l) {
             pb.minimise(s, &linear, 6)
         } else {
@@ -565,9 +935,7 @@ pub(crate) fn fit_prepared(
         }
     }
     if scored.is_empty() {
-        return Err(
-            last_error.unwrap_or_else(|| Error::Invalid(format!("{}: no start point", cand.kind)))
-        );
+        return Err(last_error.unwrap_or_else(|| Error::Invalid(format!("{what}: no start point"))));
     }
     scored.sort_by(|a, b| a.1.total_cmp(&b.1));
     // Starts on a plateau (e.g. a saturation range above every peak: no change at all)
@@ -581,10 +949,7 @@ pub(crate) fn fit_prepared(
         }
     }
     let Some((theta, chi2_after)) = best else {
-        return Err(Error::Invalid(format!(
-            "{}: the fit found no minimum",
-            cand.kind
-        )));
+        return Err(Error::Invalid(format!("{what}: the fit found no minimum")));
     };
     // Uncertainties from J^T J at the minimum.
     let r = pb.weighted(&theta)?;
@@ -592,45 +957,73 @@ pub(crate) fn fit_prepared(
     let a = j.transpose() * &j;
     if !a.iter().all(|x| x.is_finite()) || !chi2_after.is_finite() {
         return Err(Error::Numeric {
-            what: format!("{} on {}", cand.kind, table.path.display()),
+            what: format!("{what} on {}", table.path.display()),
             reason: format!("J^T J or chi2 = {chi2_after:e} at the minimum is not finite"),
         });
     }
     let dof = n.saturating_sub(k).max(1);
     let birge = (chi2_after / dof as f64).sqrt().max(1.0);
-    let svd = a.clone().svd(true, true);
-    let smax = svd.singular_values.max();
-    let smin = svd.singular_values.min();
-    let cov = svd.pseudo_inverse(1e-12 * smax.max(1e-300)).ok();
-    let params = cand
-        .params
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let identifiable = a[(i, i)] > 0.0 && smin > 1e-12 * smax;
-            let sigma = match (&cov, identifiable) {
-                (Some(c), true) => c[(i, i)].max(0.0).sqrt() * birge,
-                _ => f64::INFINITY,
-            };
-            FittedParam {
+    let (cov, determined) = covariance(&a);
+    let mut params = Vec::with_capacity(k);
+    let mut at = 0;
+    for c in terms {
+        for p in c.params {
+            params.push(FittedParam {
+                effect: c.kind.to_string(),
                 name: p.name.to_string(),
-                value: theta[i],
-                sigma,
-            }
+                value: theta[at],
+                sigma: if determined[at] {
+                    cov[(at, at)].max(0.0).sqrt() * birge
+                } else {
+                    f64::INFINITY
+                },
+            });
+            at += 1;
+        }
+    }
+    let correlation = (0..k)
+        .map(|i| {
+            (0..k)
+                .map(|j| {
+                    if determined[i] && determined[j] {
+                        cov[(i, j)] / (cov[(i, i)] * cov[(j, j)]).sqrt().max(1e-300)
+                    } else {
+                        f64::NAN
+                    }
+                })
+                .collect()
         })
         .collect();
-    let shift_g = shifts_g(model, table, prep, cand, &theta)?;
+    let effect_shift_g = term_shifts_g(model, table, prep, terms, &theta)?;
+    let shift_g: Vec<f64> = (0..n)
+        .map(|i| effect_shift_g.iter().map(|s| s[i]).sum())
+        .collect();
     let residual_after_g: Vec<f64> = residual_g
         .iter()
         .zip(&shift_g)
         .map(|(r, s)| r - s)
         .collect();
+    let mut not_applicable = Vec::new();
+    for c in terms {
+        for row in &table.conditions {
+            if !applies(c.kind, row) {
+                note_skipped(&mut not_applicable, c.kind, row);
+            }
+        }
+    }
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
     let ln_n = (n as f64).ln();
+    let tables = terms
+        .iter()
+        .zip(split(terms, &theta))
+        .map(|(c, th)| effect_table(c, th))
+        .collect();
     Ok(EffectFit {
-        kind: cand.kind.to_string(),
+        kind: terms.last().map_or(String::new(), |c| c.kind.to_string()),
+        kinds: terms.iter().map(|c| c.kind.to_string()).collect(),
         params,
-        table: effect_table(cand, &theta),
+        correlation,
+        tables,
         n,
         k,
         chi2_before,
@@ -643,7 +1036,9 @@ pub(crate) fn fit_prepared(
         rms_residual_before_g: rms(&residual_g),
         rms_residual_after_g: rms(&residual_after_g),
         shift_g,
+        effect_shift_g,
         residual_after_g,
+        not_applicable,
         evaluations: pb.evaluations,
     })
 }

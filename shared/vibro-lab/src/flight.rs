@@ -239,6 +239,159 @@ pub fn prediction_u_g(
     Ok(var.sqrt())
 }
 
+/// Mean of a chi-square variable with one degree of freedom given that it is below 9
+/// (3 sigma): `P(chi2_3 < 9) / P(chi2_1 < 9) = 0.970709 / 0.997300`.
+const CLIPPED_CHI2_1_MEAN: f64 = 0.970_709 / 0.997_300;
+
+/// How the residual's scatter compares with the stated uncertainties
+/// ([`residual_scale`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ResidualScale {
+    /// Factor on the stated (conservative) uncertainties, in `(0, 1]`.
+    pub scale: f64,
+    /// Second differences it was estimated from.
+    pub differences: usize,
+    /// Of those, left out as beyond 3 sigma (jumps of a missing effect).
+    pub clipped: usize,
+}
+
+/// The scatter of a log's residuals against the base model, relative to the stated
+/// uncertainties `u_j = sqrt(u_measured^2 + u_prediction^2)`, from the data itself.
+///
+/// `series`: per unit, runs of consecutive windows (no window left out between them) in
+/// time order, each window `(residual_g, u_g)` (measured minus the base model's VE).
+/// The rectified random vibration of a window and its estimated RMS come from the same
+/// realisation, so their errors are positively correlated and the residual's variance
+/// `u_m^2 + u_p^2 - 2 rho u_m u_p` is below `u_j^2`; how far below depends on the
+/// vibration, the estimator and the unit. Non-overlapping windows have independent
+/// errors, so the second difference `D = r_{j-1} - 2 r_j + r_{j+1}` of a run has the
+/// variance `s^2 (u_{j-1}^2 + 4 u_j^2 + u_{j+1}^2)` for errors of `s u_j`, while a
+/// missing effect that changes smoothly with the flight (linearly over three windows)
+/// cancels in it (the von Neumann successive-difference idea, to second order). The
+/// estimate of `s^2` is the mean of `D^2 / V` with values beyond 3 sigma left out
+/// (iteratively: a missing effect that jumps at staging), divided by the mean of a
+/// chi-square with one degree of freedom clipped at 9. The scale is at most 1 (the
+/// correlation is not negative: a larger scatter is a missing effect, not noise).
+/// `None` with fewer than 8 differences.
+pub fn residual_scale(series: &[Vec<(f64, f64)>]) -> Option<ResidualScale> {
+    let mut x = Vec::new();
+    for run in series {
+        for w in run.windows(3) {
+            let d = w[0].0 - 2.0 * w[1].0 + w[2].0;
+            let v = w[0].1.powi(2) + 4.0 * w[1].1.powi(2) + w[2].1.powi(2);
+            if d.is_finite() && v.is_finite() && v > 0.0 {
+                x.push(d * d / v);
+            }
+        }
+    }
+    if x.len() < 8 {
+        return None;
+    }
+    let mut s2 = x.iter().sum::<f64>() / x.len() as f64;
+    let mut clipped = 0;
+    for _ in 0..20 {
+        let kept: Vec<f64> = x.iter().copied().filter(|&v| v <= 9.0 * s2).collect();
+        if kept.is_empty() {
+            break;
+        }
+        let next = kept.iter().sum::<f64>() / kept.len() as f64 / CLIPPED_CHI2_1_MEAN;
+        clipped = x.len() - kept.len();
+        if (next - s2).abs() <= 1e-12 * s2 {
+            s2 = next;
+            break;
+        }
+        s2 = next;
+    }
+    Some(ResidualScale {
+        scale: s2.sqrt().min(1.0),
+        differences: x.len(),
+        clipped,
+    })
+}
+
+/// The vibration of consecutive windows pooled into one lab window, or `None` when
+/// they differ in their tones' count (the pool then ends before the window).
+///
+/// The base model is quadratic in the vibration to leading order (MODEL.md section
+/// 6), so the pool keeps the mean second moments: the covariance is the windows' mean,
+/// each tone's amplitude per axis the RMS of its amplitudes, its frequency the mean;
+/// its phases relative to IA (the only phases the model uses) the circular mean,
+/// anchored at the first window's IA phase. The kurtosis is the mean weighted by
+/// `sigma^4` (the fourth moment's mean over the pool).
+pub fn pooled_vibration(vibs: &[Vibration]) -> Option<Vibration> {
+    let first = vibs.first()?;
+    let n_tones = first.tones().len();
+    if vibs.iter().any(|v| v.tones().len() != n_tones) {
+        return None;
+    }
+    let k = vibs.len() as f64;
+    let mut out = *first;
+    out.clear_tones();
+    for t in 0..n_tones {
+        let mut tone = first.tones()[t];
+        tone.freq_hz = vibs.iter().map(|v| v.tones()[t].freq_hz).sum::<f64>() / k;
+        for axis in 0..3 {
+            let a2 = vibs
+                .iter()
+                .map(|v| v.tones()[t].amplitude_g[axis].powi(2))
+                .sum::<f64>();
+            tone.amplitude_g[axis] = (a2 / k).sqrt();
+            let (c, s) = vibs.iter().fold((0.0, 0.0), |(c, s), v| {
+                let ph = v.tones()[t].phase_rad;
+                let d = ph[axis] - ph[2];
+                (c + d.cos(), s + d.sin())
+            });
+            if axis != 2 && (c != 0.0 || s != 0.0) {
+                tone.phase_rad[axis] = first.tones()[t].phase_rad[2] + s.atan2(c);
+            }
+        }
+        // The same count as the first window's: it fits.
+        let _ = out.push_tone(tone);
+    }
+    for i in 0..3 {
+        for j in 0..3 {
+            out.covariance_g2[i][j] = vibs.iter().map(|v| v.covariance_g2[i][j]).sum::<f64>() / k;
+        }
+        let w: f64 = vibs.iter().map(|v| v.covariance_g2[i][i].powi(2)).sum();
+        if w > 0.0 {
+            out.kurtosis[i] = vibs
+                .iter()
+                .map(|v| v.kurtosis[i] * v.covariance_g2[i][i].powi(2))
+                .sum::<f64>()
+                / w;
+        }
+    }
+    Some(out)
+}
+
+/// The random part's spectra of consecutive windows pooled (the mean PSD per band),
+/// or `None` when their bands' edges differ.
+pub fn pooled_bands(bands: &[Vec<PsdBand>]) -> Option<Vec<PsdBand>> {
+    let first = bands.first()?;
+    let same_edges = |b: &Vec<PsdBand>| {
+        b.len() == first.len()
+            && b.iter()
+                .zip(first)
+                .all(|(x, y)| x.f_lo_hz == y.f_lo_hz && x.f_hi_hz == y.f_hi_hz)
+    };
+    if !bands.iter().all(same_edges) {
+        return None;
+    }
+    let k = bands.len() as f64;
+    Some(
+        first
+            .iter()
+            .enumerate()
+            .map(|(i, b)| PsdBand {
+                psd_g2_per_hz: std::array::from_fn(|axis| {
+                    bands.iter().map(|w| w[i].psd_g2_per_hz[axis]).sum::<f64>() / k
+                }),
+                ..*b
+            })
+            .collect(),
+    )
+}
+
 /// Phase difference `a - b` in degrees, wrapped to `(-180, 180]`.
 fn phase_difference_deg(a_rad: f64, b_rad: f64) -> f64 {
     let d = (a_rad - b_rad).to_degrees();
@@ -503,6 +656,94 @@ mod tests {
         let got = prediction_u_g(BaseMode::Exact, &p, [0.0, 0.0, 3.0], var, &vib, &none).unwrap();
         let want = 3.0 * p.k[4] * 4.0 * var;
         assert!((got - want).abs() < 1e-6 * want, "{got} vs {want}");
+    }
+
+    /// Monte Carlo: residuals of independent normal errors `s u_j` (u_j varying over
+    /// the flight) on top of a missing effect that ramps with time and jumps twice (at
+    /// staging): the estimated scale recovers `s` (its relative standard error over
+    /// 600 differences is about sqrt(2/600)/2 = 3 %), and is capped at 1.
+    #[test]
+    fn the_residual_scale_recovers_the_noise_under_a_smooth_effect_with_jumps() {
+        let mut state = 0x2545_F491_4F6C_DD1Du64;
+        let mut uniform = || {
+            state ^= state >> 12;
+            state ^= state << 25;
+            state ^= state >> 27;
+            ((state.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let mut normal = move || {
+            // Box-Muller.
+            let (a, b) = (uniform(), uniform());
+            (-2.0 * a.ln()).sqrt() * (2.0 * std::f64::consts::PI * b).cos()
+        };
+        for s_true in [0.3, 0.5, 0.8] {
+            let series: Vec<Vec<(f64, f64)>> = (0..3)
+                .map(|unit| {
+                    (0..200)
+                        .map(|j| {
+                            let t = j as f64;
+                            let u = 1e-4 * (1.0 + 0.5 * (t / 30.0 + unit as f64).sin().abs());
+                            let effect = 2e-3 * t / 200.0
+                                + if j >= 70 { 1e-3 } else { 0.0 }
+                                + if j >= 140 { -2e-3 } else { 0.0 };
+                            (effect + s_true * u * normal(), u)
+                        })
+                        .collect()
+                })
+                .collect();
+            let got = residual_scale(&series).unwrap();
+            assert_eq!(got.differences, 3 * 198);
+            // Each jump gives 2 second differences per unit of the jump's size (5 to
+            // 30 sigma): the 2 mg jump's 6 are always left out, few others.
+            assert!(got.clipped >= 6 && got.clipped <= 30, "{got:?}");
+            assert!(
+                (got.scale - s_true).abs() < 0.1 * s_true,
+                "{s_true}: {got:?}"
+            );
+        }
+        // Wider scatter than stated: a missing effect, not noise.
+        let wide: Vec<Vec<(f64, f64)>> = vec![(0..50)
+            .map(|j| (if j % 2 == 0 { 3.0 } else { -3.0 }, 1.0))
+            .collect()];
+        assert_eq!(residual_scale(&wide).unwrap().scale, 1.0);
+        assert!(residual_scale(&[vec![(0.0, 1.0); 9]]).is_none());
+    }
+
+    /// With only k2 (VE = k2 (aB3^2 / 2 + sigma3^2), MODEL.md 6) the pooled vibration
+    /// predicts the mean of the windows' VEs exactly: the pool keeps the second moments.
+    #[test]
+    fn a_pooled_vibration_keeps_the_mean_second_moments() {
+        let mut spec = al15().to_spec();
+        spec.k3_ppm_per_g2 = 0.0;
+        spec.k4_ppm_per_g3 = 0.0;
+        spec.k5_ppm_per_g4 = 0.0;
+        spec.d1a_ppm = 0.0;
+        spec.m31_ppm_per_g = 0.0;
+        spec.m32_ppm_per_g = 0.0;
+        let p = Passport::try_from_spec(&spec).unwrap();
+        let vibs: Vec<Vibration> = [(0.4, 1.3, 12.0), (0.6, 1.5, 12.5), (0.5, 1.1, 13.0)]
+            .iter()
+            .map(|&(a, s, f)| {
+                let mut v = tone_with_phases(f, [1.0, 1.2, a], [0.3, 0.1, 0.5]);
+                v.covariance_g2[2][2] = s * s;
+                v.covariance_g2[0][0] = 1.0;
+                v.kurtosis = [3.0; 3];
+                v
+            })
+            .collect();
+        let ve = |v: &Vibration| exact_ve(&p, [0.0, 0.0, 2.0], v).unwrap().total_g;
+        let mean = vibs.iter().map(ve).sum::<f64>() / 3.0;
+        let pooled = pooled_vibration(&vibs).unwrap();
+        assert!(
+            (ve(&pooled) - mean).abs() < 1e-12 * mean,
+            "{} vs {mean}",
+            ve(&pooled)
+        );
+        let t = pooled.tones()[0];
+        assert!((t.freq_hz - 12.5).abs() < 1e-12);
+        assert!((t.phase_rad[0] - t.phase_rad[2] + 0.2).abs() < 1e-12);
+        // Different tone counts do not pool.
+        assert!(pooled_vibration(&[vibs[0], Vibration::none()]).is_none());
     }
 
     #[test]

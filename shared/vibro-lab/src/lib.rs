@@ -30,8 +30,8 @@ pub mod library;
 pub mod table;
 
 pub use diagnose::{
-    add_effect, compare, diagnose, error_ladder, fit_effect, Comparison, DiagnoseOptions,
-    Diagnosis, LadderStep, Verdict,
+    add_effect, add_effects, compare, diagnose, error_ladder, fit_effect, Comparison,
+    DiagnoseOptions, Diagnosis, LadderStep, Verdict,
 };
 pub use fit::{Budget, BudgetUsed, EffectFit};
 pub use table::{CampaignTable, Condition, REQUIRED_COLUMNS};

@@ -1,16 +1,21 @@
-//! The lab's effects library: the simulator's effects (docs/effects.md) that a
-//! vibration-error campaign can identify, each with the parameters the lab fits, where
-//! the fit starts, and the physics in a sentence for the diagnosis.
+//! The lab's effects library: every effect of the simulator (docs/effects.md), each
+//! with the parameters the lab fits, where the fit starts, the physics in a sentence
+//! for the diagnosis, and whether its mean formula needs the random part's spectrum.
 //!
-//! Left out, and why:
-//! - `non_gaussian`: the kurtosis is measured (the `kurtosis3` column, the
-//!   estimator's output), so the model already uses it; a kurtosis the sensors do not
-//!   report is a measurement gap, not a missing effect.
-//! - `scale_factor_frequency`: its VE is `0.5 k1 d1A E[sign(a3)(L v3 - v3)]`, micro-g
-//!   for real passports (d1A of 15..25 ppm), below any campaign's resolution.
-//! - `unit_response`: a 2nd-order low-pass on IA at 1..2 kHz changes the VE of a
-//!   campaign's tones (tens to hundreds of Hz) by parts in 1e4 of the IA vibration
-//!   power; where it matters it is a special case of `mount_resonance` on IA.
+//! What a campaign needs to identify the harder ones:
+//! - `non_gaussian`: rows with a random part whose true kurtosis differs from the
+//!   `kurtosis3` the table states (a kurtosis the sensors do not report, or report
+//!   wrongly); the fitted `kurtosis` is the IA random part's true one.
+//! - `scale_factor_frequency`: its VE is `0.5 k1 d1A E[sign(a3)(L v3 - v3)]`: micro-g
+//!   for real passports (d1A of 15..25 ppm), so it needs a VE resolution well below a
+//!   micro-g, IA amplitudes above |aL3| and tones on both sides of the corner.
+//! - `unit_response`: a 2nd-order low-pass on IA at 1..2 kHz changes the VE of tones
+//!   of tens to hundreds of Hz by parts in 1e4 of the IA vibration power; the campaign
+//!   needs tones near the natural frequency (and IA with OA or PA, whose phase against
+//!   IA pins the damping).
+//!
+//! The filtering effects (`needs_spectrum`) cannot be evaluated on a random part
+//! without its spectrum (`band_lo_hz`/`band_hi_hz`, or a flight window's bands).
 
 use serde::Serialize;
 
@@ -54,9 +59,21 @@ pub struct Candidate {
     pub params: &'static [ParamSpec],
     /// Fixed keys of its table, as TOML (e.g. the axes it acts on).
     pub fixed: &'static str,
+    /// Whether its mean formula filters the vibration over frequency, so that on a
+    /// row with a random part it needs the part's spectrum (the effect's
+    /// `mean_shift_g` fails on a random part without `psd_unit`): such a candidate can
+    /// be fitted only on the rows that are tone-only or carry a spectrum.
+    pub needs_spectrum: bool,
 }
 
 const Q_GRID: &[f64] = &[0.7, 1.5, 3.0, 8.0];
+/// Damping ratios from a sharp to an overdamped servo loop (real units: 0.3..0.7).
+const ZETA_GRID: &[f64] = &[0.1, 0.3, 0.6, 1.0];
+/// Kurtoses from mildly to strongly bursty (the scale-mixture family: 3..30).
+const KURTOSIS_GRID: &[f64] = &[4.0, 6.0, 10.0, 20.0];
+/// `lambda_hf` below and above 1: the VE is linear in `lambda_hf - 1` (module doc of
+/// the effect), so one start on each side is enough.
+const LAMBDA_GRID: &[f64] = &[0.7, 1.5];
 const TAU_GRID: &[f64] = &[1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1];
 const PHASE_GRID: &[f64] = &[-135.0, -90.0, -45.0, 0.0, 45.0, 90.0, 135.0, 180.0];
 const RANGE_GRID: &[f64] = &[
@@ -90,6 +107,7 @@ pub static LIBRARY: &[Candidate] = &[
             },
         ],
         fixed: "",
+        needs_spectrum: true,
     },
     Candidate {
         kind: "axis_phase",
@@ -110,6 +128,7 @@ pub static LIBRARY: &[Candidate] = &[
             },
         ],
         fixed: "",
+        needs_spectrum: false,
     },
     Candidate {
         kind: "vibropendulous",
@@ -130,6 +149,7 @@ pub static LIBRARY: &[Candidate] = &[
             },
         ],
         fixed: "",
+        needs_spectrum: true,
     },
     Candidate {
         kind: "anisoelastic",
@@ -142,6 +162,7 @@ pub static LIBRARY: &[Candidate] = &[
             search: Search::Linear,
         }],
         fixed: "",
+        needs_spectrum: false,
     },
     Candidate {
         kind: "saturation",
@@ -154,6 +175,7 @@ pub static LIBRARY: &[Candidate] = &[
             search: Search::Grid(RANGE_GRID),
         }],
         fixed: "",
+        needs_spectrum: false,
     },
     Candidate {
         kind: "high_order_nonlinearity",
@@ -174,6 +196,7 @@ pub static LIBRARY: &[Candidate] = &[
             },
         ],
         fixed: "",
+        needs_spectrum: false,
     },
     Candidate {
         kind: "heating",
@@ -188,6 +211,7 @@ pub static LIBRARY: &[Candidate] = &[
         // With one record length T the lab cannot separate c from tau: it fits the
         // steady-state coefficient (tau much shorter than the records).
         fixed: "tau_s = 1e-6",
+        needs_spectrum: false,
     },
     Candidate {
         kind: "sensor_error",
@@ -200,6 +224,79 @@ pub static LIBRARY: &[Candidate] = &[
             search: Search::Linear,
         }],
         fixed: "",
+        needs_spectrum: false,
+    },
+    Candidate {
+        kind: "unit_response",
+        physics: "the accelerometer's servo loop is a 2nd-order low-pass H(f) on its input axis: the conversion function sees |H| aB3, shifted in phase by arg H against OA and PA, so every IA rectification term is mis-scaled near the natural frequency",
+        signature: "the residual depends on the tone frequency as |H(f)|^2 - 1 on rows vibrated along IA (rising towards the natural frequency, about (1 - 2 zeta^2)(f/f0)^2 below it) and, through cos(arg H), on the IA x OA and IA x PA rows",
+        params: &[
+            ParamSpec {
+                name: "natural_freq_hz",
+                scale: 1.0,
+                bounds: (1.0, 1e6),
+                search: Search::AroundVariable {
+                    variable: "freq_hz",
+                    lo: 0.5,
+                    hi: 2.0,
+                    points: 12,
+                },
+            },
+            ParamSpec {
+                name: "damping_ratio",
+                scale: 0.01,
+                bounds: (0.01, 10.0),
+                search: Search::Grid(ZETA_GRID),
+            },
+        ],
+        fixed: "",
+        needs_spectrum: true,
+    },
+    Candidate {
+        kind: "non_gaussian",
+        physics: "the random vibration is burstier than the table states: its IA part is a Gaussian scale mixture of kurtosis K (not kurtosis3) at the same PSD, so E[x^4] = K sigma^4 moves the k4 and k5 terms and the asymmetry's E|a3|",
+        signature: "the residual appears only on rows with a random part, grows as (k4 + 5 k5 aL3)(K - kurtosis3) sigma3^4, and is larger where the stated kurtosis3 is lower",
+        params: &[ParamSpec {
+            name: "kurtosis",
+            scale: 0.1,
+            bounds: (3.0, 30.0),
+            search: Search::Grid(KURTOSIS_GRID),
+        }],
+        // One kurtosis for every body axis: the table states the IA's alone
+        // (`kurtosis3`), and the OA and PA kurtoses enter the VE only through the
+        // covariances' common-burst factor (1 for equal kurtoses), which a campaign
+        // cannot separate from the measured covariances; `kurtosis_x`..`_z` stay unset.
+        fixed: "",
+        needs_spectrum: false,
+    },
+    Candidate {
+        kind: "scale_factor_frequency",
+        physics: "the scale factor depends on frequency, lambda(f) a first-order shelf from 1 at DC to lambda_hf above a corner; through the scale-factor asymmetry of [P1 (1)] the IA vibration it passes rectifies: VE = 0.5 k1 d1A E[sign(a3)(L v3 - v3)]",
+        signature: "the residual is proportional to the IA amplitude (not its square) times (lambda_hf - 1) f^2/(f^2 + fc^2), largest at aL3 = 0 and zero where |aL3| exceeds the IA amplitude (sign(a3) then constant); micro-g for real passports",
+        params: &[
+            ParamSpec {
+                name: "corner_hz",
+                scale: 1.0,
+                bounds: (0.1, 1e6),
+                search: Search::AroundVariable {
+                    variable: "freq_hz",
+                    lo: 0.5,
+                    hi: 2.0,
+                    points: 12,
+                },
+            },
+            // The VE is k1 d1A (lambda_hf - 1) times a known function: with the
+            // passport's d1A taken as exact, the campaign pins lambda_hf (a wrong d1A
+            // scales lambda_hf - 1 by its ratio to the true one).
+            ParamSpec {
+                name: "lambda_hf",
+                scale: 0.01,
+                bounds: (0.01, 10.0),
+                search: Search::Grid(LAMBDA_GRID),
+            },
+        ],
+        fixed: "",
+        needs_spectrum: true,
     },
 ];
 
@@ -211,4 +308,133 @@ pub fn candidate(kind: &str) -> Option<&'static Candidate> {
 /// The kinds of the library.
 pub fn kinds() -> Vec<&'static str> {
     LIBRARY.iter().map(|c| c.kind).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vibro_effects::model::build_effects;
+    use vibro_effects::predict::{effect_shifts_g, flat_passport, sensor_rms_factor};
+    use vibro_physics::passport::Passport;
+    use vibro_physics::vibration::{PsdBand, Vibration};
+
+    fn al15() -> Passport {
+        flat_passport(&vibro_config::resolve_passport("AL-15").unwrap()).unwrap()
+    }
+
+    /// A value of each parameter inside its search: the first start of a grid, 50 Hz
+    /// for a frequency, the scale for a linear one (nonzero, so the effect acts).
+    fn representative(p: &ParamSpec) -> f64 {
+        let x = match p.search {
+            Search::Linear => p.scale,
+            Search::Grid(g) => g[0],
+            Search::AroundVariable { .. } => 50.0,
+        };
+        x.clamp(p.bounds.0, p.bounds.1)
+    }
+
+    fn table(c: &Candidate, values: &[f64]) -> toml::Table {
+        let mut t: toml::Table = toml::from_str(c.fixed).unwrap();
+        t.insert("kind".into(), toml::Value::String(c.kind.into()));
+        for (p, v) in c.params.iter().zip(values) {
+            t.insert(p.name.into(), toml::Value::Float(*v));
+        }
+        t
+    }
+
+    /// The VE change of `c` at `values` under `vib`/`psd`, as the lab evaluates it.
+    fn shift(
+        c: &Candidate,
+        values: &[f64],
+        vib: &Vibration,
+        psd: &[PsdBand],
+    ) -> vibro_effects::Result<f64> {
+        let p = al15();
+        let e = build_effects(&[table(c, values)], &p).unwrap();
+        if sensor_rms_factor(&e, &p, [0.0, 0.0, 1.0], vib, psd) != 1.0 {
+            // A sensor effect rescales the vibration the model sees: no mean formula.
+            return Ok(0.0);
+        }
+        Ok(effect_shifts_g(&e, &p, [0.0, 0.0, 1.0], vib, psd, 10.0)?
+            .iter()
+            .map(|(_, s)| s)
+            .sum())
+    }
+
+    #[test]
+    fn every_effect_of_the_simulator_is_a_candidate() {
+        let mut want: Vec<&str> = vibro_effects::catalogue().iter().map(|i| i.kind).collect();
+        let mut have = kinds();
+        want.sort_unstable();
+        have.sort_unstable();
+        assert_eq!(have, want);
+    }
+
+    /// `needs_spectrum` is exactly the candidates whose mean formula fails on a random
+    /// part without a spectrum (all three axes random, IA correlated with OA and PA);
+    /// given a flat band every candidate evaluates.
+    #[test]
+    fn needs_spectrum_marks_the_formulas_that_fail_without_one() {
+        let mut vib = Vibration::random_rms([1.0, 1.0, 1.0]);
+        for j in 0..2 {
+            vib.covariance_g2[2][j] = 0.5;
+            vib.covariance_g2[j][2] = 0.5;
+        }
+        let band = [PsdBand {
+            f_lo_hz: 20.0,
+            f_hi_hz: 2000.0,
+            psd_g2_per_hz: [1.0 / 1980.0; 3],
+        }];
+        for c in LIBRARY {
+            let values: Vec<f64> = c.params.iter().map(representative).collect();
+            let without = shift(c, &values, &vib, &[]);
+            assert_eq!(
+                without.is_err(),
+                c.needs_spectrum,
+                "{}: {without:?}",
+                c.kind
+            );
+            let with = shift(c, &values, &vib, &band);
+            assert!(
+                with.as_ref().is_ok_and(|s| s.is_finite()),
+                "{}: {with:?}",
+                c.kind
+            );
+        }
+    }
+
+    /// Every bound and every start lies within the effect's own validation range: the
+    /// effect builds there.
+    #[test]
+    fn bounds_and_starts_are_valid_parameters_of_the_effect() {
+        let p = al15();
+        for c in LIBRARY {
+            let base: Vec<f64> = c.params.iter().map(representative).collect();
+            for (k, spec) in c.params.iter().enumerate() {
+                let mut xs = vec![spec.bounds.0, spec.bounds.1];
+                if let Search::Grid(g) = spec.search {
+                    xs.extend_from_slice(g);
+                }
+                for x in xs {
+                    assert!(
+                        (spec.bounds.0..=spec.bounds.1).contains(&x),
+                        "{}.{} start {x} outside {:?}",
+                        c.kind,
+                        spec.name,
+                        spec.bounds
+                    );
+                    let mut v = base.clone();
+                    v[k] = x;
+                    let built = build_effects(&[table(c, &v)], &p);
+                    assert!(
+                        built.is_ok(),
+                        "{}.{} = {x}: {:?}",
+                        c.kind,
+                        spec.name,
+                        built.err()
+                    );
+                }
+            }
+        }
+    }
 }

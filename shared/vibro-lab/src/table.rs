@@ -75,6 +75,19 @@ pub const MAX_VIBRATING_S: f64 = 864_000.0;
 /// fits' sums).
 pub const MAX_EXTRA_ABS: f64 = 1e12;
 
+/// Floor of a simulated campaign row's VE uncertainty, g: a noise-free simulation's
+/// section-8 VE agrees with the exact model's mean at the true vibration to 5e-11 g
+/// RMS over seeds (the lab walkthrough, seeds 1..8: double sums over 1e5 samples and
+/// the exact model's quadrature), far above its batch means' 1e-15 g.
+pub const SIMULATION_FLOOR_G: f64 = 5e-11;
+
+/// Extra column: the standard uncertainty of the row's IA tone amplitude `aB3_g`, g
+/// (the vibration sensor's measurement error); the lab propagates it through the
+/// model under test.
+pub const A_B3_U_COLUMN: &str = "aB3_u_g";
+/// Extra column: the standard uncertainty of the row's IA RMS `sigma3_g`, g.
+pub const SIGMA3_U_COLUMN: &str = "sigma3_u_g";
+
 /// Default length of the vibrating record when the table has no `vibrating_s`: the
 /// papers' 5 minutes (MODEL.md section 8), s.
 pub const DEFAULT_VIBRATING_S: f64 = 300.0;
@@ -246,9 +259,25 @@ impl Condition {
             ("kurtosis3".to_string(), r.map_or(nan, |r| r.kurtosis3)),
         ];
         for (k, x) in &self.extra {
-            v.push((k.clone(), *x));
+            // The stated uncertainties are not conditions.
+            if k != A_B3_U_COLUMN && k != SIGMA3_U_COLUMN {
+                v.push((k.clone(), *x));
+            }
         }
         v
+    }
+
+    /// The standard uncertainties of the stated IA tone amplitude and IA RMS, g (0
+    /// where the table states none).
+    pub fn ia_u_g(&self) -> (f64, f64) {
+        let get = |k: &str| {
+            self.extra
+                .get(k)
+                .copied()
+                .filter(|x| x.is_finite() && *x > 0.0)
+                .unwrap_or(0.0)
+        };
+        (get(A_B3_U_COLUMN), get(SIGMA3_U_COLUMN))
     }
 }
 
@@ -710,19 +739,24 @@ impl CampaignTable {
 
     /// The table of a simulated campaign (`vibro_sim::run_campaign`): per condition
     /// the shaker's controlled amplitudes on OA and PA, the unit's vibration sensor's
-    /// measurement on IA (tone amplitude by lock-in, RMS with the tone removed), the
-    /// realised random covariance, the section-8 measured VE and its uncertainty
-    /// combined with `resolution_g`, the resolution of the VE measurement (at least
-    /// `vibro_sim::campaign::Z_FLOOR_G`: a noise-free simulation's batch means scatter
-    /// by 1e-16 g, which no real rig reaches); extra columns `tp`, `angle_deg`,
-    /// `vibrating_s`.
+    /// measurement on IA (tone amplitude by least squares, RMS with the tone removed)
+    /// with its batch-means standard uncertainty (`aB3_u_g`, `sigma3_u_g`), the
+    /// realised random covariance, the section-8 measured VE and its batch-means
+    /// uncertainty combined with `resolution_g` (at least [`SIMULATION_FLOOR_G`], how
+    /// closely a run without any noise agrees with the model);
+    /// extra columns `tp`, `angle_deg`, `vibrating_s`.
+    ///
+    /// The sensor's uncertainty is stated, not folded into `ve_uncertainty_g`: how much
+    /// it moves the prediction depends on the model (near a mount resonance the VE
+    /// rises faster with the amplitude than the base model says), so the lab
+    /// propagates it through the model under test (docs/lab.md, "Uncertainty").
     pub fn from_campaign(
         path: &Path,
         scenario: &vibro_sim::Scenario,
         summaries: &[vibro_sim::ConditionSummary],
         resolution_g: f64,
     ) -> Result<Self> {
-        let floor_g = resolution_g.max(vibro_sim::campaign::Z_FLOOR_G);
+        let floor_g = resolution_g.max(SIMULATION_FLOOR_G);
         let vibrating_s = scenario
             .campaign()
             .map_or(DEFAULT_VIBRATING_S, |c| c.vibrating_s);
@@ -741,6 +775,13 @@ impl CampaignTable {
                 phase32_deg: 0.0,
             });
             let sigma = s.sigma_unit_g();
+            let ia_scale = |tone: bool, realised_g: f64| {
+                if tone || realised_g <= 0.0 {
+                    1.0
+                } else {
+                    s.sensor.sigma3_g / realised_g
+                }
+            };
             let random = (sigma.iter().any(|x| *x > 0.0)).then(|| RandomCondition {
                 sigma_g: [
                     sigma[0],
@@ -751,12 +792,16 @@ impl CampaignTable {
                         s.sensor.sigma3_g
                     },
                 ],
-                cov31_g2: v.covariance_g2[2][0],
-                cov32_g2: v.covariance_g2[2][1],
+                // The IA covariances at the stated IA RMS (the realised correlation
+                // kept): the sensor's RMS differs from the realised one by its error.
+                cov31_g2: v.covariance_g2[2][0] * ia_scale(tone.is_some(), sigma[2]),
+                cov32_g2: v.covariance_g2[2][1] * ia_scale(tone.is_some(), sigma[2]),
                 cov12_g2: 0.0,
                 kurtosis3: v.kurtosis[2],
             });
             let mut extra = BTreeMap::new();
+            extra.insert(A_B3_U_COLUMN.to_string(), f64::NAN);
+            extra.insert(SIGMA3_U_COLUMN.to_string(), f64::NAN);
             extra.insert("tp".to_string(), c.tp as f64);
             extra.insert("angle_deg".to_string(), c.angle_deg);
             extra.insert("vibrating_s".to_string(), vibrating_s);
@@ -764,7 +809,7 @@ impl CampaignTable {
                 .map_err(|e| e.to_string())
                 .and_then(|p| flat_passport(&p).map_err(|e| e.to_string()))
                 .map_err(|e| Error::Invalid(format!("condition {}: passport: {e}", c.id)))?;
-            conditions.push(Condition {
+            let mut row = Condition {
                 run_id: c.id.clone(),
                 line: k + 2,
                 passport_ref: s.passport_id.clone(),
@@ -775,16 +820,79 @@ impl CampaignTable {
                 random,
                 bands: Vec::new(),
                 ve_measured_g: s.measurement.ve_g,
-                ve_uncertainty_g: s.measurement.ve_sigma_g.hypot(floor_g),
+                ve_uncertainty_g: 0.0,
                 extra,
-            });
+            };
+            row.ve_uncertainty_g = s.measurement.ve_sigma_g.hypot(floor_g);
+            if let (Some(_), Some(u)) = (row.tone, s.sensor.tone_amplitude3_u_g) {
+                row.extra.insert(A_B3_U_COLUMN.to_string(), u);
+            }
+            if row.tone.is_none() && row.random.is_some() {
+                row.extra
+                    .insert(SIGMA3_U_COLUMN.to_string(), s.sensor.sigma3_u_g);
+            }
+            conditions.push(row);
         }
         Ok(Self {
             path: path.to_path_buf(),
             conditions,
-            extra_columns: ["tp", "angle_deg", "vibrating_s"]
-                .map(String::from)
-                .to_vec(),
+            extra_columns: [
+                "tp",
+                "angle_deg",
+                "vibrating_s",
+                A_B3_U_COLUMN,
+                SIGMA3_U_COLUMN,
+            ]
+            .map(String::from)
+            .to_vec(),
+        })
+    }
+}
+
+impl CampaignTable {
+    /// Several tables as one (fitted jointly): the conditions in order, each input's
+    /// run ids prefixed with its file name when there are several (`a.mcap:w3-u1`),
+    /// the extra columns of all (NaN where an input lacks one). One table is returned
+    /// as it is.
+    pub fn joined(mut tables: Vec<CampaignTable>) -> Result<Self> {
+        if tables.len() == 1 {
+            if let Some(t) = tables.pop() {
+                return Ok(t);
+            }
+        }
+        if tables.is_empty() {
+            return Err(Error::Invalid("no input table".into()));
+        }
+        let names: Vec<String> = tables
+            .iter()
+            .map(|t| t.path.display().to_string())
+            .collect();
+        let mut extra_columns: Vec<String> = Vec::new();
+        for t in &tables {
+            for c in &t.extra_columns {
+                if !extra_columns.contains(c) {
+                    extra_columns.push(c.clone());
+                }
+            }
+        }
+        let mut conditions = Vec::new();
+        for t in tables {
+            let file = t.path.file_name().map_or_else(
+                || t.path.display().to_string(),
+                |f| f.to_string_lossy().into(),
+            );
+            for mut c in t.conditions {
+                c.run_id = format!("{file}:{}", c.run_id);
+                for e in &extra_columns {
+                    c.extra.entry(e.clone()).or_insert(f64::NAN);
+                }
+                conditions.push(c);
+            }
+        }
+        Ok(Self {
+            path: PathBuf::from(names.join(" + ")),
+            conditions,
+            extra_columns,
         })
     }
 }

@@ -8,9 +8,10 @@
 //!   interval) give `dV = (<U2> - 0.5 (<U1> + <U3>))/K1` with its batch-means standard
 //!   uncertainty and the still-drift (tilt) check, by `vibro_ident::measure_ve_from_samples`;
 //! - the simulated vibration sensor of the unit (along IA) gives the measured vibration
-//!   during `U2`: the tone amplitude by lock-in at the known frequency (divided by the
-//!   AC coupling's gain there), the RMS, the broadband RMS with the tone removed
-//!   (`sqrt(rms^2 - A^2/2)`) and, without a tone, the kurtosis;
+//!   during `U2`: the tone amplitude by least squares at the known frequency (divided
+//!   by the AC coupling's gain there), the RMS, the broadband RMS with the tone removed
+//!   (`sqrt(rms^2 - A^2/2)`) and, without a tone, the kurtosis; the amplitude and the
+//!   broadband RMS carry their standard uncertainties by batch means (below);
 //! - the exact VE (MODEL.md section 6, `vibro_physics::exact`) and the published one
 //!   (section 5) of the condition's vibration at its gravity projection.
 //!
@@ -20,6 +21,21 @@
 //! batch-means uncertainty over-states the error of the record mean of such a term;
 //! it is exact for the rectified part. A tone that completes a whole number of cycles
 //! per batch leaves nothing (`f * vibrating_s / batches` whole).
+//!
+//! **The measured vibration's uncertainty.** A VE is compared with a model evaluated at
+//! the vibration the sensor measured, so the sensor's error enters the comparison as
+//! much as the output's. The sensor record is cut into [`sensor_batches`] contiguous
+//! batches; in each, `x = d + e t + i cos(2 pi f t) + q sin(2 pi f t)` is fitted by
+//! least squares. The line `d + e t` takes up the AC coupling's slow transient after
+//! the switch-on (`fc/f` of the amplitude, decaying over `1/(2 pi fc)`), which a plain
+//! lock-in over the record leaks into the amplitude (8e-6 of it at 20 Hz for
+//! `fc = 0.1 Hz` over 5 s) and a fit with a constant alone still does through the
+//! transient's slope (2e-6 at 40 Hz). The amplitude is
+//! `|(<i>, <q>)|`, its standard uncertainty the batch-means standard error of the
+//! batches' `(i, q)` projected on that direction; the broadband variance's is the
+//! batch-means standard error of the batches' residual variances (halved over `sigma`
+//! for `sigma`'s). With the white sensor noise `s_n` of N samples the amplitude's is
+//! `s_n sqrt(2/N)` (4e-6 g for 1e-3 g over 5 s at 25.6 kHz).
 
 use crate::engine::{scenario_effects, Simulator};
 use crate::scenario::{Condition, Scenario};
@@ -71,6 +87,14 @@ pub struct MeasuredVibration {
     pub sigma3_g: f64,
     /// Kurtosis `m4/m2^2` of the sensor signal; `None` when a tone is present.
     pub kurtosis3: Option<f64>,
+    /// Standard uncertainty of `tone_amplitude3_g` by batch means (module docs), g;
+    /// `None` without a tone.
+    pub tone_amplitude3_u_g: Option<f64>,
+    /// Standard uncertainty of `sigma3_g` by batch means (module docs), g; 0 when
+    /// `sigma3_g` is 0.
+    pub sigma3_u_g: f64,
+    /// Batches of the sensor record the two uncertainties come from.
+    pub n_batches: usize,
     /// ADC samples clipped in the whole run.
     pub clipped_samples: u64,
     /// Sensor samples in the vibrating record.
@@ -126,7 +150,7 @@ impl ConditionSummary {
     }
 }
 
-/// Lock-in and moment sums of the sensor signal during the vibrating record.
+/// Moment sums of the sensor signal during the vibrating record.
 #[derive(Debug, Default)]
 struct SensorSums {
     n: u64,
@@ -134,8 +158,107 @@ struct SensorSums {
     s2: f64,
     s3: f64,
     s4: f64,
-    i: f64,
-    q: f64,
+}
+
+/// Most batches of the sensor record: its noise is white or, for random vibration,
+/// correlated over a few periods of the band's lowest frequency, so batches of a tenth
+/// of a second are independent; 40 of them give the uncertainty to
+/// `1/sqrt(2*39) = 11 %` (the unit output's few batches would give 25 % with 9, and a
+/// chi-square over rows weighted by an uncertainty from `nu` degrees of freedom is
+/// inflated by `nu/(nu - 2)`: 1.05 with 39, 1.29 with 8).
+pub const MAX_SENSOR_BATCHES: usize = 40;
+
+/// Batches of the sensor record ([`MAX_SENSOR_BATCHES`], at least the output record's
+/// `batches`), fewer when a batch would hold less than two periods of the tone or
+/// fewer than 64 samples: the fit of a tone over a shorter batch is ill-conditioned.
+pub fn sensor_batches(
+    output_batches: usize,
+    tone_hz: Option<f64>,
+    vibrating_s: f64,
+    n_samples: u64,
+) -> usize {
+    let by_samples = (n_samples / 64) as usize;
+    let by_cycles = tone_hz.map_or(usize::MAX, |f| (f * vibrating_s / 2.0).floor() as usize);
+    MAX_SENSOR_BATCHES
+        .min(by_cycles)
+        .max(output_batches)
+        .min(by_samples)
+        .max(2)
+}
+
+/// Least-squares sums of one batch of the sensor record: `x` against the regressors
+/// `[1, t, cos, sin]` (`t` the time within the batch, 0..1; without a tone `[1, t]`).
+#[derive(Debug, Default, Clone, Copy)]
+struct BatchSums {
+    /// Normal matrix (upper triangle used).
+    a: [[f64; 4]; 4],
+    /// Right-hand side.
+    b: [f64; 4],
+    xx: f64,
+    n: f64,
+}
+
+impl BatchSums {
+    fn add(&mut self, x: f64, t: f64, cs: Option<(f64, f64)>) {
+        let (c, s) = cs.unwrap_or((0.0, 0.0));
+        let r = [1.0, t, c, s];
+        for i in 0..4 {
+            for j in i..4 {
+                self.a[i][j] += r[i] * r[j];
+            }
+            self.b[i] += r[i] * x;
+        }
+        self.xx += x * x;
+        self.n += 1.0;
+    }
+
+    /// `(i, q, residual variance)` of the fit `x = d + e t + i cos + q sin` (without a
+    /// tone `x = d + e t`, `i = q = 0`); `None` for a singular batch.
+    fn fit(&self, tone: bool) -> Option<(f64, f64, f64)> {
+        let k = if tone { 4 } else { 2 };
+        if self.n < 2.0 * k as f64 {
+            return None;
+        }
+        // The k x k normal equations, solved by LU with partial pivoting; a batch
+        // whose design is singular (a pivot below 1e-12 of the largest diagonal) is
+        // left out.
+        let a = nalgebra::DMatrix::from_fn(
+            k,
+            k,
+            |i, j| {
+                if j >= i {
+                    self.a[i][j]
+                } else {
+                    self.a[j][i]
+                }
+            },
+        );
+        let scale = (0..k).map(|i| a[(i, i)]).fold(0.0, f64::max);
+        let lu = a.lu();
+        if (0..k).any(|i| lu.u()[(i, i)].abs() <= 1e-12 * scale || lu.u()[(i, i)].is_nan()) {
+            return None;
+        }
+        let rhs = nalgebra::DVector::from_fn(k, |i, _| self.b[i]);
+        let x = lu.solve(&rhs)?;
+        let mut sol = [0.0; 4];
+        for i in 0..k {
+            sol[i] = x[i];
+        }
+        let explained: f64 = (0..k).map(|i| sol[i] * self.b[i]).sum();
+        let variance = ((self.xx - explained) / self.n).max(0.0);
+        Some((sol[2], sol[3], variance))
+    }
+}
+
+/// Mean and batch-means standard error of `values` (sample std over `sqrt(n)`).
+fn batch_mean_se(values: &[f64]) -> (f64, f64) {
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    if values.len() < 2 {
+        return (mean, 0.0);
+    }
+    let var = values.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
 }
 
 /// Runs every condition of a campaign scenario, with the scenario's own effects, and
@@ -244,6 +367,12 @@ pub fn run_condition_records(
     let tone_hz = c.tone.map(|t| t.freq_hz);
     let inv_sens = 1.0 / scenario.sensor.sensitivity_v_per_g;
     let mut sums = SensorSums::default();
+    // Sensor samples `s` with `s * m` in `[vib_on, vib_off)`.
+    let (sensor_first, sensor_end) = (vib_on.div_ceil(m), vib_off.div_ceil(m));
+    let n_sensor = sensor_end.saturating_sub(sensor_first);
+    let n_sensor_batches =
+        sensor_batches(campaign.batches, tone_hz, campaign.vibrating_s, n_sensor);
+    let mut batches = vec![BatchSums::default(); n_sensor_batches];
     sim.set_chunk_output_samples(((0.5 * rates.output_hz).round() as usize).max(1))?;
     sim.run(|chunk| {
         for (k, row) in chunk.accel_v().iter().enumerate() {
@@ -274,12 +403,18 @@ pub fn run_condition_records(
             sums.s2 += x2;
             sums.s3 += x2 * x;
             sums.s4 += x2 * x2;
-            if let Some(f) = tone_hz {
+            let cs = tone_hz.map(|f| {
                 let cycles = f * (s as f64 / rates.sensor_hz);
                 let (sin, cos) = (TAU * cycles.fract()).sin_cos();
-                sums.i += x * cos;
-                sums.q += x * sin;
-            }
+                (cos, sin)
+            });
+            let rel = (s - sensor_first) as usize;
+            let b = ((rel * n_sensor_batches) / n_sensor.max(1) as usize).min(n_sensor_batches - 1);
+            // Batch b holds samples [b n / nb, (b + 1) n / nb) of the record.
+            let start = b * n_sensor as usize / n_sensor_batches;
+            let end = (b + 1) * n_sensor as usize / n_sensor_batches;
+            let t = (rel - start) as f64 / (end - start).max(1) as f64;
+            batches[b].add(x, t, cs);
         }
         ControlFlow::Continue(())
     })?;
@@ -337,19 +472,61 @@ pub fn run_condition_records(
     let m2 = (sums.s2 / nf - mean * mean).max(0.0);
     let m4 = sums.s4 / nf - 4.0 * mean * sums.s3 / nf + 6.0 * mean * mean * sums.s2 / nf
         - 3.0 * mean.powi(4);
-    let tone_amplitude3_g = tone_hz.map(|f| {
+    let fits: Vec<(f64, f64, f64)> = batches
+        .iter()
+        .map(|b| b.fit(tone_hz.is_some()))
+        .collect::<Option<_>>()
+        .ok_or_else(|| Error::Unsupported {
+            what: c.id.clone(),
+            reason: format!(
+                "the vibration sensor's record ({n_sensor} samples in {n_sensor_batches} \
+                 batches) is too short to fit the tone in each batch"
+            ),
+        })?;
+    let column = |k: usize| -> Vec<f64> {
+        fits.iter()
+            .map(|f| match k {
+                0 => f.0,
+                1 => f.1,
+                _ => f.2,
+            })
+            .collect()
+    };
+    let (i_mean, _) = batch_mean_se(&column(0));
+    let (q_mean, _) = batch_mean_se(&column(1));
+    let tone = tone_hz.map(|f| {
         let (gain, _) = ac_coupling_response(f, scenario.sensor.ac_corner_hz, rates.sensor_hz);
-        2.0 * sums.i.hypot(sums.q) / nf / gain
+        let a = i_mean.hypot(q_mean);
+        // The batches' amplitudes along the mean phasor: linear in the samples, so
+        // their batch-means standard error is the amplitude's (to first order in the
+        // noise over the amplitude).
+        let (ui, uq) = if a > 0.0 {
+            (i_mean / a, q_mean / a)
+        } else {
+            (1.0, 0.0)
+        };
+        let along: Vec<f64> = fits.iter().map(|f| f.0 * ui + f.1 * uq).collect();
+        (a / gain, batch_mean_se(&along).1 / gain)
     });
+    let tone_amplitude3_g = tone.map(|t| t.0);
     let rms3_g = m2.sqrt();
     let tone_power = tone_amplitude3_g.map_or(0.0, |a| 0.5 * a * a);
+    let sigma3_g = (m2 - tone_power).max(0.0).sqrt();
+    let (_, variance_u_g2) = batch_mean_se(&column(2));
     let sensor = MeasuredVibration {
         tone_amplitude3_g,
         rms3_g,
-        sigma3_g: (m2 - tone_power).max(0.0).sqrt(),
+        sigma3_g,
         kurtosis3: (tone_hz.is_none() && m2 > 0.0).then(|| m4 / (m2 * m2)),
         clipped_samples: sim.sensor_clipped()[0],
         n_samples: sums.n,
+        tone_amplitude3_u_g: tone.map(|t| t.1),
+        sigma3_u_g: if sigma3_g > 0.0 {
+            variance_u_g2 / (2.0 * sigma3_g)
+        } else {
+            0.0
+        },
+        n_batches: n_sensor_batches,
     };
     let summary = ConditionSummary {
         condition: c.clone(),

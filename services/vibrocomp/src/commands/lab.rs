@@ -31,7 +31,8 @@ pub enum LabCommand {
     Compare(CompareArgs),
     /// Where the model fails, and which effect of the library is missing.
     Diagnose(DiagnoseArgs),
-    /// Fit an effect to the campaign and write the extended model.
+    /// Fit effects to the campaign (jointly with the model's own) and write the
+    /// extended model.
     Add(AddArgs),
     /// A self-contained HTML report with plots: the residuals before and after the
     /// effects the lab adds, the candidates' ranking, the error falling.
@@ -45,18 +46,19 @@ pub struct ReportArgs {
     /// The folder to write `index.html` (and the plots as SVG files) into.
     #[arg(long)]
     pub out: PathBuf,
-    /// At most this many effects added, one at a time while one is supported.
-    #[arg(long, default_value_t = 3)]
+    /// At most this many effects added by the stepwise search.
+    #[arg(long, default_value_t = 4)]
     pub max_effects: usize,
 }
 
 /// The input and the model, shared by the lab's commands.
 #[derive(Debug, Args)]
 pub struct Input {
-    /// The campaign table (CSV, docs/lab.md), e.g. from `vibrocomp sim CAMPAIGN
-    /// --lab-csv`, or an MCAP log with a reference (`.mcap`: a flight cut into the
-    /// estimator's windows, docs/lab.md "Logs as input").
-    pub input: PathBuf,
+    /// Campaign tables (CSV, docs/lab.md), e.g. from `vibrocomp sim CAMPAIGN
+    /// --lab-csv`, and MCAP logs with a reference (`.mcap`: a flight cut into the
+    /// estimator's windows, docs/lab.md "Logs as input"); several are fitted jointly.
+    #[arg(required = true, num_args = 1..)]
+    pub input: Vec<PathBuf>,
     /// The model to compare: an extended model file (`lab add --out`); default the
     /// model of MODEL.md, exact mode.
     #[arg(long)]
@@ -88,15 +90,28 @@ pub struct DiagnoseArgs {
     /// Only these candidates (comma-separated kinds; default the whole library).
     #[arg(long, value_delimiter = ',')]
     pub effects: Vec<String>,
+    /// Most effects the stepwise search adds.
+    #[arg(long, default_value_t = 4)]
+    pub max_effects: usize,
 }
 
 #[derive(Debug, Args)]
 pub struct AddArgs {
-    /// The effect to fit and add (a kind of the lab's library, see `lab diagnose`).
-    pub effect: String,
-    /// The campaign table (or MCAP log with a reference) to fit it to.
+    /// The effects to fit and add (kinds of the lab's library, comma-separated, see
+    /// `lab diagnose`); or `--diagnosed`.
+    #[arg(value_delimiter = ',', required_unless_present = "diagnosed")]
+    pub effects: Vec<String>,
+    /// Add the effects `lab diagnose` finds on the same inputs (its stepwise search),
+    /// in one command.
+    #[arg(long, conflicts_with = "effects")]
+    pub diagnosed: bool,
+    /// Keep the model's own effects as they are (default: refit them jointly with the
+    /// new ones, all parameters free).
     #[arg(long)]
-    pub from: PathBuf,
+    pub freeze: bool,
+    /// The campaign tables and MCAP logs with a reference to fit to (jointly).
+    #[arg(long, required = true, num_args = 1..)]
+    pub from: Vec<PathBuf>,
     #[command(flatten)]
     pub log: LogArgs,
     /// The model to extend (default the model of MODEL.md, exact mode).
@@ -137,16 +152,16 @@ pub fn run(cmd: &LabCommand) -> anyhow::Result<()> {
     })
 }
 
-/// What the lab read: the model, the table, and for an MCAP log what became of its
-/// windows.
+/// What the lab read: the model, the inputs as one table, and for each MCAP log what
+/// became of its windows.
 struct Loaded {
     model: LabModel,
     table: CampaignTable,
-    log: Option<LogTableSummary>,
+    log: Vec<LogTableSummary>,
 }
 
 fn load(
-    input: &Path,
+    inputs: &[PathBuf],
     model: Option<&Path>,
     mode: BaseMode,
     log_args: &LogArgs,
@@ -155,22 +170,25 @@ fn load(
         Some(p) => LabModel::load(p)?,
         None => LabModel::base(mode),
     };
-    let is_mcap = input
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
-    if is_mcap {
-        let (table, summary) = table_from_log(input, &model, log_args)?;
-        return Ok(Loaded {
-            model,
-            table,
-            log: Some(summary),
-        });
+    let mut tables = Vec::with_capacity(inputs.len());
+    let mut logs = Vec::new();
+    for input in inputs {
+        let is_mcap = input
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
+        if is_mcap {
+            let (table, summary) = table_from_log(input, &model, log_args)?;
+            tables.push(table);
+            logs.push(summary);
+        } else {
+            tables.push(CampaignTable::load(input, &model)?);
+        }
     }
-    let table = CampaignTable::load(input, &model)?;
+    let table = CampaignTable::joined(tables)?;
     Ok(Loaded {
         model,
         table,
-        log: None,
+        log: logs,
     })
 }
 
@@ -216,20 +234,27 @@ fn print_log_summary(o: &mut String, s: &LogTableSummary) {
     );
 }
 
-/// A command's JSON with the log's summary beside it when the input was a log.
+/// A command's JSON with the logs' summaries beside it when inputs were logs (`log`:
+/// the one log's, `logs`: every log's when there are several).
 #[derive(serde::Serialize)]
 struct WithLog<'a, T: serde::Serialize> {
     #[serde(flatten)]
     inner: &'a T,
     #[serde(skip_serializing_if = "Option::is_none")]
     log: Option<&'a LogTableSummary>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    logs: Option<&'a [LogTableSummary]>,
 }
 
 fn print_json_with_log<T: serde::Serialize>(
     inner: &T,
-    log: Option<&LogTableSummary>,
+    logs: &[LogTableSummary],
 ) -> anyhow::Result<()> {
-    print_json(&WithLog { inner, log })
+    print_json(&WithLog {
+        inner,
+        log: (logs.len() == 1).then(|| &logs[0]),
+        logs: (logs.len() > 1).then_some(logs),
+    })
 }
 
 fn g(x: f64) -> String {
@@ -322,10 +347,10 @@ fn compare(a: &CompareArgs) -> anyhow::Result<()> {
     )?;
     let c = vibro_lab::compare(&model, &table)?;
     if a.input.json {
-        return print_json_with_log(&c, log.as_ref());
+        return print_json_with_log(&c, &log);
     }
     let mut o = String::new();
-    if let Some(s) = &log {
+    for s in &log {
         print_log_summary(&mut o, s);
     }
     print_comparison(&mut o, &c, a.all);
@@ -377,7 +402,19 @@ fn print_diagnosis(o: &mut String, d: &Diagnosis) {
             l.repeated_groups, l.f, l.p_value, l.pure_error_chi2_per_dof
         );
     }
-    p!(o, "\ncandidates, best first (delta BIC < -10: supported):");
+    if d.candidates.is_empty() {
+        p!(
+            o,
+            "\ncandidates: not fitted (the model as is passes the chi-square test: nothing to \
+             attribute; `lab add EFFECT` fits one on request)"
+        );
+    } else {
+        p!(
+            o,
+            "\ncandidates, each alone against the model as is, best first (delta BIC < -10: \
+             supported):"
+        );
+    }
     p!(
         o,
         "  {:<24} {:>14} {:>12} {:>12}  parameters",
@@ -395,7 +432,7 @@ fn print_diagnosis(o: &mut String, d: &Diagnosis) {
                 f.delta_bic,
                 g(f.rms_residual_after_g),
                 f.chi2_per_dof_after,
-                params_text(&f.params)
+                params_text(&f.params_of(&c.kind))
             ),
             None => p!(
                 o,
@@ -403,6 +440,49 @@ fn print_diagnosis(o: &mut String, d: &Diagnosis) {
                 c.kind,
                 c.not_applicable.as_deref().unwrap_or("")
             ),
+        }
+    }
+    for n in &d.not_applicable {
+        p!(o, "{}", not_applicable_line(n));
+    }
+    if let Some(c) = d.candidates.iter().find_map(|c| c.fit.as_ref()) {
+        for n in &c.not_applicable {
+            p!(o, "{}", not_applicable_line(n));
+        }
+    }
+    if d.steps.len() > 1 {
+        p!(
+            o,
+            "\nstepwise search (each step refits all chosen effects jointly; an addition \
+             needs delta BIC < {}):",
+            d.options.bic_support
+        );
+        p!(
+            o,
+            "  {:<28} {:>14} {:>12} {:>10} {:>10}  next best",
+            "step",
+            "delta_bic",
+            "rms_g",
+            "chi2/dof",
+            "p"
+        );
+        for st in &d.steps {
+            let next: Vec<String> = st
+                .runners_up
+                .iter()
+                .take(2)
+                .map(|(k, b)| format!("{k} {b:.1}"))
+                .collect();
+            p!(
+                o,
+                "  {:<28} {:>14.1} {} {:>10.3} {:>10.2e}  {}",
+                st.action,
+                st.delta_bic,
+                g(st.rms_residual_g),
+                st.chi2_per_dof,
+                st.p_value,
+                next.join(", ")
+            );
         }
     }
     p!(o);
@@ -417,26 +497,37 @@ fn print_diagnosis(o: &mut String, d: &Diagnosis) {
              campaign can see."
         ),
         Verdict::Effect {
-            kind,
-            params,
+            kinds,
             delta_bic,
             rms_residual_before_g,
             rms_residual_after_g,
+            chi2_per_dof_after,
             physics,
+            ..
         } => {
+            let what = if kinds.len() > 1 {
+                format!("missing effects `{}`", kinds.join("` + `"))
+            } else {
+                format!("missing effect `{}`", kinds.join(""))
+            };
+            p!(o, "Verdict: {what} (delta BIC {delta_bic:.1}).");
+            if let Some(f) = &d.selected {
+                print_fit_params(o, f);
+            }
             p!(
                 o,
-                "Verdict: missing effect `{kind}` (delta BIC {delta_bic:.1})."
+                "  residual RMS {rms_residual_before_g:.3e} g -> {rms_residual_after_g:.3e} g \
+                 (chi2 per dof {chi2_per_dof_after:.3}) with {}",
+                if kinds.len() > 1 { "them" } else { "it" }
             );
-            p!(o, "  fitted: {}", params_text(params));
-            p!(
-            o,
-                "  residual RMS {rms_residual_before_g:.3e} g -> {rms_residual_after_g:.3e} g with it"
-            );
-            p!(o, "  physics: {physics}");
+            for ph in physics {
+                p!(o, "  physics: {ph}");
+            }
             p!(
                 o,
-                "  add it: vibrocomp lab add {kind} --from {} --out model.toml",
+                "  add {}: vibrocomp lab add {} --from {} --out model.toml",
+                if kinds.len() > 1 { "them" } else { "it" },
+                kinds.join(","),
                 d.comparison.table
             );
         }
@@ -444,7 +535,11 @@ fn print_diagnosis(o: &mut String, d: &Diagnosis) {
             kinds,
             correlation,
             suggestions,
+            found,
         } => {
+            if !found.is_empty() {
+                p!(o, "Found first: {}.", found.join(", "));
+            }
             p!(
                 o,
                 "Verdict: confounded. {} explain the residual equally well (their fitted VE \
@@ -473,19 +568,35 @@ fn print_diagnosis(o: &mut String, d: &Diagnosis) {
             variables,
             best,
             best_explained_fraction,
+            found,
+            found_explained_fraction,
         } => {
-            p!(
-                o,
-                "Verdict: unexplained structure (chi2 per dof {chi2_per_dof:.3}): no effect of \
-                 the library explains it."
-            );
+            if found.is_empty() {
+                p!(
+                    o,
+                    "Verdict: unexplained structure (chi2 per dof {chi2_per_dof:.3}): no effect \
+                     of the library explains it."
+                );
+            } else {
+                p!(
+                    o,
+                    "Verdict: found {} (removing {:.1} % of the chi-square), but structure \
+                     remains unexplained (chi2 per dof {chi2_per_dof:.3} with {}).",
+                    found.join(" + "),
+                    100.0 * found_explained_fraction,
+                    if found.len() > 1 { "them" } else { "it" }
+                );
+                if let Some(f) = &d.selected {
+                    print_fit_params(o, f);
+                }
+            }
             if !variables.is_empty() {
-                p!(o, "  the residual follows: {}", variables.join(", "));
+                p!(o, "  the residual left follows: {}", variables.join(", "));
             }
             if let Some(b) = best {
                 p!(
                     o,
-                    "  the best candidate, {b}, would explain only {:.1} % of the chi-square: \
+                    "  the best candidate left, {b}, would explain only {:.1} % of it: \
                      not attributed",
                     100.0 * best_explained_fraction
                 );
@@ -504,6 +615,7 @@ fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
     let (bar, progress) = fit_progress();
     let opts = DiagnoseOptions {
         candidates: a.effects.clone(),
+        max_effects: a.max_effects,
         progress,
         ..DiagnoseOptions::default()
     };
@@ -511,10 +623,10 @@ fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     let d = d?;
     if a.input.json {
-        return print_json_with_log(&d, log.as_ref());
+        return print_json_with_log(&d, &log);
     }
     let mut o = String::new();
-    if let Some(s) = &log {
+    for s in &log {
         print_log_summary(&mut o, s);
     }
     print_diagnosis(&mut o, &d);
@@ -530,7 +642,28 @@ struct AddReport<'a> {
 
 fn add(a: &AddArgs) -> anyhow::Result<()> {
     let Loaded { model, table, log } = load(&a.from, a.model.as_deref(), BaseMode::Exact, &a.log)?;
-    let (extended, fit) = vibro_lab::add_effect(&model, &table, &a.effect)?;
+    let kinds: Vec<String> = if a.diagnosed {
+        let (bar, progress) = fit_progress();
+        let opts = DiagnoseOptions {
+            progress,
+            ..DiagnoseOptions::default()
+        };
+        let d = vibro_lab::diagnose(&model, &table, &opts);
+        bar.finish_and_clear();
+        let d = d?;
+        let kinds = vibro_lab::diagnose::next_effects(&d);
+        anyhow::ensure!(
+            !kinds.is_empty(),
+            "--diagnosed: the diagnosis of {} found no effect to add ({})",
+            table.path.display(),
+            verdict_line(&d.verdict)
+        );
+        kinds
+    } else {
+        a.effects.clone()
+    };
+    let refs: Vec<&str> = kinds.iter().map(String::as_str).collect();
+    let (extended, fit) = vibro_lab::add_effects(&model, &table, &refs, a.freeze)?;
     extended
         .save(&a.out)
         .with_context(|| format!("{}: cannot write the extended model", a.out.display()))?;
@@ -541,30 +674,37 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
                 effects: extended.effect_kinds(),
                 fit: &fit,
             },
-            log.as_ref(),
+            &log,
         );
     }
     let mut o = String::new();
-    if let Some(s) = &log {
+    for s in &log {
         print_log_summary(&mut o, s);
     }
+    let before_g = extended
+        .fits
+        .last()
+        .map_or(fit.rms_residual_before_g, |r| r.rms_residual_before_g);
     p!(
         o,
-        "{} fitted to {} ({} conditions): {}",
-        fit.kind,
+        "{} fitted {}to {} ({} conditions):",
+        fit.kinds.join(" + "),
+        if fit.kinds.len() > 1 { "jointly " } else { "" },
         table.path.display(),
-        fit.n,
-        params_text(&fit.params)
+        fit.n
     );
+    print_fit_params(&mut o, &fit);
     p!(
         o,
-        "residual RMS {:.3e} g -> {:.3e} g, chi2 per dof {:.4} -> {:.4}, delta BIC {:.1}",
-        fit.rms_residual_before_g,
+        "residual RMS {:.3e} g -> {:.3e} g, chi2 per dof {:.4}, delta BIC {:.1}",
+        before_g,
         fit.rms_residual_after_g,
-        fit.chi2_before / fit.n as f64,
         fit.chi2_per_dof_after,
         fit.delta_bic
     );
+    for n in &fit.not_applicable {
+        p!(o, "{}", not_applicable_line(n));
+    }
     p!(
         o,
         "wrote {} (effects: {})",
@@ -572,6 +712,60 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
         extended.effect_kinds().join(", ")
     );
     print_text(&o)
+}
+
+/// Each effect's parameters on a line, then the correlations beyond 0.5 in size.
+fn print_fit_params(o: &mut String, f: &vibro_lab::EffectFit) {
+    for k in &f.kinds {
+        p!(o, "  {k}: {}", params_text(&f.params_of(k)));
+    }
+    let mut strong = Vec::new();
+    for i in 0..f.params.len() {
+        for j in 0..i {
+            let r = f.correlation[i][j];
+            if r.abs() > 0.5 {
+                strong.push(format!(
+                    "{}.{} ~ {}.{} {r:+.3}",
+                    f.params[i].effect, f.params[i].name, f.params[j].effect, f.params[j].name
+                ));
+            }
+        }
+    }
+    if !strong.is_empty() {
+        p!(o, "  correlations beyond 0.5: {}", strong.join("; "));
+    }
+}
+
+/// The rows an effect could not act on, in a line (the first ten named).
+fn not_applicable_line(n: &vibro_lab::fit::NotApplicable) -> String {
+    let mut rows: Vec<String> = n
+        .rows
+        .iter()
+        .take(10)
+        .map(|(l, r)| format!("line {l} ({r})"))
+        .collect();
+    if n.rows.len() > 10 {
+        rows.push(format!("and {} more", n.rows.len() - 10));
+    }
+    format!(
+        "  {} not evaluated on {} rows: {}: {}",
+        n.effect,
+        n.rows.len(),
+        rows.join(", "),
+        n.reason
+    )
+}
+
+/// The verdict in a few words.
+fn verdict_line(v: &Verdict) -> String {
+    match v {
+        Verdict::Noise { chi2_per_dof, .. } => format!("noise, chi2 per dof {chi2_per_dof:.3}"),
+        Verdict::Effect { kinds, .. } => format!("effects {}", kinds.join(", ")),
+        Verdict::Confounded { kinds, .. } => format!("confounded: {}", kinds.join(", ")),
+        Verdict::Unexplained { chi2_per_dof, .. } => {
+            format!("unexplained, chi2 per dof {chi2_per_dof:.3}")
+        }
+    }
 }
 
 fn report(a: &ReportArgs) -> anyhow::Result<()> {
@@ -584,6 +778,7 @@ fn report(a: &ReportArgs) -> anyhow::Result<()> {
     let (bar, progress) = fit_progress();
     let opts = DiagnoseOptions {
         progress,
+        max_effects: a.max_effects,
         ..DiagnoseOptions::default()
     };
     let diagnosis = vibro_lab::diagnose(&model, &table, &opts)?;
@@ -606,10 +801,10 @@ fn report(a: &ReportArgs) -> anyhow::Result<()> {
         },
     )?;
     if a.input.json {
-        return print_json_with_log(&summary, log.as_ref());
+        return print_json_with_log(&summary, &log);
     }
     let mut o = String::new();
-    if let Some(s) = &log {
+    for s in &log {
         print_log_summary(&mut o, s);
     }
     p!(

@@ -51,7 +51,18 @@ pub struct LogArgs {
     /// the curvature over the window's aL3 in the uncertainty), g.
     #[arg(long, default_value_t = 1.0)]
     pub max_al_span_g: f64,
+    /// With an MCAP log: most consecutive estimator windows pooled into one lab window
+    /// (0: one per 60th of the log's windows, 1 to 10); a pool also ends where the
+    /// windows' tones or bands differ or the flight acceleration spans more than
+    /// `--max-al-span-g`.
+    #[arg(long, default_value_t = 0)]
+    pub pool_windows: usize,
 }
+
+/// Lab windows per unit that `--pool-windows 0` aims at.
+const AUTO_POOL_TARGET: usize = 60;
+/// Most estimator windows `--pool-windows 0` pools.
+const AUTO_POOL_MAX: usize = 10;
 
 /// Estimate flags that make a window unusable.
 const BAD_ESTIMATE: u32 = estimate_flags::GAP
@@ -82,6 +93,16 @@ pub struct LogTableSummary {
     pub left_out_flagged: u64,
     pub left_out_incomplete: u64,
     pub left_out_al_span: u64,
+    /// Most estimator windows pooled into one lab window.
+    pub pool_windows: usize,
+    /// Lab windows (pools of consecutive estimator windows).
+    pub lab_windows: usize,
+    /// Factor on the stated uncertainties from the residuals' second differences
+    /// (`vibro_lab::flight::residual_scale`; 1 when too few).
+    pub residual_scale: f64,
+    /// Second differences it came from, and those left out beyond 3 sigma.
+    pub residual_scale_differences: usize,
+    pub residual_scale_clipped: usize,
     pub conditions: usize,
 }
 
@@ -438,7 +459,7 @@ fn complete_rows(rows: &BTreeMap<u64, Row>) -> Vec<Complete> {
         .collect()
 }
 
-/// A window the lab uses.
+/// An estimator window the lab uses.
 struct UsedWindow<'e> {
     est: &'e VibEstimate,
     /// The vibration each unit sees (the whole vibration, not the compensator's
@@ -446,10 +467,23 @@ struct UsedWindow<'e> {
     vib: UnitVibrations,
     /// The window's centre from the first complete sample, s.
     center_s: f64,
+    /// Its samples, `complete[range]`.
+    range: std::ops::Range<usize>,
+    /// Per unit: the measured VE.
+    measured: Vec<WindowVe>,
+    /// Per unit: the stated uncertainty `sqrt(u_measured^2 + u_prediction^2)`, g.
+    stated_u_g: Vec<f64>,
+    /// Per unit: the measured VE minus the base model's, g.
+    residual_g: Vec<f64>,
+    /// Follows the previous used window with none left out between them.
+    joined: bool,
 }
 
-/// The table's conditions: one per unit of every window kept (windows that do not
-/// overlap the previous one kept, and that [`measure_window`] does not leave out).
+/// The table's conditions: the estimator windows that do not overlap the previous one
+/// kept and that [`measure_window`] does not leave out, pooled into lab windows of
+/// consecutive ones ([`pools`]), one condition per lab window and unit, with the
+/// stated uncertainties scaled by the residuals' own scatter
+/// (`vibro_lab::flight::residual_scale`).
 fn window_conditions(
     streams: &LogStreams,
     units: &Units,
@@ -467,39 +501,147 @@ fn window_conditions(
         within_output_interval: false,
         ..EstimateMapping::default()
     };
-    let mut conditions = Vec::new();
+    let mut used: Vec<UsedWindow<'_>> = Vec::new();
     let mut last_end_ns = 0u64;
+    let mut joined = false;
     for est in &streams.estimates {
         // Consecutive windows' edges agree to rounding (a fractional sample period).
         if est.start_ns + SAME_EDGE_NS < last_end_ns {
             continue;
         }
         summary.windows += 1;
+        let follows = joined && est.start_ns <= last_end_ns + SAME_EDGE_NS;
         last_end_ns = est.end_ns;
-        let Some((vib, measured)) =
+        let Some((vib, range, measured)) =
             measure_window(est, &complete, period_ns, units, &mapping, args, summary)
         else {
+            joined = false;
             continue;
         };
+        joined = true;
         summary.windows_used += 1;
-        let window = UsedWindow {
+        let center_s = est.center_ns.saturating_sub(t_first_ns) as f64 * 1e-9;
+        let mut w = UsedWindow {
             est,
             vib,
-            center_s: est.center_ns.saturating_sub(t_first_ns) as f64 * 1e-9,
+            center_s,
+            range,
+            measured,
+            stated_u_g: Vec::with_capacity(3),
+            residual_g: Vec::with_capacity(3),
+            joined: follows,
         };
-        for (u, m) in measured.into_iter().enumerate() {
-            let Some(m) = m else { continue };
+        for u in 0..w.measured.len() {
+            let (stated, residual) = stated_u_and_residual(&w, u, units, model)?;
+            w.stated_u_g.push(stated);
+            w.residual_g.push(residual);
+        }
+        used.push(w);
+    }
+    // Per unit, runs of consecutive windows: the residuals' scatter.
+    let mut series: Vec<Vec<(f64, f64)>> = Vec::new();
+    for u in 0..units.flat.len() {
+        for w in &used {
+            if !w.joined || series.is_empty() {
+                series.push(Vec::new());
+            }
+            if let Some(run) = series.last_mut() {
+                run.push((w.residual_g[u], w.stated_u_g[u]));
+            }
+        }
+        series.push(Vec::new());
+    }
+    let scale = flight::residual_scale(&series);
+    summary.residual_scale = scale.map_or(1.0, |s| s.scale);
+    summary.residual_scale_differences = scale.map_or(0, |s| s.differences);
+    summary.residual_scale_clipped = scale.map_or(0, |s| s.clipped);
+
+    let pool_max = match args.pool_windows {
+        0 => (used.len() / AUTO_POOL_TARGET).clamp(1, AUTO_POOL_MAX),
+        k => k,
+    };
+    summary.pool_windows = pool_max;
+    let groups = pools(&used, &complete, units, pool_max, args);
+    summary.lab_windows = groups.len();
+    let mut conditions = Vec::new();
+    for g in groups {
+        for u in 0..units.flat.len() {
             let line = conditions.len() + 1;
-            conditions.push(unit_condition(&window, u, m, units, model, line)?);
+            conditions.push(pool_condition(
+                &used[g.clone()],
+                &complete,
+                u,
+                units,
+                model,
+                args,
+                summary.residual_scale,
+                line,
+            )?);
         }
     }
     Ok(conditions)
 }
 
-/// The vibration and the measured VE of each unit over the window of `est`; `None`
-/// (counted in `summary`) for a window the lab leaves out: flagged by the estimator,
-/// not covered by readings and reference, or with the flight acceleration changing by
+/// Greedy pools of at most `pool_max` consecutive used windows: a pool ends at a window
+/// that does not follow the previous one, whose tones' count or bands' edges differ
+/// (the vibration cannot be pooled), or over which the flight acceleration would span
 /// more than `--max-al-span-g`.
+fn pools(
+    used: &[UsedWindow<'_>],
+    complete: &[Complete],
+    units: &Units,
+    pool_max: usize,
+    args: &LogArgs,
+) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let mut start = 0;
+    while start < used.len() {
+        let mut end = start + 1;
+        while end < used.len() && end - start < pool_max && used[end].joined {
+            let group = &used[start..=end];
+            let fits = (0..units.flat.len()).all(|u| {
+                let vibs: Vec<_> = group.iter().map(|w| w.vib.units[u]).collect();
+                let bands: Vec<_> = group
+                    .iter()
+                    .map(|w| unit_bands(w.est, &units.map[u]))
+                    .collect();
+                flight::pooled_vibration(&vibs).is_some() && flight::pooled_bands(&bands).is_some()
+            });
+            let span_ok = (0..units.flat.len()).all(|u| {
+                let range = group[0].range.start..group[group.len() - 1].range.end;
+                let samples = unit_samples(&complete[range], u, units);
+                flight::window_ve(&units.flat[u], &samples, args.batches)
+                    .is_some_and(|m| m.a_l_span_g <= args.max_al_span_g)
+            });
+            if !(fits && span_ok) {
+                break;
+            }
+            end += 1;
+        }
+        out.push(start..end);
+        start = end;
+    }
+    out
+}
+
+/// The samples of unit `u` with their reference, in the unit's axes.
+fn unit_samples(rows: &[Complete], u: usize, units: &Units) -> Vec<ReferenceSample> {
+    let triad = &units.triad;
+    let axes = &triad.axes.units[u];
+    let k1 = units.flat[u].k1_v_per_g;
+    rows.iter()
+        .map(|r| ReferenceSample {
+            reading_g: r.output_v[u] / k1,
+            a_l_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_l_ia_g)),
+            a_sensed_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_sensed_ia_g)),
+        })
+        .collect()
+}
+
+/// The vibration, the sample range and the measured VE of each unit over the window of
+/// `est`; `None` (counted in `summary`) for a window the lab leaves out: flagged by the
+/// estimator, not covered by readings and reference, or with the flight acceleration
+/// changing by more than `--max-al-span-g`.
 fn measure_window(
     est: &VibEstimate,
     complete: &[Complete],
@@ -508,7 +650,7 @@ fn measure_window(
     mapping: &EstimateMapping,
     args: &LogArgs,
     summary: &mut LogTableSummary,
-) -> Option<(UnitVibrations, Vec<Option<WindowVe>>)> {
+) -> Option<(UnitVibrations, std::ops::Range<usize>, Vec<WindowVe>)> {
     if est.flags & BAD_ESTIMATE != 0 {
         summary.left_out_flagged += 1;
         return None;
@@ -522,9 +664,7 @@ fn measure_window(
         summary.left_out_incomplete += 1;
         return None;
     }
-    let window = &complete[first..last];
-    let triad = &units.triad;
-    let vib = match unit_vibrations(est, &triad.axes, mapping) {
+    let vib = match unit_vibrations(est, &units.triad.axes, mapping) {
         Ok(v) => v,
         Err(e) => {
             tracing::debug!("window at {} ns left out: {e}", est.start_ns);
@@ -532,19 +672,12 @@ fn measure_window(
             return None;
         }
     };
-    let mut measured = Vec::with_capacity(3);
-    for (u, p) in units.flat.iter().enumerate() {
-        let axes = &triad.axes.units[u];
-        let samples: Vec<ReferenceSample> = window
-            .iter()
-            .map(|r| ReferenceSample {
-                reading_g: r.output_v[u] / p.k1_v_per_g,
-                a_l_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_l_ia_g)),
-                a_sensed_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_sensed_ia_g)),
-            })
-            .collect();
-        measured.push(flight::window_ve(p, &samples, args.batches));
-    }
+    let measured: Vec<Option<WindowVe>> = (0..units.flat.len())
+        .map(|u| {
+            let samples = unit_samples(&complete[first..last], u, units);
+            flight::window_ve(&units.flat[u], &samples, args.batches)
+        })
+        .collect();
     if measured
         .iter()
         .any(|m| m.is_none_or(|m| m.a_l_span_g > args.max_al_span_g))
@@ -553,21 +686,21 @@ fn measure_window(
         summary.left_out_incomplete += u64::from(measured.iter().any(Option::is_none));
         return None;
     }
-    Some((vib, measured))
+    Some((vib, first..last, measured.into_iter().flatten().collect()))
 }
 
-/// The condition of unit `u` over a window, its measured VE `m` and the model's
-/// prediction; `line` is its line in the table.
-fn unit_condition(
+/// The stated uncertainty of unit `u` over one estimator window (the measured VE's by
+/// batch means and the prediction's from the estimate's uncertainties,
+/// `flight::prediction_u_g`), and its residual against the base model, g.
+fn stated_u_and_residual(
     w: &UsedWindow<'_>,
     u: usize,
-    m: WindowVe,
     units: &Units,
     model: &LabModel,
-    line: usize,
-) -> anyhow::Result<Condition> {
-    let (est, center_s, map) = (w.est, w.center_s, &units.map);
+) -> anyhow::Result<(f64, f64)> {
+    let (est, map) = (w.est, &units.map);
     let v = w.vib.units[u];
+    let m = w.measured[u];
     // The uncertainties of the unit's tones (the mapping keeps the estimate's
     // values: a tone is found by its frequency) and RMS per axis.
     let count = (est.tone_count as usize).min(est.tone_frequency_hz.len());
@@ -583,6 +716,12 @@ fn unit_condition(
         tone_amplitude_u_g,
         sigma_u_g: map[u].map(|(j, _)| est.broadband_rms_u_g[j]),
     };
+    let context = || {
+        format!(
+            "window at {:.3} s, unit {}",
+            w.center_s, units.triad.names[u]
+        )
+    };
     let prediction_u_g = flight::prediction_u_g(
         model.mode,
         &units.flat[u],
@@ -591,7 +730,69 @@ fn unit_condition(
         &v,
         &u_vib,
     )
-    .with_context(|| format!("window at {center_s:.3} s, unit {}", units.triad.names[u]))?;
+    .with_context(context)?;
+    let base = vibro_effects::predict::base_ve_g(model.mode, &units.flat[u], m.a_l_unit_g, &v)
+        .with_context(context)?;
+    Ok((m.u_g.hypot(prediction_u_g), m.ve_g - base))
+}
+
+/// The condition of unit `u` over a lab window (consecutive used windows `group`):
+/// the measured VE over all its samples, the pooled vibration and spectrum, and the
+/// uncertainty `scale * sqrt(sum u_j^2) / k` of its `k` windows' stated ones (their
+/// errors are independent), plus, for a pool, the curvature of the VE over the pool's
+/// `aL3` (`flight::prediction_u_g` without the vibration's uncertainties).
+#[allow(clippy::too_many_arguments)]
+fn pool_condition(
+    group: &[UsedWindow<'_>],
+    complete: &[Complete],
+    u: usize,
+    units: &Units,
+    model: &LabModel,
+    args: &LogArgs,
+    scale: f64,
+    line: usize,
+) -> anyhow::Result<Condition> {
+    let k = group.len();
+    let (first, last) = (&group[0], &group[k - 1]);
+    let center_s = group.iter().map(|w| w.center_s).sum::<f64>() / k as f64;
+    let context = || format!("window at {center_s:.3} s, unit {}", units.triad.names[u]);
+    let vibs: Vec<_> = group.iter().map(|w| w.vib.units[u]).collect();
+    let bands: Vec<_> = group
+        .iter()
+        .map(|w| unit_bands(w.est, &units.map[u]))
+        .collect();
+    let (Some(vibration), Some(bands)) = (
+        flight::pooled_vibration(&vibs),
+        flight::pooled_bands(&bands),
+    ) else {
+        bail!("{}: the pooled windows differ", context());
+    };
+    let stated_u_g = scale
+        * group
+            .iter()
+            .map(|w| w.stated_u_g[u].powi(2))
+            .sum::<f64>()
+            .sqrt()
+        / k as f64;
+    let (mut measured, curvature_u_g) = if k == 1 {
+        (first.measured[u], 0.0)
+    } else {
+        let samples = unit_samples(&complete[first.range.start..last.range.end], u, units);
+        let Some(m) = flight::window_ve(&units.flat[u], &samples, args.batches) else {
+            bail!("{}: too few samples", context());
+        };
+        let c = flight::prediction_u_g(
+            model.mode,
+            &units.flat[u],
+            m.a_l_unit_g,
+            m.a_l3_var_g2,
+            &vibration,
+            &VibrationU::default(),
+        )
+        .with_context(context)?;
+        (m, c)
+    };
+    measured.u_g = stated_u_g;
     let extra = BTreeMap::from([
         ("t_s".to_string(), center_s),
         ("unit".to_string(), (u + 1) as f64),
@@ -603,10 +804,10 @@ fn unit_condition(
         line,
         passport_ref: units.refs[u].clone(),
         passport: units.flat[u],
-        vibration: v,
-        bands: unit_bands(est, &map[u]),
-        measured: m,
-        prediction_u_g,
+        vibration,
+        bands,
+        measured,
+        prediction_u_g: curvature_u_g,
         extra,
     }))
 }

@@ -77,9 +77,11 @@ pub struct SimArgs {
     /// Campaign: writes the campaign table of the model lab (docs/lab.md) for `vibrocomp lab`.
     #[arg(long = "lab-csv")]
     pub lab_csv: Option<PathBuf>,
-    /// Campaign: resolution of the VE measurement written to `--lab-csv` as the
-    /// uncertainty's floor, g (a noise-free simulation measures to 1e-16 g).
-    #[arg(long = "ve-resolution-g", default_value_t = 1e-9)]
+    /// Campaign: optional floor of the uncertainty written to `--lab-csv`, g. Each
+    /// row already states its real standard uncertainty (the VE's batch means and the
+    /// vibration sensor's, propagated); 0, the default, adds only
+    /// `vibro_sim::campaign::Z_FLOOR_G` (1e-9 g, what a noise-free run is compared at).
+    #[arg(long = "ve-resolution-g", default_value_t = 0.0)]
     pub ve_resolution_g: f64,
     /// Campaign: writes the conditions as test positions for `identify positions`.
     #[arg(long = "positions-csv")]

@@ -311,6 +311,22 @@ impl Effect for OnUnits {
             factor.map(|_| 1.0)
         }
     }
+    fn on_vibration_path(&self) -> bool {
+        self.inner.on_vibration_path()
+    }
+
+    fn transmitted(
+        &self,
+        ctx: &MeanContext<'_>,
+    ) -> Option<Result<(Vibration, Vec<vibro_physics::vibration::PsdBand>)>> {
+        if self.applies(ctx.unit) {
+            self.inner.transmitted(ctx)
+        } else {
+            self.inner
+                .transmitted(ctx)
+                .map(|_| Ok((*ctx.vibration_unit, ctx.psd_unit.to_vec())))
+        }
+    }
 }
 
 /// Unit-axis names accepted by the `axes` parameters, in MODEL.md's index order.

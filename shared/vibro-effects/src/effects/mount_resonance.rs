@@ -18,10 +18,11 @@
 //! response at the internal rate.
 
 use super::filter::{Analog, Biquad, BiquadState};
-use super::spectral::{check_rate, exact_shift, filtered_vibration, Panels};
+use super::spectral::{check_rate, exact_shift, filtered_psd, filtered_vibration, Panels};
 use super::{unit_axes_param, EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
 use crate::Result;
+use vibro_physics::vibration::{PsdBand, Vibration};
 
 const KIND: &str = "mount_resonance";
 
@@ -113,6 +114,22 @@ impl Effect for MountResonance {
     }
 
     fn mean_shift_g(&self, ctx: &MeanContext<'_>) -> Result<f64> {
+        let (transmitted, _) = self.seen(ctx)?;
+        exact_shift(ctx, &transmitted)
+    }
+
+    fn on_vibration_path(&self) -> bool {
+        true
+    }
+
+    fn transmitted(&self, ctx: &MeanContext<'_>) -> Option<Result<(Vibration, Vec<PsdBand>)>> {
+        Some(self.seen(ctx))
+    }
+}
+
+impl MountResonance {
+    /// The vibration and band PSD through the suspension.
+    fn seen(&self, ctx: &MeanContext<'_>) -> Result<(Vibration, Vec<PsdBand>)> {
         let rate = ctx.internal_rate_hz;
         check_rate(KIND, rate)?;
         let filter = Biquad::bilinear(&self.analog, rate, self.freq_hz);
@@ -130,7 +147,8 @@ impl Effect for MountResonance {
             |_, f| filter.response(f, rate),
             panels,
         )?;
-        exact_shift(ctx, &transmitted)
+        let psd = filtered_psd(ctx.psd_unit, self.axes, |_, f| filter.response(f, rate));
+        Ok((transmitted, psd))
     }
 }
 

@@ -157,6 +157,58 @@ pub(crate) fn filtered_vibration(
     Ok(out)
 }
 
+/// Pieces each band is cut into by [`filtered_psd`].
+const PSD_PIECES: usize = 16;
+
+/// The band PSD after per-axis filters (`filtered[i]`: axis `i` passes `gain`): each
+/// band cut into [`PSD_PIECES`] pieces (geometric when the band starts above 0 Hz),
+/// each piece's PSD times the mean of `|gain|^2` over it (4-point midpoint rule). A
+/// filter after this one then sees the spectrum's shape to within a piece's width;
+/// the variance this one passes is `filtered_vibration`'s exact quadrature.
+pub(crate) fn filtered_psd(
+    psd: &[PsdBand],
+    filtered: [bool; 3],
+    gain: impl Fn(usize, f64) -> Complex<f64>,
+) -> Vec<PsdBand> {
+    if !filtered.iter().any(|f| *f) {
+        return psd.to_vec();
+    }
+    let mut out = Vec::with_capacity(psd.len() * PSD_PIECES);
+    for b in psd {
+        let (lo, hi) = (b.f_lo_hz, b.f_hi_hz);
+        if hi.is_nan() || lo.is_nan() || hi <= lo {
+            continue;
+        }
+        let edge = |k: usize| {
+            let x = k as f64 / PSD_PIECES as f64;
+            if lo > 0.0 {
+                lo * (hi / lo).powf(x)
+            } else {
+                lo + (hi - lo) * x
+            }
+        };
+        for k in 0..PSD_PIECES {
+            let (a, z) = (edge(k), edge(k + 1));
+            let mut piece = PsdBand {
+                f_lo_hz: a,
+                f_hi_hz: z,
+                psd_g2_per_hz: b.psd_g2_per_hz,
+            };
+            for i in 0..3 {
+                if filtered[i] {
+                    let m = (0..4)
+                        .map(|j| gain(i, a + (z - a) * (j as f64 + 0.5) / 4.0).norm_sqr())
+                        .sum::<f64>()
+                        / 4.0;
+                    piece.psd_g2_per_hz[i] *= m;
+                }
+            }
+            out.push(piece);
+        }
+    }
+    out
+}
+
 /// The change of the exact mean output (MODEL.md section 6, `vibro_physics::exact`)
 /// when the vibration at the unit becomes `changed`: `E[FP | changed] - E[FP | as is]`.
 pub(crate) fn exact_shift(ctx: &crate::MeanContext<'_>, changed: &Vibration) -> Result<f64> {

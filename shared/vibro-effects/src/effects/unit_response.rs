@@ -16,10 +16,11 @@
 //! variance (and IA covariances) through `H` band by band, minus the exact mean without.
 
 use super::filter::{Analog, Biquad, BiquadState};
-use super::spectral::{check_rate, exact_shift, filtered_vibration, Panels};
+use super::spectral::{check_rate, exact_shift, filtered_psd, filtered_vibration, Panels};
 use super::{EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
 use crate::Result;
+use vibro_physics::vibration::{PsdBand, Vibration};
 
 const KIND: &str = "unit_response";
 
@@ -101,6 +102,22 @@ impl Effect for UnitResponse {
     }
 
     fn mean_shift_g(&self, ctx: &MeanContext<'_>) -> Result<f64> {
+        let (seen, _) = self.seen(ctx)?;
+        exact_shift(ctx, &seen)
+    }
+
+    fn on_vibration_path(&self) -> bool {
+        true
+    }
+
+    fn transmitted(&self, ctx: &MeanContext<'_>) -> Option<Result<(Vibration, Vec<PsdBand>)>> {
+        Some(self.seen(ctx))
+    }
+}
+
+impl UnitResponse {
+    /// The vibration and band PSD the pendulum follows (IA through the loop).
+    fn seen(&self, ctx: &MeanContext<'_>) -> Result<(Vibration, Vec<PsdBand>)> {
         let rate = ctx.internal_rate_hz;
         check_rate(KIND, rate)?;
         let filter = Biquad::bilinear(&self.analog, rate, self.natural_freq_hz);
@@ -118,7 +135,10 @@ impl Effect for UnitResponse {
             |_, f| filter.response(f, rate),
             panels,
         )?;
-        exact_shift(ctx, &seen)
+        let psd = filtered_psd(ctx.psd_unit, [false, false, true], |_, f| {
+            filter.response(f, rate)
+        });
+        Ok((seen, psd))
     }
 }
 
