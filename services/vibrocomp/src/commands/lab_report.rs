@@ -230,6 +230,42 @@ fn points(xs: &[f64], c: &Comparison, keep: &dyn Fn(usize) -> bool) -> Vec<(f64,
         .collect()
 }
 
+/// A row of residual panels: what [`panel_pair`] draws.
+struct Pair<'a> {
+    /// File name stem (`-before.svg`, `-after.svg` appended).
+    file: String,
+    before_title: String,
+    /// `None`: no after panel (the lab added no effect: it would repeat the before).
+    after_title: Option<String>,
+    x_var: &'a str,
+    floor_g: f64,
+    span: (f64, f64),
+}
+
+/// Draws the before panel (and the after one) of a row into `plots`; returns their
+/// indices there.
+fn panel_pair(
+    plots: &mut Vec<(String, String)>,
+    row: &Pair<'_>,
+    before: &[(f64, f64, f64)],
+    after: &[(f64, f64, f64)],
+) -> anyhow::Result<Vec<usize>> {
+    let mut at = Vec::with_capacity(2);
+    let sides = [
+        (Some(&row.before_title), "before", before, BEFORE),
+        (row.after_title.as_ref(), "after", after, AFTER),
+    ];
+    for (title, side, pts, colour) in sides {
+        let Some(title) = title else { continue };
+        plots.push((
+            format!("{}-{side}.svg", row.file),
+            residual_panel(title, row.x_var, pts, colour, row.floor_g, row.span)?,
+        ));
+        at.push(plots.len() - 1);
+    }
+    Ok(at)
+}
+
 /// One panel: the residual (g) against a variable, with its uncertainty bars, the
 /// band of plus or minus the noise floor, and the zero line; on its own scale.
 fn residual_panel(
@@ -893,32 +929,20 @@ pub fn write(dir: &Path, r: &ReportInput<'_>) -> anyhow::Result<ReportSummary> {
         let span = finite_range(xs.iter().copied()).unwrap_or((0.0, 1.0));
         let (b, a) = (points(&xs, before, &all), points(&xs, after, &all));
         let name = describe(v).0;
-        plots.push((
-            format!("residual-{v}-before.svg"),
-            residual_panel(
-                &format!("before (model as given): residual against {name}"),
-                v,
-                &b,
-                BEFORE,
+        let panels = panel_pair(
+            &mut plots,
+            &Pair {
+                file: format!("residual-{v}"),
+                before_title: format!("before (model as given): residual against {name}"),
+                after_title: with_after
+                    .then(|| format!("{after_caption}: residual against {name}")),
+                x_var: v,
                 floor_g,
                 span,
-            )?,
-        ));
-        let mut panels = vec![plots.len() - 1];
-        if with_after {
-            plots.push((
-                format!("residual-{v}-after.svg"),
-                residual_panel(
-                    &format!("{after_caption}: residual against {name}"),
-                    v,
-                    &a,
-                    AFTER,
-                    floor_g,
-                    span,
-                )?,
-            ));
-            panels.push(plots.len() - 1);
-        }
+            },
+            &b,
+            &a,
+        )?;
         residual_rows.push(panels);
     }
     let mut time_rows: Vec<Vec<usize>> = Vec::new();
@@ -929,33 +953,20 @@ pub fn write(dir: &Path, r: &ReportInput<'_>) -> anyhow::Result<ReportSummary> {
         for (u, name) in &units {
             let keep = |i: usize| us.get(i) == Some(u);
             let (b, a) = (points(&ts, before, &keep), points(&ts, after, &keep));
-            let file = format!("time-unit{u}");
-            plots.push((
-                format!("{file}-before.svg"),
-                residual_panel(
-                    &format!("{name}, before (model as given): residual against time"),
-                    "t_s",
-                    &b,
-                    BEFORE,
+            let panels = panel_pair(
+                &mut plots,
+                &Pair {
+                    file: format!("time-unit{u}"),
+                    before_title: format!("{name}, before (model as given): residual against time"),
+                    after_title: with_after
+                        .then(|| format!("{name}, {after_caption}: residual against time")),
+                    x_var: "t_s",
                     floor_g,
                     span,
-                )?,
-            ));
-            let mut panels = vec![plots.len() - 1];
-            if with_after {
-                plots.push((
-                    format!("{file}-after.svg"),
-                    residual_panel(
-                        &format!("{name}, {after_caption}: residual against time"),
-                        "t_s",
-                        &a,
-                        AFTER,
-                        floor_g,
-                        span,
-                    )?,
-                ));
-                panels.push(plots.len() - 1);
-            }
+                },
+                &b,
+                &a,
+            )?;
             time_rows.push(panels);
         }
     }
