@@ -610,20 +610,28 @@ mod tests {
         assert!((mean_z2 - 9.0 / 7.0).abs() < 0.21, "E[z^2] = {mean_z2}");
     }
 
-    /// The propagated uncertainty against the closed form: with only k2 and the tone on
-    /// IA, VE = 0.5 k2 aB3^2 (MODEL.md 6), so u = k2 aB3 u(aB3); with only k2 and random
-    /// IA vibration, VE = k2 sigma3^2, so u = 2 k2 sigma3 u(sigma3).
-    #[test]
-    fn the_prediction_uncertainty_matches_the_closed_form() {
+    /// AL-15 with only its k2 term (set to `k2_ppm_per_g` when given) among the
+    /// rectifying ones: VE = k2 (aB3^2 / 2 + sigma3^2) (MODEL.md 6).
+    fn k2_only(k2_ppm_per_g: Option<f64>) -> Passport {
         let mut spec = al15().to_spec();
-        spec.k2_ppm_per_g = 105.0;
+        if let Some(k2) = k2_ppm_per_g {
+            spec.k2_ppm_per_g = k2;
+        }
         spec.k3_ppm_per_g2 = 0.0;
         spec.k4_ppm_per_g3 = 0.0;
         spec.k5_ppm_per_g4 = 0.0;
         spec.d1a_ppm = 0.0;
         spec.m31_ppm_per_g = 0.0;
         spec.m32_ppm_per_g = 0.0;
-        let p = Passport::try_from_spec(&spec).unwrap();
+        Passport::try_from_spec(&spec).unwrap()
+    }
+
+    /// The propagated uncertainty against the closed form: with only k2 and the tone on
+    /// IA, VE = 0.5 k2 aB3^2 (MODEL.md 6), so u = k2 aB3 u(aB3); with only k2 and random
+    /// IA vibration, VE = k2 sigma3^2, so u = 2 k2 sigma3 u(sigma3).
+    #[test]
+    fn the_prediction_uncertainty_matches_the_closed_form() {
+        let p = k2_only(Some(105.0));
         let k2 = p.k[2];
         let vib = Vibration::single_tone(40.0, [0.0, 0.0, 2.0]);
         let u = VibrationU {
@@ -647,6 +655,7 @@ mod tests {
         // aL3 varying over the window: with k3 alone and a tone, VE = 1.5 k3 aB3^2 aL3
         // (linear in aL3: no curvature term), with k4 alone VE = 3 k4 aB3^2 aL3^2 + ...,
         // VE'' = 6 k4 aB3^2, so u = 3 k4 aB3^2 var.
+        let mut spec = p.to_spec();
         spec.k2_ppm_per_g = 0.0;
         spec.k4_ppm_per_g3 = 10.0;
         let p = Passport::try_from_spec(&spec).unwrap();
@@ -713,14 +722,7 @@ mod tests {
     /// predicts the mean of the windows' VEs exactly: the pool keeps the second moments.
     #[test]
     fn a_pooled_vibration_keeps_the_mean_second_moments() {
-        let mut spec = al15().to_spec();
-        spec.k3_ppm_per_g2 = 0.0;
-        spec.k4_ppm_per_g3 = 0.0;
-        spec.k5_ppm_per_g4 = 0.0;
-        spec.d1a_ppm = 0.0;
-        spec.m31_ppm_per_g = 0.0;
-        spec.m32_ppm_per_g = 0.0;
-        let p = Passport::try_from_spec(&spec).unwrap();
+        let p = k2_only(None);
         let vibs: Vec<Vibration> = [(0.4, 1.3, 12.0), (0.6, 1.5, 12.5), (0.5, 1.1, 13.0)]
             .iter()
             .map(|&(a, s, f)| {

@@ -79,6 +79,11 @@ fn find_in(table: &CampaignTable, kind: &str, truth: &[(&str, f64)]) -> Found {
     }
 }
 
+/// The fitted parameter `name`.
+fn param<'a>(fit: &'a vibro_lab::EffectFit, name: &str) -> &'a vibro_lab::fit::FittedParam {
+    fit.params.iter().find(|p| p.name == name).expect("param")
+}
+
 /// Diagnose the base campaign with `effect` hidden, check `kind` is found first, add
 /// it, check the residual falls (10x, or to within 2x the noise floor) and the fitted
 /// parameters lie within 2 % of `truth`.
@@ -94,12 +99,7 @@ fn find_and_add(kind: &str, effect: &str, truth: &[(&str, f64)]) -> Found {
         found.rms_after_g
     );
     for (name, want) in truth {
-        let p = found
-            .fit
-            .params
-            .iter()
-            .find(|p| p.name == *name)
-            .expect("param");
+        let p = param(&found.fit, name);
         // Phases enter through cos(): +-phase fit alike.
         let value = if name.ends_with("_deg") {
             p.value.abs()
@@ -131,12 +131,7 @@ fn find_within_3_sigma(base: &str, kind: &str, effect: &str, truth: &[(&str, f64
         found.noise_floor_g
     );
     for (name, want) in truth {
-        let p = found
-            .fit
-            .params
-            .iter()
-            .find(|p| p.name == *name)
-            .expect("param");
+        let p = param(&found.fit, name);
         assert!(
             p.sigma.is_finite() && p.sigma > 0.0 && (p.value - want).abs() <= 3.0 * p.sigma,
             "{kind}.{name}: fitted {} +- {} vs truth {want}",
