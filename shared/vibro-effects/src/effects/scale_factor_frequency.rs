@@ -158,12 +158,18 @@ impl Effect for ScaleFactorFrequency {
             .collect();
         let sigma3 = vib.sigma_g(2);
         let beta = if sigma3 > 0.0 {
-            let panel_hz = self.corner_hz / 8.0;
+            // Panels an eighth of the corner there, an eighth of the distance from it
+            // away (the response of the first-order lambda(w) changes on the scale of
+            // its distance from the pole): uniform panels of corner/8 took 160,000 per
+            // 2 kHz band for a 0.1 Hz corner, a second per evaluation of a flight log.
             let (num, den) = band_integral(
                 ctx.psd_unit,
                 |b| b.psd_g2_per_hz[2].max(0.0),
                 |f| lf.response(f, rate).re - 1.0,
-                Panels::Uniform(panel_hz),
+                Panels::Graded {
+                    centre_hz: self.corner_hz,
+                    finest_hz: self.corner_hz / 8.0,
+                },
             );
             if den.is_nan() || den <= 0.0 {
                 return Err(no_spectrum(
