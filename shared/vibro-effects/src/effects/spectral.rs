@@ -22,7 +22,9 @@ const MAX_PANELS_PER_BAND: f64 = 200_000.0;
 /// How wide the quadrature panels may be across a band.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) enum Panels {
-    /// At most this wide everywhere, Hz.
+    /// At most this wide everywhere, Hz: the tests' reference for `Graded` (every
+    /// formula grades its panels).
+    #[cfg(test)]
     Uniform(f64),
     /// Around a resonance at `centre_hz`: `finest_hz` there, and `|f - centre_hz| / 8`
     /// away from it, where a second-order response changes on the scale of its distance
@@ -38,6 +40,7 @@ impl Panels {
     /// `int_lo^hi f` with these panels.
     fn integrate(self, f: &mut impl FnMut(f64) -> f64, lo: f64, hi: f64) -> f64 {
         match self {
+            #[cfg(test)]
             Panels::Uniform(max_panel_hz) => {
                 let panels = ((hi - lo) / max_panel_hz)
                     .ceil()
