@@ -66,6 +66,14 @@ pub struct Candidate {
     pub needs_spectrum: bool,
 }
 
+/// A frequency's start grid: 12 values log-spaced from half the lowest tested tone
+/// frequency to twice the highest (a resonance, a loop's natural frequency, a corner).
+const AROUND_TONES: Search = Search::AroundVariable {
+    variable: "freq_hz",
+    lo: 0.5,
+    hi: 2.0,
+    points: 12,
+};
 const Q_GRID: &[f64] = &[0.7, 1.5, 3.0, 8.0];
 /// Damping ratios from a sharp to an overdamped servo loop (real units: 0.3..0.7).
 const ZETA_GRID: &[f64] = &[0.1, 0.3, 0.6, 1.0];
@@ -92,12 +100,7 @@ pub static LIBRARY: &[Candidate] = &[
                 name: "freq_hz",
                 scale: 1.0,
                 bounds: (0.1, 1e5),
-                search: Search::AroundVariable {
-                    variable: "freq_hz",
-                    lo: 0.5,
-                    hi: 2.0,
-                    points: 12,
-                },
+                search: AROUND_TONES,
             },
             ParamSpec {
                 name: "q",
@@ -235,12 +238,7 @@ pub static LIBRARY: &[Candidate] = &[
                 name: "natural_freq_hz",
                 scale: 1.0,
                 bounds: (1.0, 1e6),
-                search: Search::AroundVariable {
-                    variable: "freq_hz",
-                    lo: 0.5,
-                    hi: 2.0,
-                    points: 12,
-                },
+                search: AROUND_TONES,
             },
             ParamSpec {
                 name: "damping_ratio",
@@ -278,12 +276,7 @@ pub static LIBRARY: &[Candidate] = &[
                 name: "corner_hz",
                 scale: 1.0,
                 bounds: (0.1, 1e6),
-                search: Search::AroundVariable {
-                    variable: "freq_hz",
-                    lo: 0.5,
-                    hi: 2.0,
-                    points: 12,
-                },
+                search: AROUND_TONES,
             },
             // The VE is k1 d1A (lambda_hf - 1) times a known function: with the
             // passport's d1A taken as exact, the campaign pins lambda_hf (a wrong d1A
