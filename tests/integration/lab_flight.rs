@@ -42,7 +42,7 @@ fn chi2_per_dof(dir: &Dir, seed: u64, effect: Option<&str>, model: Option<&str>)
         "FIGURES lab flight seed {seed} effect {effect:?}: chi2/dof {per_dof:.3} over {} \
          conditions, residual scale {}",
         rows.len(),
-        num(&c["log"], "residual_scale")
+        c["log"]["residual_scale"]
     );
     per_dof
 }

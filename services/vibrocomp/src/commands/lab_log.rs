@@ -97,9 +97,11 @@ pub struct LogTableSummary {
     pub pool_windows: usize,
     /// Lab windows (pools of consecutive estimator windows).
     pub lab_windows: usize,
-    /// Factor on the stated uncertainties from the residuals' second differences
-    /// (`vibro_lab::flight::residual_scale`; 1 when too few).
-    pub residual_scale: f64,
+    /// Per unit: the factor on the stated uncertainties from the residuals' second
+    /// differences (`vibro_lab::flight::residual_scale`): each unit's own when every
+    /// unit has at least [`PER_UNIT_SCALE_MIN_DIFFERENCES`], else one pooled over the
+    /// units; 1 when too few.
+    pub residual_scale: Vec<f64>,
     /// Second differences it came from, and those left out beyond 3 sigma.
     pub residual_scale_differences: usize,
     pub residual_scale_clipped: usize,
@@ -123,6 +125,13 @@ struct Complete {
     a_l_ia_g: [f64; 3],
     a_sensed_ia_g: [f64; 3],
 }
+
+/// Second differences each unit needs for its own residual scale: the scale's relative
+/// standard error is about `1 / sqrt(2 n)`, 13 % at 30. Below, one scale pooled over
+/// the units (a 20 s log has about 17 per unit). The units' scales differ (the
+/// correlation of the measured and the predicted VE's errors depends on the unit's
+/// coefficients: 0.6 against 1.2 times the pooled scale on a 600 s `cyclone-4`).
+const PER_UNIT_SCALE_MIN_DIFFERENCES: usize = 30;
 
 /// Window edges this close are the same edge (sample times are rounded to 1 ns).
 const SAME_EDGE_NS: u64 = 1_000;
@@ -539,22 +548,34 @@ fn window_conditions(
         used.push(w);
     }
     // Per unit, runs of consecutive windows: the residuals' scatter.
-    let mut series: Vec<Vec<(f64, f64)>> = Vec::new();
-    for u in 0..units.flat.len() {
+    let n_units = units.flat.len();
+    let mut series: Vec<Vec<Vec<(f64, f64)>>> = vec![Vec::new(); n_units];
+    for (u, runs) in series.iter_mut().enumerate() {
         for w in &used {
-            if !w.joined || series.is_empty() {
-                series.push(Vec::new());
+            if !w.joined || runs.is_empty() {
+                runs.push(Vec::new());
             }
-            if let Some(run) = series.last_mut() {
+            if let Some(run) = runs.last_mut() {
                 run.push((w.residual_g[u], w.stated_u_g[u]));
             }
         }
-        series.push(Vec::new());
     }
-    let scale = flight::residual_scale(&series);
-    summary.residual_scale = scale.map_or(1.0, |s| s.scale);
-    summary.residual_scale_differences = scale.map_or(0, |s| s.differences);
-    summary.residual_scale_clipped = scale.map_or(0, |s| s.clipped);
+    let per_unit: Vec<_> = series.iter().map(|s| flight::residual_scale(s)).collect();
+    let own = per_unit
+        .iter()
+        .all(|s| s.is_some_and(|s| s.differences >= PER_UNIT_SCALE_MIN_DIFFERENCES));
+    if own {
+        let scales: Vec<_> = per_unit.into_iter().flatten().collect();
+        summary.residual_scale = scales.iter().map(|s| s.scale).collect();
+        summary.residual_scale_differences = scales.iter().map(|s| s.differences).sum();
+        summary.residual_scale_clipped = scales.iter().map(|s| s.clipped).sum();
+    } else {
+        let all: Vec<_> = series.concat();
+        let scale = flight::residual_scale(&all);
+        summary.residual_scale = vec![scale.map_or(1.0, |s| s.scale); n_units];
+        summary.residual_scale_differences = scale.map_or(0, |s| s.differences);
+        summary.residual_scale_clipped = scale.map_or(0, |s| s.clipped);
+    }
 
     let pool_max = match args.pool_windows {
         0 => (used.len() / AUTO_POOL_TARGET).clamp(1, AUTO_POOL_MAX),
@@ -574,7 +595,7 @@ fn window_conditions(
                 units,
                 model,
                 args,
-                summary.residual_scale,
+                summary.residual_scale[u],
                 line,
             )?);
         }
