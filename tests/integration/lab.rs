@@ -7,6 +7,9 @@
 use crate::common::{num, run_failing, run_json};
 use crate::processes::Dir;
 
+const WALKTHROUGH_14_ROWS: &str =
+    include_str!("../../shared/vibro-lab/tests/data/walkthrough-14-rows.csv");
+
 fn s(p: &std::path::Path) -> &str {
     p.to_str().expect("utf-8 path")
 }
@@ -323,6 +326,68 @@ fn model_ve_with_an_extended_model_adds_each_effect_to_the_base() {
         "{ext} {base}"
     );
     assert!((num(&ext, "ve_g") - num(&base, "total_g") - want).abs() < 1e-15);
+}
+
+/// An empirical correction (not physical, docs/lab.md "Beyond the library") in a model
+/// file is used by `model ve` like an effect: its closed form
+/// `c_p3 P3 + c_p1_al3 P1 aL3` with `P_i = aB_i^2 / 2` added to the base. `lab add
+/// empirical` on a table the model explains writes nothing and says why.
+#[test]
+fn model_ve_uses_an_empirical_correction_and_add_refuses_one_without_support() {
+    let dir = Dir::new("lab-emp");
+    let model = dir.path("m.toml");
+    std::fs::write(
+        &model,
+        "mode = \"exact\"\n[[effect]]\nkind = \"empirical\"\nc_p3_per_g = 2.0e-6\n\
+         c_p1_al3_per_g2 = -1.0e-6\n",
+    )
+    .unwrap();
+    let common = [
+        "model",
+        "ve",
+        "--passport",
+        "AL-15",
+        "--aL3-g",
+        "2",
+        "--aB3-g",
+        "0.5",
+        "--aB1-g",
+        "1.2",
+    ];
+    let base = run_json(&[&common[..], &["--json"]].concat());
+    let ext = run_json(&[&common[..], &["--model", s(&model), "--json"]].concat());
+    let want = 2.0e-6 * 0.5 * 0.25 - 1.0e-6 * 0.5 * 1.44 * 2.0;
+    assert_eq!(ext["effects"][0]["kind"], "empirical");
+    assert!(
+        (num(&ext["effects"][0], "ve_g") - want).abs() < 1e-18,
+        "{ext}"
+    );
+    assert!((num(&ext, "ve_g") - num(&base, "total_g") - want).abs() < 1e-15);
+
+    // The walkthrough's 14 rows with the resonance they hide in the model: nothing left.
+    let table = dir.path("t.csv");
+    std::fs::write(&table, WALKTHROUGH_14_ROWS).unwrap();
+    let right = dir.path("right.toml");
+    std::fs::write(
+        &right,
+        "[[effect]]\nkind = \"mount_resonance\"\nfreq_hz = 48.0\nq = 1.56\n",
+    )
+    .unwrap();
+    let out = dir.path("corrected.toml");
+    let r = run_failing(&[
+        "lab",
+        "add",
+        "empirical",
+        "--from",
+        s(&table),
+        "--model",
+        s(&right),
+        "--out",
+        s(&out),
+    ]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("no empirical correction"), "{err}");
+    assert!(!out.exists());
 }
 
 /// `model compensate --model`: a(4) as without the model (no sensor effect), and the

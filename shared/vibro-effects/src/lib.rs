@@ -58,6 +58,7 @@
 
 pub mod effect;
 pub mod effects;
+pub mod empirical;
 mod error;
 pub mod model;
 pub mod predict;

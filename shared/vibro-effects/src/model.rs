@@ -158,10 +158,9 @@ impl LabModel {
                 problems.push(format!("passport = {p:?}: {e}"));
             }
         }
+        let rig = validation_rig();
         for (i, t) in raw.effect.iter().enumerate() {
-            if let Err(e) = effect_spec(t)
-                .and_then(|s| build_for_rig(&s, &validation_rig()).map_err(|e| e.to_string()))
-            {
+            if let Err(e) = build_one(t, &rig) {
                 problems.push(format!("effect[{i}]: {e}"));
             }
         }
@@ -241,14 +240,24 @@ pub fn build_effects(tables: &[toml::Table], passport: &Passport) -> Result<Vec<
         .iter()
         .enumerate()
         .map(|(i, t)| {
-            effect_spec(t)
-                .and_then(|s| build_for_rig(&s, &rig).map_err(|e| e.to_string()))
-                .map_err(|reason| Error::Predict {
-                    what: format!("effect[{i}]"),
-                    reason,
-                })
+            build_one(t, &rig).map_err(|reason| Error::Predict {
+                what: format!("effect[{i}]"),
+                reason,
+            })
         })
         .collect()
+}
+
+/// One `[[effect]]` table of a model: an effect of the library, or an empirical
+/// correction (`kind = "empirical"`, [`crate::empirical`]: a model file may carry one,
+/// a simulator scenario may not).
+fn build_one(t: &toml::Table, rig: &Rig) -> std::result::Result<Box<dyn Effect>, String> {
+    if t.get("kind").and_then(|k| k.as_str()) == Some(crate::empirical::KIND) {
+        return crate::empirical::Empirical::from_table(t)
+            .map(|e| Box::new(e) as Box<dyn Effect>)
+            .map_err(|e| e.to_string());
+    }
+    effect_spec(t).and_then(|s| build_for_rig(&s, rig).map_err(|e| e.to_string()))
 }
 
 /// An `[[effect]]` table as the simulator's [`EffectSpec`].
@@ -324,6 +333,28 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("unknown field `speed`"), "{e}");
+    }
+
+    /// An empirical correction is a model's effect like any other (and its bad keys
+    /// are named like theirs); the simulator's registry does not know it.
+    #[test]
+    fn a_model_carries_an_empirical_correction() {
+        let text = "[[effect]]\nkind = \"empirical\"\nc_p3_per_g = 2.0e-6\n";
+        let m = LabModel::parse(text, "m.toml").unwrap();
+        assert_eq!(m.effect_kinds(), ["empirical"]);
+        let p = resolve_passport("AL-15").unwrap();
+        let e = m.build_effects(&p).unwrap();
+        let vib = vibro_physics::vibration::Vibration::single_tone(40.0, [0.0, 0.0, 2.0]);
+        let got = crate::predict::effect_shifts_g(&e, &p, [0.0, 0.0, 1.0], &vib, &[], 1.0).unwrap();
+        assert_eq!(got, vec![("empirical".to_string(), 2.0e-6 * 2.0)]);
+        let e = LabModel::parse(&text.replace("c_p3", "c_q3"), "m.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("m.toml: effect[0]: effect[empirical].c_q3_per_g = 0.000002: unknown term"),
+            "{e}"
+        );
+        assert!(crate::build(&effect_spec(&m.effects[0]).unwrap()).is_err());
     }
 
     /// A passport the model names but nobody can resolve is reported like any other

@@ -280,6 +280,13 @@ pub struct Diagnosis {
     pub options: DiagnoseOptions,
     /// How much of `options.budget` the fits used, and whether it ran out.
     pub budget: BudgetUsed,
+    /// Beyond the library (verdict `unexplained` only): an empirical correction of
+    /// the residual left, not physical, chosen by cross-validation
+    /// ([`crate::empirical`]).
+    pub empirical: Option<crate::empirical::EmpiricalFit>,
+    /// Why no empirical correction is offered where the verdict is `unexplained`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub empirical_none: Option<String>,
 }
 
 fn rms(v: impl Iterator<Item = f64>) -> f64 {
@@ -1108,6 +1115,24 @@ pub fn diagnose(
             }
         }
     };
+    // Beyond the library: only where no physical effect explains the data.
+    let (empirical, empirical_none) = if matches!(verdict, Verdict::Unexplained { .. }) {
+        match crate::empirical::backfit(model, table, &chosen.terms, &chosen.values, &meter) {
+            Ok(Some(e)) => (Some(e), None),
+            Ok(None) => (
+                None,
+                Some(format!(
+                    "no smooth function of the vibration and the flight acceleration predicts \
+                     the residual out of sample (no term lowers the leave-one-out chi-square \
+                     by {})",
+                    crate::empirical::CV_SUPPORT
+                )),
+            ),
+            Err(e) => (None, Some(format!("no empirical correction: {e}"))),
+        }
+    } else {
+        (None, None)
+    };
     Ok(Diagnosis {
         comparison,
         trends: trends_before,
@@ -1130,6 +1155,8 @@ pub fn diagnose(
             exhausted: !cut_short.is_empty(),
             cut_short,
         },
+        empirical,
+        empirical_none,
     })
 }
 
@@ -1259,6 +1286,68 @@ pub fn add_effect(
     kind: &str,
 ) -> Result<(LabModel, EffectFit)> {
     add_effects(model, table, &[kind], false)
+}
+
+/// `model` with an empirical correction (not physical, [`crate::empirical`]) fitted to
+/// what it leaves on `table`, its effects of the library refitted jointly with the
+/// correction; `None` when no term is supported by cross-validation. A correction the
+/// model already has is replaced.
+pub fn add_empirical(
+    model: &LabModel,
+    table: &CampaignTable,
+) -> Result<Option<(LabModel, crate::empirical::EmpiricalFit)>> {
+    let kind = vibro_effects::empirical::KIND;
+    let mut frozen = LabModel {
+        effects: Vec::new(),
+        fits: model
+            .fits
+            .iter()
+            .filter(|r| r.kind != kind)
+            .cloned()
+            .collect(),
+        ..model.clone()
+    };
+    let mut terms: Vec<&'static Candidate> = Vec::new();
+    let mut values: Vec<Vec<f64>> = Vec::new();
+    for t in &model.effects {
+        let k = t.get("kind").and_then(|k| k.as_str()).unwrap_or("");
+        if k == kind {
+            continue;
+        }
+        match library::candidate(k).and_then(|c| values_in(c, t).map(|v| (c, v))) {
+            Some((c, v)) if !terms.iter().any(|x| x.kind == c.kind) => {
+                terms.push(c);
+                values.push(v);
+            }
+            _ => frozen.effects.push(t.clone()),
+        }
+    }
+    let meter = Meter::new(Budget::default());
+    let Some(e) = crate::empirical::backfit(&frozen, table, &terms, &values, &meter)? else {
+        return Ok(None);
+    };
+    let before = compare(model, table)?;
+    let mut out = frozen;
+    // The library's effects as refitted beside the correction, their provenance kept.
+    for t in &e.found_tables {
+        let k = t.get("kind").and_then(|k| k.as_str()).unwrap_or("");
+        let record = model.fits.iter().find(|r| r.kind == k).cloned();
+        out.fits.retain(|r| r.kind != k);
+        out = out.with_effect(t.clone(), record);
+    }
+    let record = FitRecord {
+        kind: kind.to_string(),
+        table: table.path.display().to_string(),
+        params: e.terms.iter().map(|t| (t.key.clone(), t.value)).collect(),
+        sigma: e.terms.iter().map(|t| (t.key.clone(), t.sigma)).collect(),
+        rms_residual_before_g: before.summary.rms_residual_g,
+        rms_residual_after_g: e.rms_residual_after_g,
+        // No information criterion: the terms were chosen by cross-validation; the
+        // drop of the cross-validated chi-square stands here.
+        delta_bic: e.cv_chi2_after - e.cv_chi2_before,
+    };
+    out = out.with_effect(e.table.clone(), Some(record));
+    Ok(Some((out, e)))
 }
 
 /// One step of [`error_ladder`].

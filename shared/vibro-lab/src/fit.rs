@@ -199,7 +199,7 @@ pub(crate) struct Prepared {
     truth: Vec<predict::TrueVibration>,
     /// Per row, the vibration and band PSD reaching the unit: the truth through the
     /// model's effects on the vibration path (what a new effect off that path sees).
-    seen: Vec<(
+    pub(crate) seen: Vec<(
         vibro_physics::vibration::Vibration,
         Vec<vibro_physics::vibration::PsdBand>,
     )>,
@@ -629,6 +629,11 @@ struct Problem<'a> {
     residual_g: Vec<f64>,
     evaluations: usize,
     meter: &'a Meter,
+    /// Variable projection (Golub & Pereyra 1973): an orthonormal basis `Q` of the
+    /// weighted columns of a linear correction fitted beside the effects; the weighted
+    /// residual is replaced by `(I - Q Q^T) w`, the correction's best coefficients
+    /// profiled out at every `theta`.
+    project: Option<&'a DMatrix<f64>>,
 }
 
 impl Problem<'_> {
@@ -657,13 +662,17 @@ impl Problem<'_> {
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let per = term_shifts_g(self.model, self.table, self.prep, self.terms, theta)?;
         let n = self.residual_g.len();
-        let w = DVector::from_iterator(
+        let mut w = DVector::from_iterator(
             n,
             (0..n).map(|i| {
                 let s: f64 = per.iter().map(|p| p[i]).sum();
                 (self.residual_g[i] - s) / self.prep.uncertainty_g[i]
             }),
         );
+        if let Some(q) = self.project {
+            let along = q * (q.transpose() * &w);
+            w -= along;
+        }
         // The cost is the sum of squares: it, not only each term, must be finite.
         if !w.norm_squared().is_finite() {
             let k = w.iter().position(|x| !(x * x).is_finite()).unwrap_or(0);
@@ -864,6 +873,22 @@ pub(crate) fn fit_joint(
     known: &[Option<Vec<f64>>],
     meter: &Meter,
 ) -> Result<EffectFit> {
+    fit_joint_projected(model, table, prep, terms, known, meter, None)
+}
+
+/// [`fit_joint`] with a linear correction beside the effects, profiled out by
+/// variable projection (`project`: an orthonormal basis of its weighted columns).
+/// The fit's chi-square, uncertainties and correlations are then those with the
+/// correction's coefficients free; its `shift_g` and residuals are the effects' alone.
+pub(crate) fn fit_joint_projected(
+    model: &LabModel,
+    table: &CampaignTable,
+    prep: &Prepared,
+    terms: &[&'static Candidate],
+    known: &[Option<Vec<f64>>],
+    meter: &Meter,
+    project: Option<&DMatrix<f64>>,
+) -> Result<EffectFit> {
     let what = terms.iter().map(|c| c.kind).collect::<Vec<_>>().join("+");
     let residual_g = prep.residual_g();
     let n = residual_g.len();
@@ -893,6 +918,7 @@ pub(crate) fn fit_joint(
         residual_g: residual_g.clone(),
         evaluations: 0,
         meter,
+        project,
     };
     let linear: Vec<bool> = specs
         .iter()
@@ -961,7 +987,9 @@ pub(crate) fn fit_joint(
             reason: format!("J^T J or chi2 = {chi2_after:e} at the minimum is not finite"),
         });
     }
-    let dof = n.saturating_sub(k).max(1);
+    let dof = n
+        .saturating_sub(k + project.map_or(0, |q| q.ncols()))
+        .max(1);
     let birge = (chi2_after / dof as f64).sqrt().max(1.0);
     let (cov, determined) = covariance(&a);
     let mut params = Vec::with_capacity(k);

@@ -13,6 +13,8 @@
 //! - [`diagnose`]: `compare`, `diagnose` (where the model fails and which effect is
 //!   missing, with a verdict that says "noise", "effect", "confounded" or
 //!   "unexplained"), `add_effect`, `error_ladder`.
+//! - [`empirical`]: beyond the library, a cross-validated empirical correction
+//!   (not physical) offered when the verdict is "unexplained".
 //!
 //! The effects, the extended model file (`MODEL.toml`: base mode plus effects,
 //! [`LabModel`]) and its prediction are the effects library's (`vibro_effects`),
@@ -24,15 +26,17 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod diagnose;
+pub mod empirical;
 pub mod fit;
 pub mod flight;
 pub mod library;
 pub mod table;
 
 pub use diagnose::{
-    add_effect, add_effects, compare, diagnose, error_ladder, fit_effect, Comparison,
-    DiagnoseOptions, Diagnosis, LadderStep, Verdict,
+    add_effect, add_effects, add_empirical, compare, diagnose, error_ladder, fit_effect,
+    Comparison, DiagnoseOptions, Diagnosis, LadderStep, Verdict,
 };
+pub use empirical::{fit_empirical, EmpiricalFit};
 pub use fit::{Budget, BudgetUsed, EffectFit};
 pub use table::{CampaignTable, Condition, REQUIRED_COLUMNS};
 // The extended model file the lab writes and its prediction live in the effects

@@ -98,7 +98,9 @@ pub struct DiagnoseArgs {
 #[derive(Debug, Args)]
 pub struct AddArgs {
     /// The effects to fit and add (kinds of the lab's library, comma-separated, see
-    /// `lab diagnose`); or `--diagnosed`.
+    /// `lab diagnose`); or `--diagnosed`; or `empirical` alone: the cross-validated
+    /// correction (not physical) that `lab diagnose` offers when the verdict is
+    /// "unexplained", the model's effects refitted beside it.
     #[arg(value_delimiter = ',', required_unless_present = "diagnosed")]
     pub effects: Vec<String>,
     /// Add the effects `lab diagnose` finds on the same inputs (its stepwise search),
@@ -601,8 +603,58 @@ fn print_diagnosis(o: &mut String, d: &Diagnosis) {
                     100.0 * best_explained_fraction
                 );
             }
+            print_empirical(o, d);
         }
     }
+}
+
+/// Beyond the library: the empirical correction offered (or why none is).
+fn print_empirical(o: &mut String, d: &Diagnosis) {
+    if let Some(why) = &d.empirical_none {
+        p!(o, "Beyond the library: {why}.");
+    }
+    let Some(e) = &d.empirical else {
+        return;
+    };
+    p!(
+        o,
+        "Beyond the library: an empirical correction, NOT PHYSICAL (a smooth function of {}, \
+         chosen by leave-one-out cross-validation; an extrapolation outside the conditions \
+         measured):",
+        e.variables.join(", ")
+    );
+    for t in &e.terms {
+        p!(
+            o,
+            "  {:<20} {:>13.6e} +- {:.2e}   ({})",
+            t.key,
+            t.value,
+            t.sigma,
+            t.meaning
+        );
+    }
+    if !e.found.is_empty() {
+        p!(o, "  beside it, refitted: {}", params_text(&e.found));
+    }
+    for dropped in &e.dropped {
+        p!(o, "  not needed beside it: {dropped}");
+    }
+    p!(
+        o,
+        "  cross-validated chi2 {:.1} -> {:.1}; residual RMS {:.3e} g -> {:.3e} g (chi2 per \
+         dof {:.3}, p = {:.3})",
+        e.cv_chi2_before,
+        e.cv_chi2_after,
+        e.rms_residual_before_g,
+        e.rms_residual_after_g,
+        e.chi2_per_dof_after,
+        e.p_value_after
+    );
+    p!(
+        o,
+        "  add it: vibrocomp lab add empirical --from {} --out model.toml",
+        d.comparison.table
+    );
 }
 
 fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
@@ -662,6 +714,14 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
     } else {
         a.effects.clone()
     };
+    if kinds.iter().any(|k| k == vibro_effects::empirical::KIND) {
+        anyhow::ensure!(
+            kinds.len() == 1 && !a.freeze,
+            "`empirical` is added alone and refits the model's effects beside it (no \
+             --freeze): first add the physical effects, then `lab add empirical`"
+        );
+        return add_empirical(a, &model, &table, &log);
+    }
     let refs: Vec<&str> = kinds.iter().map(String::as_str).collect();
     let (extended, fit) = vibro_lab::add_effects(&model, &table, &refs, a.freeze)?;
     extended
@@ -705,6 +765,87 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
     for n in &fit.not_applicable {
         p!(o, "{}", not_applicable_line(n));
     }
+    p!(
+        o,
+        "wrote {} (effects: {})",
+        a.out.display(),
+        extended.effect_kinds().join(", ")
+    );
+    print_text(&o)
+}
+
+#[derive(serde::Serialize)]
+struct AddEmpiricalReport<'a> {
+    out: String,
+    effects: Vec<String>,
+    empirical: &'a vibro_lab::EmpiricalFit,
+}
+
+/// `lab add empirical`: the cross-validated correction (not physical) beside the
+/// model's effects, refitted jointly.
+fn add_empirical(
+    a: &AddArgs,
+    model: &vibro_lab::LabModel,
+    table: &vibro_lab::CampaignTable,
+    log: &[LogTableSummary],
+) -> anyhow::Result<()> {
+    let Some((extended, e)) = vibro_lab::add_empirical(model, table)? else {
+        anyhow::bail!(
+            "{}: no empirical correction: no smooth function of the vibration and the flight \
+             acceleration predicts the residual out of sample (no term lowers the \
+             leave-one-out chi-square by {}); nothing written",
+            table.path.display(),
+            vibro_lab::empirical::CV_SUPPORT
+        );
+    };
+    extended
+        .save(&a.out)
+        .with_context(|| format!("{}: cannot write the extended model", a.out.display()))?;
+    if a.json {
+        return print_json_with_log(
+            &AddEmpiricalReport {
+                out: a.out.display().to_string(),
+                effects: extended.effect_kinds(),
+                empirical: &e,
+            },
+            log,
+        );
+    }
+    let mut o = String::new();
+    for s in log {
+        print_log_summary(&mut o, s);
+    }
+    p!(
+        o,
+        "empirical correction (NOT PHYSICAL) fitted to {} ({} conditions):",
+        table.path.display(),
+        e.n
+    );
+    for t in &e.terms {
+        p!(
+            o,
+            "  {} = {:.6e} +- {:.2e} ({})",
+            t.key,
+            t.value,
+            t.sigma,
+            t.meaning
+        );
+    }
+    if !e.found.is_empty() {
+        p!(o, "  refitted beside it: {}", params_text(&e.found));
+    }
+    for dropped in &e.dropped {
+        p!(o, "  left out, not needed beside it: {dropped}");
+    }
+    p!(
+        o,
+        "residual RMS {:.3e} g -> {:.3e} g, chi2 per dof {:.4}, cross-validated chi2 {:.1} -> {:.1}",
+        e.rms_residual_before_g,
+        e.rms_residual_after_g,
+        e.chi2_per_dof_after,
+        e.cv_chi2_before,
+        e.cv_chi2_after
+    );
     p!(
         o,
         "wrote {} (effects: {})",

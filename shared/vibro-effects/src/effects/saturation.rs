@@ -414,7 +414,7 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let mut largest = 0.0f64;
         for _ in 0..200_000 {
-            let a: [f64; 3] = std::array::from_fn(|i| reach_g[i] * rng.gen_range(-1.0..=1.0));
+            let a: [f64; 3] = std::array::from_fn(|i| reach_g[i] * rng.random_range(-1.0..=1.0));
             largest = largest.max(output_g(&p, a[0], a[1], a[2]).abs());
         }
         for signs in 0..8u32 {
