@@ -177,6 +177,26 @@ fn an_acceleration_dependent_effect_is_tabulated_and_interpolated_along_the_flig
     assert!(worst < 1.5 * bound, "{worst:e} > 1.5 x {bound:e}");
 }
 
+/// An empirical correction (not physical, docs/lab.md "Beyond the library") is removed
+/// like an effect: `c_p3 P3 + c_p3_al3 P3 a(1)` with `P3 = aB3^2 / 2 + K_33` on each
+/// unit's IA, linear in the reading, so the tabulation along 1..5 g reproduces it to
+/// rounding.
+#[test]
+fn an_empirical_correction_is_removed_like_an_effect() {
+    let plain = config(None);
+    let ext = config(Some(
+        "mode = \"exact\"\n[[effect]]\nkind = \"empirical\"\nc_p3_per_g = 2.0e-6\n\
+         c_p3_al3_per_g2 = -5.0e-7\n",
+    ));
+    let b = blocks(&plain);
+    let worst = check(&run(&plain, &b), &run(&ext, &b), &plain, |v, a| {
+        let p3 = 0.5 * v.tones()[0].amplitude_g[2].powi(2) + v.covariance_g2[2][2];
+        2.0e-6 * p3 - 5.0e-7 * p3 * a
+    });
+    println!("FIGURES empirical: largest deviation {worst:.3e} g along 1..5 g");
+    assert!(worst < 1e-14, "{worst:e}");
+}
+
 #[test]
 fn a_model_file_is_checked_watched_and_its_mode_must_match() {
     let dir = TempDir::new();

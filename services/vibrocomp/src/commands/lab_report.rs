@@ -702,6 +702,25 @@ fn verdict_html(d: &Diagnosis, rms_after_g: f64) -> String {
                     100.0 * best_explained_fraction
                 );
             }
+            if let Some(e) = &d.empirical {
+                let terms: Vec<String> = e
+                    .terms
+                    .iter()
+                    .map(|t| format!("<code>{}</code> = {:.4e}", esc(&t.key), t.value))
+                    .collect();
+                let _ = write!(
+                    h,
+                    "<br><b>Beyond the library, NOT PHYSICAL:</b> an empirical correction in \
+                     {} ({}), chosen by cross-validation, takes the residual to {} (chi2 per \
+                     dof {}). Add it with <code>vibrocomp lab add empirical</code>.",
+                    esc(&e.variables.join(", ")),
+                    terms.join(", "),
+                    eng(e.rms_residual_after_g, "g"),
+                    num(e.chi2_per_dof_after)
+                );
+            } else if let Some(why) = &d.empirical_none {
+                let _ = write!(h, "<br>Beyond the library: {}.", esc(why));
+            }
             h
         }
     }
