@@ -1117,15 +1117,18 @@ pub fn diagnose(
     };
     // Beyond the library: only where no physical effect explains the data.
     let (empirical, empirical_none) = if matches!(verdict, Verdict::Unexplained { .. }) {
-        match crate::empirical::backfit(model, table, &chosen.terms, &chosen.values, &meter) {
+        let params = current.as_ref().map_or(&[][..], |f| &f.params[..]);
+        match crate::empirical::backfit(model, table, &chosen.terms, &chosen.values, params, &meter)
+        {
             Ok(Some(e)) => (Some(e), None),
             Ok(None) => (
                 None,
                 Some(format!(
                     "no smooth function of the vibration and the flight acceleration predicts \
-                     the residual out of sample (no term lowers the leave-one-out chi-square \
-                     by {})",
-                    crate::empirical::CV_SUPPORT
+                     the residual out of sample (no set of terms, each lowering the \
+                     leave-one-out chi-square by {}, brings it below {} of its value)",
+                    crate::empirical::CV_SUPPORT,
+                    crate::empirical::OFFER_FRACTION
                 )),
             ),
             Err(e) => (None, Some(format!("no empirical correction: {e}"))),
@@ -1323,7 +1326,27 @@ pub fn add_empirical(
         }
     }
     let meter = Meter::new(Budget::default());
-    let Some(e) = crate::empirical::backfit(&frozen, table, &terms, &values, &meter)? else {
+    // The model's effects as its file states them (their uncertainty from its records).
+    let params: Vec<crate::fit::FittedParam> = terms
+        .iter()
+        .zip(&values)
+        .flat_map(|(c, v)| {
+            let record = model.fits.iter().find(|r| r.kind == c.kind);
+            c.params
+                .iter()
+                .zip(v)
+                .map(move |(p, x)| crate::fit::FittedParam {
+                    effect: c.kind.to_string(),
+                    name: p.name.to_string(),
+                    value: *x,
+                    sigma: record
+                        .and_then(|r| r.sigma.get(p.name).copied())
+                        .unwrap_or(f64::NAN),
+                })
+        })
+        .collect();
+    let Some(e) = crate::empirical::backfit(&frozen, table, &terms, &values, &params, &meter)?
+    else {
         return Ok(None);
     };
     let before = compare(model, table)?;

@@ -35,6 +35,10 @@ pub const CV_SUPPORT: f64 = 10.0;
 /// Most terms a correction takes.
 pub const MAX_TERMS: usize = 6;
 
+/// A correction is offered only when it at least halves the cross-validated
+/// chi-square.
+pub const OFFER_FRACTION: f64 = 0.5;
+
 /// One term of the correction.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EmpiricalTerm {
@@ -89,7 +93,8 @@ pub struct EmpiricalFit {
 const BACKFIT_ROUNDS: usize = 3;
 
 /// The empirical correction of what `model` (its effects fixed) with the physical
-/// effects `terms` at `values` leaves on `table`, the effects refitted jointly with it.
+/// effects `terms` at `values` (`found_params`: as the search fitted them) leaves on
+/// `table`, the effects refitted jointly with it.
 /// Each round: the correction's terms chosen for the effects as they stand
 /// ([`fit_empirical`]); the effects refitted with the correction's coefficients free
 /// (variable projection, `fit::fit_joint_projected`, all parameters from their
@@ -101,6 +106,7 @@ pub(crate) fn backfit(
     table: &CampaignTable,
     terms: &[&'static crate::library::Candidate],
     values: &[Vec<f64>],
+    found_params: &[crate::fit::FittedParam],
     meter: &crate::fit::Meter,
 ) -> Result<Option<EmpiricalFit>> {
     let mut terms: Vec<&'static crate::library::Candidate> = terms.to_vec();
@@ -115,11 +121,13 @@ pub(crate) fn backfit(
     let Some(mut best) = fit_empirical(model, table, &tables_of(&terms, &values))? else {
         return Ok(None);
     };
+    best.found = found_params.to_vec();
     let n = table.conditions.len() as f64;
     let bic = |e: &EmpiricalFit, terms: &[&'static crate::library::Candidate]| {
         let k: usize = terms.iter().map(|c| c.params.len()).sum::<usize>() + e.terms.len();
         e.chi2_after + k as f64 * n.ln()
     };
+    let mut dropped: Vec<String> = Vec::new();
     for _ in 0..BACKFIT_ROUNDS {
         if terms.is_empty() {
             break;
@@ -157,6 +165,7 @@ pub(crate) fn backfit(
                 }
             }
         }
+        next.dropped = dropped.clone();
         let same_terms = next
             .terms
             .iter()
@@ -168,11 +177,11 @@ pub(crate) fn backfit(
         if let Some((drop, cost, mut e)) = cheapest.filter(|c| c.1 < BIC_SUPPORT) {
             let gone = terms.remove(drop);
             values.remove(drop);
-            e.dropped = best.dropped.clone();
-            e.dropped.push(format!(
+            dropped.push(format!(
                 "{} (removing it costs {cost:.1} in BIC)",
                 gone.kind
             ));
+            e.dropped = dropped.clone();
             e.found = best
                 .found
                 .iter()
@@ -288,8 +297,9 @@ fn linear(d: &Design, set: &[usize]) -> Option<Linear> {
 
 /// The empirical correction of the residual that `model` with the effects `found`
 /// leaves on `table`, terms chosen by cross-validation; `None` when no term lowers the
-/// cross-validated chi-square by [`CV_SUPPORT`] (no smooth function of the flight's
-/// variables predicts the residual out of sample).
+/// cross-validated chi-square by [`CV_SUPPORT`], or the terms chosen do not bring it
+/// below [`OFFER_FRACTION`] of its value without them (no smooth function of the
+/// flight's variables predicts the residual out of sample).
 pub fn fit_empirical(
     model: &LabModel,
     table: &CampaignTable,
@@ -333,7 +343,9 @@ pub fn fit_empirical(
             _ => break,
         }
     }
-    if set.is_empty() {
+    // Offered only when it predicts most of the residual out of sample: a few terms
+    // that shave a little off a residual they do not follow are no correction.
+    if set.is_empty() || best.press > OFFER_FRACTION * cv_chi2_before {
         return Ok(None);
     }
     let dof = (n - set.len()) as f64;

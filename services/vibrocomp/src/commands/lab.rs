@@ -608,21 +608,9 @@ fn print_diagnosis(o: &mut String, d: &Diagnosis) {
     }
 }
 
-/// Beyond the library: the empirical correction offered (or why none is).
-fn print_empirical(o: &mut String, d: &Diagnosis) {
-    if let Some(why) = &d.empirical_none {
-        p!(o, "Beyond the library: {why}.");
-    }
-    let Some(e) = &d.empirical else {
-        return;
-    };
-    p!(
-        o,
-        "Beyond the library: an empirical correction, NOT PHYSICAL (a smooth function of {}, \
-         chosen by leave-one-out cross-validation; an extrapolation outside the conditions \
-         measured):",
-        e.variables.join(", ")
-    );
+/// An empirical correction's terms, the effects refitted beside it or dropped, and
+/// what it does to the residual.
+fn print_correction(o: &mut String, e: &vibro_lab::EmpiricalFit) {
     for t in &e.terms {
         p!(
             o,
@@ -650,6 +638,24 @@ fn print_empirical(o: &mut String, d: &Diagnosis) {
         e.chi2_per_dof_after,
         e.p_value_after
     );
+}
+
+/// Beyond the library: the empirical correction offered (or why none is).
+fn print_empirical(o: &mut String, d: &Diagnosis) {
+    if let Some(why) = &d.empirical_none {
+        p!(o, "Beyond the library: {why}.");
+    }
+    let Some(e) = &d.empirical else {
+        return;
+    };
+    p!(
+        o,
+        "Beyond the library: an empirical correction, NOT PHYSICAL (a smooth function of {}, \
+         chosen by leave-one-out cross-validation; an extrapolation outside the conditions \
+         measured):",
+        e.variables.join(", ")
+    );
+    print_correction(o, e);
     p!(
         o,
         "  add it: vibrocomp lab add empirical --from {} --out model.toml",
@@ -792,10 +798,12 @@ fn add_empirical(
     let Some((extended, e)) = vibro_lab::add_empirical(model, table)? else {
         anyhow::bail!(
             "{}: no empirical correction: no smooth function of the vibration and the flight \
-             acceleration predicts the residual out of sample (no term lowers the \
-             leave-one-out chi-square by {}); nothing written",
+             acceleration predicts the residual out of sample (no set of terms, each \
+             lowering the leave-one-out chi-square by {}, brings it below {} of its value); \
+             nothing written",
             table.path.display(),
-            vibro_lab::empirical::CV_SUPPORT
+            vibro_lab::empirical::CV_SUPPORT,
+            vibro_lab::empirical::OFFER_FRACTION
         );
     };
     extended
@@ -821,31 +829,7 @@ fn add_empirical(
         table.path.display(),
         e.n
     );
-    for t in &e.terms {
-        p!(
-            o,
-            "  {} = {:.6e} +- {:.2e} ({})",
-            t.key,
-            t.value,
-            t.sigma,
-            t.meaning
-        );
-    }
-    if !e.found.is_empty() {
-        p!(o, "  refitted beside it: {}", params_text(&e.found));
-    }
-    for dropped in &e.dropped {
-        p!(o, "  left out, not needed beside it: {dropped}");
-    }
-    p!(
-        o,
-        "residual RMS {:.3e} g -> {:.3e} g, chi2 per dof {:.4}, cross-validated chi2 {:.1} -> {:.1}",
-        e.rms_residual_before_g,
-        e.rms_residual_after_g,
-        e.chi2_per_dof_after,
-        e.cv_chi2_before,
-        e.cv_chi2_after
-    );
+    print_correction(&mut o, &e);
     p!(
         o,
         "wrote {} (effects: {})",
