@@ -250,12 +250,13 @@ fn records(path: &Path) -> Vec<Record> {
         .collect::<Vec<_>>()
 }
 
-/// The `/compensated` blocks of a log with their log times, in file order.
+/// The `/compensated` blocks of a log with the recorder's receive times (the MCAP
+/// publish time; docs/logs.md, "Time"), in file order.
 fn compensated(recs: &[Record]) -> Vec<(u64, CompensatedBlock)> {
     recs.iter()
         .filter_map(|r| match &r.message {
             Message::CompensatedBlock(b) if &*r.topic == "/compensated" => {
-                Some((r.log_time_ns, *b))
+                Some((r.publish_time_ns, *b))
             }
             _ => None,
         })
@@ -421,7 +422,7 @@ fn a_killed_estimator_turns_the_compensation_stale_until_up_restarts_it() {
     // The kill on the data time base: the last /vib block received before it.
     let kill_data_ns = recs
         .iter()
-        .filter(|r| &*r.topic == "/vib" && r.log_time_ns <= killed_ns)
+        .filter(|r| &*r.topic == "/vib" && r.publish_time_ns <= killed_ns)
         .filter_map(|r| match &r.message {
             Message::VibBlock(v) => Some(v.t0_ns),
             _ => None,
@@ -762,7 +763,7 @@ fn a_killed_recorder_loses_at_most_the_last_second() {
     let key = |r: &Record| (r.topic.to_string(), r.sequence);
     let reference: std::collections::BTreeMap<(String, u32), u64> = records(&clean_path)
         .iter()
-        .map(|r| (key(r), r.log_time_ns))
+        .map(|r| (key(r), r.publish_time_ns))
         .collect();
     let recovered: std::collections::BTreeSet<(String, u32)> =
         records(&recovered_path).iter().map(key).collect();

@@ -363,6 +363,67 @@ fn ten_times_real_time_loses_nothing_and_the_recording_reads_in_python() {
 
     let py = python_check(&session);
     assert!(py.to_string().contains("/compensated"), "{py}");
+
+    // The data's timeline (docs/logs.md, "Time"), read by the Python reader: the
+    // recording's data channels span the flight's own time, log time for log time as
+    // the simulator wrote them, though they arrived over a tenth of it; heartbeats sit
+    // within the data's span.
+    let flight = vibro_mcap::info(&log).unwrap();
+    let ch = |i: &vibro_mcap::LogInfo, t: &str| {
+        i.channels.iter().find(|c| c.topic == t).cloned().unwrap()
+    };
+    for topic in ["/accel", "/vib", "/truth"] {
+        let (f, r) = (ch(&flight, topic), &py["channels"][topic]);
+        println!(
+            "FIGURES timeline {topic}: flight {:.6} s; recording: log time {} s, receive {} s",
+            f.span_s, r["span_s"], r["publish_span_s"]
+        );
+        assert_eq!(
+            r["first_log_time_ns"],
+            f.first_log_time_ns.unwrap(),
+            "{topic}"
+        );
+        assert_eq!(
+            r["last_log_time_ns"],
+            f.last_log_time_ns.unwrap(),
+            "{topic}"
+        );
+        let receive_s = r["publish_span_s"].as_f64().unwrap();
+        assert!(
+            receive_s < 0.5 * f.span_s,
+            "{topic}: received over {receive_s} s"
+        );
+    }
+    let comp = &py["channels"]["/compensated"];
+    assert_eq!(
+        comp["last_log_time_ns"],
+        ch(&flight, "/accel").last_log_time_ns.unwrap()
+    );
+    // Within the data the recording holds (an estimate's window may end a sample
+    // after the flight's last block).
+    let data: Vec<&serde_json::Value> = py["channels"]
+        .as_object()
+        .unwrap()
+        .iter()
+        .filter(|(t, _)| !t.starts_with("/heartbeat"))
+        .map(|(_, c)| c)
+        .collect();
+    let bound = |k: &str| -> Vec<u64> { data.iter().map(|c| c[k].as_u64().unwrap()).collect() };
+    let (lo, hi) = (
+        bound("first_log_time_ns").into_iter().min().unwrap(),
+        bound("last_log_time_ns").into_iter().max().unwrap(),
+    );
+    let hb = &py["channels"]["/heartbeat/compensator"];
+    for k in ["first_log_time_ns", "last_log_time_ns"] {
+        let t = hb[k].as_u64().unwrap();
+        assert!((lo..=hi).contains(&t), "{k} {t} outside {lo}..{hi}: {hb}");
+    }
+    let info = vibro_mcap::info(&session).unwrap();
+    assert!(
+        (info.duration_s - flight.duration_s).abs() < 0.1,
+        "{info:?}"
+    );
+    assert!(info.publish_span_s < 0.5 * flight.duration_s, "{info:?}");
 }
 
 /// `vibrocomp demo` as a user runs it: the flight through the processes, recorded, and

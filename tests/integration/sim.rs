@@ -303,6 +303,21 @@ fn flight_logs_are_reproducible_and_readable_by_python_mcap() {
     assert_eq!(count("/vib"), 75.0);
     assert_eq!(count("/accel"), 38.0);
     assert_eq!(count("/truth"), 38.0);
+    // The simulator stamps each block with its data time (docs/logs.md, "Time"): the
+    // log time a recording gives it, `vibro_mcap::Message::data_ns`, is the same.
+    let mut n = 0;
+    for r in vibro_mcap::Reader::open(&a).unwrap() {
+        let r = r.unwrap();
+        assert_eq!(
+            Some(r.log_time_ns),
+            r.message.data_ns(),
+            "{} {}",
+            r.topic,
+            n
+        );
+        n += 1;
+    }
+    assert_eq!(n, 75 + 38 + 38);
     // Only this test's files: the folder is shared with the other tests of this
     // module running beside it (removing it once deleted the live test's log mid-run).
     for f in [&a, &b, &c] {

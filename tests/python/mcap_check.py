@@ -4,7 +4,8 @@
 Decodes every message of every channel with the PyPI `mcap` reader and the
 `mcap-protobuf-support` decoder (which builds the message classes from the schema
 embedded in the file, as Foxglove does), with chunk CRC validation on, and prints a
-JSON summary per channel: count, first/last log time, sequence gaps, and the first
+JSON summary per channel: count, first/last log time and its span, the publish time's
+span, sequence gaps, and the first
 message's fields. Doubles appear twice: as JSON numbers in `first_message` (NaN and
 infinities as strings) and as exact IEEE-754 bit patterns (unsigned 64-bit integers) in
 `first_message_f64_bits`, keyed by field path, so a caller can compare bit for bit.
@@ -121,6 +122,8 @@ def check(path, all_messages=False):
                     "count": 0,
                     "first_log_time_ns": message.log_time,
                     "last_log_time_ns": message.log_time,
+                    "min_publish_time_ns": message.publish_time,
+                    "max_publish_time_ns": message.publish_time,
                     "first_sequence": message.sequence,
                     "last_sequence": message.sequence,
                     "sequence_gaps": 0,
@@ -147,9 +150,12 @@ def check(path, all_messages=False):
             c["count"] += 1
             c["first_log_time_ns"] = min(c["first_log_time_ns"], message.log_time)
             c["last_log_time_ns"] = max(c["last_log_time_ns"], message.log_time)
+            c["min_publish_time_ns"] = min(c["min_publish_time_ns"], message.publish_time)
+            c["max_publish_time_ns"] = max(c["max_publish_time_ns"], message.publish_time)
             c["last_sequence"] = message.sequence
         for c in channels.values():
             c["span_s"] = (c["last_log_time_ns"] - c["first_log_time_ns"]) * 1e-9
+            c["publish_span_s"] = (c["max_publish_time_ns"] - c["min_publish_time_ns"]) * 1e-9
         attachments = [a.name for a in reader.iter_attachments()]
         metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
     return {

@@ -103,12 +103,75 @@ struct State {
     next_seq: Option<u64>,
 }
 
+/// The data's timeline (docs/logs.md, "Time"): a message's log time is the time its
+/// data belongs to ([`Message::data_ns`]), so that a replay at any rate spans the
+/// flight's own time in a viewer; a heartbeat, which has no data time, gets the latest
+/// data time seen on any stream. Heartbeats that arrive before the first data message
+/// wait for it (at most [`PENDING_MAX`]; beyond, and when no data ever comes, they keep
+/// their receive time).
+struct DataClock {
+    latest_ns: Option<u64>,
+    pending: Vec<Pending>,
+}
+
+/// A message waiting for the first data time.
+struct Pending {
+    channel: ChannelId,
+    receive_ns: u64,
+    seq: u32,
+    message: Message,
+}
+
+/// The most heartbeats held for the first data time (a few seconds of every service's).
+pub const PENDING_MAX: usize = 256;
+
+impl DataClock {
+    fn new() -> Self {
+        Self {
+            latest_ns: None,
+            pending: Vec::new(),
+        }
+    }
+
+    /// Writes what waits, at log time `log_ns` (or each at its receive time).
+    fn flush(&mut self, recorder: &Recorder, log_ns: Option<u64>, st: &mut State) -> Result<()> {
+        for p in self.pending.drain(..) {
+            let t = log_ns.unwrap_or(p.receive_ns);
+            write_waiting(recorder, &p.channel, t, p.receive_ns, p.seq, p.message, st)?;
+        }
+        Ok(())
+    }
+}
+
+/// Writes one message, waiting while the writer's queue is full (the publishers feel
+/// it as back-pressure, bounded and counted by them) rather than dropping it.
+fn write_waiting(
+    recorder: &Recorder,
+    channel: &ChannelId,
+    log_time_ns: u64,
+    receive_ns: u64,
+    seq: u32,
+    message: Message,
+    st: &mut State,
+) -> Result<()> {
+    loop {
+        match recorder.write_to(channel, log_time_ns, receive_ns, seq, message) {
+            Ok(()) => return Ok(()),
+            Err(vibro_mcap::Error::QueueFull { .. }) => {
+                st.counts.queue_waits += 1;
+                std::thread::sleep(Duration::from_micros(200));
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+}
+
 /// The type-erased operations of a [`Channel`], so that one loop drains every stream.
 trait Drain {
     fn listener(&self) -> &iceoryx2::port::listener::Listener<Ipc>;
     fn clear_events(&self);
     /// Records every message waiting; returns how many.
-    fn drain(&self, recorder: &Recorder, st: &mut State) -> Result<u64>;
+    fn drain(&self, recorder: &Recorder, st: &mut State, clock: &mut DataClock) -> Result<u64>;
 }
 
 impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
@@ -120,10 +183,10 @@ impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
         let _ = self.subscriber.clear_events();
     }
 
-    fn drain(&self, recorder: &Recorder, st: &mut State) -> Result<u64> {
+    fn drain(&self, recorder: &Recorder, st: &mut State, clock: &mut DataClock) -> Result<u64> {
         let mut n = 0;
         while let Some(sample) = self.subscriber.receive()? {
-            let log_time_ns = now_ns();
+            let receive_ns = now_ns();
             let message: T = *sample;
             drop(sample);
             n += 1;
@@ -138,25 +201,36 @@ impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
                 continue;
             }
             let wire: Message = message.into();
-            loop {
-                match recorder.write_to(
-                    &self.channel,
-                    log_time_ns,
-                    message.publish_ns(),
-                    seq as u32,
-                    wire,
-                ) {
-                    Ok(()) => break,
-                    // The writer thread is behind: wait for it rather than drop. The
-                    // publishers feel it as back-pressure (bounded and counted by them).
-                    Err(vibro_mcap::Error::QueueFull { .. }) => {
-                        st.counts.queue_waits += 1;
-                        std::thread::sleep(Duration::from_micros(200));
-                    }
-                    Err(e) => return Err(e.into()),
-                }
-            }
             st.counts.recorded += 1;
+            let log_time_ns = match (wire.data_ns(), clock.latest_ns) {
+                (Some(t), _) => {
+                    if clock.latest_ns.is_none() {
+                        clock.flush(recorder, Some(t), st)?;
+                    }
+                    clock.latest_ns = Some(clock.latest_ns.map_or(t, |l| l.max(t)));
+                    t
+                }
+                (None, Some(t)) => t,
+                (None, None) if clock.pending.len() < PENDING_MAX => {
+                    clock.pending.push(Pending {
+                        channel: self.channel.clone(),
+                        receive_ns,
+                        seq: seq as u32,
+                        message: wire,
+                    });
+                    continue;
+                }
+                (None, None) => receive_ns,
+            };
+            write_waiting(
+                recorder,
+                &self.channel,
+                log_time_ns,
+                receive_ns,
+                seq as u32,
+                wire,
+                st,
+            )?;
         }
         Ok(n)
     }
@@ -408,6 +482,12 @@ fn record_into(
         ),
         (
             "log_time".to_string(),
+            "data time, ns: a block's last sample, an estimate's window end; a heartbeat \
+             the latest data time seen (docs/logs.md, Time)"
+                .to_string(),
+        ),
+        (
+            "publish_time".to_string(),
             "receive time, CLOCK_MONOTONIC ns".to_string(),
         ),
     ]);
@@ -438,6 +518,7 @@ fn record_into(
     ready();
     let heartbeat_ns = options.heartbeat_period.as_nanos() as u64;
     let mut next_heartbeat_ns = now_ns().saturating_add(heartbeat_ns);
+    let mut clock = DataClock::new();
     loop {
         let stopping = stop.load(Ordering::Acquire);
         if !stopping {
@@ -457,7 +538,7 @@ fn record_into(
         }
         let mut taken = 0;
         for (c, st) in channels.iter().zip(&mut states) {
-            taken += c.drain(recorder, st)?;
+            taken += c.drain(recorder, st, &mut clock)?;
         }
         let (received, recorded, lost) = totals(&states);
         if taken > 0 {
@@ -477,6 +558,10 @@ fn record_into(
         if stopping {
             break;
         }
+    }
+    // No data came: what waited for its time keeps its receive time.
+    if let Some(st) = states.first_mut() {
+        clock.flush(recorder, None, st)?;
     }
     let (received, recorded, lost) = totals(&states);
     status.heartbeat(received, recorded, lost, ServiceState::Stopping);

@@ -64,6 +64,25 @@ impl Message {
         }
     }
 
+    /// The time the message's data belongs to, ns (the recordings' log time,
+    /// docs/logs.md "Time"): a block's last sample, `t0_ns + (count - 1)
+    /// sample_period_ns` (for an accelerometer or compensated block, the end of its
+    /// last reading's interval); an estimate's window end `end_ns`. `None` for a
+    /// heartbeat, which carries no data time (only its producer's clock).
+    pub fn data_ns(&self) -> Option<u64> {
+        let last = |t0_ns: u64, count: u32, period_ns: u64| {
+            t0_ns.saturating_add(u64::from(count.saturating_sub(1)).saturating_mul(period_ns))
+        };
+        match self {
+            Message::AccelBlock(m) => Some(last(m.t0_ns, m.count, m.sample_period_ns)),
+            Message::VibBlock(m) => Some(last(m.t0_ns, m.count, m.sample_period_ns)),
+            Message::CompensatedBlock(m) => Some(last(m.t0_ns, m.count, m.sample_period_ns)),
+            Message::TruthBlock(m) => Some(last(m.t0_ns, m.count, m.sample_period_ns)),
+            Message::VibEstimate(m) => Some(m.end_ns),
+            Message::Heartbeat(_) => None,
+        }
+    }
+
     /// The wire struct's bytes (shared-memory layout).
     pub fn wire_bytes(&self) -> &[u8] {
         match self {

@@ -41,6 +41,11 @@ pub struct ChannelInfo {
     pub last_log_time_ns: Option<u64>,
     /// `last - first` log time, in seconds.
     pub span_s: f64,
+    /// Earliest and latest publish time (in a recording: the recorder's receive time;
+    /// docs/logs.md, "Time"), and the span between them in seconds.
+    pub first_publish_time_ns: Option<u64>,
+    pub last_publish_time_ns: Option<u64>,
+    pub publish_span_s: f64,
     /// First and last sequence number, in file order.
     pub first_sequence: Option<u32>,
     pub last_sequence: Option<u32>,
@@ -119,6 +124,11 @@ pub struct LogInfo {
     pub first_log_time_ns: Option<u64>,
     pub last_log_time_ns: Option<u64>,
     pub duration_s: f64,
+    /// Earliest and latest publish time over all channels (a recording: receive time),
+    /// and the span in seconds.
+    pub first_publish_time_ns: Option<u64>,
+    pub last_publish_time_ns: Option<u64>,
+    pub publish_span_s: f64,
     /// Messages lost over all channels: the sum of [`ChannelInfo::lost`] and of
     /// [`ChannelInfo::inputs_without_output`] (accelerometer blocks that reached the
     /// recorder but no compensator: lost for the compensated stream).
@@ -266,6 +276,9 @@ fn read_info(
         chunks: None,
         first_log_time_ns: None,
         last_log_time_ns: None,
+        first_publish_time_ns: None,
+        last_publish_time_ns: None,
+        publish_span_s: 0.0,
         duration_s: 0.0,
         lost: 0,
         inputs_without_output: 0,
@@ -328,6 +341,7 @@ fn read_info(
     } = summary;
     for c in channels.values_mut() {
         c.span_s = span_s(c.first_log_time_ns, c.last_log_time_ns);
+        c.publish_span_s = span_s(c.first_publish_time_ns, c.last_publish_time_ns);
     }
     out.channels = channels.into_values().collect();
     out.messages = out.channels.iter().map(|c| c.messages).sum();
@@ -341,6 +355,17 @@ fn read_info(
         .min();
     out.last_log_time_ns = out.channels.iter().filter_map(|c| c.last_log_time_ns).max();
     out.duration_s = span_s(out.first_log_time_ns, out.last_log_time_ns);
+    out.first_publish_time_ns = out
+        .channels
+        .iter()
+        .filter_map(|c| c.first_publish_time_ns)
+        .min();
+    out.last_publish_time_ns = out
+        .channels
+        .iter()
+        .filter_map(|c| c.last_publish_time_ns)
+        .max();
+    out.publish_span_s = span_s(out.first_publish_time_ns, out.last_publish_time_ns);
     Ok(out)
 }
 
@@ -388,6 +413,9 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
                 messages: 0,
                 first_log_time_ns: None,
                 last_log_time_ns: None,
+                first_publish_time_ns: None,
+                last_publish_time_ns: None,
+                publish_span_s: 0.0,
                 span_s: 0.0,
                 first_sequence: None,
                 last_sequence: None,
@@ -412,6 +440,9 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
             let t = header.log_time;
             c.first_log_time_ns = Some(c.first_log_time_ns.map_or(t, |f| f.min(t)));
             c.last_log_time_ns = Some(c.last_log_time_ns.map_or(t, |l| l.max(t)));
+            let p = header.publish_time;
+            c.first_publish_time_ns = Some(c.first_publish_time_ns.map_or(p, |f| f.min(p)));
+            c.last_publish_time_ns = Some(c.last_publish_time_ns.map_or(p, |l| l.max(p)));
             track_sequence(c, header.sequence);
             if let Some(last) = last_input_seq.get_mut(&header.channel_id) {
                 match InputSeqOnly::decode(&*data) {
@@ -455,6 +486,9 @@ mod tests {
             messages: 0,
             first_log_time_ns: None,
             last_log_time_ns: None,
+            first_publish_time_ns: None,
+            last_publish_time_ns: None,
+            publish_span_s: 0.0,
             span_s: 0.0,
             first_sequence: None,
             last_sequence: None,

@@ -179,6 +179,16 @@ fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
         fmt_opt_ns(info.last_log_time_ns),
         info.duration_s
     )?;
+    // The two clocks (docs/logs.md, "Time"): the data's (log time) and, in a recording,
+    // the recorder's receive time (publish time), which a replay compresses.
+    writeln!(
+        out,
+        "  publish time {} .. {} ({:.3} s; in a recording the receive time, the log time \
+         the data's)",
+        fmt_opt_ns(info.first_publish_time_ns),
+        fmt_opt_ns(info.last_publish_time_ns),
+        info.publish_span_s
+    )?;
     let gaps: u64 = info.channels.iter().map(|c| c.gaps).sum();
     let out_of_order: u64 = info.channels.iter().map(|c| c.out_of_order).sum();
     if info.lost == 0 && out_of_order == 0 && info.jumps == 0 {
