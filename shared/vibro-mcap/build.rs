@@ -11,13 +11,17 @@ use std::error::Error;
 use std::path::PathBuf;
 
 /// The files, one message each; `src/schema.rs` embeds `<stem>.fds.bin` for each.
-const FILES: [&str; 6] = [
+const FILES: [&str; 9] = [
     "vibrocomp/v1/accel_block.proto",
     "vibrocomp/v1/vib_block.proto",
     "vibrocomp/v1/vib_estimate.proto",
     "vibrocomp/v1/compensated_block.proto",
     "vibrocomp/v1/truth_block.proto",
     "vibrocomp/v1/heartbeat.proto",
+    // The view channels for people (docs/view.md).
+    "vibrocomp/view/v1/unit_stages.proto",
+    "vibrocomp/view/v1/vibration_axis.proto",
+    "vibrocomp/view/v1/service_health.proto",
 ];
 
 fn main() -> Result<(), Box<dyn Error>> {

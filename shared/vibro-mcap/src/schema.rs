@@ -45,6 +45,28 @@ pub const fn schema(kind: MessageKind) -> Schema {
     Schema { kind, name, data }
 }
 
+/// A view channel's schema (docs/view.md): fully qualified name and serialised
+/// `FileDescriptorSet`, as for the wire types.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ViewSchema {
+    pub name: &'static str,
+    pub data: &'static [u8],
+}
+
+/// The view channels' schemas: per unit and stage, per vibration axis, per service.
+pub const VIEW_UNIT_STAGES: ViewSchema = ViewSchema {
+    name: "vibrocomp.view.v1.UnitStages",
+    data: fds!("unit_stages"),
+};
+pub const VIEW_VIBRATION_AXIS: ViewSchema = ViewSchema {
+    name: "vibrocomp.view.v1.VibrationAxis",
+    data: fds!("vibration_axis"),
+};
+pub const VIEW_SERVICE_HEALTH: ViewSchema = ViewSchema {
+    name: "vibrocomp.view.v1.ServiceHealth",
+    data: fds!("service_health"),
+};
+
 /// The message kind whose schema is named `name` (e.g. `vibrocomp.v1.VibBlock`).
 pub fn kind_of_schema(name: &str) -> Option<MessageKind> {
     MessageKind::ALL

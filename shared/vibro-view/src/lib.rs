@@ -1,0 +1,372 @@
+//! # vibro-view
+//!
+//! The view channels (docs/view.md): beside the zero-copy wire streams, which pack a
+//! block's samples interleaved by unit, messages made to be plotted by people, one
+//! value per field per message, as Foxglove's plot takes them:
+//!
+//! - `/view/{unit}` ([`UnitStages`]): per accelerometer unit and compensated block, the
+//!   acceleration at each stage of [P2 (17)-(20)] (`uncompensated_g` a(1),
+//!   `main_removed_g` a(2), `compensated_g` a(4)), each as the block's mean, minimum
+//!   and maximum, so that no peak between two messages is hidden; with a reference
+//!   (`/truth`) the reference and each stage's error against it, sample by sample;
+//! - `/view/vibration/{x,y,z}` ([`VibrationAxis`]): the estimate per body axis with
+//!   named fields (the strongest tone's frequency, amplitude and phase, the broadband
+//!   RMS, the kurtosis, the flags);
+//! - `/view/health/{service}` ([`ServiceHealth`]): each heartbeat with the service and
+//!   its state as protobuf enums.
+//!
+//! Each message is placed on the data's time (docs/logs.md, "Time"). The library does
+//! no I/O: [`ViewBuilder::on_message`] turns a wire message into view messages, which
+//! the live view (`vibrocomp view`) sends to Foxglove.
+//!
+//! ```
+//! use vibro_view::{ViewBuilder, UNIT_NAMES};
+//! let mut view = ViewBuilder::new(UNIT_NAMES);
+//! let mut out = Vec::new();
+//! let hb = vibro_msgs::Heartbeat { service: 4, state: 2, ..vibro_msgs::Heartbeat::ZEROED };
+//! view.on_message(&vibro_mcap::Message::Heartbeat(hb), &mut out);
+//! assert_eq!(out[0].topic, "/view/health/compensator");
+//! ```
+
+use prost::Message as _;
+use vibro_mcap::view_proto::{
+    service_health::{Service, State},
+    ServiceHealth, Stage, UnitStages, VibrationAxis,
+};
+use vibro_mcap::{Message, ViewSchema, VIEW_SERVICE_HEALTH, VIEW_UNIT_STAGES, VIEW_VIBRATION_AXIS};
+use vibro_msgs::{CompensatedBlock, Heartbeat, ServiceId, TruthBlock, VibEstimate, UNITS};
+
+/// The triad's unit names when no other are given (RIG.md's AK1..AK3).
+pub const UNIT_NAMES: [&str; 3] = ["AK1", "AK2", "AK3"];
+
+/// The body axes' names, in index order.
+pub const AXES: [&str; 3] = ["x", "y", "z"];
+
+/// Reference blocks kept to pair with the compensated blocks that answer them.
+const TRUTH_KEPT: usize = 64;
+
+/// One view message: its topic, schema, data time and protobuf bytes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ViewMessage {
+    pub topic: String,
+    pub schema: ViewSchema,
+    /// The data time it belongs to, ns (docs/logs.md, "Time").
+    pub log_time_ns: u64,
+    pub data: Vec<u8>,
+}
+
+/// Every view topic for a triad with `units`, and its schema (what a viewer can
+/// subscribe to before any message arrives).
+pub fn topics(units: [&str; 3]) -> Vec<(String, ViewSchema)> {
+    let mut out: Vec<(String, ViewSchema)> = units
+        .iter()
+        .map(|u| (format!("/view/{u}"), VIEW_UNIT_STAGES))
+        .collect();
+    out.extend(
+        AXES.iter()
+            .map(|a| (format!("/view/vibration/{a}"), VIEW_VIBRATION_AXIS)),
+    );
+    out.extend(
+        ServiceId::ALL
+            .iter()
+            .map(|s| (format!("/view/health/{}", s.as_str()), VIEW_SERVICE_HEALTH)),
+    );
+    out
+}
+
+/// The mean, minimum and maximum of `values`; `None` when there are none or one is
+/// not finite (a stage the compensator could not compute).
+pub fn stage(values: impl Iterator<Item = f64>) -> Option<Stage> {
+    let (mut n, mut sum, mut min, mut max) = (0usize, 0.0, f64::INFINITY, f64::NEG_INFINITY);
+    for v in values {
+        if !v.is_finite() {
+            return None;
+        }
+        n += 1;
+        sum += v;
+        min = min.min(v);
+        max = max.max(v);
+    }
+    (n > 0).then(|| Stage {
+        mean: sum / n as f64,
+        min,
+        max,
+    })
+}
+
+fn timestamp(ns: u64) -> prost_types::Timestamp {
+    prost_types::Timestamp {
+        seconds: (ns / 1_000_000_000) as i64,
+        nanos: (ns % 1_000_000_000) as i32,
+    }
+}
+
+/// Turns wire messages into view messages.
+#[derive(Debug, Clone)]
+pub struct ViewBuilder {
+    units: [String; 3],
+    /// Recent reference blocks, by `first_sample_index`.
+    truth: std::collections::VecDeque<TruthBlock>,
+    /// The latest data time seen (where a heartbeat is placed).
+    latest_ns: u64,
+}
+
+impl ViewBuilder {
+    pub fn new(units: [&str; 3]) -> Self {
+        Self {
+            units: units.map(str::to_string),
+            truth: std::collections::VecDeque::with_capacity(TRUTH_KEPT),
+            latest_ns: 0,
+        }
+    }
+
+    /// The view messages `m` gives, appended to `out` (none for the raw input streams:
+    /// a reference block is kept for the compensated block that answers it).
+    pub fn on_message(&mut self, m: &Message, out: &mut Vec<ViewMessage>) {
+        if let Some(t) = m.data_ns() {
+            self.latest_ns = self.latest_ns.max(t);
+        }
+        match m {
+            Message::TruthBlock(t) => {
+                if self.truth.len() == TRUTH_KEPT {
+                    self.truth.pop_front();
+                }
+                self.truth.push_back(*t);
+            }
+            Message::CompensatedBlock(b) => self.unit_stages(b, m.data_ns().unwrap_or(0), out),
+            Message::VibEstimate(e) => self.vibration(e, out),
+            Message::Heartbeat(h) => self.health(h, out),
+            Message::AccelBlock(_) | Message::VibBlock(_) => {}
+        }
+    }
+
+    fn unit_stages(&self, b: &CompensatedBlock, t_ns: u64, out: &mut Vec<ViewMessage>) {
+        let n = (b.count as usize).min(b.a1_g.len());
+        let truth = self
+            .truth
+            .iter()
+            .rev()
+            .find(|t| t.first_sample_index == b.first_sample_index && t.count == b.count);
+        for u in 0..UNITS {
+            let col = |a: &[[f64; UNITS]]| -> Vec<f64> { a[..n].iter().map(|s| s[u]).collect() };
+            let (a1, a2, a4) = (col(&b.a1_g), col(&b.a2_g), col(&b.a4_g));
+            let reference = truth.map(|t| col(&t.a_sensed_ia_g));
+            let error = |x: &[f64]| {
+                reference
+                    .as_ref()
+                    .and_then(|r| stage(x.iter().zip(r).map(|(a, s)| a - s)))
+            };
+            let msg = UnitStages {
+                timestamp: Some(timestamp(t_ns)),
+                unit: self.units[u].clone(),
+                unit_index: u as u32,
+                samples: n as u32,
+                first_sample_index: b.first_sample_index,
+                uncompensated_g: stage(a1.iter().copied()),
+                main_removed_g: stage(a2.iter().copied()),
+                compensated_g: stage(a4.iter().copied()),
+                reference_g: reference.as_ref().and_then(|r| stage(r.iter().copied())),
+                uncompensated_error_g: error(&a1),
+                main_removed_error_g: error(&a2),
+                compensated_error_g: error(&a4),
+                flags: b.flags,
+            };
+            out.push(ViewMessage {
+                topic: format!("/view/{}", self.units[u]),
+                schema: VIEW_UNIT_STAGES,
+                log_time_ns: t_ns,
+                data: msg.encode_to_vec(),
+            });
+        }
+    }
+
+    fn vibration(&self, e: &VibEstimate, out: &mut Vec<ViewMessage>) {
+        let tones = (e.tone_count as usize).min(e.tone_frequency_hz.len());
+        for (i, axis) in AXES.iter().enumerate() {
+            let strongest = (0..tones).max_by(|&a, &b| {
+                e.tone_amplitude_g[a][i]
+                    .abs()
+                    .total_cmp(&e.tone_amplitude_g[b][i].abs())
+            });
+            let msg = VibrationAxis {
+                timestamp: Some(timestamp(e.end_ns)),
+                axis: axis.to_string(),
+                axis_index: i as u32,
+                tone_count: tones as u32,
+                tone_frequency_hz: strongest.map_or(0.0, |t| e.tone_frequency_hz[t]),
+                tone_amplitude_g: strongest.map_or(0.0, |t| e.tone_amplitude_g[t][i]),
+                tone_phase_rad: strongest.map_or(0.0, |t| e.tone_phase_rad[t][i]),
+                broadband_rms_g: e.broadband_rms_g[i],
+                kurtosis: e.broadband_kurtosis[i],
+                flags: e.flags,
+                saturated: e.saturated_samples[i] > 0,
+            };
+            out.push(ViewMessage {
+                topic: format!("/view/vibration/{axis}"),
+                schema: VIEW_VIBRATION_AXIS,
+                log_time_ns: e.end_ns,
+                data: msg.encode_to_vec(),
+            });
+        }
+    }
+
+    fn health(&self, h: &Heartbeat, out: &mut Vec<ViewMessage>) {
+        let service = ServiceId::try_from(h.service as u8).ok();
+        let msg = ServiceHealth {
+            timestamp: Some(timestamp(self.latest_ns)),
+            service: service.map_or(Service::Unspecified, |s| match s {
+                ServiceId::Sim => Service::Sim,
+                ServiceId::Rig => Service::Rig,
+                ServiceId::Estimator => Service::Estimator,
+                ServiceId::Compensator => Service::Compensator,
+                ServiceId::Recorder => Service::Recorder,
+                ServiceId::Monitor => Service::Monitor,
+            }) as i32,
+            state: match h.state {
+                1 => State::Starting,
+                2 => State::Running,
+                3 => State::Degraded,
+                4 => State::Stopping,
+                _ => State::Unspecified,
+            } as i32,
+            uptime_s: h.uptime_ns as f64 * 1e-9,
+            received: h.received,
+            published: h.published,
+            lost: h.lost,
+            stale: h.stale,
+            latency_p50_ms: h.latency_p50_ns as f64 * 1e-6,
+            latency_p99_ms: h.latency_p99_ns as f64 * 1e-6,
+        };
+        out.push(ViewMessage {
+            topic: format!("/view/health/{}", service.map_or("unknown", |s| s.as_str())),
+            schema: VIEW_SERVICE_HEALTH,
+            log_time_ns: self.latest_ns,
+            data: msg.encode_to_vec(),
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vibro_msgs::{CompensatedBlock, TruthBlock};
+
+    /// Mean, minimum and maximum against a sum and comparisons written out by hand.
+    #[test]
+    fn a_stage_is_the_mean_min_and_max() {
+        let v = [0.5, -1.25, 3.0, 2.0];
+        let s = stage(v.iter().copied()).unwrap();
+        assert_eq!((s.mean, s.min, s.max), (4.25 / 4.0, -1.25, 3.0));
+        assert!(stage([1.0, f64::NAN].into_iter()).is_none());
+        assert!(stage(std::iter::empty()).is_none());
+    }
+
+    fn block(n: usize) -> (CompensatedBlock, TruthBlock) {
+        let mut b = CompensatedBlock::ZEROED;
+        let mut t = TruthBlock::ZEROED;
+        b.count = n as u32;
+        t.count = n as u32;
+        b.first_sample_index = 64;
+        t.first_sample_index = 64;
+        b.t0_ns = 1_250_000;
+        b.sample_period_ns = 1_250_000;
+        for k in 0..n {
+            for u in 0..3 {
+                let x = (k * 7 + u * 3) as f64;
+                b.a1_g[k][u] = 1.0 + 1e-3 * x;
+                b.a2_g[k][u] = 1.0 + 1e-4 * x;
+                b.a4_g[k][u] = 1.0 + 1e-6 * (x - 10.0).abs();
+                t.a_sensed_ia_g[k][u] = 1.0 + 1e-6 * (k % 3) as f64;
+            }
+        }
+        (b, t)
+    }
+
+    /// One message per unit, each stage over the block's samples, the errors sample by
+    /// sample against the reference block with the same first sample; placed at the
+    /// block's last reading.
+    #[test]
+    fn each_unit_gets_its_stages_and_errors() {
+        let (b, t) = block(32);
+        let mut view = ViewBuilder::new(UNIT_NAMES);
+        let mut out = Vec::new();
+        view.on_message(&Message::TruthBlock(t), &mut out);
+        assert!(out.is_empty());
+        view.on_message(&Message::CompensatedBlock(b), &mut out);
+        assert_eq!(out.len(), 3);
+        for (u, m) in out.iter().enumerate() {
+            assert_eq!(m.topic, format!("/view/{}", UNIT_NAMES[u]));
+            assert_eq!(m.log_time_ns, 1_250_000 * 32);
+            let s = UnitStages::decode(&m.data[..]).unwrap();
+            let errs: Vec<f64> = (0..32)
+                .map(|k| b.a4_g[k][u] - t.a_sensed_ia_g[k][u])
+                .collect();
+            let e = s.compensated_error_g.unwrap();
+            let max = errs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let min = errs.iter().copied().fold(f64::INFINITY, f64::min);
+            assert_eq!((e.min, e.max), (min, max));
+            assert!((e.mean - errs.iter().sum::<f64>() / 32.0).abs() < 1e-18);
+            let a1 = s.uncompensated_g.unwrap();
+            assert_eq!(a1.max, b.a1_g[31][u]);
+            assert_eq!(s.samples, 32);
+            assert_eq!(s.timestamp.unwrap().nanos, 40_000_000);
+        }
+        // Without a matching reference: the stages, no errors.
+        let mut view = ViewBuilder::new(UNIT_NAMES);
+        let mut out = Vec::new();
+        view.on_message(&Message::CompensatedBlock(b), &mut out);
+        let s = UnitStages::decode(&out[0].data[..]).unwrap();
+        assert!(s.reference_g.is_none() && s.compensated_error_g.is_none());
+        assert!(s.compensated_g.is_some());
+    }
+
+    /// Heartbeats carry the wire codes as protobuf enums and sit at the latest data
+    /// time; the strongest tone on each axis is the one named.
+    #[test]
+    fn health_and_vibration_have_named_fields() {
+        let mut view = ViewBuilder::new(UNIT_NAMES);
+        let mut out = Vec::new();
+        let (b, _) = block(4);
+        view.on_message(&Message::CompensatedBlock(b), &mut out);
+        out.clear();
+        let hb = Heartbeat {
+            service: ServiceId::Estimator.code().into(),
+            state: 3,
+            latency_p99_ns: 2_500_000,
+            ..Heartbeat::ZEROED
+        };
+        view.on_message(&Message::Heartbeat(hb), &mut out);
+        let h = ServiceHealth::decode(&out[0].data[..]).unwrap();
+        assert_eq!(out[0].topic, "/view/health/estimator");
+        assert_eq!(h.service(), Service::Estimator);
+        assert_eq!(h.state(), State::Degraded);
+        assert_eq!(h.latency_p99_ms, 2.5);
+        assert_eq!(out[0].log_time_ns, 1_250_000 * 4);
+        out.clear();
+        let mut e = VibEstimate::ZEROED;
+        e.end_ns = 9;
+        e.tone_count = 2;
+        e.tone_frequency_hz[0] = 8.0;
+        e.tone_frequency_hz[1] = 16.0;
+        e.tone_amplitude_g[0] = [0.5, 0.1, 1.2];
+        e.tone_amplitude_g[1] = [-0.7, 0.0, 0.3];
+        e.broadband_rms_g = [1.0, 2.0, 3.0];
+        view.on_message(&Message::VibEstimate(e), &mut out);
+        let axis = |i: usize| VibrationAxis::decode(&out[i].data[..]).unwrap();
+        assert_eq!(axis(0).tone_frequency_hz, 16.0);
+        assert_eq!(axis(0).tone_amplitude_g, -0.7);
+        assert_eq!(axis(1).tone_frequency_hz, 8.0);
+        assert_eq!(axis(2).tone_frequency_hz, 8.0);
+        assert_eq!(axis(2).broadband_rms_g, 3.0);
+        assert_eq!(out[2].topic, "/view/vibration/z");
+    }
+
+    #[test]
+    fn every_topic_is_listed_with_its_schema() {
+        let t = topics(UNIT_NAMES);
+        assert_eq!(t.len(), 3 + 3 + ServiceId::ALL.len());
+        assert!(t
+            .iter()
+            .any(|(n, s)| n == "/view/AK2" && *s == VIEW_UNIT_STAGES));
+    }
+}
