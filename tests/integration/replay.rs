@@ -10,7 +10,7 @@
 //! - the recordings decode with the Python `mcap` reader (CRCs checked).
 
 use crate::common::{bin, repo_path};
-use crate::processes::{children, flight_log, prefix, Dir};
+use crate::processes::{children, flight_log, poll, prefix, Dir, Kid};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
@@ -588,4 +588,198 @@ fn a_looped_replay_is_one_continuous_stream() {
     assert_eq!(est_s["dsp"]["blocks_dropped"], 0, "{est_s}");
     assert_eq!(est_s["dsp"]["restarts"], 0, "{est_s}");
     assert_eq!(comp_s["input_gap_blocks"], 0, "{comp_s}");
+}
+
+/// A free TCP port on 127.0.0.1 (bound, then released for the server to take).
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// The mean, minimum and maximum of unit `u`'s column of `rows[..n]`.
+fn mean_min_max(rows: &[[f64; 3]], n: u32, u: usize) -> [f64; 3] {
+    let col: Vec<f64> = rows[..n as usize].iter().map(|r| r[u]).collect();
+    [
+        col.iter().sum::<f64>() / col.len() as f64,
+        col.iter().copied().fold(f64::INFINITY, f64::min),
+        col.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+    ]
+}
+
+/// The live view (docs/view.md) seen by a real client of Foxglove's WebSocket protocol
+/// (`tests/python/foxglove_client.py`: the `websockets` package, subprotocol
+/// `foxglove.sdk.v1`, decoding with the schemas the server advertises) during a paced
+/// replay: every view channel advertised with its schema, one `/view/{unit}` message per
+/// compensated block, each stage's mean, minimum and maximum and its error against the
+/// reference equal to what the recording of the same run holds (computed here from the
+/// recorded `/compensated` and `/truth` blocks), placed on the data's time, and the
+/// services' health with named states.
+#[test]
+fn a_foxglove_client_sees_the_live_view_as_the_recording_holds_it() {
+    let dir = Dir::new("view");
+    let log = flight_log(&dir, "3");
+    let p = prefix("v");
+    let services_log = dir.path("services.log");
+    let session = dir.path("session.mcap");
+    let s = spec(&p, Some(session.clone()));
+    let mut est = start(&s, Role::Estimator, &services_log);
+    let mut comp = start(&s, Role::Compensator, &services_log);
+    let mut rec = start(&s, Role::Recorder, &services_log);
+    wait_up(
+        &p,
+        &[
+            ServiceId::Estimator,
+            ServiceId::Compensator,
+            ServiceId::Recorder,
+        ],
+        &mut [&mut est, &mut comp, &mut rec],
+        &services_log,
+    );
+    let port = free_port();
+    let listen = format!("127.0.0.1:{port}");
+    let mut view_cmd = bin();
+    view_cmd.args(["view", "--prefix", &p, "--listen", &listen, "--json"]);
+    let mut view = Kid::spawn(view_cmd, "view");
+    assert!(
+        poll(Duration::from_secs(20), || std::net::TcpStream::connect(
+            &listen
+        )
+        .is_ok()),
+        "the view does not listen on {listen}: {}",
+        view.stderr()
+    );
+    let ready = dir.path("ready");
+    let mut client_cmd = Command::new("python3");
+    client_cmd
+        .arg(repo_path("tests/python/foxglove_client.py"))
+        .arg(format!("ws://{listen}"))
+        .arg("--ready")
+        .arg(&ready)
+        .args([
+            "--quiet-s",
+            "3",
+            "--quiet-prefix",
+            "/view/AK",
+            "--max-s",
+            "60",
+        ]);
+    let mut client = Kid::spawn(client_cmd, "Foxglove client");
+    assert!(
+        poll(Duration::from_secs(20), || ready.exists()),
+        "the client did not subscribe: {}",
+        client.stderr()
+    );
+    let r = replay(&p, &log, &["--rate", "5"]);
+    assert_eq!(r["undelivered"], 0, "{r}");
+    let (status, out, err) = client.wait(Duration::from_secs(90));
+    assert!(status.success(), "client: {err}");
+    let py: serde_json::Value = serde_json::from_str(&out).unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    let (status, view_out, view_err) = view.stop(libc::SIGTERM, Duration::from_secs(20));
+    assert!(status.success(), "view: {view_err}");
+    let summaries = stop_all(vec![rec, comp, est]);
+    assert_eq!(summaries[0]["lost"], 0, "{}", summaries[0]);
+
+    assert_eq!(py["protocol"], "foxglove.sdk.v1");
+    let advertised: Vec<(String, String)> = py["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            assert_eq!(c["encoding"], "protobuf");
+            (
+                c["topic"].as_str().unwrap().to_string(),
+                c["schemaName"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    for (topic, schema) in vibro_view::topics(vibro_view::UNIT_NAMES) {
+        assert!(
+            advertised.contains(&(topic.clone(), schema.name.to_string())),
+            "{topic} not advertised: {advertised:?}"
+        );
+    }
+    let messages = py["messages"].as_array().unwrap();
+    let recorded = compensated(&session);
+    let truth: std::collections::BTreeMap<u64, vibro_msgs::TruthBlock> = Reader::open(&session)
+        .unwrap()
+        .map(|r| r.unwrap())
+        .filter_map(|r| match r.message {
+            Message::TruthBlock(t) => Some((t.first_sample_index, t)),
+            _ => None,
+        })
+        .collect();
+    let near = |a: f64, b: f64| a == b || (a - b).abs() <= 1e-12 * a.abs().max(b.abs());
+    let mut compared = 0;
+    for (u, unit) in vibro_view::UNIT_NAMES.iter().enumerate() {
+        let topic = format!("/view/{unit}");
+        let live: Vec<&serde_json::Value> = messages
+            .iter()
+            .filter(|m| m["topic"] == topic.as_str())
+            .collect();
+        assert_eq!(live.len(), recorded.len(), "{topic}: one message per block");
+        for (m, b) in live.iter().zip(&recorded) {
+            let f = &m["fields"];
+            let last_ns = b.t0_ns + u64::from(b.count - 1) * b.sample_period_ns;
+            assert_eq!(m["log_time_ns"], last_ns, "{topic} on the data's time");
+            assert_eq!(
+                f["first_sample_index"].as_str(),
+                Some(b.first_sample_index.to_string().as_str())
+            );
+            let t = truth
+                .get(&b.first_sample_index)
+                .expect("the block's reference");
+            let errors: Vec<[f64; 3]> = (0..b.count as usize)
+                .map(|k| std::array::from_fn(|i| b.a4_g[k][i] - t.a_sensed_ia_g[k][i]))
+                .collect();
+            for (field, rows) in [
+                ("uncompensated_g", &b.a1_g[..]),
+                ("main_removed_g", &b.a2_g[..]),
+                ("compensated_g", &b.a4_g[..]),
+                ("reference_g", &t.a_sensed_ia_g[..]),
+                ("compensated_error_g", &errors[..]),
+            ] {
+                let want = mean_min_max(rows, b.count, u);
+                let num = |k: &str| {
+                    f[field][k]
+                        .as_f64()
+                        .unwrap_or_else(|| panic!("{topic} {field}.{k} in {f}"))
+                };
+                let got = [num("mean"), num("min"), num("max")];
+                for k in 0..3 {
+                    assert!(
+                        near(got[k], want[k]),
+                        "{topic} {field}: {got:?} vs {want:?}"
+                    );
+                }
+            }
+            compared += 1;
+        }
+    }
+    let states: std::collections::BTreeSet<&str> = messages
+        .iter()
+        .filter(|m| m["topic"] == "/view/health/compensator")
+        .filter_map(|m| m["fields"]["state"].as_str())
+        .collect();
+    // Named by the schema's enum (the wire's codes 1..4).
+    assert!(!states.is_empty());
+    for st in &states {
+        assert!(
+            ["STARTING", "RUNNING", "DEGRADED", "STOPPING"].contains(st),
+            "{states:?}"
+        );
+    }
+    let axes = messages
+        .iter()
+        .filter(|m| m["topic"] == "/view/vibration/z")
+        .count();
+    assert!(axes >= 2, "{axes} vibration messages");
+    println!(
+        "FIGURES view: {compared} unit messages compared with the recording, {} messages in \
+         all; view summary {view_out}",
+        messages.len()
+    );
 }

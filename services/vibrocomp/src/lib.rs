@@ -54,6 +54,8 @@ pub enum Command {
     Record(commands::record::RecordArgs),
     /// Replay the rig streams of an MCAP log into the services.
     Replay(commands::replay::ReplayArgs),
+    /// Watch a running system live in Foxglove (WebSocket, 127.0.0.1:8765 by default).
+    View(commands::view::ViewArgs),
     /// Latency of each hop and end to end through the services, against bare iceoryx2
     /// and Unix sockets.
     Latency(commands::latency::LatencyArgs),
@@ -110,5 +112,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::LatencyPeer(cmd) => commands::latency::run_peer(&cmd),
         Command::Record(args) => commands::record::run(&args),
         Command::Replay(args) => commands::replay::run(&args),
+        Command::View(args) => commands::view::run(&args),
     }
 }

@@ -45,6 +45,11 @@ pub const AXES: [&str; 3] = ["x", "y", "z"];
 /// Reference blocks kept to pair with the compensated blocks that answer them.
 const TRUTH_KEPT: usize = 64;
 
+/// Compensated blocks held for their reference block (a rig publishes the readings
+/// and the reference of a block one after the other, and the compensated block can
+/// come back between them); beyond, the oldest goes out without a reference.
+const PENDING_KEPT: usize = 16;
+
 /// One view message: its topic, schema, data time and protobuf bytes.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ViewMessage {
@@ -109,6 +114,9 @@ pub struct ViewBuilder {
     truth: std::collections::VecDeque<TruthBlock>,
     /// The latest data time seen (where a heartbeat is placed).
     latest_ns: u64,
+    /// Compensated blocks waiting for their reference (once any reference came).
+    pending: std::collections::VecDeque<CompensatedBlock>,
+    seen_truth: bool,
 }
 
 impl ViewBuilder {
@@ -117,7 +125,25 @@ impl ViewBuilder {
             units: units.map(str::to_string),
             truth: std::collections::VecDeque::with_capacity(TRUTH_KEPT),
             latest_ns: 0,
+            pending: std::collections::VecDeque::with_capacity(PENDING_KEPT),
+            seen_truth: false,
         }
+    }
+
+    /// The compensated blocks still waiting for a reference, without one (at the end
+    /// of a stream).
+    pub fn flush(&mut self, out: &mut Vec<ViewMessage>) {
+        while let Some(b) = self.pending.pop_front() {
+            self.unit_stages(&b, None, out);
+        }
+    }
+
+    fn truth_of(&self, b: &CompensatedBlock) -> Option<TruthBlock> {
+        self.truth
+            .iter()
+            .rev()
+            .find(|t| t.first_sample_index == b.first_sample_index && t.count == b.count)
+            .copied()
     }
 
     /// The view messages `m` gives, appended to `out` (none for the raw input streams:
@@ -132,21 +158,44 @@ impl ViewBuilder {
                     self.truth.pop_front();
                 }
                 self.truth.push_back(*t);
+                self.seen_truth = true;
+                // What waited for this reference, and what is older than it (its
+                // reference is not coming), in order.
+                while let Some(b) = self.pending.front().copied() {
+                    if b.first_sample_index > t.first_sample_index {
+                        break;
+                    }
+                    self.pending.pop_front();
+                    let truth = self.truth_of(&b);
+                    self.unit_stages(&b, truth.as_ref(), out);
+                }
             }
-            Message::CompensatedBlock(b) => self.unit_stages(b, m.data_ns().unwrap_or(0), out),
+            Message::CompensatedBlock(b) => match self.truth_of(b) {
+                Some(t) => self.unit_stages(b, Some(&t), out),
+                None if self.seen_truth => {
+                    if self.pending.len() == PENDING_KEPT {
+                        if let Some(old) = self.pending.pop_front() {
+                            self.unit_stages(&old, None, out);
+                        }
+                    }
+                    self.pending.push_back(*b);
+                }
+                None => self.unit_stages(b, None, out),
+            },
             Message::VibEstimate(e) => self.vibration(e, out),
             Message::Heartbeat(h) => self.health(h, out),
             Message::AccelBlock(_) | Message::VibBlock(_) => {}
         }
     }
 
-    fn unit_stages(&self, b: &CompensatedBlock, t_ns: u64, out: &mut Vec<ViewMessage>) {
+    fn unit_stages(
+        &self,
+        b: &CompensatedBlock,
+        truth: Option<&TruthBlock>,
+        out: &mut Vec<ViewMessage>,
+    ) {
+        let t_ns = Message::CompensatedBlock(*b).data_ns().unwrap_or(0);
         let n = (b.count as usize).min(b.a1_g.len());
-        let truth = self
-            .truth
-            .iter()
-            .rev()
-            .find(|t| t.first_sample_index == b.first_sample_index && t.count == b.count);
         for u in 0..UNITS {
             let col = |a: &[[f64; UNITS]]| -> Vec<f64> { a[..n].iter().map(|s| s[u]).collect() };
             let (a1, a2, a4) = (col(&b.a1_g), col(&b.a2_g), col(&b.a4_g));
@@ -211,7 +260,7 @@ impl ViewBuilder {
     }
 
     fn health(&self, h: &Heartbeat, out: &mut Vec<ViewMessage>) {
-        let service = ServiceId::try_from(h.service as u8).ok();
+        let service = ServiceId::try_from(h.service).ok();
         let msg = ServiceHealth {
             timestamp: Some(timestamp(self.latest_ns)),
             service: service.map_or(Service::Unspecified, |s| match s {
@@ -311,6 +360,21 @@ mod tests {
             assert_eq!(s.samples, 32);
             assert_eq!(s.timestamp.unwrap().nanos, 40_000_000);
         }
+        // The compensated block before its reference: held, then sent with it.
+        let mut view = ViewBuilder::new(UNIT_NAMES);
+        let mut out = Vec::new();
+        let (mut b0, mut t0) = (b, t);
+        b0.first_sample_index = 32;
+        t0.first_sample_index = 32;
+        view.on_message(&Message::TruthBlock(t0), &mut out);
+        view.on_message(&Message::CompensatedBlock(b0), &mut out);
+        assert_eq!(out.len(), 3);
+        view.on_message(&Message::CompensatedBlock(b), &mut out);
+        assert_eq!(out.len(), 3, "held for its reference");
+        view.on_message(&Message::TruthBlock(t), &mut out);
+        assert_eq!(out.len(), 6);
+        let s = UnitStages::decode(&out[5].data[..]).unwrap();
+        assert!(s.compensated_error_g.is_some());
         // Without a matching reference: the stages, no errors.
         let mut view = ViewBuilder::new(UNIT_NAMES);
         let mut out = Vec::new();
@@ -330,7 +394,7 @@ mod tests {
         view.on_message(&Message::CompensatedBlock(b), &mut out);
         out.clear();
         let hb = Heartbeat {
-            service: ServiceId::Estimator.code().into(),
+            service: ServiceId::Estimator.code(),
             state: 3,
             latency_p99_ns: 2_500_000,
             ..Heartbeat::ZEROED

@@ -16,3 +16,4 @@ pub mod require;
 pub mod service;
 pub mod sim;
 pub mod up;
+pub mod view;
