@@ -783,3 +783,84 @@ fn a_foxglove_client_sees_the_live_view_as_the_recording_holds_it() {
         messages.len()
     );
 }
+
+/// `up --foxglove ADDR` starts the live view with the services: a Foxglove client is
+/// served the view channels while a flight is replayed, and Ctrl-C stops the view with
+/// the rest (exit 0, no process left).
+#[test]
+fn up_with_foxglove_serves_the_live_view_and_stops_it_on_sigint() {
+    let dir = Dir::new("up-view");
+    let log = flight_log(&dir, "2");
+    let p = prefix("uv");
+    let listen = format!("127.0.0.1:{}", free_port());
+    let mut up_cmd = bin();
+    up_cmd
+        .args(["up", "--json", "--prefix", &p, "--foxglove", &listen])
+        .arg("--compensator-config")
+        .arg(repo_path("config/services/compensator.toml"));
+    let mut up = Kid::spawn(up_cmd, "up");
+    let names = ServiceNames::new(&p).unwrap();
+    let both = [ServiceId::Estimator, ServiceId::Compensator];
+    wait_for_heartbeats(&names, &both, Duration::from_secs(30), || up.check_alive()).unwrap();
+    assert!(
+        poll(Duration::from_secs(20), || std::net::TcpStream::connect(
+            &listen
+        )
+        .is_ok()),
+        "no view on {listen}: {}",
+        up.stderr()
+    );
+    let kids = children(up.pid());
+    assert!(
+        kids.iter()
+            .any(|(_, c)| c.contains("view") && c.contains(&listen)),
+        "{kids:?}"
+    );
+    let ready = dir.path("ready");
+    let mut client_cmd = Command::new("python3");
+    client_cmd
+        .arg(repo_path("tests/python/foxglove_client.py"))
+        .arg(format!("ws://{listen}"))
+        .arg("--ready")
+        .arg(&ready)
+        .args([
+            "--quiet-s",
+            "2",
+            "--quiet-prefix",
+            "/view/AK",
+            "--max-s",
+            "60",
+        ]);
+    let mut client = Kid::spawn(client_cmd, "Foxglove client");
+    assert!(
+        poll(Duration::from_secs(20), || ready.exists()),
+        "{}",
+        client.stderr()
+    );
+    let r = replay(&p, &log, &["--rate", "5"]);
+    assert_eq!(r["undelivered"], 0, "{r}");
+    let (status, out, err) = client.wait(Duration::from_secs(90));
+    assert!(status.success(), "client: {err}");
+    let py: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let units = py["messages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|m| m["topic"] == "/view/AK2")
+        .count();
+    // 2 s at 800 Hz in blocks of 32: 50 blocks.
+    assert_eq!(units, 50, "{}", py["messages"].as_array().unwrap().len());
+    let pid = up.pid();
+    let (status, out, err) = up.stop(libc::SIGINT, Duration::from_secs(30));
+    assert!(status.success(), "up: {err}");
+    let v: serde_json::Value =
+        serde_json::from_str(&out).unwrap_or_else(|e| panic!("{e}: {out:?}\n{err}"));
+    let view = v["processes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["role"] == "view")
+        .unwrap_or_else(|| panic!("{v}"));
+    assert_eq!(view["last_exit"], "exit status: 0", "{v}");
+    assert!(children(pid).is_empty());
+}

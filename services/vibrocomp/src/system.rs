@@ -17,6 +17,8 @@ pub enum Role {
     Estimator,
     Compensator,
     Recorder,
+    /// The live view (`vibrocomp view`, Foxglove's WebSocket protocol).
+    View,
 }
 
 impl Role {
@@ -25,6 +27,7 @@ impl Role {
             Role::Estimator => "estimator",
             Role::Compensator => "compensator",
             Role::Recorder => "recorder",
+            Role::View => "view",
         }
     }
 
@@ -33,6 +36,8 @@ impl Role {
             Role::Estimator => ServiceId::Estimator,
             Role::Compensator => ServiceId::Compensator,
             Role::Recorder => ServiceId::Recorder,
+            // A user interface; it publishes no heartbeat of its own.
+            Role::View => ServiceId::Monitor,
         }
     }
 }
@@ -50,6 +55,8 @@ pub struct SystemSpec {
     pub realtime_priority: Option<u8>,
     /// Record everything into this log.
     pub record: Option<PathBuf>,
+    /// Serve the live view to Foxglove on this address.
+    pub foxglove: Option<std::net::SocketAddr>,
     /// Ask the services (and the recorder) for their JSON summaries at exit.
     pub json: bool,
     /// The `vibrocomp` executable [default: this process's own].
@@ -62,6 +69,9 @@ impl SystemSpec {
         let mut roles = vec![Role::Estimator, Role::Compensator];
         if self.record.is_some() {
             roles.push(Role::Recorder);
+        }
+        if self.foxglove.is_some() {
+            roles.push(Role::View);
         }
         roles
     }
@@ -118,6 +128,15 @@ impl SystemSpec {
                         a.push(flag.into());
                         a.push(c.clone().into_os_string());
                     }
+                }
+            }
+            Role::View => {
+                push("view");
+                push("--prefix");
+                push(&self.prefix);
+                if let Some(addr) = self.foxglove {
+                    push("--listen");
+                    push(&addr.to_string());
                 }
             }
         }

@@ -472,7 +472,10 @@ pub async fn supervise(
     };
     let mut recent: Vec<Instant> = Vec::new();
     loop {
+        // A service's own summary goes to the supervisor's stderr, beside its log:
+        // the supervisor's stdout is its own (`up --json` prints one JSON object).
         let mut child = tokio::process::Command::from(command()?)
+            .stdout(Stdio::from(std::io::stderr()))
             .kill_on_drop(true)
             .spawn()
             .with_context(|| format!("starting the {name}"))?;

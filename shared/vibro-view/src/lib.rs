@@ -425,6 +425,102 @@ mod tests {
         assert_eq!(out[2].topic, "/view/vibration/z");
     }
 
+    /// Whether `path` (`field.sub.field`) names a field of message `name` in the
+    /// schema's descriptors, nested messages followed by their type names.
+    fn field_exists(schema: &ViewSchema, name: &str, path: &str) -> bool {
+        let fds = prost_types::FileDescriptorSet::decode(schema.data).unwrap();
+        let find = |full: &str| {
+            fds.file.iter().find_map(|f| {
+                f.message_type.iter().find(|m| {
+                    format!(".{}.{}", f.package(), m.name()) == full
+                        || format!("{}.{}", f.package(), m.name()) == full
+                })
+            })
+        };
+        let mut msg = find(name);
+        let parts: Vec<&str> = path.split('.').collect();
+        for (i, part) in parts.iter().enumerate() {
+            let Some(m) = msg else { return false };
+            let Some(field) = m.field.iter().find(|f| f.name() == *part) else {
+                return false;
+            };
+            if i + 1 < parts.len() {
+                msg = find(field.type_name());
+            }
+        }
+        true
+    }
+
+    /// Every message path of the shipped layout (`config/foxglove/vibrocomp-layout.json`:
+    /// each plot's and state panel's `paths[].value`, each raw panel's `topicPath`)
+    /// names a view topic and a field its schema has; a path with a typo fails.
+    #[test]
+    fn every_path_of_the_shipped_layout_exists_in_the_schemas() {
+        let layout: serde_json::Value = serde_json::from_str(include_str!(
+            "../../../config/foxglove/vibrocomp-layout.json"
+        ))
+        .unwrap();
+        let topics = topics(UNIT_NAMES);
+        let check = |path: &str| -> bool {
+            // The longest topic the path starts with, then `.field...` (or nothing).
+            let Some((topic, schema)) = topics
+                .iter()
+                .filter(|(t, _)| path.starts_with(t.as_str()))
+                .max_by_key(|(t, _)| t.len())
+            else {
+                return false;
+            };
+            let rest = &path[topic.len()..];
+            rest.is_empty()
+                || rest
+                    .strip_prefix('.')
+                    .is_some_and(|fields| field_exists(schema, schema.name, fields))
+        };
+        let mut paths = Vec::new();
+        for (_, panel) in layout["configById"].as_object().unwrap() {
+            for p in panel["paths"].as_array().into_iter().flatten() {
+                paths.push(p["value"].as_str().unwrap().to_string());
+            }
+            if let Some(t) = panel["topicPath"].as_str() {
+                paths.push(t.to_string());
+            }
+        }
+        assert!(paths.len() >= 20, "{paths:?}");
+        for p in &paths {
+            assert!(check(p), "{p}: no such topic or field");
+        }
+        for bad in [
+            "/view/AK1.compensated_error.mean",
+            "/view/AK4.compensated_g.mean",
+            "/view/vibration/z.tone_amplitude_g.mean",
+        ] {
+            assert!(!check(bad), "{bad} passed");
+        }
+        // Every panel the tree places is configured.
+        fn leaves(v: &serde_json::Value, out: &mut Vec<String>) {
+            match v {
+                serde_json::Value::String(s) => out.push(s.clone()),
+                serde_json::Value::Object(o) => {
+                    for k in ["first", "second"] {
+                        if let Some(c) = o.get(k) {
+                            leaves(c, out);
+                        }
+                    }
+                }
+                _ => {}
+            }
+        }
+        let mut placed = Vec::new();
+        leaves(&layout["layout"], &mut placed);
+        for id in &placed {
+            assert!(layout["configById"].get(id).is_some(), "{id}");
+        }
+        assert_eq!(
+            placed.len(),
+            layout["configById"].as_object().unwrap().len()
+        );
+    }
+
     #[test]
     fn every_topic_is_listed_with_its_schema() {
         let t = topics(UNIT_NAMES);

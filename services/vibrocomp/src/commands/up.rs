@@ -23,6 +23,11 @@ pub struct UpArgs {
     /// Records every stream into this log while the system runs.
     #[arg(long, value_name = "OUT.mcap")]
     pub record: Option<PathBuf>,
+    /// Serves the live view to Foxglove (`vibrocomp view`) on this address
+    /// [default when given alone: 127.0.0.1:8765].
+    #[arg(long, value_name = "HOST:PORT", num_args = 0..=1,
+          default_missing_value = crate::commands::view::DEFAULT_LISTEN)]
+    pub foxglove: Option<std::net::SocketAddr>,
     /// The estimator's configuration [default: config/services/estimator.toml, else shipped].
     #[arg(long, value_name = "FILE")]
     pub estimator_config: Option<PathBuf>,
@@ -122,6 +127,7 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
         mode: args.mode.clone(),
         realtime_priority: args.realtime_priority,
         record: args.record.clone(),
+        foxglove: args.foxglove,
         json: false,
         exe: None,
     };
