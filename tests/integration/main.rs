@@ -3,6 +3,7 @@
 mod bad_input;
 mod closed_pipe;
 mod common;
+mod conventions;
 mod counts;
 mod estimate;
 mod extreme_lab;

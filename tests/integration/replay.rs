@@ -465,6 +465,14 @@ fn the_demo_cuts_the_error_tenfold_and_loses_nothing() {
     );
     // Everything recorded reads back in Python.
     python_check(&dir.path("demo/session.mcap"));
+    // The services' log is a file: plain text, no terminal colour codes.
+    let services_log = std::fs::read(dir.path("demo/services.log")).unwrap();
+    assert!(!services_log.is_empty());
+    assert!(
+        !services_log.contains(&0x1b),
+        "ANSI escapes in services.log: {}",
+        String::from_utf8_lossy(&services_log[..services_log.len().min(400)])
+    );
 }
 
 /// `vibrocomp up`: a killed compensator is started again, and Ctrl-C stops everything

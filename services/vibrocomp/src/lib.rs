@@ -75,6 +75,8 @@ where
     I: IntoIterator<Item = T>,
     T: Into<OsString> + Clone,
 {
+    let args: Vec<T> = args.into_iter().collect();
+    let json = args.iter().any(|a| a.clone().into() == "--json");
     let cli = match Cli::try_parse_from(args) {
         Ok(cli) => cli,
         Err(e) => {
@@ -90,6 +92,19 @@ where
         Err(e) if output::is_stdout_closed(&e) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
+            if json {
+                // With --json, the failure as JSON too (on stdout, where the result
+                // would have been): the whole message and each cause on its own.
+                let chain: Vec<String> = e.chain().map(ToString::to_string).collect();
+                let v = serde_json::json!({
+                    "error": {
+                        "message": format!("{e:#}"),
+                        "chain": chain,
+                        "exit_code": 1,
+                    }
+                });
+                println!("{v}");
+            }
             ExitCode::FAILURE
         }
     }

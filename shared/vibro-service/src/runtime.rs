@@ -14,7 +14,17 @@ pub fn init_tracing() {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(colour_on_stderr())
         .try_init();
+}
+
+/// Whether log lines may carry colour: only on a terminal, and never when `NO_COLOR`
+/// is set to anything but the empty string (<https://no-color.org>). Files, pipes and
+/// a supervisor's log get plain text.
+pub fn colour_on_stderr() -> bool {
+    use std::io::IsTerminal;
+    let no_color = std::env::var_os("NO_COLOR").is_some_and(|v| !v.is_empty());
+    !no_color && std::io::stderr().is_terminal()
 }
 
 /// How long after the first stop signal further signals are taken as repeats of it.
