@@ -1,16 +1,7 @@
 //! The command line's conventions (docs/view.md's issue: colour, `--json` errors).
 
 use crate::common::bin;
-use crate::processes::prefix;
-
-/// A free TCP port on 127.0.0.1.
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
+use crate::processes::{free_port, prefix};
 
 /// What `vibrocomp view` (which logs as it starts) writes to a terminal, run under
 /// `script` (a real pseudo-terminal), with the environment variable `no_color`.

@@ -60,6 +60,15 @@ pub fn flight_log(dir: &Dir, seconds: &str) -> PathBuf {
 }
 
 /// The children of a process, with their command lines (from /proc).
+/// A free TCP port on 127.0.0.1 (bound, then released for a server to take).
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
 pub fn children(pid: u32) -> Vec<(u32, String)> {
     let mut out = Vec::new();
     let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {

@@ -10,7 +10,7 @@
 //! - the recordings decode with the Python `mcap` reader (CRCs checked).
 
 use crate::common::{bin, repo_path};
-use crate::processes::{children, flight_log, poll, prefix, Dir, Kid};
+use crate::processes::{children, flight_log, free_port, poll, prefix, Dir, Kid};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
@@ -195,6 +195,25 @@ fn assert_same(
     );
 }
 
+/// The estimator, the compensator and a recorder into `session` on prefix `p`, up.
+fn start_recorded(p: &str, session: &Path, services_log: &Path) -> [Process; 3] {
+    let s = spec(p, Some(session.to_path_buf()));
+    let mut est = start(&s, Role::Estimator, services_log);
+    let mut comp = start(&s, Role::Compensator, services_log);
+    let mut rec = start(&s, Role::Recorder, services_log);
+    wait_up(
+        p,
+        &[
+            ServiceId::Estimator,
+            ServiceId::Compensator,
+            ServiceId::Recorder,
+        ],
+        &mut [&mut est, &mut comp, &mut rec],
+        services_log,
+    );
+    [est, comp, rec]
+}
+
 fn stop_all(procs: Vec<Process>) -> Vec<serde_json::Value> {
     procs
         .into_iter()
@@ -301,20 +320,7 @@ fn ten_times_real_time_loses_nothing_and_the_recording_reads_in_python() {
     let p = prefix("r");
     let services_log = dir.path("services.log");
     let session = dir.path("session.mcap");
-    let s = spec(&p, Some(session.clone()));
-    let mut est = start(&s, Role::Estimator, &services_log);
-    let mut comp = start(&s, Role::Compensator, &services_log);
-    let mut rec = start(&s, Role::Recorder, &services_log);
-    wait_up(
-        &p,
-        &[
-            ServiceId::Estimator,
-            ServiceId::Compensator,
-            ServiceId::Recorder,
-        ],
-        &mut [&mut est, &mut comp, &mut rec],
-        &services_log,
-    );
+    let [est, comp, rec] = start_recorded(&p, &session, &services_log);
     let r = replay(&p, &log, &["--rate", "10"]);
     assert_eq!(r["lockstepped"], false);
     assert_eq!(r["undelivered"], 0, "{r}");
@@ -598,15 +604,6 @@ fn a_looped_replay_is_one_continuous_stream() {
     assert_eq!(comp_s["input_gap_blocks"], 0, "{comp_s}");
 }
 
-/// A free TCP port on 127.0.0.1 (bound, then released for the server to take).
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 /// The mean, minimum and maximum of unit `u`'s column of `rows[..n]`.
 fn mean_min_max(rows: &[[f64; 3]], n: u32, u: usize) -> [f64; 3] {
     let col: Vec<f64> = rows[..n as usize].iter().map(|r| r[u]).collect();
@@ -632,20 +629,7 @@ fn a_foxglove_client_sees_the_live_view_as_the_recording_holds_it() {
     let p = prefix("v");
     let services_log = dir.path("services.log");
     let session = dir.path("session.mcap");
-    let s = spec(&p, Some(session.clone()));
-    let mut est = start(&s, Role::Estimator, &services_log);
-    let mut comp = start(&s, Role::Compensator, &services_log);
-    let mut rec = start(&s, Role::Recorder, &services_log);
-    wait_up(
-        &p,
-        &[
-            ServiceId::Estimator,
-            ServiceId::Compensator,
-            ServiceId::Recorder,
-        ],
-        &mut [&mut est, &mut comp, &mut rec],
-        &services_log,
-    );
+    let [est, comp, rec] = start_recorded(&p, &session, &services_log);
     let port = free_port();
     let listen = format!("127.0.0.1:{port}");
     let mut view_cmd = bin();

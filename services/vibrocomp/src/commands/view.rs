@@ -173,22 +173,23 @@ fn pump(
         for m in &wire {
             out.clear();
             view.on_message(m, &mut out);
-            for v in &out {
-                if let Some(ch) = channels.get(&v.topic) {
-                    ch.log_with_meta(
-                        &v.data,
-                        foxglove::PartialMetadata {
-                            log_time: Some(v.log_time_ns),
-                        },
-                    );
-                    *summary.published.entry(v.topic.clone()).or_default() += 1;
-                }
-            }
+            send(channels, &out, summary);
         }
     }
     out.clear();
     view.flush(&mut out);
-    for v in &out {
+    send(channels, &out, summary);
+    drop(guards);
+    Ok(())
+}
+
+/// Logs each view message on its Foxglove channel, on the data's time.
+fn send(
+    channels: &BTreeMap<String, Arc<foxglove::RawChannel>>,
+    out: &[ViewMessage],
+    summary: &mut Summary,
+) {
+    for v in out {
         if let Some(ch) = channels.get(&v.topic) {
             ch.log_with_meta(
                 &v.data,
@@ -196,10 +197,9 @@ fn pump(
                     log_time: Some(v.log_time_ns),
                 },
             );
+            *summary.published.entry(v.topic.clone()).or_default() += 1;
         }
     }
-    drop(guards);
-    Ok(())
 }
 
 pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
