@@ -76,3 +76,43 @@ fn a_failure_under_json_is_a_json_error_object() {
         .unwrap();
     assert!(out.stdout.is_empty());
 }
+
+/// `-q` and `-v` on every command (global flags): `-q` leaves only errors on stderr,
+/// `-v` adds debug lines to the info lines a plain run writes.
+#[test]
+fn quiet_and_verbose_set_the_log_level() {
+    let run = |flag: Option<&str>| {
+        let mut c = bin();
+        if let Some(f) = flag {
+            c.arg(f);
+        }
+        let out = c
+            .args([
+                "view",
+                "--prefix",
+                &prefix("qv"),
+                "--duration-s",
+                "0.3",
+                "--listen",
+            ])
+            .arg(format!("127.0.0.1:{}", free_port()))
+            .env_remove("RUST_LOG")
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        String::from_utf8_lossy(&out.stderr).to_string()
+    };
+    let plain = run(None);
+    assert!(plain.contains("INFO"), "{plain}");
+    let quiet = run(Some("-q"));
+    assert!(quiet.trim().is_empty(), "{quiet}");
+    let verbose = run(Some("-v"));
+    assert!(verbose.contains("INFO"), "{verbose}");
+    assert!(verbose.len() >= plain.len(), "{verbose}");
+    // After the subcommand too, and never both.
+    let out = bin()
+        .args(["view", "-q", "-v", "--duration-s", "0.1"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+}

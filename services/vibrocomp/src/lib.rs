@@ -19,6 +19,12 @@ use std::process::ExitCode;
 #[derive(Debug, Parser)]
 #[command(name = "vibrocomp", version, about, long_about = None)]
 pub struct Cli {
+    /// Log lines at `error` only, no progress bars (every command).
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    pub quiet: bool,
+    /// More log lines: `-v` debug, `-vv` trace (every command; `RUST_LOG` otherwise).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    pub verbose: u8,
     #[command(subcommand)]
     pub command: Command,
 }
@@ -85,6 +91,7 @@ where
             return ExitCode::from(e.exit_code().clamp(0, 255) as u8);
         }
     };
+    output::set_verbosity(cli.quiet, cli.verbose);
     // A closed stdout (`vibrocomp ... | head -1`) is how the reader says it has seen
     // enough: every printing path returns `output::StdoutClosed`, ending quietly here.
     match run(cli).and_then(|()| output::flush_stdout()) {

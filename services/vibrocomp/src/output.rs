@@ -1,6 +1,35 @@
 //! Printing results: a readable table for people, JSON (`--json`) for scripts.
 
 use serde::Serialize;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// `-q/--quiet` was given: no progress bars (and log lines at `error` only, through
+/// `RUST_LOG`, which the services started as children inherit).
+static QUIET: AtomicBool = AtomicBool::new(false);
+
+/// Sets the `-q/--quiet` and `-v/--verbose` levels for this process and its children.
+pub fn set_verbosity(quiet: bool, verbose: u8) {
+    QUIET.store(quiet, Ordering::Relaxed);
+    let level = match (quiet, verbose) {
+        (true, _) => Some("error"),
+        (false, 0) => None,
+        (false, 1) => Some("debug"),
+        (false, _) => Some("trace"),
+    };
+    if let Some(level) = level {
+        // Before any thread starts (the first thing `main_with_args` does).
+        std::env::set_var("RUST_LOG", level);
+    }
+}
+
+/// Where a progress bar draws: stderr, or nowhere under `-q`.
+pub fn progress_target() -> indicatif::ProgressDrawTarget {
+    if QUIET.load(Ordering::Relaxed) {
+        indicatif::ProgressDrawTarget::hidden()
+    } else {
+        indicatif::ProgressDrawTarget::stderr()
+    }
+}
 
 /// A write to stdout failed because its reader closed the pipe (`vibrocomp ... | head`).
 /// Every printing path returns it as an error so that the command stops there;

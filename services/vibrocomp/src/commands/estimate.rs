@@ -6,7 +6,7 @@
 
 use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::fs::File;
@@ -349,7 +349,7 @@ fn progress_bar(total_bytes: u64) -> ProgressBar {
     if !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
     }
-    let bar = ProgressBar::with_draw_target(Some(total_bytes), ProgressDrawTarget::stderr());
+    let bar = ProgressBar::with_draw_target(Some(total_bytes), crate::output::progress_target());
     if let Ok(style) =
         ProgressStyle::with_template("estimating {bar:40} {bytes}/{total_bytes} ({eta} left)")
     {

@@ -17,7 +17,7 @@ macro_rules! p {
 use super::lab_log::{table_from_log, LogArgs, LogTableSummary};
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{ProgressBar, ProgressStyle};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use vibro_lab::diagnose::Progress;
@@ -200,7 +200,7 @@ fn fit_progress() -> (ProgressBar, Progress) {
     if !std::io::stderr().is_terminal() {
         return (ProgressBar::hidden(), Progress::default());
     }
-    let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr());
+    let bar = ProgressBar::with_draw_target(None, crate::output::progress_target());
     if let Ok(style) = ProgressStyle::with_template("fitting candidates {bar:30} {pos}/{len} {msg}")
     {
         bar.set_style(style);

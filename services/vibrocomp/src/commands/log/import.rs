@@ -7,7 +7,7 @@ use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use clap::Args;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{ProgressBar, ProgressStyle};
 use vibro_log::import::{
     import, ImportOptions, ImportPlan, ImportProgress, ImportReport, DEFAULT_PERIOD_TOLERANCE,
 };
@@ -86,7 +86,8 @@ impl ImportProgress for Bar {
         if total_bytes < PROGRESS_MIN_BYTES || !std::io::stderr().is_terminal() {
             return;
         }
-        let bar = ProgressBar::with_draw_target(Some(total_bytes), ProgressDrawTarget::stderr());
+        let bar =
+            ProgressBar::with_draw_target(Some(total_bytes), crate::output::progress_target());
         if let Ok(style) =
             ProgressStyle::with_template("{msg} {bar:40} {bytes}/{total_bytes} ({eta} left)")
         {
