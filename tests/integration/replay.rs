@@ -604,6 +604,38 @@ fn a_looped_replay_is_one_continuous_stream() {
     assert_eq!(comp_s["input_gap_blocks"], 0, "{comp_s}");
 }
 
+/// A Foxglove client (`tests/python/foxglove_client.py`) subscribed to the view on
+/// `listen` while `log` is replayed at 5x into the system `p`: what it decoded, once
+/// the unit channels have been quiet for 2 s.
+fn watch_replay(dir: &Dir, listen: &str, p: &str, log: &Path) -> serde_json::Value {
+    let ready = dir.path("ready");
+    let mut client_cmd = Command::new("python3");
+    client_cmd
+        .arg(repo_path("tests/python/foxglove_client.py"))
+        .arg(format!("ws://{listen}"))
+        .arg("--ready")
+        .arg(&ready)
+        .args([
+            "--quiet-s",
+            "2",
+            "--quiet-prefix",
+            "/view/AK",
+            "--max-s",
+            "60",
+        ]);
+    let mut client = Kid::spawn(client_cmd, "Foxglove client");
+    assert!(
+        poll(Duration::from_secs(20), || ready.exists()),
+        "the client did not subscribe: {}",
+        client.stderr()
+    );
+    let r = replay(p, log, &["--rate", "5"]);
+    assert_eq!(r["undelivered"], 0, "{r}");
+    let (status, out, err) = client.wait(Duration::from_secs(90));
+    assert!(status.success(), "client: {err}");
+    serde_json::from_str(&out).unwrap()
+}
+
 /// The mean, minimum and maximum of unit `u`'s column of `rows[..n]`.
 fn mean_min_max(rows: &[[f64; 3]], n: u32, u: usize) -> [f64; 3] {
     let col: Vec<f64> = rows[..n as usize].iter().map(|r| r[u]).collect();
@@ -643,32 +675,7 @@ fn a_foxglove_client_sees_the_live_view_as_the_recording_holds_it() {
         "the view does not listen on {listen}: {}",
         view.stderr()
     );
-    let ready = dir.path("ready");
-    let mut client_cmd = Command::new("python3");
-    client_cmd
-        .arg(repo_path("tests/python/foxglove_client.py"))
-        .arg(format!("ws://{listen}"))
-        .arg("--ready")
-        .arg(&ready)
-        .args([
-            "--quiet-s",
-            "3",
-            "--quiet-prefix",
-            "/view/AK",
-            "--max-s",
-            "60",
-        ]);
-    let mut client = Kid::spawn(client_cmd, "Foxglove client");
-    assert!(
-        poll(Duration::from_secs(20), || ready.exists()),
-        "the client did not subscribe: {}",
-        client.stderr()
-    );
-    let r = replay(&p, &log, &["--rate", "5"]);
-    assert_eq!(r["undelivered"], 0, "{r}");
-    let (status, out, err) = client.wait(Duration::from_secs(90));
-    assert!(status.success(), "client: {err}");
-    let py: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let py = watch_replay(&dir, &listen, &p, &log);
     std::thread::sleep(Duration::from_millis(300));
     let (status, view_out, view_err) = view.stop(libc::SIGTERM, Duration::from_secs(20));
     assert!(status.success(), "view: {view_err}");
@@ -808,32 +815,7 @@ fn up_with_foxglove_serves_the_live_view_and_stops_it_on_sigint() {
             .any(|(_, c)| c.contains("view") && c.contains(&listen)),
         "{kids:?}"
     );
-    let ready = dir.path("ready");
-    let mut client_cmd = Command::new("python3");
-    client_cmd
-        .arg(repo_path("tests/python/foxglove_client.py"))
-        .arg(format!("ws://{listen}"))
-        .arg("--ready")
-        .arg(&ready)
-        .args([
-            "--quiet-s",
-            "2",
-            "--quiet-prefix",
-            "/view/AK",
-            "--max-s",
-            "60",
-        ]);
-    let mut client = Kid::spawn(client_cmd, "Foxglove client");
-    assert!(
-        poll(Duration::from_secs(20), || ready.exists()),
-        "{}",
-        client.stderr()
-    );
-    let r = replay(&p, &log, &["--rate", "5"]);
-    assert_eq!(r["undelivered"], 0, "{r}");
-    let (status, out, err) = client.wait(Duration::from_secs(90));
-    assert!(status.success(), "client: {err}");
-    let py: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let py = watch_replay(&dir, &listen, &p, &log);
     let units = py["messages"]
         .as_array()
         .unwrap()

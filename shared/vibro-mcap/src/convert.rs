@@ -51,6 +51,12 @@ message_from!(
     Heartbeat
 );
 
+/// The time of a block's last sample, `t0_ns + (count - 1) sample_period_ns`
+/// (saturating): a block's data time ([`Message::data_ns`]).
+pub fn last_sample_ns(t0_ns: u64, count: u32, sample_period_ns: u64) -> u64 {
+    t0_ns.saturating_add(u64::from(count.saturating_sub(1)).saturating_mul(sample_period_ns))
+}
+
 impl Message {
     /// Which wire type this is.
     pub fn kind(&self) -> MessageKind {
@@ -70,9 +76,7 @@ impl Message {
     /// last reading's interval); an estimate's window end `end_ns`. `None` for a
     /// heartbeat, which carries no data time (only its producer's clock).
     pub fn data_ns(&self) -> Option<u64> {
-        let last = |t0_ns: u64, count: u32, period_ns: u64| {
-            t0_ns.saturating_add(u64::from(count.saturating_sub(1)).saturating_mul(period_ns))
-        };
+        let last = last_sample_ns;
         match self {
             Message::AccelBlock(m) => Some(last(m.t0_ns, m.count, m.sample_period_ns)),
             Message::VibBlock(m) => Some(last(m.t0_ns, m.count, m.sample_period_ns)),

@@ -78,7 +78,7 @@ pub mod view_proto {
     include!(concat!(env!("OUT_DIR"), "/vibrocomp.view.v1.rs"));
 }
 
-pub use convert::Message;
+pub use convert::{last_sample_ns, Message};
 pub use info::{
     info, info_from_reader, AttachmentInfo, ChannelInfo, InputGap, LogInfo, MetadataInfo,
     MAX_LOST_MESSAGES,

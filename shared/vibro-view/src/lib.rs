@@ -29,10 +29,7 @@
 //! ```
 
 use prost::Message as _;
-use vibro_mcap::view_proto::{
-    service_health::{Service, State},
-    ServiceHealth, Stage, UnitStages, VibrationAxis,
-};
+use vibro_mcap::view_proto::{ServiceHealth, Stage, UnitStages, VibrationAxis};
 use vibro_mcap::{Message, ViewSchema, VIEW_SERVICE_HEALTH, VIEW_UNIT_STAGES, VIEW_VIBRATION_AXIS};
 use vibro_msgs::{CompensatedBlock, Heartbeat, ServiceId, TruthBlock, VibEstimate, UNITS};
 
@@ -114,9 +111,11 @@ pub struct ViewBuilder {
     truth: std::collections::VecDeque<TruthBlock>,
     /// The latest data time seen (where a heartbeat is placed).
     latest_ns: u64,
-    /// Compensated blocks waiting for their reference (once any reference came).
+    /// Compensated blocks waiting for their reference, while one is expected.
     pending: std::collections::VecDeque<CompensatedBlock>,
-    seen_truth: bool,
+    /// Whether a reference stream is expected ([`ViewBuilder::expect_reference`]; a
+    /// reference block arriving says so too).
+    reference_expected: bool,
 }
 
 impl ViewBuilder {
@@ -126,7 +125,17 @@ impl ViewBuilder {
             truth: std::collections::VecDeque::with_capacity(TRUTH_KEPT),
             latest_ns: 0,
             pending: std::collections::VecDeque::with_capacity(PENDING_KEPT),
-            seen_truth: false,
+            reference_expected: false,
+        }
+    }
+
+    /// Whether the system has a reference stream (the live view: `/truth` has a
+    /// publisher). While it has, a compensated block waits for its reference block;
+    /// when it stops having one, what waits goes out without.
+    pub fn expect_reference(&mut self, expected: bool, out: &mut Vec<ViewMessage>) {
+        self.reference_expected = expected;
+        if !expected {
+            self.flush(out);
         }
     }
 
@@ -158,7 +167,7 @@ impl ViewBuilder {
                     self.truth.pop_front();
                 }
                 self.truth.push_back(*t);
-                self.seen_truth = true;
+                self.reference_expected = true;
                 // What waited for this reference, and what is older than it (its
                 // reference is not coming), in order.
                 while let Some(b) = self.pending.front().copied() {
@@ -172,7 +181,7 @@ impl ViewBuilder {
             }
             Message::CompensatedBlock(b) => match self.truth_of(b) {
                 Some(t) => self.unit_stages(b, Some(&t), out),
-                None if self.seen_truth => {
+                None if self.reference_expected => {
                     if self.pending.len() == PENDING_KEPT {
                         if let Some(old) = self.pending.pop_front() {
                             self.unit_stages(&old, None, out);
@@ -194,16 +203,19 @@ impl ViewBuilder {
         truth: Option<&TruthBlock>,
         out: &mut Vec<ViewMessage>,
     ) {
-        let t_ns = Message::CompensatedBlock(*b).data_ns().unwrap_or(0);
+        let t_ns = vibro_mcap::last_sample_ns(b.t0_ns, b.count, b.sample_period_ns);
         let n = (b.count as usize).min(b.a1_g.len());
         for u in 0..UNITS {
-            let col = |a: &[[f64; UNITS]]| -> Vec<f64> { a[..n].iter().map(|s| s[u]).collect() };
-            let (a1, a2, a4) = (col(&b.a1_g), col(&b.a2_g), col(&b.a4_g));
-            let reference = truth.map(|t| col(&t.a_sensed_ia_g));
-            let error = |x: &[f64]| {
-                reference
-                    .as_ref()
-                    .and_then(|r| stage(x.iter().zip(r).map(|(a, s)| a - s)))
+            let col = |a: &[[f64; UNITS]]| stage(a[..n].iter().map(|s| s[u]));
+            let error = |a: &[[f64; UNITS]]| {
+                truth.and_then(|t| {
+                    stage(
+                        a[..n]
+                            .iter()
+                            .zip(&t.a_sensed_ia_g[..n])
+                            .map(|(x, r)| x[u] - r[u]),
+                    )
+                })
             };
             let msg = UnitStages {
                 timestamp: Some(timestamp(t_ns)),
@@ -211,13 +223,13 @@ impl ViewBuilder {
                 unit_index: u as u32,
                 samples: n as u32,
                 first_sample_index: b.first_sample_index,
-                uncompensated_g: stage(a1.iter().copied()),
-                main_removed_g: stage(a2.iter().copied()),
-                compensated_g: stage(a4.iter().copied()),
-                reference_g: reference.as_ref().and_then(|r| stage(r.iter().copied())),
-                uncompensated_error_g: error(&a1),
-                main_removed_error_g: error(&a2),
-                compensated_error_g: error(&a4),
+                uncompensated_g: col(&b.a1_g),
+                main_removed_g: col(&b.a2_g),
+                compensated_g: col(&b.a4_g),
+                reference_g: truth.and_then(|t| col(&t.a_sensed_ia_g)),
+                uncompensated_error_g: error(&b.a1_g),
+                main_removed_error_g: error(&b.a2_g),
+                compensated_error_g: error(&b.a4_g),
                 flags: b.flags,
             };
             out.push(ViewMessage {
@@ -263,21 +275,10 @@ impl ViewBuilder {
         let service = ServiceId::try_from(h.service).ok();
         let msg = ServiceHealth {
             timestamp: Some(timestamp(self.latest_ns)),
-            service: service.map_or(Service::Unspecified, |s| match s {
-                ServiceId::Sim => Service::Sim,
-                ServiceId::Rig => Service::Rig,
-                ServiceId::Estimator => Service::Estimator,
-                ServiceId::Compensator => Service::Compensator,
-                ServiceId::Recorder => Service::Recorder,
-                ServiceId::Monitor => Service::Monitor,
-            }) as i32,
-            state: match h.state {
-                1 => State::Starting,
-                2 => State::Running,
-                3 => State::Degraded,
-                4 => State::Stopping,
-                _ => State::Unspecified,
-            } as i32,
+            // The schema's enum numbers are the wire codes (`ServiceId`, `ServiceState`):
+            // an unknown code stays visible as its number.
+            service: i32::from(h.service),
+            state: i32::from(h.state),
             uptime_s: h.uptime_ns as f64 * 1e-9,
             received: h.received,
             published: h.published,
@@ -298,6 +299,7 @@ impl ViewBuilder {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use vibro_mcap::view_proto::service_health::{Service, State};
     use vibro_msgs::{CompensatedBlock, TruthBlock};
 
     /// Mean, minimum and maximum against a sum and comparisons written out by hand.
@@ -375,6 +377,15 @@ mod tests {
         assert_eq!(out.len(), 6);
         let s = UnitStages::decode(&out[5].data[..]).unwrap();
         assert!(s.compensated_error_g.is_some());
+        // A reference stream expected: the first block waits for its reference too.
+        let mut view = ViewBuilder::new(UNIT_NAMES);
+        let mut out = Vec::new();
+        view.expect_reference(true, &mut out);
+        view.on_message(&Message::CompensatedBlock(b), &mut out);
+        assert!(out.is_empty());
+        view.on_message(&Message::TruthBlock(t), &mut out);
+        let s = UnitStages::decode(&out[0].data[..]).unwrap();
+        assert!(s.compensated_error_g.is_some());
         // Without a matching reference: the stages, no errors.
         let mut view = ViewBuilder::new(UNIT_NAMES);
         let mut out = Vec::new();
@@ -406,6 +417,15 @@ mod tests {
         assert_eq!(h.state(), State::Degraded);
         assert_eq!(h.latency_p99_ms, 2.5);
         assert_eq!(out[0].log_time_ns, 1_250_000 * 4);
+        // The schema's enums number the services and states as the wire does.
+        for s in ServiceId::ALL {
+            let named = Service::try_from(i32::from(s.code())).unwrap();
+            assert_eq!(named.as_str_name(), s.as_str().to_uppercase());
+        }
+        for s in vibro_msgs::ServiceState::ALL {
+            let named = State::try_from(i32::from(s.code())).unwrap();
+            assert_eq!(named.as_str_name(), s.as_str().to_uppercase());
+        }
         out.clear();
         let mut e = VibEstimate::ZEROED;
         e.end_ns = 9;

@@ -69,6 +69,7 @@ trait Feed {
     /// Every message waiting, as wire messages.
     fn drain(&self, out: &mut Vec<Message>) -> anyhow::Result<()>;
     fn topic(&self) -> &str;
+    fn publishers(&self) -> usize;
 }
 
 struct Sub<T: WireMessage> {
@@ -98,6 +99,10 @@ impl<T: WireMessage + Into<Message>> Feed for Sub<T> {
 
     fn topic(&self) -> &str {
         &self.topic
+    }
+
+    fn publishers(&self) -> usize {
+        self.subscriber.publisher_count()
     }
 }
 
@@ -151,6 +156,7 @@ fn pump(
         );
     }
     let mut view = ViewBuilder::new(UNIT_NAMES);
+    let truth_topic = topic(Stream::Truth);
     let (mut wire, mut out): (Vec<Message>, Vec<ViewMessage>) = (Vec::new(), Vec::new());
     while !stop.load(Ordering::Acquire) {
         waitset
@@ -167,6 +173,13 @@ fn pump(
             *summary.received.entry(f.topic().to_string()).or_default() +=
                 (wire.len() - before) as u64;
         }
+        // A rig (or replay) publishing a reference: compensated blocks wait for theirs.
+        let reference = feeds
+            .iter()
+            .any(|f| f.topic() == truth_topic && f.publishers() > 0);
+        out.clear();
+        view.expect_reference(reference, &mut out);
+        send(channels, &out, summary);
         // The references first: a compensated block pairs with the reference block of
         // its samples, which the rig published before the block it answers.
         wire.sort_by_key(|m| !matches!(m, Message::TruthBlock(_)));
