@@ -78,8 +78,32 @@ fn a_right_model_has_a_chi2_per_dof_near_one_on_flight_logs() {
     }
 }
 
-/// The resonance's `(value, sigma)` of `freq_hz` and `q` fitted by `lab add` to `inputs`.
-fn resonance_fit(dir: &Dir, inputs: &[&std::path::Path]) -> [(f64, f64); 2] {
+/// One fitted parameter as `lab add --json` states it.
+#[derive(Debug, Clone, Copy)]
+struct Fitted {
+    value: f64,
+    /// The 68 % profile-likelihood interval's reach below and above.
+    minus: f64,
+    plus: f64,
+    /// The 99.73 % interval's.
+    minus3: f64,
+    plus3: f64,
+}
+
+impl Fitted {
+    fn within_three_sigma(&self, truth: f64) -> bool {
+        (self.value - self.minus3..=self.value + self.plus3).contains(&truth)
+    }
+    fn within_one_sigma(&self, truth: f64) -> bool {
+        (self.value - self.minus..=self.value + self.plus).contains(&truth)
+    }
+    fn width(&self) -> f64 {
+        self.minus + self.plus
+    }
+}
+
+/// The resonance's `freq_hz` and `q` fitted by `lab add` to `inputs`.
+fn resonance_fit(dir: &Dir, inputs: &[&std::path::Path]) -> [Fitted; 2] {
     let out = dir.path("fitted.toml");
     let mut args = vec!["lab", "add", "mount_resonance", "--from"];
     args.extend(inputs.iter().map(|p| s(p)));
@@ -90,21 +114,30 @@ fn resonance_fit(dir: &Dir, inputs: &[&std::path::Path]) -> [(f64, f64); 2] {
         params
             .iter()
             .find(|p| p["name"] == name)
-            .map(|p| (num(p, "value"), num(p, "sigma")))
+            .map(|p| Fitted {
+                value: num(p, "value"),
+                minus: num(p, "sigma_minus"),
+                plus: num(p, "sigma_plus"),
+                minus3: num(p, "three_sigma_minus"),
+                plus3: num(p, "three_sigma_plus"),
+            })
             .expect("param")
     };
     [get("freq_hz"), get("q")]
 }
 
-/// RIG.md's resonance hidden in two 20 s flights (seeds 21, 22): fitted to each log
-/// and to both at once (`lab add --from a.mcap b.mcap`), every fit within 3 standard
-/// uncertainties of the simulator's 48 Hz and q 1.56, and the joint fit tighter than
-/// either log alone (measured: 45.9 +- 4.4 Hz and 43.0 +- 3.0 Hz alone, 44.2 +- 2.5 Hz
-/// together).
+/// RIG.md's resonance hidden in 20 s flights: the scenario's own seed (4) and seeds
+/// 3, 21, 22. One flight at one random spectrum pins f0 and q only along a curved
+/// valley, so the interval is the profile likelihood's (the linearised one put the
+/// default flight's 40.2 +- 2.25 Hz 3.5 standard uncertainties from 48 Hz): each
+/// fit, and the joint fit of seeds 21 and 22 (`lab add --from a.mcap b.mcap`), holds
+/// the simulator's 48 Hz and q 1.56 within its 99.73 % interval, and the joint fit's
+/// interval is narrower than either log's alone.
 #[test]
 fn two_flight_logs_fitted_jointly_pin_the_resonance_tighter_than_either() {
     let dir = Dir::new("lab-flight-two");
-    let logs: Vec<std::path::PathBuf> = [21u64, 22]
+    let seeds = [21u64, 22, 4, 3];
+    let logs: Vec<std::path::PathBuf> = seeds
         .iter()
         .map(|seed| {
             let log = dir.path(&format!("flight-{seed}.mcap"));
@@ -123,19 +156,25 @@ fn two_flight_logs_fitted_jointly_pin_the_resonance_tighter_than_either() {
             log
         })
         .collect();
-    let a = resonance_fit(&dir, &[&logs[0]]);
-    let b = resonance_fit(&dir, &[&logs[1]]);
+    let alone: Vec<[Fitted; 2]> = logs.iter().map(|l| resonance_fit(&dir, &[l])).collect();
     let both = resonance_fit(&dir, &[&logs[0], &logs[1]]);
-    println!("FIGURES lab two flights: alone {a:?} and {b:?}, jointly {both:?}");
-    for fit in [a, b, both] {
-        for ((value, sigma), truth) in fit.iter().zip([48.0, 1.56]) {
-            assert!(
-                sigma.is_finite() && (value - truth).abs() <= 3.0 * sigma,
-                "{value} +- {sigma} vs {truth}: {fit:?}"
-            );
+    let (a, b) = (alone[0], alone[1]);
+    let mut inside = 0;
+    for (seed, fit) in seeds.iter().zip(&alone) {
+        println!("FIGURES lab flight seed {seed}: {fit:?}");
+    }
+    println!("FIGURES lab flights 21+22 jointly: {both:?}");
+    for fit in alone.iter().chain([&both]) {
+        for (p, truth) in fit.iter().zip([48.0, 1.56]) {
+            assert!(p.within_three_sigma(truth), "{p:?} vs {truth}: {fit:?}");
+            inside += usize::from(p.within_one_sigma(truth));
         }
     }
+    println!("FIGURES lab flights: {inside} of 10 intervals hold the truth within 68 %");
     for k in 0..2 {
-        assert!(both[k].1 < a[k].1.min(b[k].1), "{a:?} {b:?} {both:?}");
+        assert!(
+            both[k].width() < a[k].width().min(b[k].width()),
+            "{a:?} {b:?} {both:?}"
+        );
     }
 }

@@ -66,8 +66,12 @@ pub struct FitRecord {
     pub table: String,
     /// Fitted parameters, in the effect's units (`freq_hz`, ...).
     pub params: BTreeMap<String, f64>,
-    /// Their standard uncertainties.
+    /// Their standard uncertainties (linearised, from `J^T J`).
     pub sigma: BTreeMap<String, f64>,
+    /// The 68 % profile-likelihood interval `[low, high]` of each parameter whose
+    /// interval is not `value +- sigma` (a nonlinear parameter along a curved valley).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub interval: BTreeMap<String, [f64; 2]>,
     pub rms_residual_before_g: f64,
     pub rms_residual_after_g: f64,
     /// BIC with the effect minus BIC without (negative: the effect is supported).

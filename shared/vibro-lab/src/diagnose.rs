@@ -1055,6 +1055,27 @@ pub fn diagnose(
             note_cut(&round, &mut cut_short);
         }
     }
+    // The final set's nonlinear parameters get their profile-likelihood reach (a
+    // resonance's f0 and q from one random spectrum lie along a curved valley).
+    let mut profile_evaluations = 0;
+    if let Some(f) = current.as_mut() {
+        let terms: Vec<&'static Candidate> = f
+            .kinds
+            .iter()
+            .filter_map(|k| library::candidate(k))
+            .collect();
+        if terms.len() == f.kinds.len() {
+            let before = meter.total();
+            // Profiling only widens what the linearised sigma states; a budget run
+            // out leaves the linearised reach (and says so).
+            if let Err(Error::Budget { .. }) =
+                crate::fit::profile(model, table, &prep, &terms, f, &meter)
+            {
+                cut_short.push(format!("profile of {}", f.kinds.join("+")));
+            }
+            profile_evaluations = meter.total() - before;
+        }
+    }
     let residual_after: Vec<f64> = current
         .as_ref()
         .map_or(residual_g.clone(), |f| f.residual_after_g.clone());
@@ -1154,6 +1175,7 @@ pub fn diagnose(
         budget: BudgetUsed {
             budget: opts.budget,
             evaluations: meter.total(),
+            profile_evaluations,
             elapsed_s: meter.elapsed_s(),
             exhausted: !cut_short.is_empty(),
             cut_short,
@@ -1252,6 +1274,7 @@ pub fn add_effects(
             terms.iter().map(|c| Some(fit.values_of(c.kind))).collect();
         fit = fit_joint(&frozen, table, &prep, &terms, &known, &meter)?;
     }
+    crate::fit::profile(&frozen, table, &prep, &terms, &mut fit, &meter)?;
     let mut out = frozen.clone();
     for (c, t) in terms.iter().zip(&fit.tables) {
         let params = fit.params_of(c.kind);
@@ -1269,6 +1292,17 @@ pub fn add_effects(
                         } else {
                             f64::MAX
                         },
+                    )
+                })
+                .collect(),
+            interval: params
+                .iter()
+                .filter(|p| p.sigma_minus != p.sigma || p.sigma_plus != p.sigma)
+                .filter(|p| p.sigma_minus.is_finite() && p.sigma_plus.is_finite())
+                .map(|p| {
+                    (
+                        p.name.clone(),
+                        [p.value - p.sigma_minus, p.value + p.sigma_plus],
                     )
                 })
                 .collect(),
@@ -1332,17 +1366,22 @@ pub fn add_empirical(
         .zip(&values)
         .flat_map(|(c, v)| {
             let record = model.fits.iter().find(|r| r.kind == c.kind);
-            c.params
-                .iter()
-                .zip(v)
-                .map(move |(p, x)| crate::fit::FittedParam {
+            c.params.iter().zip(v).map(move |(p, x)| {
+                let sigma = record
+                    .and_then(|r| r.sigma.get(p.name).copied())
+                    .unwrap_or(f64::NAN);
+                let interval = record.and_then(|r| r.interval.get(p.name));
+                crate::fit::FittedParam {
                     effect: c.kind.to_string(),
                     name: p.name.to_string(),
                     value: *x,
-                    sigma: record
-                        .and_then(|r| r.sigma.get(p.name).copied())
-                        .unwrap_or(f64::NAN),
-                })
+                    sigma,
+                    sigma_minus: interval.map_or(sigma, |i| *x - i[0]),
+                    sigma_plus: interval.map_or(sigma, |i| i[1] - *x),
+                    three_sigma_minus: 3.0 * interval.map_or(sigma, |i| *x - i[0]),
+                    three_sigma_plus: 3.0 * interval.map_or(sigma, |i| i[1] - *x),
+                }
+            })
         })
         .collect();
     let Some(e) = crate::empirical::backfit(&frozen, table, &terms, &values, &params, &meter)?
@@ -1363,6 +1402,7 @@ pub fn add_empirical(
         table: table.path.display().to_string(),
         params: e.terms.iter().map(|t| (t.key.clone(), t.value)).collect(),
         sigma: e.terms.iter().map(|t| (t.key.clone(), t.sigma)).collect(),
+        interval: Default::default(),
         rms_residual_before_g: before.summary.rms_residual_g,
         rms_residual_after_g: e.rms_residual_after_g,
         // No information criterion: the terms were chosen by cross-validation; the

@@ -221,7 +221,7 @@ fn diagnose_reports_its_budget_and_stops_when_it_runs_out() {
         .filter_map(|c| c.fit.as_ref())
         .map(|f| f.evaluations)
         .sum();
-    assert_eq!(d.budget.evaluations, total);
+    assert_eq!(d.budget.evaluations, total + d.budget.profile_evaluations);
 
     let tight = DiagnoseOptions {
         budget: vibro_lab::Budget {

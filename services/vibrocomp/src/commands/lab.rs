@@ -363,7 +363,22 @@ fn params_text(params: &[vibro_lab::fit::FittedParam]) -> String {
     params
         .iter()
         .map(|p| {
-            if p.sigma.is_finite() {
+            if !p.sigma.is_finite() {
+                format!(
+                    "{} = {:.6e} (not determined by this table)",
+                    p.name, p.value
+                )
+            } else if vibro_lab::fit::asymmetric(p) {
+                format!(
+                    "{} = {:.6e} -{:.2e} +{:.2e} (profile likelihood; 3 sigma: {:.3e} .. {:.3e})",
+                    p.name,
+                    p.value,
+                    p.sigma_minus,
+                    p.sigma_plus,
+                    p.value - p.three_sigma_minus,
+                    p.value + p.three_sigma_plus
+                )
+            } else if p.sigma.is_finite() {
                 format!("{} = {:.6e} +- {:.2e}", p.name, p.value, p.sigma)
             } else {
                 format!(

@@ -541,6 +541,39 @@ fn num(x: f64) -> String {
 
 /// A parameter's value and uncertainty, rounded to the uncertainty's second digit,
 /// with the unit its name carries: `48.0012 ± 0.0021 Hz`.
+/// `value_pm`, or with a profile-likelihood interval unlike `+- sigma`: the value
+/// with its 68 % reach below and above (`40.22 −2.02 +2.76 Hz`), both reaches in the
+/// value's prefix and to the decimals of the smaller.
+fn param_pm(p: &vibro_lab::fit::FittedParam) -> String {
+    let (m, h) = (p.sigma_minus, p.sigma_plus);
+    if !(vibro_lab::fit::asymmetric(p) && m > 0.0 && h > 0.0) {
+        return value_pm(&p.name, p.value, p.sigma);
+    }
+    let unit = describe(&p.name).1;
+    let small = m.min(h);
+    let e = if unit.is_empty() || unit == "deg" || unit == "s" {
+        0
+    } else {
+        eng_exponent(p.value.abs().max(small), unit)
+    };
+    let scale = 10f64.powi(e);
+    let decimals = (1.0 - (small / scale).log10().floor()).clamp(0.0, 12.0) as usize;
+    if (p.value / scale).abs() >= 1e7 || decimals > 8 {
+        return format!(
+            "{:.3e} −{m:.2e} +{h:.2e} {unit} (profile likelihood)",
+            p.value
+        );
+    }
+    format!(
+        "{:.decimals$} −{:.decimals$} +{:.decimals$} {}{unit} (profile likelihood)",
+        p.value / scale,
+        m / scale,
+        h / scale,
+        prefix(e)
+    )
+    .replace("  ", " ")
+}
+
 fn value_pm(name: &str, value: f64, sigma: f64) -> String {
     let unit = describe(name).1;
     if !sigma.is_finite() || sigma <= 0.0 {
@@ -782,7 +815,7 @@ fn fit_tables(h: &mut String, f: &EffectFit) {
             "<tr><td class=l>{}</td><td class=l>{}</td><td>{}</td></tr>",
             esc(&p.effect),
             esc(&p.name),
-            esc(&value_pm(&p.name, p.value, p.sigma))
+            esc(&param_pm(p))
         );
     }
     h.push_str("</table>");
@@ -1151,5 +1184,22 @@ mod tests {
         assert_eq!(f(&0.0), "0");
         assert_eq!(value_pm("freq_hz", 48.00123, 0.0021), "48.0012 ± 0.0021 Hz");
         assert_eq!(value_pm("q", 1.5601, 0.00042), "1.56010 ± 0.00042");
+        let p = vibro_lab::fit::FittedParam {
+            effect: "mount_resonance".into(),
+            name: "freq_hz".into(),
+            value: 40.21772,
+            sigma: 2.25,
+            sigma_minus: 2.0224,
+            sigma_plus: 2.7593,
+            three_sigma_minus: 5.7,
+            three_sigma_plus: 65.6,
+        };
+        assert_eq!(param_pm(&p), "40.2 −2.0 +2.8 Hz (profile likelihood)");
+        let q = vibro_lab::fit::FittedParam {
+            sigma_minus: 2.2,
+            sigma_plus: 2.3,
+            ..p.clone()
+        };
+        assert_eq!(param_pm(&q), "40.2 ± 2.2 Hz");
     }
 }
