@@ -136,7 +136,9 @@ fn resonance_fit(dir: &Dir, inputs: &[&std::path::Path]) -> [Fitted; 2] {
 #[test]
 fn two_flight_logs_fitted_jointly_pin_the_resonance_tighter_than_either() {
     let dir = Dir::new("lab-flight-two");
-    let seeds = [21u64, 22, 4, 3];
+    // 126: a flight whose fit lands far up the valley (196 Hz), where the linearised
+    // reach of q ran below q's range (q -0.32 at 68 %) before intervals were clamped.
+    let seeds = [21u64, 22, 4, 3, 126];
     let logs: Vec<std::path::PathBuf> = seeds
         .iter()
         .map(|seed| {
@@ -164,7 +166,19 @@ fn two_flight_logs_fitted_jointly_pin_the_resonance_tighter_than_either() {
         println!("FIGURES lab flight seed {seed}: {fit:?}");
     }
     println!("FIGURES lab flights 21+22 jointly: {both:?}");
+    // Every interval inside the parameters' ranges (freq_hz 0.1..1e5, q 0.05..1000).
     for fit in alone.iter().chain([&both]) {
+        for (p, range) in fit.iter().zip([(0.1, 1e5), (0.05, 1000.0)]) {
+            assert!(
+                p.value - p.minus3 >= range.0 - 1e-12 && p.value + p.plus3 <= range.1 + 1e-9,
+                "{p:?} outside {range:?}"
+            );
+            assert!(p.minus <= p.minus3 && p.plus <= p.plus3, "{p:?}");
+        }
+    }
+    // Within 3 standard uncertainties on the tests' flights (not on 126: over 30 seeds
+    // 27 of 30 f0 intervals hold 48 Hz at 99.73 %, docs/lab.md).
+    for fit in alone[..4].iter().chain([&both]) {
         for (p, truth) in fit.iter().zip([48.0, 1.56]) {
             assert!(p.within_three_sigma(truth), "{p:?} vs {truth}: {fit:?}");
             inside += usize::from(p.within_one_sigma(truth));

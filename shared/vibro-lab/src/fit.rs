@@ -1130,8 +1130,10 @@ pub(crate) fn fit_joint_projected(
 /// (from the linearised `sigma`, then from the last crossing), then found by false
 /// position on `sqrt(delta chi2)` (linear in the step where the valley is quadratic),
 /// safeguarded by bisection, to 1 % of the reach.
-/// An interval that reaches a bound of the parameter's range stops there. A parameter
-/// the table does not determine, or a refit that fails, keeps its linearised reach.
+/// An interval never passes a bound of the parameter's range: it stops there when
+/// chi2 has not risen enough by then, or when a refit fails first (the data then
+/// bound it no closer than the range, as far as the profile can tell). A parameter
+/// the table does not determine keeps its linearised reach.
 pub(crate) fn profile(
     model: &LabModel,
     table: &CampaignTable,
@@ -1188,14 +1190,22 @@ pub(crate) fn profile(
                         d = (2.0 * r).min(bound);
                     }
                     None => {
-                        // The refit failed: this level and the next keep their
-                        // linearised reach (at least as far as the profile got).
-                        for l in level..2 {
-                            reach[side][l] = reach[side][l].max(lo.0);
+                        // A refit failed before chi2 rose by the target: the data
+                        // bound it no closer than the range does, as far as the
+                        // profile can tell (this level and the next).
+                        for r in &mut reach[side][level..] {
+                            *r = bound;
                         }
                         break;
                     }
                 }
+            }
+        }
+        // Never past the parameter's range (a linearised reach can be: q >= 0.05).
+        let bounds = [theta0[k] - specs[k].bounds.0, specs[k].bounds.1 - theta0[k]];
+        for (side, b) in bounds.into_iter().enumerate() {
+            for r in &mut reach[side] {
+                *r = r.min(b.max(0.0));
             }
         }
         let p = &mut fit.params[k];
