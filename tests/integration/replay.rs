@@ -776,6 +776,61 @@ fn a_foxglove_client_sees_the_live_view_as_the_recording_holds_it() {
         .filter(|m| m["topic"] == "/view/vibration/z")
         .count();
     assert!(axes >= 2, "{axes} vibration messages");
+    // The recorder wrote the same view channels into the session's MCAP (docs/view.md):
+    // read by the PyPI `mcap` reader, decoded with the schemas the file embeds, each
+    // unit message equal to the live one (time, stages' mean, minimum and maximum).
+    let out = Command::new("python3")
+        .arg(repo_path("tests/python/mcap_check.py"))
+        .arg(&session)
+        .arg("--all-messages")
+        .output()
+        .expect("python3 runs");
+    assert!(
+        out.status.success(),
+        "mcap_check.py: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let rec: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let mut recorded_view = 0;
+    for (topic, schema) in vibro_view::topics(vibro_view::UNIT_NAMES) {
+        let Some(c) = rec["channels"].get(&topic) else {
+            // A channel with no message (a service that is not running) has no
+            // decoded message to list.
+            assert!(topic.starts_with("/view/health/"), "{topic} not recorded");
+            continue;
+        };
+        assert_eq!(c["schema"], schema.name, "{topic}");
+        assert_eq!(c["sequence_gaps"], 0, "{topic}");
+        if !topic.starts_with("/view/AK") {
+            continue;
+        }
+        let live: Vec<&serde_json::Value> = messages
+            .iter()
+            .filter(|m| m["topic"] == topic.as_str())
+            .collect();
+        let file = c["messages"].as_array().unwrap();
+        assert_eq!(file.len(), live.len(), "{topic}: recorded vs live");
+        for (r, l) in file.iter().zip(&live) {
+            assert_eq!(r["log_time_ns"], l["log_time_ns"], "{topic}");
+            for field in [
+                "uncompensated_g",
+                "main_removed_g",
+                "compensated_g",
+                "reference_g",
+                "compensated_error_g",
+            ] {
+                for k in ["mean", "min", "max"] {
+                    let (a, b) = (&r["fields"][field][k], &l["fields"][field][k]);
+                    assert!(
+                        a.as_f64().is_some() && a.as_f64() == b.as_f64(),
+                        "{topic} {field}.{k}: recorded {a} vs live {b}"
+                    );
+                }
+            }
+            recorded_view += 1;
+        }
+    }
+    assert_eq!(recorded_view, compared);
     println!(
         "FIGURES view: {compared} unit messages compared with the recording, {} messages in \
          all; view summary {view_out}",

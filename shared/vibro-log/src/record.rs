@@ -12,11 +12,12 @@ use tracing::{info, warn};
 use vibro_ipc::{
     cleanup_dead_nodes, create_node, create_waitset, now_ns, Ipc, StreamPublisher, StreamSubscriber,
 };
-use vibro_mcap::{ChannelId, Message, Recorder, RecorderOptions};
+use vibro_mcap::{ChannelId, Message, Recorder, RecorderOptions, ViewChannelId};
 use vibro_msgs::{
     AccelBlock, CompensatedBlock, Heartbeat, ServiceId, ServiceNames, ServiceState, Stream,
     TruthBlock, VibBlock, VibEstimate, WireMessage,
 };
+use vibro_view::{ViewBuilder, ViewMessage, UNIT_NAMES};
 
 /// What to record and how.
 #[derive(Debug, Clone)]
@@ -29,6 +30,10 @@ pub struct RecordOptions {
     /// ([`crate::attachments`]).
     pub extras: LogExtras,
     pub recorder: RecorderOptions,
+    /// Record the view channels beside the wire streams (docs/view.md: each unit's
+    /// stages, the vibration per axis, the services' health, made to be plotted),
+    /// from the streams recorded. Default on.
+    pub view: bool,
     /// How often the recorder publishes its heartbeat (`{prefix}heartbeat/recorder`).
     pub heartbeat_period: Duration,
     /// Longest sleep before the stop flag is looked at.
@@ -42,6 +47,7 @@ impl RecordOptions {
             streams,
             extras: LogExtras::recorded(),
             recorder: RecorderOptions::default(),
+            view: true,
             heartbeat_period: Duration::from_secs(1),
             stop_poll: Duration::from_millis(100),
         }
@@ -81,6 +87,9 @@ pub struct RecordSummary {
     pub path: PathBuf,
     pub prefix: String,
     pub topics: BTreeMap<String, TopicCounts>,
+    /// View messages written per view topic (docs/view.md).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub view: BTreeMap<String, u64>,
     pub messages: u64,
     pub lost: u64,
     /// `seq` jumps over all topics ([`TopicCounts::jumps`]).
@@ -166,12 +175,78 @@ fn write_waiting(
     }
 }
 
+/// The view channels of the recording: the builder and where its messages go.
+struct View {
+    builder: ViewBuilder,
+    channels: BTreeMap<String, (ViewChannelId, u32)>,
+    out: Vec<ViewMessage>,
+    written: BTreeMap<String, u64>,
+    queue_waits: u64,
+}
+
+impl View {
+    /// The view channels that `streams` feed: the units' with `/compensated`, the
+    /// axes' with `/estimate`, each recorded service's health (no empty channel).
+    fn open(recorder: &mut Recorder, streams: &[Stream]) -> Result<Self> {
+        let fed = |topic: &str| {
+            if let Some(service) = topic.strip_prefix("/view/health/") {
+                streams
+                    .iter()
+                    .any(|s| matches!(s, Stream::Heartbeat(id) if id.as_str() == service))
+            } else if topic.starts_with("/view/vibration/") {
+                streams.contains(&Stream::Estimate)
+            } else {
+                streams.contains(&Stream::Compensated)
+            }
+        };
+        let mut channels = BTreeMap::new();
+        for (topic, schema) in vibro_view::topics(UNIT_NAMES) {
+            if !fed(&topic) {
+                continue;
+            }
+            let id = recorder.add_view_channel(&topic, schema)?;
+            channels.insert(topic, (id, 0));
+        }
+        Ok(Self {
+            builder: ViewBuilder::new(UNIT_NAMES),
+            channels,
+            out: Vec::new(),
+            written: BTreeMap::new(),
+            queue_waits: 0,
+        })
+    }
+
+    /// Writes what the builder made (`receive_ns`: the publish time of each), waiting
+    /// for room in the writer's queue as the wire messages do.
+    fn write(&mut self, recorder: &Recorder, receive_ns: u64) -> Result<()> {
+        for v in self.out.drain(..) {
+            let Some((channel, seq)) = self.channels.get_mut(&v.topic) else {
+                continue;
+            };
+            if recorder.write_view(channel, v.log_time_ns, receive_ns, *seq, v.data)? {
+                self.queue_waits += 1;
+            }
+            *seq = seq.wrapping_add(1);
+            *self.written.entry(v.topic).or_default() += 1;
+        }
+        Ok(())
+    }
+}
+
 /// The type-erased operations of a [`Channel`], so that one loop drains every stream.
 trait Drain {
     fn listener(&self) -> &iceoryx2::port::listener::Listener<Ipc>;
     fn clear_events(&self);
-    /// Records every message waiting; returns how many.
-    fn drain(&self, recorder: &Recorder, st: &mut State, clock: &mut DataClock) -> Result<u64>;
+    /// Records every message waiting (and makes its view messages); returns how many.
+    fn drain(
+        &self,
+        recorder: &Recorder,
+        st: &mut State,
+        clock: &mut DataClock,
+        view: &mut Option<View>,
+    ) -> Result<u64>;
+    /// Publishers of the stream now.
+    fn publishers(&self) -> usize;
 }
 
 impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
@@ -183,7 +258,17 @@ impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
         let _ = self.subscriber.clear_events();
     }
 
-    fn drain(&self, recorder: &Recorder, st: &mut State, clock: &mut DataClock) -> Result<u64> {
+    fn publishers(&self) -> usize {
+        self.subscriber.publisher_count()
+    }
+
+    fn drain(
+        &self,
+        recorder: &Recorder,
+        st: &mut State,
+        clock: &mut DataClock,
+        view: &mut Option<View>,
+    ) -> Result<u64> {
         let mut n = 0;
         while let Some(sample) = self.subscriber.receive()? {
             let receive_ns = now_ns();
@@ -202,6 +287,10 @@ impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
             }
             let wire: Message = message.into();
             st.counts.recorded += 1;
+            if let Some(v) = view.as_mut() {
+                v.builder.on_message(&wire, &mut v.out);
+                v.write(recorder, receive_ns)?;
+            }
             let log_time_ns = match (wire.data_ns(), clock.latest_ns) {
                 (Some(t), _) => {
                     if clock.latest_ns.is_none() {
@@ -382,8 +471,8 @@ pub fn record(
     let started_ns = now_ns();
     let mut recorder = Recorder::create(path, options.recorder.clone())
         .map_err(|e| output_error("create", path, e, None))?;
-    let states = match record_into(&mut recorder, path, options, stop, ready, started_ns) {
-        Ok(states) => states,
+    let (states, view) = match record_into(&mut recorder, path, options, stop, ready, started_ns) {
+        Ok(x) => x,
         Err(e) => {
             // The loop only sees that the writer thread stopped; `finish` says why.
             let stopped = matches!(e, Error::Mcap(vibro_mcap::Error::RecorderStopped { .. }));
@@ -403,6 +492,7 @@ pub fn record(
     let summary = RecordSummary {
         path: path.to_path_buf(),
         prefix: options.names.prefix().to_string(),
+        view,
         messages: finished.messages,
         lost: topics.values().map(|t| t.lost).sum(),
         jumps: topics.values().map(|t| t.jumps).sum(),
@@ -457,7 +547,7 @@ fn record_into(
     stop: &AtomicBool,
     ready: impl FnOnce(),
     started_ns: u64,
-) -> Result<Vec<State>> {
+) -> Result<(Vec<State>, BTreeMap<String, u64>)> {
     let node = create_node("vibrocomp-recorder")?;
     let cleaned = cleanup_dead_nodes(&node);
     if cleaned > 0 {
@@ -492,6 +582,12 @@ fn record_into(
         ),
     ]);
     meta.insert("started_ns".to_string(), started_ns.to_string());
+    let mut view = if options.view {
+        Some(View::open(recorder, &options.streams)?)
+    } else {
+        None
+    };
+    let truth_at = options.streams.iter().position(|s| *s == Stream::Truth);
     let mut own = LogExtras::recorded();
     own.metadata(RECORDING_METADATA, meta);
     own.write_to(recorder)?;
@@ -536,9 +632,16 @@ fn record_into(
                 c.clear_events();
             }
         }
+        // A rig (or replay) publishing a reference: compensated blocks wait for theirs
+        // in the view (as in the live view).
+        if let Some(v) = view.as_mut() {
+            let reference = truth_at.is_some_and(|i| channels[i].publishers() > 0);
+            v.builder.expect_reference(reference, &mut v.out);
+            v.write(recorder, now_ns())?;
+        }
         let mut taken = 0;
         for (c, st) in channels.iter().zip(&mut states) {
-            taken += c.drain(recorder, st, &mut clock)?;
+            taken += c.drain(recorder, st, &mut clock, &mut view)?;
         }
         let (received, recorded, lost) = totals(&states);
         if taken > 0 {
@@ -563,11 +666,23 @@ fn record_into(
     if let Some(st) = states.first_mut() {
         clock.flush(recorder, None, st)?;
     }
+    let mut view_written = BTreeMap::new();
+    if let Some(mut v) = view {
+        v.builder.flush(&mut v.out);
+        v.write(recorder, now_ns())?;
+        if v.queue_waits > 0 {
+            info!(
+                waits = v.queue_waits,
+                "view messages waited for the writer's queue"
+            );
+        }
+        view_written = v.written;
+    }
     let (received, recorded, lost) = totals(&states);
     status.heartbeat(received, recorded, lost, ServiceState::Stopping);
     drop(guards);
     drop(channels);
-    Ok(states)
+    Ok((states, view_written))
 }
 
 #[cfg(test)]

@@ -86,11 +86,12 @@ pub use info::{
 pub use reader::{Reader, Record};
 pub use recorder::{
     ChannelId, Compression, Recorder, RecorderOptions, RecorderStats, RecordingSummary,
+    ViewChannelId,
 };
 pub use recover::{recover, recover_from_reader, Damage, RecoverReport};
 pub use schema::{
     kind_of_schema, schema, Schema, ViewSchema, MESSAGE_ENCODING, PROTO_PACKAGE, SCHEMA_ENCODING,
-    VIEW_SERVICE_HEALTH, VIEW_UNIT_STAGES, VIEW_VIBRATION_AXIS,
+    VIEW_PACKAGE_PREFIX, VIEW_SERVICE_HEALTH, VIEW_UNIT_STAGES, VIEW_VIBRATION_AXIS,
 };
 
 use std::path::PathBuf;
@@ -181,6 +182,13 @@ pub enum Error {
         topic: String,
         existing: MessageKind,
         requested: MessageKind,
+    },
+    /// A view channel's topic is taken by a channel of another schema.
+    #[error("topic {topic:?} is registered for {existing}, not {requested}")]
+    ViewTopicExists {
+        topic: String,
+        existing: &'static str,
+        requested: &'static str,
     },
     /// `write` passed a message of another type than the channel's.
     #[error("topic {topic:?} carries {expected}, not {got}")]

@@ -9,7 +9,7 @@
 //! reader), before any of its messages is yielded.
 
 use crate::guard;
-use crate::schema::{kind_of_schema, MESSAGE_ENCODING, SCHEMA_ENCODING};
+use crate::schema::{kind_of_schema, MESSAGE_ENCODING, SCHEMA_ENCODING, VIEW_PACKAGE_PREFIX};
 use crate::{Error, Message, Result};
 use mcap::records::{op, ChunkIndex, Record as McapRecord};
 use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
@@ -85,6 +85,7 @@ pub struct Reader {
     file_bytes: u64,
     channels: HashMap<u16, ChannelEntry>,
     foreign_topics: Vec<String>,
+    view_topics: Vec<String>,
     chunks: Vec<ChunkIndex>,
     next_chunk: usize,
     pending: BinaryHeap<Reverse<Pending>>,
@@ -131,6 +132,7 @@ impl Reader {
         }
         let mut channels = HashMap::new();
         let mut foreign_topics = Vec::new();
+        let mut view_topics = Vec::new();
         for (&id, channel) in &summary.channels {
             let kind = channel
                 .schema
@@ -148,10 +150,18 @@ impl Reader {
                         },
                     );
                 }
+                None if channel
+                    .schema
+                    .as_ref()
+                    .is_some_and(|s| s.name.starts_with(VIEW_PACKAGE_PREFIX)) =>
+                {
+                    view_topics.push(channel.topic.clone())
+                }
                 None => foreign_topics.push(channel.topic.clone()),
             }
         }
         foreign_topics.sort();
+        view_topics.sort();
         let mut chunks = summary.chunk_indexes.clone();
         chunks.sort_by_key(|c| (c.message_start_time, c.chunk_start_offset));
         Ok(Reader {
@@ -160,6 +170,7 @@ impl Reader {
             file_bytes,
             channels,
             foreign_topics,
+            view_topics,
             chunks,
             next_chunk: 0,
             pending: BinaryHeap::new(),
@@ -190,6 +201,12 @@ impl Reader {
     /// Topics of channels that are not `vibrocomp.v1` messages; their messages are skipped.
     pub fn foreign_topics(&self) -> &[String] {
         &self.foreign_topics
+    }
+
+    /// Topics of the view channels (`vibrocomp.view.v1` schemas, docs/view.md): made
+    /// from the wire streams to be plotted, skipped like foreign ones.
+    pub fn view_topics(&self) -> &[String] {
+        &self.view_topics
     }
 
     /// Messages in the file according to its statistics record, if it has one.

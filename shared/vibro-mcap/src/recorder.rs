@@ -16,7 +16,7 @@
 //! closed chunk. Control calls (`add_channel`, `add_attachment`, `add_metadata`) are
 //! rare and must not be lost, so they wait for room in the queue instead.
 
-use crate::schema::{schema, schema_id, MESSAGE_ENCODING, SCHEMA_ENCODING};
+use crate::schema::{schema, schema_id, ViewSchema, MESSAGE_ENCODING, SCHEMA_ENCODING};
 use crate::{Error, Message, Result};
 use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
@@ -131,6 +131,24 @@ impl ChannelId {
     }
 }
 
+/// A registered view channel (docs/view.md), for [`Recorder::write_view`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ViewChannelId {
+    id: u16,
+    topic: Arc<str>,
+}
+
+impl ViewChannelId {
+    /// The MCAP channel ID.
+    pub fn id(&self) -> u16 {
+        self.id
+    }
+    /// The topic.
+    pub fn topic(&self) -> &str {
+        &self.topic
+    }
+}
+
 /// Counters of a running recorder.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct RecorderStats {
@@ -183,6 +201,19 @@ enum Command {
         topic: String,
         kind: MessageKind,
     },
+    ViewChannel {
+        id: u16,
+        topic: String,
+        schema: ViewSchema,
+    },
+    /// A view message: protobuf bytes encoded by the caller.
+    View {
+        channel_id: u16,
+        sequence: u32,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+        data: Vec<u8>,
+    },
     Message {
         channel_id: u16,
         sequence: u32,
@@ -213,6 +244,7 @@ pub struct Recorder {
     tx: Option<SyncSender<Command>>,
     thread: Option<JoinHandle<Result<RecordingSummary>>>,
     channels: HashMap<String, ChannelId>,
+    view_channels: HashMap<String, (ViewChannelId, &'static str)>,
     next_channel_id: u16,
     capacity: usize,
     counters: Arc<Counters>,
@@ -256,6 +288,7 @@ impl Recorder {
                         flush_interval,
                         counters: Arc::clone(&counters),
                         topics: BTreeMap::new(),
+                        view_schemas: BTreeMap::new(),
                         buf: Vec::with_capacity(16 * 1024),
                         attachments: 0,
                         metadata: 0,
@@ -275,6 +308,7 @@ impl Recorder {
             tx: Some(tx),
             thread: Some(thread),
             channels: HashMap::new(),
+            view_channels: HashMap::new(),
             next_channel_id: 1,
             capacity: options.queue_capacity,
             counters,
@@ -290,6 +324,13 @@ impl Recorder {
     /// channel of that kind). Registering the same topic and kind again returns the same
     /// channel.
     pub fn add_channel(&mut self, topic: &str, kind: MessageKind) -> Result<ChannelId> {
+        if let Some((_, name)) = self.view_channels.get(topic) {
+            return Err(Error::ViewTopicExists {
+                topic: topic.to_string(),
+                existing: name,
+                requested: kind.type_name(),
+            });
+        }
         if let Some(existing) = self.channels.get(topic) {
             if existing.kind == kind {
                 return Ok(existing.clone());
@@ -317,6 +358,78 @@ impl Recorder {
         };
         self.channels.insert(topic.to_string(), channel.clone());
         Ok(channel)
+    }
+
+    /// Registers a view channel `topic` (docs/view.md) with its protobuf `schema`:
+    /// messages made to be plotted, which readers of the wire streams skip. The same
+    /// topic and schema again return the same channel.
+    pub fn add_view_channel(&mut self, topic: &str, schema: ViewSchema) -> Result<ViewChannelId> {
+        if let Some((existing, name)) = self.view_channels.get(topic) {
+            if *name == schema.name {
+                return Ok(existing.clone());
+            }
+            return Err(Error::ViewTopicExists {
+                topic: topic.to_string(),
+                existing: name,
+                requested: schema.name,
+            });
+        }
+        if let Some(wire) = self.channels.get(topic) {
+            return Err(Error::ViewTopicExists {
+                topic: topic.to_string(),
+                existing: wire.kind.type_name(),
+                requested: schema.name,
+            });
+        }
+        let id = self.next_channel_id;
+        self.next_channel_id = id.checked_add(1).ok_or(Error::TooManyChannels {
+            topic: topic.to_string(),
+            max: u16::MAX,
+        })?;
+        self.send_control(Command::ViewChannel {
+            id,
+            topic: topic.to_string(),
+            schema,
+        })?;
+        let channel = ViewChannelId {
+            id,
+            topic: Arc::from(topic),
+        };
+        self.view_channels
+            .insert(topic.to_string(), (channel.clone(), schema.name));
+        Ok(channel)
+    }
+
+    /// Queues one view message (`data`: its protobuf bytes) on `channel`, waiting for
+    /// room in the queue when it is full (as the control calls do: the caller is a
+    /// recorder's own thread, which waits for the wire messages too); returns whether
+    /// it had to wait.
+    pub fn write_view(
+        &self,
+        channel: &ViewChannelId,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+        sequence: u32,
+        data: Vec<u8>,
+    ) -> Result<bool> {
+        let tx = self.tx.as_ref().ok_or_else(|| self.stopped())?;
+        let command = Command::View {
+            channel_id: channel.id,
+            sequence,
+            log_time_ns,
+            publish_time_ns,
+            data,
+        };
+        let waited = match tx.try_send(command) {
+            Ok(()) => false,
+            Err(TrySendError::Full(command)) => {
+                tx.send(command).map_err(|_| self.stopped())?;
+                true
+            }
+            Err(TrySendError::Disconnected(_)) => return Err(self.stopped()),
+        };
+        self.counters.accepted.fetch_add(1, Ordering::Relaxed);
+        Ok(waited)
     }
 
     /// Queues one message for `topic` (registered with [`Recorder::add_channel`]).
@@ -480,12 +593,17 @@ impl Drop for Recorder {
     }
 }
 
+/// The first schema ID of the view schemas (the wire types take 1..=6).
+const VIEW_SCHEMA_ID_BASE: u16 = 32;
+
 struct WriterThread {
     path: PathBuf,
     writer: mcap::Writer<BufWriter<std::fs::File>>,
     flush_interval: Duration,
     counters: Arc<Counters>,
     topics: BTreeMap<u16, (String, u64)>,
+    /// The view schemas written: name -> schema ID.
+    view_schemas: BTreeMap<&'static str, u16>,
     buf: Vec<u8>,
     attachments: u64,
     metadata: u64,
@@ -545,6 +663,46 @@ impl WriterThread {
                     .add_channel_with_id(id, schema_id, &topic, MESSAGE_ENCODING, &metadata)
                     .map_err(|e| write_error(path, e))?;
                 self.topics.insert(id, (topic, 0));
+                Ok(true)
+            }
+            Command::ViewChannel { id, topic, schema } => {
+                // After the wire types' fixed IDs (1..=6), one per view schema.
+                let next = VIEW_SCHEMA_ID_BASE + self.view_schemas.len() as u16;
+                let wanted = *self.view_schemas.entry(schema.name).or_insert(next);
+                let schema_id = self
+                    .writer
+                    .add_schema_with_id(wanted, schema.name, SCHEMA_ENCODING, schema.data)
+                    .map_err(|e| write_error(path, e))?;
+                let metadata = BTreeMap::from([(
+                    "vibrocomp.view".to_string(),
+                    "made to be plotted (docs/view.md)".to_string(),
+                )]);
+                self.writer
+                    .add_channel_with_id(id, schema_id, &topic, MESSAGE_ENCODING, &metadata)
+                    .map_err(|e| write_error(path, e))?;
+                self.topics.insert(id, (topic, 0));
+                Ok(true)
+            }
+            Command::View {
+                channel_id,
+                sequence,
+                log_time_ns,
+                publish_time_ns,
+                data,
+            } => {
+                let header = mcap::records::MessageHeader {
+                    channel_id,
+                    sequence,
+                    log_time: log_time_ns,
+                    publish_time: publish_time_ns,
+                };
+                self.writer
+                    .write_to_known_channel(&header, &data)
+                    .map_err(|e| write_error(path, e))?;
+                if let Some((_, n)) = self.topics.get_mut(&channel_id) {
+                    *n += 1;
+                }
+                self.counters.written.fetch_add(1, Ordering::Relaxed);
                 Ok(true)
             }
             Command::Message {

@@ -45,6 +45,9 @@ pub const fn schema(kind: MessageKind) -> Schema {
     Schema { kind, name, data }
 }
 
+/// The start of every view schema's name (`vibrocomp.view.v1.UnitStages`, ...).
+pub const VIEW_PACKAGE_PREFIX: &str = "vibrocomp.view.";
+
 /// A view channel's schema (docs/view.md): fully qualified name and serialised
 /// `FileDescriptorSet`, as for the wire types.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -25,6 +25,8 @@
 //! let mut out = Vec::new();
 //! let hb = vibro_msgs::Heartbeat { service: 4, state: 2, ..vibro_msgs::Heartbeat::ZEROED };
 //! view.on_message(&vibro_mcap::Message::Heartbeat(hb), &mut out);
+//! assert!(out.is_empty(), "a heartbeat before any data waits for the data's time");
+//! view.flush(&mut out);
 //! assert_eq!(out[0].topic, "/view/health/compensator");
 //! ```
 
@@ -116,7 +118,14 @@ pub struct ViewBuilder {
     /// Whether a reference stream is expected ([`ViewBuilder::expect_reference`]; a
     /// reference block arriving says so too).
     reference_expected: bool,
+    /// Heartbeats before the first data time: a heartbeat has no time of its own on
+    /// the data's timeline, so these wait for it (at most [`HEALTH_HELD`]).
+    health_held: Vec<Heartbeat>,
 }
+
+/// Heartbeats held for the first data time (a few seconds of every service's); beyond,
+/// the oldest go out at time 0.
+pub const HEALTH_HELD: usize = 256;
 
 impl ViewBuilder {
     pub fn new(units: [&str; 3]) -> Self {
@@ -126,6 +135,7 @@ impl ViewBuilder {
             latest_ns: 0,
             pending: std::collections::VecDeque::with_capacity(PENDING_KEPT),
             reference_expected: false,
+            health_held: Vec::new(),
         }
     }
 
@@ -135,15 +145,28 @@ impl ViewBuilder {
     pub fn expect_reference(&mut self, expected: bool, out: &mut Vec<ViewMessage>) {
         self.reference_expected = expected;
         if !expected {
-            self.flush(out);
+            self.flush_blocks(out);
         }
     }
 
-    /// The compensated blocks still waiting for a reference, without one (at the end
-    /// of a stream).
-    pub fn flush(&mut self, out: &mut Vec<ViewMessage>) {
+    /// The compensated blocks still waiting for a reference, without one.
+    fn flush_blocks(&mut self, out: &mut Vec<ViewMessage>) {
         while let Some(b) = self.pending.pop_front() {
             self.unit_stages(&b, None, out);
+        }
+    }
+
+    /// At the end of a stream: the compensated blocks still waiting for a reference,
+    /// without one, and the heartbeats still waiting for a data time, at the latest.
+    pub fn flush(&mut self, out: &mut Vec<ViewMessage>) {
+        self.flush_blocks(out);
+        self.release_health(out);
+    }
+
+    /// The heartbeats held for the first data time, at the latest data time.
+    fn release_health(&mut self, out: &mut Vec<ViewMessage>) {
+        for h in std::mem::take(&mut self.health_held) {
+            self.health(&h, out);
         }
     }
 
@@ -160,6 +183,9 @@ impl ViewBuilder {
     pub fn on_message(&mut self, m: &Message, out: &mut Vec<ViewMessage>) {
         if let Some(t) = m.data_ns() {
             self.latest_ns = self.latest_ns.max(t);
+            if !self.health_held.is_empty() {
+                self.release_health(out);
+            }
         }
         match m {
             Message::TruthBlock(t) => {
@@ -192,6 +218,13 @@ impl ViewBuilder {
                 None => self.unit_stages(b, None, out),
             },
             Message::VibEstimate(e) => self.vibration(e, out),
+            Message::Heartbeat(h) if self.latest_ns == 0 => {
+                if self.health_held.len() == HEALTH_HELD {
+                    let oldest = self.health_held.remove(0);
+                    self.health(&oldest, out);
+                }
+                self.health_held.push(*h);
+            }
             Message::Heartbeat(h) => self.health(h, out),
             Message::AccelBlock(_) | Message::VibBlock(_) => {}
         }
@@ -393,6 +426,39 @@ mod tests {
         let s = UnitStages::decode(&out[0].data[..]).unwrap();
         assert!(s.reference_g.is_none() && s.compensated_error_g.is_none());
         assert!(s.compensated_g.is_some());
+    }
+
+    /// A heartbeat before any data would sit at time 0 (1970 in a viewer, stretching
+    /// the timeline): it waits for the first data time, in order, and goes out there.
+    #[test]
+    fn heartbeats_before_the_first_data_wait_for_its_time() {
+        let mut view = ViewBuilder::new(UNIT_NAMES);
+        let mut out = Vec::new();
+        for (i, s) in [ServiceId::Estimator, ServiceId::Compensator]
+            .iter()
+            .enumerate()
+        {
+            let hb = Heartbeat {
+                service: s.code(),
+                seq: i as u64,
+                ..Heartbeat::ZEROED
+            };
+            view.on_message(&Message::Heartbeat(hb), &mut out);
+        }
+        // A system without a reference stream says so on every wake-up: the
+        // heartbeats keep waiting.
+        view.expect_reference(false, &mut out);
+        assert!(out.is_empty());
+        let (b, _) = block(4);
+        let t = Message::CompensatedBlock(b).data_ns().expect("data time");
+        assert!(t > 0);
+        view.on_message(&Message::CompensatedBlock(b), &mut out);
+        let topics: Vec<&str> = out.iter().map(|m| m.topic.as_str()).collect();
+        assert_eq!(
+            topics[..2],
+            ["/view/health/estimator", "/view/health/compensator"]
+        );
+        assert!(out.iter().all(|m| m.log_time_ns == t), "{out:?}");
     }
 
     /// Heartbeats carry the wire codes as protobuf enums and sit at the latest data

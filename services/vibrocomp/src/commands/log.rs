@@ -245,10 +245,25 @@ fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
         .max()
         .unwrap_or(0)
         .max(6);
+    let kind_of = |c: &vibro_mcap::ChannelInfo| {
+        c.kind.clone().unwrap_or_else(|| {
+            // A view channel's schema without its package (docs/view.md).
+            c.message_type
+                .strip_prefix("vibrocomp.view.v1.")
+                .map_or_else(|| c.message_type.clone(), |t| format!("view {t}"))
+        })
+    };
+    let kw = info
+        .channels
+        .iter()
+        .map(|c| kind_of(c).len())
+        .max()
+        .unwrap_or(0)
+        .max(17);
     if !info.channels.is_empty() {
         writeln!(
             out,
-            "  {:<tw$} {:<17} {:>9}  {:>21}  {:>21}  {:>11}  {:>21}  {:>6}  {:>5}  {:>12}",
+            "  {:<tw$} {:<kw$} {:>9}  {:>21}  {:>21}  {:>11}  {:>21}  {:>6}  {:>5}  {:>12}",
             "topic",
             "type",
             "messages",
@@ -262,14 +277,14 @@ fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
         )?;
     }
     for c in &info.channels {
-        let kind = c.kind.clone().unwrap_or_else(|| c.message_type.clone());
+        let kind = kind_of(c);
         let sequence = match (c.first_sequence, c.last_sequence) {
             (Some(a), Some(b)) => format!("{a}..{b}"),
             _ => "-".to_string(),
         };
         writeln!(
             out,
-            "  {:<tw$} {:<17} {:>9}  {:>21}  {:>21}  {:>11.3}  {:>21}  {:>6}  {:>5}  {:>12}",
+            "  {:<tw$} {:<kw$} {:>9}  {:>21}  {:>21}  {:>11.3}  {:>21}  {:>6}  {:>5}  {:>12}",
             c.topic,
             kind,
             c.messages,

@@ -39,6 +39,10 @@ pub struct RecordArgs {
     /// Stop by itself after this many seconds.
     #[arg(long = "duration-s")]
     pub duration_s: Option<f64>,
+    /// Record the wire streams only, without the view channels made to be plotted
+    /// (`/view/...`, docs/view.md) [default: both].
+    #[arg(long)]
+    pub no_view: bool,
     /// Print the summary as JSON.
     #[arg(long)]
     pub json: bool,
@@ -158,6 +162,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     let attached: Vec<String> = extras.attachments().map(|a| a.name.clone()).collect();
     let mut options = RecordOptions::new(names, streams);
     options.extras = extras;
+    options.view = !args.no_view;
     let out = args.out.clone();
     let summary = run_service(|shutdown| async move {
         let (tx, rx) = tokio::sync::oneshot::channel();
@@ -198,6 +203,15 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         s.duration_s,
         s.lost
     )?;
+    let view: u64 = s.view.values().sum();
+    if view > 0 {
+        outln!(
+            "  {:<24} {:>9} view messages on {} channels (made to be plotted, docs/view.md)",
+            "/view/...",
+            view,
+            s.view.len()
+        )?;
+    }
     for (topic, c) in &s.topics {
         // `seq` jumps (a corrupt or renumbered counter, not in `lost`) only when seen.
         let jumps = if c.jumps > 0 {
