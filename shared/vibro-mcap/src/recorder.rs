@@ -914,4 +914,91 @@ mod tests {
             "finish: {text}"
         );
     }
+
+    /// View channels go into the file with their schema (one schema record for two
+    /// channels of the same schema, after the wire types' IDs), their bytes as given;
+    /// the wire readers pass over them and list them apart; a topic cannot be both.
+    #[test]
+    fn view_channels_are_written_beside_the_wire_ones_and_read_apart() {
+        use crate::schema::{VIEW_SERVICE_HEALTH, VIEW_UNIT_STAGES};
+        let path =
+            std::env::temp_dir().join(format!("vibro-mcap-view-{}.mcap", std::process::id()));
+        let mut rec = Recorder::create(&path, RecorderOptions::default()).expect("create");
+        let accel = rec
+            .add_channel("/accel", MessageKind::AccelBlock)
+            .expect("wire channel");
+        let a = rec
+            .add_view_channel("/view/AK1", VIEW_UNIT_STAGES)
+            .expect("view");
+        let b = rec
+            .add_view_channel("/view/AK2", VIEW_UNIT_STAGES)
+            .expect("view");
+        let h = rec
+            .add_view_channel("/view/health/estimator", VIEW_SERVICE_HEALTH)
+            .expect("view");
+        assert_eq!(
+            rec.add_view_channel("/view/AK1", VIEW_UNIT_STAGES).ok(),
+            Some(a.clone())
+        );
+        assert!(matches!(
+            rec.add_view_channel("/view/AK1", VIEW_SERVICE_HEALTH),
+            Err(Error::ViewTopicExists { .. })
+        ));
+        assert!(matches!(
+            rec.add_view_channel("/accel", VIEW_UNIT_STAGES),
+            Err(Error::ViewTopicExists { .. })
+        ));
+        assert!(matches!(
+            rec.add_channel("/view/AK2", MessageKind::AccelBlock),
+            Err(Error::ViewTopicExists { .. })
+        ));
+        let mut m = AccelBlock::ZEROED;
+        m.count = 1;
+        m.sample_period_ns = 1_250_000;
+        rec.write_to(&accel, 10, 11, 0, m.into()).expect("wire");
+        for (i, ch) in [&a, &b, &h].into_iter().enumerate() {
+            let waited = rec
+                .write_view(ch, 20 + i as u64, 21, 0, vec![8, i as u8])
+                .expect("view message");
+            assert!(!waited);
+        }
+        let summary = rec.finish().expect("finish");
+        assert_eq!(summary.messages, 4);
+        let bytes = std::fs::read(&path).expect("read back");
+        let reader = crate::Reader::open(&path).expect("the wire reader opens it");
+        assert_eq!(
+            reader.view_topics(),
+            ["/view/AK1", "/view/AK2", "/view/health/estimator"]
+        );
+        assert!(reader.foreign_topics().is_empty());
+        let wire: Vec<_> = reader
+            .map(|r| r.expect("record").topic.to_string())
+            .collect();
+        assert_eq!(wire, ["/accel"]);
+        let _ = std::fs::remove_file(&path);
+        let file = mcap::Summary::read(&bytes).expect("summary").expect("some");
+        let schemas: Vec<(u16, &str)> = file
+            .schemas
+            .values()
+            .map(|s| (s.id, s.name.as_str()))
+            .collect();
+        assert_eq!(schemas.len(), 3, "{schemas:?}");
+        assert!(schemas.contains(&(VIEW_SCHEMA_ID_BASE, VIEW_UNIT_STAGES.name)));
+        assert!(schemas.contains(&(VIEW_SCHEMA_ID_BASE + 1, VIEW_SERVICE_HEALTH.name)));
+        let mut payloads: Vec<(String, u64, Vec<u8>)> = mcap::MessageStream::new(&bytes)
+            .expect("messages")
+            .map(|m| m.expect("message"))
+            .filter(|m| m.channel.topic.starts_with("/view/"))
+            .map(|m| (m.channel.topic.clone(), m.log_time, m.data.to_vec()))
+            .collect();
+        payloads.sort();
+        assert_eq!(
+            payloads,
+            [
+                ("/view/AK1".to_string(), 20, vec![8, 0]),
+                ("/view/AK2".to_string(), 21, vec![8, 1]),
+                ("/view/health/estimator".to_string(), 22, vec![8, 2]),
+            ]
+        );
+    }
 }
