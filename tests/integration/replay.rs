@@ -893,3 +893,94 @@ fn up_with_foxglove_serves_the_live_view_and_stops_it_on_sigint() {
     assert_eq!(view["last_exit"], "exit status: 0", "{v}");
     assert!(children(pid).is_empty());
 }
+
+/// A viewer that stops reading (a stalled Foxglove client: one-frame receive queue,
+/// 4 KiB socket buffer) while a 300 s flight is replayed at 100x never holds up the
+/// system: the replay delivers every message, the recorder loses none, the compensator
+/// sees no input gap; the view stops on SIGTERM with its summary. What the client got
+/// against what the view served is the Foxglove SDK's drop-oldest toward it.
+#[test]
+fn a_stalled_foxglove_client_never_holds_up_the_system() {
+    let dir = Dir::new("view-stall");
+    let log = flight_log(&dir, "300");
+    let p = prefix("vs");
+    let services_log = dir.path("services.log");
+    let session = dir.path("session.mcap");
+    let [est, comp, rec] = start_recorded(&p, &session, &services_log);
+    let port = free_port();
+    let listen = format!("127.0.0.1:{port}");
+    let mut view_cmd = bin();
+    view_cmd.args(["view", "--prefix", &p, "--listen", &listen, "--json"]);
+    let mut view = Kid::spawn(view_cmd, "view");
+    assert!(
+        poll(Duration::from_secs(20), || std::net::TcpStream::connect(
+            &listen
+        )
+        .is_ok()),
+        "the view does not listen on {listen}: {}",
+        view.stderr()
+    );
+    let ready = dir.path("ready");
+    let mut client_cmd = Command::new("python3");
+    client_cmd
+        .arg(repo_path("tests/python/foxglove_client.py"))
+        .arg(format!("ws://{listen}"))
+        .arg("--ready")
+        .arg(&ready)
+        .args([
+            "--stall-s",
+            "5",
+            "--quiet-s",
+            "1",
+            "--max-s",
+            "90",
+            "--count-only",
+        ])
+        .args(["--quiet-prefix", "/view/AK"]);
+    let mut client = Kid::spawn(client_cmd, "stalled Foxglove client");
+    assert!(
+        poll(Duration::from_secs(20), || ready.exists()),
+        "the client did not subscribe: {}",
+        client.stderr()
+    );
+    let t0 = std::time::Instant::now();
+    let r = replay(&p, &log, &["--rate", "100"]);
+    let replay_s = t0.elapsed().as_secs_f64();
+    assert_eq!(r["undelivered"], 0, "{r}");
+    let (status, out, err) = client.wait(Duration::from_secs(120));
+    assert!(status.success(), "client: {err}");
+    let py: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let (status, view_out, view_err) = view.stop(libc::SIGTERM, Duration::from_secs(20));
+    assert!(status.success(), "view: {view_err}");
+    let summaries = stop_all(vec![rec, comp, est]);
+    assert_eq!(summaries[0]["lost"], 0, "recorder: {}", summaries[0]);
+    assert_eq!(
+        summaries[1]["input_gap_blocks"], 0,
+        "compensator: {}",
+        summaries[1]
+    );
+    let v: serde_json::Value = serde_json::from_str(&view_out).unwrap();
+    let served: u64 = v["published"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|x| x.as_u64().unwrap())
+        .sum();
+    let blocks = compensated(&session).len() as u64;
+    assert_eq!(v["published"]["/view/AK1"], blocks, "{v}");
+    let got: u64 = py["counts"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|x| x.as_u64().unwrap())
+        .sum();
+    assert!(got <= served, "{got} > {served}");
+    println!(
+        "FIGURES view stalled client: replay {replay_s:.1} s, {blocks} blocks, served \
+         {served}, the stalled client got {got} (the SDK dropped {} toward it), the view's \
+         own drops {}, status messages {}",
+        served - got,
+        v["dropped"],
+        py["status"]
+    );
+}

@@ -14,6 +14,11 @@ Writes --ready FILE once subscribed; stops after --quiet-s seconds without a mes
 on a topic starting with --quiet-prefix (once one came; heartbeats go on while a
 system runs) or after --max-s seconds.
 
+With --count-only it decodes nothing and prints the messages per topic (`counts`).
+With --stall-s S the client is a stalled viewer: once subscribed it reads nothing for
+S seconds (the library's receive queue is one frame, so the server's writes back up
+into its own per-client queue), then reads what is left as usual.
+
 Usage:
     python3 tests/python/foxglove_client.py ws://127.0.0.1:PORT --ready FILE
 
@@ -24,6 +29,7 @@ import argparse
 import asyncio
 import base64
 import json
+import socket
 import struct
 import sys
 import time
@@ -51,10 +57,25 @@ def message_class(schema_name, schema_b64):
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
 
 
-async def run(url, prefix, ready, quiet_s, quiet_prefix, max_s):
-    out = {"protocol": None, "server": None, "channels": [], "messages": []}
+async def run(url, prefix, ready, quiet_s, quiet_prefix, max_s, stall_s=0.0, count_only=False):
+    out = {"protocol": None, "server": None, "channels": [], "messages": [], "status": []}
+    counts = {}
     classes, topics = {}, {}
-    async with websockets.connect(url, subprotocols=[SUBPROTOCOL], max_size=None) as ws:
+    stalled = False
+    sock = None
+    if stall_s:
+        # A small receive buffer, so that the stall backs up into the server quickly.
+        host, port = url.split("//", 1)[1].rsplit(":", 1)
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        sock.connect((host, int(port)))
+    async with websockets.connect(
+        url,
+        subprotocols=[SUBPROTOCOL],
+        max_size=None,
+        max_queue=1 if stall_s else 16,
+        sock=sock,
+    ) as ws:
         out["protocol"] = ws.subprotocol
         start = time.monotonic()
         last = None
@@ -72,6 +93,8 @@ async def run(url, prefix, ready, quiet_s, quiet_prefix, max_s):
                 op = msg.get("op")
                 if op == "serverInfo":
                     out["server"] = {k: msg.get(k) for k in ("name", "capabilities")}
+                elif op == "status":
+                    out["status"].append({k: msg.get(k) for k in ("level", "message", "id")})
                 elif op == "advertise":
                     subs = []
                     for ch in msg["channels"]:
@@ -91,10 +114,19 @@ async def run(url, prefix, ready, quiet_s, quiet_prefix, max_s):
                         if ready:
                             with open(ready, "w") as f:
                                 f.write("subscribed\n")
+                        if stall_s and not stalled:
+                            stalled = True
+                            await asyncio.sleep(stall_s)
+                            start = time.monotonic()
                 continue
             if not frame or frame[0] != MESSAGE_DATA:
                 continue
             sub_id, log_time = struct.unpack_from("<IQ", frame, 1)
+            if count_only:
+                counts[topics[sub_id]] = counts.get(topics[sub_id], 0) + 1
+                if topics[sub_id].startswith(quiet_prefix):
+                    last = time.monotonic()
+                continue
             payload = frame[13:]
             decoded = classes[sub_id].FromString(payload)
             out["messages"].append(
@@ -110,6 +142,8 @@ async def run(url, prefix, ready, quiet_s, quiet_prefix, max_s):
             )
             if topics[sub_id].startswith(quiet_prefix):
                 last = time.monotonic()
+    if count_only:
+        out["counts"] = counts
     return out
 
 
@@ -121,8 +155,14 @@ def main():
     p.add_argument("--quiet-s", type=float, default=3.0)
     p.add_argument("--quiet-prefix", default="/view/", help="topics whose silence ends the run")
     p.add_argument("--max-s", type=float, default=60.0)
+    p.add_argument("--stall-s", type=float, default=0.0, help="read nothing for S s once subscribed")
+    p.add_argument(
+        "--count-only", action="store_true", help="count the messages per topic, decode none"
+    )
     a = p.parse_args()
-    out = asyncio.run(run(a.url, a.prefix, a.ready, a.quiet_s, a.quiet_prefix, a.max_s))
+    out = asyncio.run(
+        run(a.url, a.prefix, a.ready, a.quiet_s, a.quiet_prefix, a.max_s, a.stall_s, a.count_only)
+    )
     json.dump(out, sys.stdout)
     print()
 

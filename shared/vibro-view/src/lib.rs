@@ -78,6 +78,87 @@ pub fn topics(units: [&str; 3]) -> Vec<(String, ViewSchema)> {
     out
 }
 
+/// A bounded queue of view messages between the thread that makes them (the iceoryx2
+/// loop, which must never wait) and the thread that hands them to the viewers: when
+/// full, the oldest message is dropped and counted, so that a sender falling behind
+/// costs old messages, never the system's time.
+#[derive(Debug)]
+pub struct Outbox {
+    queue: std::sync::Mutex<(std::collections::VecDeque<ViewMessage>, bool)>,
+    ready: std::sync::Condvar,
+    capacity: usize,
+    dropped: std::sync::atomic::AtomicU64,
+}
+
+impl Outbox {
+    /// A queue holding at most `capacity` messages (at least 1).
+    pub fn new(capacity: usize) -> Self {
+        let capacity = capacity.max(1);
+        Self {
+            queue: std::sync::Mutex::new((
+                std::collections::VecDeque::with_capacity(capacity),
+                false,
+            )),
+            ready: std::sync::Condvar::new(),
+            capacity,
+            dropped: std::sync::atomic::AtomicU64::new(0),
+        }
+    }
+
+    /// Queues `m`, dropping (and counting) the oldest when full. Never waits for the
+    /// receiver (the lock is held for a push and a pop).
+    pub fn push(&self, m: ViewMessage) {
+        let mut q = self
+            .queue
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if q.0.len() == self.capacity {
+            q.0.pop_front();
+            self.dropped
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        q.0.push_back(m);
+        drop(q);
+        self.ready.notify_one();
+    }
+
+    /// No more messages will come: [`Outbox::pop`] returns `None` once it is empty.
+    pub fn close(&self) {
+        let mut q = self
+            .queue
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        q.1 = true;
+        drop(q);
+        self.ready.notify_all();
+    }
+
+    /// The oldest message, waiting for one; `None` once closed and empty.
+    pub fn pop(&self) -> Option<ViewMessage> {
+        let mut q = self
+            .queue
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        loop {
+            if let Some(m) = q.0.pop_front() {
+                return Some(m);
+            }
+            if q.1 {
+                return None;
+            }
+            q = self
+                .ready
+                .wait(q)
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+        }
+    }
+
+    /// Messages dropped so far because the queue was full.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(std::sync::atomic::Ordering::Relaxed)
+    }
+}
+
 /// The mean, minimum and maximum of `values`; `None` when there are none or one is
 /// not finite (a stage the compensator could not compute).
 pub fn stage(values: impl Iterator<Item = f64>) -> Option<Stage> {
@@ -426,6 +507,40 @@ mod tests {
         let s = UnitStages::decode(&out[0].data[..]).unwrap();
         assert!(s.reference_g.is_none() && s.compensated_error_g.is_none());
         assert!(s.compensated_g.is_some());
+    }
+
+    /// A full outbox drops its oldest message and counts it; what is left comes out
+    /// oldest first, and after `close` the rest drains before `pop` says `None`. A
+    /// consumer on another thread sees every message not dropped, in order.
+    #[test]
+    fn the_outbox_drops_the_oldest_and_counts_them() {
+        let m = |i: u64| ViewMessage {
+            topic: format!("/t{i}"),
+            schema: VIEW_SERVICE_HEALTH,
+            log_time_ns: i,
+            data: Vec::new(),
+        };
+        let o = Outbox::new(4);
+        for i in 0..10 {
+            o.push(m(i));
+        }
+        assert_eq!(o.dropped(), 6);
+        o.close();
+        let got: Vec<u64> = std::iter::from_fn(|| o.pop())
+            .map(|v| v.log_time_ns)
+            .collect();
+        assert_eq!(got, [6, 7, 8, 9]);
+        let o = std::sync::Arc::new(Outbox::new(1 << 16));
+        let reader = {
+            let o = std::sync::Arc::clone(&o);
+            std::thread::spawn(move || std::iter::from_fn(|| o.pop()).count())
+        };
+        for i in 0..50_000 {
+            o.push(m(i));
+        }
+        o.close();
+        assert_eq!(reader.join().unwrap() as u64 + o.dropped(), 50_000);
+        assert_eq!(o.dropped(), 0);
     }
 
     /// A heartbeat before any data would sit at time 0 (1970 in a viewer, stretching

@@ -4,9 +4,11 @@
 //! crate), on 127.0.0.1:8765 unless told otherwise, until Ctrl-C / SIGTERM (or
 //! `--duration-s`).
 //!
-//! The iceoryx2 loop runs on its own thread and never waits for a client: the
-//! Foxglove server queues each client's messages in a bounded queue and drops the
-//! oldest for a client that falls behind, so the services never feel a viewer.
+//! The iceoryx2 loop runs on its own thread and never waits for a client: it puts the
+//! view messages into a bounded outbox (`vibro_view::Outbox`, the oldest dropped and
+//! counted when full), from which a sender thread hands them to the Foxglove server;
+//! the server queues each client's messages in a bounded queue of its own and drops
+//! the oldest for a client that falls behind. So the services never feel a viewer.
 
 use anyhow::Context;
 use iceoryx2::prelude::CallbackProgression;
@@ -35,6 +37,13 @@ pub const DEFAULT_LISTEN: &str = "127.0.0.1:8765";
 /// Messages each client may have queued before the oldest are dropped.
 const CLIENT_BACKLOG: usize = 4096;
 
+/// View messages waiting for the sender thread before the oldest are dropped (about
+/// 40 s of a system's view: 75 unit messages a second, a few others).
+const OUTBOX_CAPACITY: usize = 4096;
+
+/// How often the sender tells the clients about drops (a Foxglove status message).
+const DROP_STATUS_PERIOD: Duration = Duration::from_secs(1);
+
 #[derive(Debug, Clone, clap::Args)]
 pub struct ViewArgs {
     /// Service-name prefix of the system to watch.
@@ -58,8 +67,12 @@ struct Summary {
     listen: String,
     /// Wire messages taken from the system, per topic.
     received: BTreeMap<String, u64>,
-    /// View messages made, per view topic.
+    /// View messages handed to the Foxglove server, per view topic.
     published: BTreeMap<String, u64>,
+    /// View messages dropped because the sender fell behind the system (the outbox
+    /// was full). A client's own backlog (4096) is the Foxglove SDK's: it drops the
+    /// oldest for a client that falls behind without counting them.
+    dropped: u64,
 }
 
 /// One subscribed stream, type-erased so that one loop drains them all.
@@ -131,14 +144,13 @@ fn subscribe(
     }
 }
 
-/// The iceoryx2 side: subscribes, turns each message into view messages and logs them
-/// on their Foxglove channels, until `stop`.
+/// The iceoryx2 side: subscribes, turns each message into view messages and puts them
+/// in `outbox`, until `stop`; returns the wire messages taken per topic.
 fn pump(
     names: &ServiceNames,
-    channels: &BTreeMap<String, Arc<foxglove::RawChannel>>,
+    outbox: &vibro_view::Outbox,
     stop: &AtomicBool,
-    summary: &mut Summary,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<BTreeMap<String, u64>> {
     let node = create_node("vibrocomp-view")?;
     let mut feeds = Vec::new();
     for stream in DEFAULT_RECORD_STREAMS {
@@ -155,6 +167,7 @@ fn pump(
                 .map_err(|e| anyhow::anyhow!("attaching {} to the wait set: {e:?}", f.topic()))?,
         );
     }
+    let mut received = BTreeMap::new();
     let mut view = ViewBuilder::new(UNIT_NAMES);
     let truth_topic = topic(Stream::Truth);
     let (mut wire, mut out): (Vec<Message>, Vec<ViewMessage>) = (Vec::new(), Vec::new());
@@ -170,39 +183,42 @@ fn pump(
             f.clear_events();
             let before = wire.len();
             f.drain(&mut wire)?;
-            *summary.received.entry(f.topic().to_string()).or_default() +=
-                (wire.len() - before) as u64;
+            *received.entry(f.topic().to_string()).or_default() += (wire.len() - before) as u64;
         }
         // A rig (or replay) publishing a reference: compensated blocks wait for theirs.
         let reference = feeds
             .iter()
             .any(|f| f.topic() == truth_topic && f.publishers() > 0);
-        out.clear();
         view.expect_reference(reference, &mut out);
-        send(channels, &out, summary);
         // The references first: a compensated block pairs with the reference block of
         // its samples, which the rig published before the block it answers.
         wire.sort_by_key(|m| !matches!(m, Message::TruthBlock(_)));
         for m in &wire {
-            out.clear();
             view.on_message(m, &mut out);
-            send(channels, &out, summary);
+        }
+        for v in out.drain(..) {
+            outbox.push(v);
         }
     }
-    out.clear();
     view.flush(&mut out);
-    send(channels, &out, summary);
+    for v in out.drain(..) {
+        outbox.push(v);
+    }
     drop(guards);
-    Ok(())
+    Ok(received)
 }
 
-/// Logs each view message on its Foxglove channel, on the data's time.
-fn send(
+/// The sender side: hands each view message of `outbox` to its Foxglove channel, on
+/// the data's time, until the outbox is closed and empty; tells the clients (a
+/// Foxglove status) when messages were dropped. Returns the messages sent per topic.
+fn send_all(
+    outbox: &vibro_view::Outbox,
     channels: &BTreeMap<String, Arc<foxglove::RawChannel>>,
-    out: &[ViewMessage],
-    summary: &mut Summary,
-) {
-    for v in out {
+    status: impl Fn(u64),
+) -> BTreeMap<String, u64> {
+    let mut published = BTreeMap::new();
+    let (mut told, mut last): (u64, Option<std::time::Instant>) = (0, None);
+    while let Some(v) = outbox.pop() {
         if let Some(ch) = channels.get(&v.topic) {
             ch.log_with_meta(
                 &v.data,
@@ -210,9 +226,18 @@ fn send(
                     log_time: Some(v.log_time_ns),
                 },
             );
-            *summary.published.entry(v.topic.clone()).or_default() += 1;
+            *published.entry(v.topic).or_default() += 1;
+        }
+        let dropped = outbox.dropped();
+        if dropped > told && last.is_none_or(|t| t.elapsed() >= DROP_STATUS_PERIOD) {
+            status(dropped);
+            (told, last) = (dropped, Some(std::time::Instant::now()));
         }
     }
+    if outbox.dropped() > told {
+        status(outbox.dropped());
+    }
+    published
 }
 
 pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
@@ -254,17 +279,37 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
             prefix = names.prefix(),
             "live view: open ws://{listen} in Foxglove"
         );
+        let server = Arc::new(server);
+        let outbox = Arc::new(vibro_view::Outbox::new(OUTBOX_CAPACITY));
+        let sender = {
+            let (outbox, server) = (Arc::clone(&outbox), Arc::clone(&server));
+            std::thread::Builder::new()
+                .name("vibrocomp-view-send".into())
+                .spawn(move || {
+                    send_all(&outbox, &channels, |dropped| {
+                        server.publish_status(
+                            foxglove::websocket::Status::new(
+                                foxglove::websocket::StatusLevel::Warning,
+                                format!(
+                                    "vibrocomp view: {dropped} view messages dropped (the \
+                                     view's sender fell behind the system)"
+                                ),
+                            )
+                            .with_id("vibrocomp-view-drops"),
+                        );
+                    })
+                })
+                .context("spawning the view's sender thread")?
+        };
         let (tx, rx) = tokio::sync::oneshot::channel();
         let flag = shutdown.clone();
+        let pump_outbox = Arc::clone(&outbox);
         std::thread::Builder::new()
             .name("vibrocomp-view".into())
             .spawn(move || {
-                let mut summary = Summary {
-                    listen: listen.to_string(),
-                    ..Summary::default()
-                };
-                let r = pump(&names, &channels, flag.flag(), &mut summary);
-                let _ = tx.send(r.map(|()| summary));
+                let r = pump(&names, &pump_outbox, flag.flag());
+                pump_outbox.close();
+                let _ = tx.send(r);
             })
             .context("spawning the view thread")?;
         if let Some(d) = duration {
@@ -274,11 +319,22 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
                 timer.trigger();
             });
         }
-        let result = rx
+        let received = rx.await.map_err(|_| {
+            anyhow::anyhow!("the view thread ended without a result (it panicked)")
+        })??;
+        let published = tokio::task::spawn_blocking(move || sender.join())
             .await
-            .map_err(|_| anyhow::anyhow!("the view thread ended without a result (it panicked)"))?;
-        server.stop().wait().await;
-        result
+            .context("waiting for the view's sender thread")?
+            .map_err(|_| anyhow::anyhow!("the view's sender thread panicked"))?;
+        if let Ok(server) = Arc::try_unwrap(server) {
+            server.stop().wait().await;
+        }
+        Ok(Summary {
+            listen: listen.to_string(),
+            received,
+            published,
+            dropped: outbox.dropped(),
+        })
     })?;
     if args.json {
         return print_json(&summary);
@@ -286,8 +342,35 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
     let received: u64 = summary.received.values().sum();
     let published: u64 = summary.published.values().sum();
     outln!(
-        "Served {published} view messages from {received} messages of the system on ws://{}",
-        summary.listen
+        "Served {published} view messages from {received} messages of the system on ws://{}; \
+         dropped {} (the view's sender behind the system)",
+        summary.listen,
+        summary.dropped
     )?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Drops in the outbox reach the clients as a status (at once, then at most once
+    /// a period, and the final count when the outbox closes).
+    #[test]
+    fn drops_are_told_to_the_clients() {
+        let outbox = vibro_view::Outbox::new(2);
+        for i in 0..5 {
+            outbox.push(ViewMessage {
+                topic: "/view/AK1".into(),
+                schema: vibro_mcap::VIEW_UNIT_STAGES,
+                log_time_ns: i,
+                data: Vec::new(),
+            });
+        }
+        outbox.close();
+        let told = std::sync::Mutex::new(Vec::new());
+        let published = send_all(&outbox, &BTreeMap::new(), |d| told.lock().unwrap().push(d));
+        assert!(published.is_empty(), "no channel: nothing sent");
+        assert_eq!(*told.lock().unwrap(), [3]);
+    }
 }
