@@ -35,7 +35,7 @@ use vibro_log::import::{read_csv_blocks, ImportKind};
 use vibro_log::rig::RigMessage;
 use vibro_mcap::{Message, Reader};
 use vibro_msgs::{
-    AccelBlock, CompensatedBlock, CompensationMode, Heartbeat, MessageKind, ServiceId,
+    AccelBlock, CompensatedBlock, CompensationMode, Heartbeat, LogLine, MessageKind, ServiceId,
     ServiceState, TruthBlock, VibBlock, VibEstimate, WireMessage,
 };
 
@@ -52,7 +52,7 @@ pub const TARGETS: [(&str, Target); 5] = [
 ];
 
 /// Every message kind, in the order a selector byte picks them.
-const KINDS: [MessageKind; 6] = MessageKind::ALL;
+const KINDS: [MessageKind; MessageKind::ALL.len()] = MessageKind::ALL;
 
 /// An error must say something.
 fn check_error(what: &str, e: &impl Display) {
@@ -338,6 +338,7 @@ pub fn message_validate(data: &[u8]) {
         }
         MessageKind::TruthBlock => wire::<TruthBlock>(rest, TruthBlock::from_bytes),
         MessageKind::Heartbeat => wire::<Heartbeat>(rest, Heartbeat::from_bytes),
+        MessageKind::LogLine => wire::<LogLine>(rest, LogLine::from_bytes),
     }
 }
 
@@ -459,6 +460,24 @@ impl Normalise for TruthBlock {
         m.vib_error_ia_g[n..].fill([0.0; 3]);
         m._pad = [0; 4];
         m
+    }
+}
+
+impl Normalise for LogLine {
+    fn normalised(&self) -> Self {
+        let mut m = *self;
+        m.text[usize::from(m.len).min(vibro_msgs::LOG_TEXT_MAX)..].fill(0);
+        m._pad = [0; 4];
+        m
+    }
+
+    fn check_codes(&self) {
+        if let Err(e) = ServiceId::try_from(self.service) {
+            check_error_names("LogLine.service", &e, "Heartbeat.service");
+        }
+        if let Err(e) = vibro_msgs::LogLevel::try_from(self.level) {
+            check_error_names("LogLine.level", &e, "LogLine.level");
+        }
     }
 }
 

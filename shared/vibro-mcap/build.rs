@@ -11,17 +11,20 @@ use std::error::Error;
 use std::path::PathBuf;
 
 /// The files, one message each; `src/schema.rs` embeds `<stem>.fds.bin` for each.
-const FILES: [&str; 9] = [
+const FILES: [&str; 11] = [
     "vibrocomp/v1/accel_block.proto",
     "vibrocomp/v1/vib_block.proto",
     "vibrocomp/v1/vib_estimate.proto",
     "vibrocomp/v1/compensated_block.proto",
     "vibrocomp/v1/truth_block.proto",
     "vibrocomp/v1/heartbeat.proto",
+    "vibrocomp/v1/log_line.proto",
     // The view channels for people (docs/view.md).
     "vibrocomp/view/v1/unit_stages.proto",
     "vibrocomp/view/v1/vibration_axis.proto",
     "vibrocomp/view/v1/service_health.proto",
+    // Foxglove's well-known log schema, for the view's `/log`.
+    "foxglove/Log.proto",
 ];
 
 fn main() -> Result<(), Box<dyn Error>> {

@@ -74,3 +74,52 @@ fn latency_reports_every_hop_of_three_pipelines_without_loss() {
         assert!(x.is_finite() && x > 0.0, "{k}: {v}");
     }
 }
+
+/// `latency --view`: the vibrocomp pipeline with the live view and a Foxglove client
+/// attached (the synchronous `tungstenite` client, subprotocol `foxglove.sdk.v1`): the
+/// client subscribes to every view channel and receives each unit's message for every
+/// compensated block, the view drops nothing, and the services still lose nothing.
+/// The latency itself belongs to BENCHMARKS.md.
+#[test]
+fn latency_with_a_connected_viewer_reports_what_the_viewer_got() {
+    let v = run_json(&[
+        "latency",
+        "--json",
+        "--no-baselines",
+        "--view",
+        "--duration-s",
+        "2",
+        "--warmup-s",
+        "0.5",
+    ]);
+    let r = &v["runs"][0];
+    assert_eq!(
+        r["pipeline"], "vibrocomp (iceoryx2), live view + 1 client",
+        "{v}"
+    );
+    assert_eq!(r["compensated_received"], 50, "{r}");
+    assert_eq!(r["lost_samples"], 0, "{r}");
+    let view = &r["view"];
+    let units = vibro_view::UNIT_NAMES.len() as u64;
+    assert_eq!(
+        view["client_channels"],
+        vibro_view::topics(vibro_view::UNIT_NAMES).len(),
+        "{view}"
+    );
+    assert!(
+        view["client_messages"].as_u64().unwrap() >= 50 * units,
+        "{view}"
+    );
+    let s = &view["view_summary"];
+    assert_eq!(s["dropped"], 0, "{s}");
+    for unit in vibro_view::UNIT_NAMES {
+        assert_eq!(s["published"][format!("/view/{unit}")], 50, "{s}");
+    }
+    let processes: Vec<&str> = r["cpu_percent"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p[0].as_str().unwrap())
+        .collect();
+    assert!(processes.contains(&"view"), "{processes:?}");
+}

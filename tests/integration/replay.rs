@@ -616,6 +616,8 @@ fn watch_replay(dir: &Dir, listen: &str, p: &str, log: &Path) -> serde_json::Val
         .arg("--ready")
         .arg(&ready)
         .args([
+            "--prefix",
+            "/",
             "--quiet-s",
             "2",
             "--quiet-prefix",
@@ -776,6 +778,34 @@ fn a_foxglove_client_sees_the_live_view_as_the_recording_holds_it() {
         .filter(|m| m["topic"] == "/view/vibration/z")
         .count();
     assert!(axes >= 2, "{axes} vibration messages");
+    // The services' log lines as `foxglove.Log` (the view attached after they started:
+    // their start-up lines came as the log streams' history), each the line the
+    // service wrote to stderr (`tracing_subscriber::fmt`, in services.log) after its
+    // time and level.
+    let stderr = std::fs::read_to_string(&services_log).unwrap();
+    let logs: Vec<&serde_json::Value> = messages.iter().filter(|m| m["topic"] == "/log").collect();
+    for service in ["estimator", "compensator"] {
+        let theirs: Vec<&&serde_json::Value> = logs
+            .iter()
+            .filter(|m| m["fields"]["name"] == service)
+            .collect();
+        assert!(!theirs.is_empty(), "no log line of the {service}: {logs:?}");
+        for m in theirs {
+            let f = &m["fields"];
+            let text = f["message"].as_str().unwrap();
+            let level = match f["level"].as_str().unwrap() {
+                "WARNING" => "WARN",
+                "DEBUG" => "DEBUG",
+                other => other,
+            };
+            assert!(
+                stderr
+                    .lines()
+                    .any(|l| l.ends_with(&format!("{level} {text}"))),
+                "{service}: {level} {text:?} is not a line of services.log:\n{stderr}"
+            );
+        }
+    }
     // The recorder wrote the same view channels into the session's MCAP (docs/view.md):
     // read by the PyPI `mcap` reader, decoded with the schemas the file embeds, each
     // unit message equal to the live one (time, stages' mean, minimum and maximum).

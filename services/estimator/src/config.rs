@@ -90,6 +90,10 @@ impl ServiceConfig for Config {
     fn service_mut(&mut self) -> &mut ServiceSettings {
         &mut self.service
     }
+
+    fn log_stream(&self) -> Option<(ServiceNames, vibro_msgs::ServiceId)> {
+        Some((self.names.clone(), vibro_msgs::ServiceId::Estimator))
+    }
 }
 
 #[cfg(test)]

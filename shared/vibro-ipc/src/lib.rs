@@ -192,14 +192,24 @@ impl Default for StreamConfig {
     }
 }
 
+/// Log lines a late subscriber of `{prefix}log/{service}` receives on connecting.
+pub const LOG_HISTORY: usize = 32;
+
 /// The quality of service of each vibrocomp stream, the one place it is decided: every
 /// participant (services, recorder, replay, rig bridges) opens a stream with this.
 /// `estimate` keeps a history of 1, so a compensator that connects late receives the
-/// latest estimate with the estimator's next publish; the rest use the defaults.
+/// latest estimate with the estimator's next publish; a log stream keeps its last
+/// [`LOG_HISTORY`] lines; the rest use the defaults.
 pub fn stream_config(stream: vibro_msgs::Stream) -> StreamConfig {
     match stream {
         vibro_msgs::Stream::Estimate => StreamConfig {
             history: 1,
+            ..StreamConfig::default()
+        },
+        // A viewer or recorder that attaches later still gets the service's start-up
+        // lines (the last 32).
+        vibro_msgs::Stream::Log(_) => StreamConfig {
+            history: LOG_HISTORY,
             ..StreamConfig::default()
         },
         _ => StreamConfig::default(),
@@ -698,6 +708,15 @@ impl<T: ZeroCopySend + Debug + Copy + 'static> StreamPublisher<T> {
     /// Subscribers currently connected to the stream.
     pub fn subscriber_count(&self) -> usize {
         self.service.dynamic_config().number_of_subscribers()
+    }
+
+    /// Connects subscribers that appeared since the last publish, delivering the
+    /// stream's history to them now rather than with the next message.
+    pub fn update_connections(&self) -> Result<()> {
+        use iceoryx2::port::update_connections::UpdateConnections as _;
+        self.publisher
+            .update_connections()
+            .map_err(|e| iox("update connections", &self.name, e))
     }
 
     /// Messages published so far.

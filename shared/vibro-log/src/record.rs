@@ -14,8 +14,8 @@ use vibro_ipc::{
 };
 use vibro_mcap::{ChannelId, Message, Recorder, RecorderOptions, ViewChannelId};
 use vibro_msgs::{
-    AccelBlock, CompensatedBlock, Heartbeat, ServiceId, ServiceNames, ServiceState, Stream,
-    TruthBlock, VibBlock, VibEstimate, WireMessage,
+    AccelBlock, CompensatedBlock, Heartbeat, LogLine, ServiceId, ServiceNames, ServiceState,
+    Stream, TruthBlock, VibBlock, VibEstimate, WireMessage,
 };
 use vibro_view::{ViewBuilder, ViewMessage, UNIT_NAMES};
 
@@ -186,10 +186,13 @@ struct View {
 
 impl View {
     /// The view channels that `streams` feed: the units' with `/compensated`, the
-    /// axes' with `/estimate`, each recorded service's health (no empty channel).
+    /// axes' with `/estimate`, each recorded service's health, `/log` with the log
+    /// streams (no empty channel).
     fn open(recorder: &mut Recorder, streams: &[Stream]) -> Result<Self> {
         let fed = |topic: &str| {
-            if let Some(service) = topic.strip_prefix("/view/health/") {
+            if topic == vibro_view::LOG_TOPIC {
+                streams.iter().any(|s| matches!(s, Stream::Log(_)))
+            } else if let Some(service) = topic.strip_prefix("/view/health/") {
                 streams
                     .iter()
                     .any(|s| matches!(s, Stream::Heartbeat(id) if id.as_str() == service))
@@ -378,6 +381,7 @@ fn open_stream(
         K::CompensatedBlock => open::<CompensatedBlock>(node, names, stream, recorder),
         K::TruthBlock => open::<TruthBlock>(node, names, stream, recorder),
         K::Heartbeat => open::<Heartbeat>(node, names, stream, recorder),
+        K::LogLine => open::<LogLine>(node, names, stream, recorder),
     }
 }
 

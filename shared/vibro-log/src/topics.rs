@@ -18,9 +18,9 @@ pub fn rig_streams() -> [Stream; 3] {
     [Stream::Vib, Stream::Accel, Stream::Truth]
 }
 
-/// What `vibrocomp record` records unless told otherwise: every data stream and the
-/// services' heartbeats (not their per-wake-up progress messages).
-pub const DEFAULT_RECORD_STREAMS: [Stream; 7] = [
+/// What `vibrocomp record` records unless told otherwise: every data stream, the
+/// services' heartbeats (not their per-wake-up progress messages) and their log lines.
+pub const DEFAULT_RECORD_STREAMS: [Stream; 9] = [
     Stream::Vib,
     Stream::Accel,
     Stream::Truth,
@@ -28,6 +28,8 @@ pub const DEFAULT_RECORD_STREAMS: [Stream; 7] = [
     Stream::Compensated,
     Stream::Heartbeat(ServiceId::Estimator),
     Stream::Heartbeat(ServiceId::Compensator),
+    Stream::Log(ServiceId::Estimator),
+    Stream::Log(ServiceId::Compensator),
 ];
 
 /// Every known topic, for error messages.

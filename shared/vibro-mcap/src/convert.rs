@@ -10,8 +10,8 @@
 use crate::proto;
 use crate::{Error, Result};
 use vibro_msgs::{
-    AccelBlock, CompensatedBlock, Heartbeat, MessageKind, TruthBlock, VibBlock, VibEstimate,
-    WireMessage, ACCEL_BLOCK_MAX, MAX_BANDS, MAX_TONES, UNITS, VIB_BLOCK_MAX,
+    AccelBlock, CompensatedBlock, Heartbeat, LogLine, MessageKind, TruthBlock, VibBlock,
+    VibEstimate, WireMessage, ACCEL_BLOCK_MAX, MAX_BANDS, MAX_TONES, UNITS, VIB_BLOCK_MAX,
 };
 
 /// Any wire type, by value.
@@ -28,6 +28,7 @@ pub enum Message {
     CompensatedBlock(CompensatedBlock),
     TruthBlock(TruthBlock),
     Heartbeat(Heartbeat),
+    LogLine(LogLine),
 }
 
 macro_rules! message_from {
@@ -48,7 +49,8 @@ message_from!(
     VibEstimate,
     CompensatedBlock,
     TruthBlock,
-    Heartbeat
+    Heartbeat,
+    LogLine
 );
 
 /// The time of a block's last sample, `t0_ns + (count - 1) sample_period_ns`
@@ -67,6 +69,7 @@ impl Message {
             Message::CompensatedBlock(_) => MessageKind::CompensatedBlock,
             Message::TruthBlock(_) => MessageKind::TruthBlock,
             Message::Heartbeat(_) => MessageKind::Heartbeat,
+            Message::LogLine(_) => MessageKind::LogLine,
         }
     }
 
@@ -74,7 +77,8 @@ impl Message {
     /// docs/logs.md "Time"): a block's last sample, `t0_ns + (count - 1)
     /// sample_period_ns` (for an accelerometer or compensated block, the end of its
     /// last reading's interval); an estimate's window end `end_ns`. `None` for a
-    /// heartbeat, which carries no data time (only its producer's clock).
+    /// heartbeat or a log line, which carry no data time (only their producer's
+    /// clock).
     pub fn data_ns(&self) -> Option<u64> {
         let last = last_sample_ns;
         match self {
@@ -83,7 +87,7 @@ impl Message {
             Message::CompensatedBlock(m) => Some(last(m.t0_ns, m.count, m.sample_period_ns)),
             Message::TruthBlock(m) => Some(last(m.t0_ns, m.count, m.sample_period_ns)),
             Message::VibEstimate(m) => Some(m.end_ns),
-            Message::Heartbeat(_) => None,
+            Message::Heartbeat(_) | Message::LogLine(_) => None,
         }
     }
 
@@ -96,6 +100,7 @@ impl Message {
             Message::CompensatedBlock(m) => m.bytes(),
             Message::TruthBlock(m) => m.bytes(),
             Message::Heartbeat(m) => m.bytes(),
+            Message::LogLine(m) => m.bytes(),
         }
     }
 
@@ -108,6 +113,7 @@ impl Message {
             Message::CompensatedBlock(m) => m.validate(),
             Message::TruthBlock(m) => m.validate(),
             Message::Heartbeat(m) => m.validate(),
+            Message::LogLine(m) => m.validate(),
         };
         checked.map_err(Error::Invalid)
     }
@@ -124,6 +130,7 @@ impl Message {
             Message::CompensatedBlock(m) => proto::CompensatedBlock::try_from(m)?.encode(buf),
             Message::TruthBlock(m) => proto::TruthBlock::try_from(m)?.encode(buf),
             Message::Heartbeat(m) => proto::Heartbeat::from(m).encode(buf),
+            Message::LogLine(m) => proto::LogLine::from(m).encode(buf),
         };
         // A `Vec` grows as needed, so encoding cannot run out of room.
         encoded.map_err(|e| Error::Encode {
@@ -157,6 +164,9 @@ impl Message {
             }
             MessageKind::Heartbeat => {
                 Message::Heartbeat((&proto::Heartbeat::decode(bytes).map_err(fail)?).try_into()?)
+            }
+            MessageKind::LogLine => {
+                Message::LogLine((&proto::LogLine::decode(bytes).map_err(fail)?).try_into()?)
             }
         })
     }
@@ -612,6 +622,42 @@ impl TryFrom<&proto::Heartbeat> for Heartbeat {
             state: small_code(K, "state", p.state)?,
             _pad: [0; 6],
         })
+    }
+}
+
+impl From<&LogLine> for proto::LogLine {
+    fn from(m: &LogLine) -> Self {
+        Self {
+            seq: m.seq,
+            publish_ns: m.publish_ns,
+            wall_ns: m.wall_ns,
+            service: m.service.into(),
+            level: m.level.into(),
+            text: m.text().into_owned(),
+        }
+    }
+}
+
+impl TryFrom<&proto::LogLine> for LogLine {
+    type Error = Error;
+    fn try_from(p: &proto::LogLine) -> Result<Self> {
+        const K: MessageKind = MessageKind::LogLine;
+        if p.text.len() > vibro_msgs::LOG_TEXT_MAX {
+            return Err(Error::Invalid(vibro_msgs::Error::CountOutOfRange {
+                field: "LogLine.len",
+                count: u32::try_from(p.text.len()).unwrap_or(u32::MAX),
+                max: vibro_msgs::LOG_TEXT_MAX,
+            }));
+        }
+        let mut m = LogLine::ZEROED;
+        m.seq = p.seq;
+        m.publish_ns = p.publish_ns;
+        m.wall_ns = p.wall_ns;
+        m.service = small_code(K, "service", p.service)?;
+        m.level = small_code(K, "level", p.level)?;
+        m.len = p.text.len() as u16;
+        m.text[..p.text.len()].copy_from_slice(p.text.as_bytes());
+        Ok(m)
     }
 }
 

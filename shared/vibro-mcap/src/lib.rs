@@ -78,6 +78,13 @@ pub mod view_proto {
     include!(concat!(env!("OUT_DIR"), "/vibrocomp.view.v1.rs"));
 }
 
+/// Foxglove's well-known `foxglove.Log` (its `proto/foxglove/Log.proto`), for the view's
+/// `/log` channel.
+#[allow(clippy::all, clippy::pedantic, missing_docs, rustdoc::all)]
+pub mod foxglove_proto {
+    include!(concat!(env!("OUT_DIR"), "/foxglove.rs"));
+}
+
 pub use convert::{last_sample_ns, Message};
 pub use info::{
     info, info_from_reader, AttachmentInfo, ChannelInfo, InputGap, LogInfo, MetadataInfo,
@@ -90,8 +97,9 @@ pub use recorder::{
 };
 pub use recover::{recover, recover_from_reader, Damage, RecoverReport};
 pub use schema::{
-    kind_of_schema, schema, Schema, ViewSchema, MESSAGE_ENCODING, PROTO_PACKAGE, SCHEMA_ENCODING,
-    VIEW_PACKAGE_PREFIX, VIEW_SERVICE_HEALTH, VIEW_UNIT_STAGES, VIEW_VIBRATION_AXIS,
+    is_view_schema, kind_of_schema, schema, Schema, ViewSchema, FOXGLOVE_LOG, MESSAGE_ENCODING,
+    PROTO_PACKAGE, SCHEMA_ENCODING, VIEW_PACKAGE_PREFIX, VIEW_SERVICE_HEALTH, VIEW_UNIT_STAGES,
+    VIEW_VIBRATION_AXIS,
 };
 
 use std::path::PathBuf;

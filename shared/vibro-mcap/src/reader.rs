@@ -9,7 +9,7 @@
 //! reader), before any of its messages is yielded.
 
 use crate::guard;
-use crate::schema::{kind_of_schema, MESSAGE_ENCODING, SCHEMA_ENCODING, VIEW_PACKAGE_PREFIX};
+use crate::schema::{is_view_schema, kind_of_schema, MESSAGE_ENCODING, SCHEMA_ENCODING};
 use crate::{Error, Message, Result};
 use mcap::records::{op, ChunkIndex, Record as McapRecord};
 use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
@@ -153,7 +153,7 @@ impl Reader {
                 None if channel
                     .schema
                     .as_ref()
-                    .is_some_and(|s| s.name.starts_with(VIEW_PACKAGE_PREFIX)) =>
+                    .is_some_and(|s| is_view_schema(&s.name)) =>
                 {
                     view_topics.push(channel.topic.clone())
                 }

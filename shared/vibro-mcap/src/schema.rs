@@ -41,6 +41,7 @@ pub const fn schema(kind: MessageKind) -> Schema {
         }
         MessageKind::TruthBlock => ("vibrocomp.v1.TruthBlock", fds!("truth_block")),
         MessageKind::Heartbeat => ("vibrocomp.v1.Heartbeat", fds!("heartbeat")),
+        MessageKind::LogLine => ("vibrocomp.v1.LogLine", fds!("log_line")),
     };
     Schema { kind, name, data }
 }
@@ -69,6 +70,17 @@ pub const VIEW_SERVICE_HEALTH: ViewSchema = ViewSchema {
     name: "vibrocomp.view.v1.ServiceHealth",
     data: fds!("service_health"),
 };
+/// Foxglove's well-known log schema (the view's `/log`: the services' log lines).
+pub const FOXGLOVE_LOG: ViewSchema = ViewSchema {
+    name: "foxglove.Log",
+    data: fds!("Log"),
+};
+
+/// Whether `name` is a view channel's schema (docs/view.md): a `vibrocomp.view.v1`
+/// message, or Foxglove's `foxglove.Log` of the view's `/log`.
+pub fn is_view_schema(name: &str) -> bool {
+    name.starts_with(VIEW_PACKAGE_PREFIX) || name == FOXGLOVE_LOG.name
+}
 
 /// The message kind whose schema is named `name` (e.g. `vibrocomp.v1.VibBlock`).
 pub fn kind_of_schema(name: &str) -> Option<MessageKind> {
@@ -86,6 +98,7 @@ pub(crate) const fn schema_id(kind: MessageKind) -> u16 {
         MessageKind::CompensatedBlock => 4,
         MessageKind::TruthBlock => 5,
         MessageKind::Heartbeat => 6,
+        MessageKind::LogLine => 7,
     }
 }
 
@@ -113,7 +126,7 @@ mod tests {
         assert_eq!(kind_of_schema("vibrocomp.v1.Nope"), None);
         let ids: std::collections::BTreeSet<u16> =
             MessageKind::ALL.into_iter().map(schema_id).collect();
-        assert_eq!(ids.len(), 6);
+        assert_eq!(ids.len(), MessageKind::ALL.len());
         assert!(!ids.contains(&0));
     }
 }

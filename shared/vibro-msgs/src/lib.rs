@@ -51,8 +51,8 @@ mod names;
 pub use layout::{FieldLayout, Plain};
 pub use messages::{
     accel_flags, compensation_flags, estimate_flags, truth_flags, vib_flags, AccelBlock,
-    CompensatedBlock, CompensationMode, Heartbeat, MessageKind, ServiceId, ServiceState,
-    TruthBlock, VibBlock, VibEstimate, WireMessage,
+    CompensatedBlock, CompensationMode, Heartbeat, LogLevel, LogLine, MessageKind, ServiceId,
+    ServiceState, TruthBlock, VibBlock, VibEstimate, WireMessage,
 };
 pub use names::{
     max_suffix_len, ServiceNames, Stream, DEFAULT_PREFIX, EVENT_SUFFIX, MAX_SERVICE_NAME_LEN,
@@ -72,6 +72,8 @@ pub const VIB_BLOCK_MAX: usize = 512;
 pub const MAX_TONES: usize = 16;
 /// Most PSD bands per [`VibEstimate`]: `vibro_dsp::MAX_BANDS`.
 pub const MAX_BANDS: usize = 16;
+/// Most bytes of text per [`LogLine`] (a longer line is cut at a character boundary).
+pub const LOG_TEXT_MAX: usize = 488;
 
 /// Errors of the message contracts. Messages carry the offending value.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -92,6 +94,12 @@ pub enum Error {
         field: &'static str,
         value: u8,
         known: String,
+    },
+    /// A text field's used bytes are not UTF-8.
+    #[error("{field}: not UTF-8 (valid up to byte {valid_up_to})")]
+    NotUtf8 {
+        field: &'static str,
+        valid_up_to: usize,
     },
     /// iceoryx2 rejected a service name (cannot happen for a validated prefix).
     #[error("service name {name:?} rejected by iceoryx2: {reason}")]
@@ -133,6 +141,7 @@ mod tests {
                 "vibrocomp::TruthBlock::v3",
             ),
             (iceoryx_type_name::<Heartbeat>(), "vibrocomp::Heartbeat::v3"),
+            (iceoryx_type_name::<LogLine>(), "vibrocomp::LogLine::v3"),
         ];
         for (seen, want) in expected {
             assert_eq!(seen, want);
@@ -158,6 +167,7 @@ mod tests {
         check(CompensatedBlock::ZEROED);
         check(TruthBlock::ZEROED);
         check(Heartbeat::ZEROED);
+        check(LogLine::ZEROED);
     }
 
     #[test]

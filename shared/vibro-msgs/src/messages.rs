@@ -394,6 +394,63 @@ wire_struct! {
     }
 }
 
+wire_struct! {
+    /// One log line of a service, published on `{prefix}log/{service}` beside what it
+    /// writes to stderr: for viewers (`foxglove.Log` in the view) and recordings. Never
+    /// published per sample (the services log a summary per period).
+    type_name = "vibrocomp::LogLine::v3";
+    pub struct LogLine {
+        /// Line counter: +1 per line, from 0.
+        pub seq: u64,
+        /// Service's `CLOCK_MONOTONIC` time when it published the line.
+        pub publish_ns: u64,
+        /// Wall-clock time of the line (Unix epoch), ns.
+        pub wall_ns: u64,
+        /// [`ServiceId`] code.
+        pub service: u8,
+        /// [`LogLevel`] code.
+        pub level: u8,
+        /// Bytes of `text` used (UTF-8), at most [`crate::LOG_TEXT_MAX`].
+        pub len: u16,
+        /// Zero.
+        pub _pad: [u8; 4],
+        /// The line: `target: message key=value ...`.
+        pub text: [u8; crate::LOG_TEXT_MAX],
+    }
+}
+
+impl LogLine {
+    /// A line of `service` at `level`: `text` cut to [`crate::LOG_TEXT_MAX`] bytes at a
+    /// character boundary.
+    pub fn new(service: ServiceId, level: LogLevel, text: &str) -> Self {
+        let mut end = text.len().min(crate::LOG_TEXT_MAX);
+        while !text.is_char_boundary(end) {
+            end -= 1;
+        }
+        let mut m = Self::ZEROED;
+        m.service = service.code();
+        m.level = level.code();
+        m.len = end as u16;
+        m.text[..end].copy_from_slice(&text.as_bytes()[..end]);
+        m
+    }
+
+    /// The text (a byte sequence that is not UTF-8 shows its invalid bytes as U+FFFD).
+    pub fn text(&self) -> std::borrow::Cow<'_, str> {
+        let n = usize::from(self.len).min(crate::LOG_TEXT_MAX);
+        String::from_utf8_lossy(&self.text[..n])
+    }
+
+    fn validate_counts(&self) -> Result<()> {
+        check_count("LogLine.len", u32::from(self.len), crate::LOG_TEXT_MAX)?;
+        std::str::from_utf8(&self.text[..usize::from(self.len)]).map_err(|e| Error::NotUtf8 {
+            field: "LogLine.text",
+            valid_up_to: e.valid_up_to(),
+        })?;
+        Ok(())
+    }
+}
+
 fn check_count(field: &'static str, count: u32, max: usize) -> Result<()> {
     if usize::try_from(count).is_ok_and(|c| c <= max) {
         Ok(())
@@ -425,17 +482,19 @@ pub enum MessageKind {
     CompensatedBlock,
     TruthBlock,
     Heartbeat,
+    LogLine,
 }
 
 impl MessageKind {
     /// Every kind, in declaration order.
-    pub const ALL: [MessageKind; 6] = [
+    pub const ALL: [MessageKind; 7] = [
         MessageKind::AccelBlock,
         MessageKind::VibBlock,
         MessageKind::VibEstimate,
         MessageKind::CompensatedBlock,
         MessageKind::TruthBlock,
         MessageKind::Heartbeat,
+        MessageKind::LogLine,
     ];
 
     /// The Rust type's name, e.g. `AccelBlock`.
@@ -447,6 +506,7 @@ impl MessageKind {
             MessageKind::CompensatedBlock => "CompensatedBlock",
             MessageKind::TruthBlock => "TruthBlock",
             MessageKind::Heartbeat => "Heartbeat",
+            MessageKind::LogLine => "LogLine",
         }
     }
 
@@ -459,6 +519,7 @@ impl MessageKind {
             MessageKind::CompensatedBlock => CompensatedBlock::TYPE_NAME,
             MessageKind::TruthBlock => TruthBlock::TYPE_NAME,
             MessageKind::Heartbeat => Heartbeat::TYPE_NAME,
+            MessageKind::LogLine => LogLine::TYPE_NAME,
         }
     }
 
@@ -471,6 +532,7 @@ impl MessageKind {
             MessageKind::CompensatedBlock => size_of::<CompensatedBlock>(),
             MessageKind::TruthBlock => size_of::<TruthBlock>(),
             MessageKind::Heartbeat => size_of::<Heartbeat>(),
+            MessageKind::LogLine => size_of::<LogLine>(),
         }
     }
 
@@ -483,6 +545,7 @@ impl MessageKind {
             MessageKind::CompensatedBlock => align_of::<CompensatedBlock>(),
             MessageKind::TruthBlock => align_of::<TruthBlock>(),
             MessageKind::Heartbeat => align_of::<Heartbeat>(),
+            MessageKind::LogLine => align_of::<LogLine>(),
         }
     }
 
@@ -495,6 +558,7 @@ impl MessageKind {
             MessageKind::CompensatedBlock => CompensatedBlock::FIELDS,
             MessageKind::TruthBlock => TruthBlock::FIELDS,
             MessageKind::Heartbeat => Heartbeat::FIELDS,
+            MessageKind::LogLine => LogLine::FIELDS,
         }
     }
 }
@@ -552,7 +616,8 @@ wire_message!(
     VibEstimate,
     CompensatedBlock,
     TruthBlock,
-    Heartbeat
+    Heartbeat,
+    LogLine
 );
 
 impl AccelBlock {
@@ -695,6 +760,17 @@ wire_code! {
         Recorder = 5 => "recorder",
         /// The monitor / user interface.
         Monitor = 6 => "monitor",
+    }
+}
+
+wire_code! {
+    /// The level of a [`LogLine`] (`level` field), as `tracing`'s; 0 is not a level.
+    LogLevel, field = "LogLine.level" {
+        Trace = 1 => "trace",
+        Debug = 2 => "debug",
+        Info = 3 => "info",
+        Warn = 4 => "warn",
+        Error = 5 => "error",
     }
 }
 

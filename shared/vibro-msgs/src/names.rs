@@ -34,6 +34,8 @@ pub enum Stream {
     /// service has consumed and acted on, so a lock-stepped replay knows when the
     /// outputs of what it sent are out (`vibrocomp replay --as-fast-as-possible`).
     Progress(ServiceId),
+    /// [`crate::LogLine`]s of one service: `{prefix}log/{service}`.
+    Log(ServiceId),
 }
 
 impl Stream {
@@ -48,6 +50,7 @@ impl Stream {
         ];
         all.extend(ServiceId::ALL.iter().map(|&s| Stream::Heartbeat(s)));
         all.extend(ServiceId::ALL.iter().map(|&s| Stream::Progress(s)));
+        all.extend(ServiceId::ALL.iter().map(|&s| Stream::Log(s)));
         all
     }
 
@@ -61,6 +64,7 @@ impl Stream {
             Stream::Compensated => K::CompensatedBlock,
             Stream::Truth => K::TruthBlock,
             Stream::Heartbeat(_) | Stream::Progress(_) => K::Heartbeat,
+            Stream::Log(_) => K::LogLine,
         }
     }
 
@@ -74,6 +78,7 @@ impl Stream {
             Stream::Truth => "truth".to_string(),
             Stream::Heartbeat(service) => format!("heartbeat/{service}"),
             Stream::Progress(service) => format!("progress/{service}"),
+            Stream::Log(service) => format!("log/{service}"),
         }
     }
 }
@@ -276,8 +281,8 @@ mod tests {
         names.sort();
         names.dedup();
         assert_eq!(names.len(), total);
-        // Five data streams, a heartbeat and a progress stream per service.
-        assert_eq!(total, 2 * (5 + 2 * ServiceId::ALL.len()));
+        // Five data streams, a heartbeat, a progress and a log stream per service.
+        assert_eq!(total, 2 * (5 + 3 * ServiceId::ALL.len()));
     }
 
     #[test]

@@ -214,6 +214,22 @@ fn every_type_crosses_iceoryx2_bit_identical() {
         Stream::Heartbeat(ServiceId::Estimator),
         heartbeat(),
     );
+    let mut line = vibro_msgs::LogLine::new(
+        ServiceId::Compensator,
+        vibro_msgs::LogLevel::Warn,
+        "vibro_compensator: stale estimate – 1.2 s old ✓",
+    );
+    line.seq = 7;
+    roundtrip(&node, &names, Stream::Log(ServiceId::Compensator), line);
+    assert_eq!(
+        line.text(),
+        "vibro_compensator: stale estimate – 1.2 s old ✓"
+    );
+    // A line over the limit is cut at a character boundary.
+    let long = "é".repeat(vibro_msgs::LOG_TEXT_MAX);
+    let cut = vibro_msgs::LogLine::new(ServiceId::Estimator, vibro_msgs::LogLevel::Info, &long);
+    assert_eq!(cut.text().len(), vibro_msgs::LOG_TEXT_MAX);
+    assert!(cut.text().chars().all(|c| c == 'é'));
     // The values the comparison relies on really are special.
     let e = estimate();
     assert_eq!(e.broadband_rms_g[2].to_bits(), 0x7FF8_0000_DEAD_BEEF);

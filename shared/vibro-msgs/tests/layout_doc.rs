@@ -212,6 +212,7 @@ fn constants_and_service_names_are_documented() {
         ("VIB_BLOCK_MAX", VIB_BLOCK_MAX),
         ("MAX_TONES", MAX_TONES),
         ("MAX_BANDS", MAX_BANDS),
+        ("LOG_TEXT_MAX", vibro_msgs::LOG_TEXT_MAX),
     ] {
         let row = format!("| `{name}` | {value} |");
         assert!(doc.contains(&row), "docs/messages.md lacks the row {row}");
@@ -224,10 +225,13 @@ fn constants_and_service_names_are_documented() {
         let generic = match stream {
             Stream::Heartbeat(_) => "`{prefix}heartbeat/{service}`".to_string(),
             Stream::Progress(_) => "`{prefix}progress/{service}`".to_string(),
+            Stream::Log(_) => "`{prefix}log/{service}`".to_string(),
             _ => format!("`{{prefix}}{suffix}`"),
         };
         assert!(doc.contains(&generic), "docs/messages.md lacks {generic}");
-        if let Stream::Heartbeat(service) | Stream::Progress(service) = stream {
+        if let Stream::Heartbeat(service) | Stream::Progress(service) | Stream::Log(service) =
+            stream
+        {
             assert!(
                 doc.contains(&format!("`{service}`")),
                 "docs/messages.md lacks the service `{service}`"

@@ -29,6 +29,12 @@ pub trait ServiceConfig: Sized {
     /// The `[service]` settings, for the command line's overrides (`--mode`).
     fn service_mut(&mut self) -> &mut ServiceSettings;
 
+    /// The system and the service whose log lines [`crate::main_with`] publishes on
+    /// `{prefix}log/{service}` ([`crate::logstream`]); `None`: stderr only.
+    fn log_stream(&self) -> Option<(vibro_msgs::ServiceNames, vibro_msgs::ServiceId)> {
+        None
+    }
+
     /// Loads a configuration file.
     fn load(path: &Path) -> Result<Self, ConfigError> {
         Self::parse(

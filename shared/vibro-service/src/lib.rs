@@ -62,6 +62,7 @@ mod continuity;
 mod heartbeat;
 mod json;
 mod latency;
+pub mod logstream;
 pub mod realtime;
 mod runtime;
 mod settings;

@@ -7,14 +7,21 @@ use anyhow::Context;
 use std::future::Future;
 use tokio::signal::unix::{signal, SignalKind};
 
-/// Logs to stderr, INFO by default, `RUST_LOG` to change it. Safe to call twice.
+/// Logs to stderr, INFO by default, `RUST_LOG` to change it; the same lines go to the
+/// service's log stream once [`crate::logstream::start`]ed. Safe to call twice.
 pub fn init_tracing() {
+    use tracing_subscriber::layer::SubscriberExt as _;
+    use tracing_subscriber::util::SubscriberInitExt as _;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(colour_on_stderr())
+    let _ = tracing_subscriber::registry()
+        .with(filter)
+        .with(
+            tracing_subscriber::fmt::layer()
+                .with_writer(std::io::stderr)
+                .with_ansi(colour_on_stderr()),
+        )
+        .with(crate::logstream::ForwardLayer)
         .try_init();
 }
 
@@ -128,6 +135,18 @@ where
     if let Some(priority) = args.realtime_priority {
         config.service_mut().realtime_priority = Some(priority);
     }
+    // The log lines on `{prefix}log/{service}` while the service runs (stderr only if
+    // the stream cannot be opened).
+    let _log_stream = match config.log_stream() {
+        Some((names, service)) => match crate::logstream::start(&names, service) {
+            Ok(s) => Some(s),
+            Err(e) => {
+                tracing::warn!("log lines to stderr only: {e:#}");
+                None
+            }
+        },
+        None => None,
+    };
     let summary = run_service(|shutdown| run_async(config, shutdown))?;
     if args.json {
         println!("{}", summary.to_json());

@@ -13,7 +13,9 @@
 //!   named fields (the strongest tone's frequency, amplitude and phase, the broadband
 //!   RMS, the kurtosis, the flags);
 //! - `/view/health/{service}` ([`ServiceHealth`]): each heartbeat with the service and
-//!   its state as protobuf enums.
+//!   its state as protobuf enums;
+//! - `/log`: the services' log lines (`{prefix}log/{service}`) as Foxglove's well-known
+//!   `foxglove.Log`, for its Log panel.
 //!
 //! Each message is placed on the data's time (docs/logs.md, "Time"). The library does
 //! no I/O: [`ViewBuilder::on_message`] turns a wire message into view messages, which
@@ -32,8 +34,12 @@
 
 use prost::Message as _;
 use vibro_mcap::view_proto::{ServiceHealth, Stage, UnitStages, VibrationAxis};
-use vibro_mcap::{Message, ViewSchema, VIEW_SERVICE_HEALTH, VIEW_UNIT_STAGES, VIEW_VIBRATION_AXIS};
-use vibro_msgs::{CompensatedBlock, Heartbeat, ServiceId, TruthBlock, VibEstimate, UNITS};
+use vibro_mcap::{
+    Message, ViewSchema, FOXGLOVE_LOG, VIEW_SERVICE_HEALTH, VIEW_UNIT_STAGES, VIEW_VIBRATION_AXIS,
+};
+use vibro_msgs::{
+    CompensatedBlock, Heartbeat, LogLevel, LogLine, ServiceId, TruthBlock, VibEstimate, UNITS,
+};
 
 /// The triad's unit names when no other are given (RIG.md's AK1..AK3).
 pub const UNIT_NAMES: [&str; 3] = ["AK1", "AK2", "AK3"];
@@ -75,8 +81,12 @@ pub fn topics(units: [&str; 3]) -> Vec<(String, ViewSchema)> {
             .iter()
             .map(|s| (format!("/view/health/{}", s.as_str()), VIEW_SERVICE_HEALTH)),
     );
+    out.push((LOG_TOPIC.to_string(), FOXGLOVE_LOG));
     out
 }
+
+/// The topic of the services' log lines (`foxglove.Log`).
+pub const LOG_TOPIC: &str = "/log";
 
 /// A bounded queue of view messages between the thread that makes them (the iceoryx2
 /// loop, which must never wait) and the thread that hands them to the viewers: when
@@ -199,13 +209,13 @@ pub struct ViewBuilder {
     /// Whether a reference stream is expected ([`ViewBuilder::expect_reference`]; a
     /// reference block arriving says so too).
     reference_expected: bool,
-    /// Heartbeats before the first data time: a heartbeat has no time of its own on
-    /// the data's timeline, so these wait for it (at most [`HEALTH_HELD`]).
-    health_held: Vec<Heartbeat>,
+    /// Heartbeats and log lines before the first data time: they have no time of their
+    /// own on the data's timeline, so they wait for it (at most [`HEALTH_HELD`]).
+    health_held: Vec<Message>,
 }
 
-/// Heartbeats held for the first data time (a few seconds of every service's); beyond,
-/// the oldest go out at time 0.
+/// Heartbeats and log lines held for the first data time (a few seconds of every
+/// service's); beyond, the oldest go out at time 0.
 pub const HEALTH_HELD: usize = 256;
 
 impl ViewBuilder {
@@ -246,8 +256,17 @@ impl ViewBuilder {
 
     /// The heartbeats held for the first data time, at the latest data time.
     fn release_health(&mut self, out: &mut Vec<ViewMessage>) {
-        for h in std::mem::take(&mut self.health_held) {
-            self.health(&h, out);
+        for m in std::mem::take(&mut self.health_held) {
+            self.timeless(&m, out);
+        }
+    }
+
+    /// A heartbeat's or a log line's view message, at the latest data time.
+    fn timeless(&self, m: &Message, out: &mut Vec<ViewMessage>) {
+        match m {
+            Message::Heartbeat(h) => self.health(h, out),
+            Message::LogLine(l) => self.log(l, out),
+            _ => {}
         }
     }
 
@@ -299,14 +318,15 @@ impl ViewBuilder {
                 None => self.unit_stages(b, None, out),
             },
             Message::VibEstimate(e) => self.vibration(e, out),
-            Message::Heartbeat(h) if self.latest_ns == 0 => {
+            Message::Heartbeat(_) | Message::LogLine(_) if self.latest_ns == 0 => {
                 if self.health_held.len() == HEALTH_HELD {
                     let oldest = self.health_held.remove(0);
-                    self.health(&oldest, out);
+                    self.timeless(&oldest, out);
                 }
-                self.health_held.push(*h);
+                self.health_held.push(*m);
             }
             Message::Heartbeat(h) => self.health(h, out),
+            Message::LogLine(l) => self.log(l, out),
             Message::AccelBlock(_) | Message::VibBlock(_) => {}
         }
     }
@@ -383,6 +403,36 @@ impl ViewBuilder {
                 data: msg.encode_to_vec(),
             });
         }
+    }
+
+    /// A log line as `foxglove.Log`: the service as its name, the level mapped onto
+    /// Foxglove's (trace and debug are `DEBUG`), placed at the latest data time.
+    fn log(&self, l: &LogLine, out: &mut Vec<ViewMessage>) {
+        use vibro_mcap::foxglove_proto::{log::Level, Log};
+        let level = match LogLevel::try_from(l.level) {
+            Ok(LogLevel::Trace | LogLevel::Debug) => Level::Debug,
+            Ok(LogLevel::Info) => Level::Info,
+            Ok(LogLevel::Warn) => Level::Warning,
+            Ok(LogLevel::Error) => Level::Error,
+            Err(_) => Level::Unknown,
+        };
+        let msg = Log {
+            timestamp: Some(timestamp(self.latest_ns)),
+            level: level as i32,
+            message: l.text().into_owned(),
+            name: ServiceId::try_from(l.service).map_or_else(
+                |_| format!("service {}", l.service),
+                |s| s.as_str().to_string(),
+            ),
+            file: String::new(),
+            line: 0,
+        };
+        out.push(ViewMessage {
+            topic: LOG_TOPIC.to_string(),
+            schema: FOXGLOVE_LOG,
+            log_time_ns: self.latest_ns,
+            data: msg.encode_to_vec(),
+        });
     }
 
     fn health(&self, h: &Heartbeat, out: &mut Vec<ViewMessage>) {
@@ -576,6 +626,54 @@ mod tests {
         assert!(out.iter().all(|m| m.log_time_ns == t), "{out:?}");
     }
 
+    /// A log line becomes a `foxglove.Log` on `/log` (decoded here with the schema
+    /// Foxglove reads), at the latest data time, its level on Foxglove's scale.
+    #[test]
+    fn a_log_line_is_a_foxglove_log() {
+        use prost::Message as _;
+        use prost_types::FileDescriptorSet;
+        let set = FileDescriptorSet::decode(FOXGLOVE_LOG.data).unwrap();
+        let file = set.file.iter().find(|f| f.package() == "foxglove").unwrap();
+        let log = file
+            .message_type
+            .iter()
+            .find(|m| m.name() == "Log")
+            .unwrap();
+        let fields: Vec<(&str, i32)> = log.field.iter().map(|f| (f.name(), f.number())).collect();
+        assert_eq!(
+            fields,
+            [
+                ("timestamp", 1),
+                ("level", 2),
+                ("message", 3),
+                ("name", 4),
+                ("file", 5),
+                ("line", 6)
+            ]
+        );
+        let mut view = ViewBuilder::new(UNIT_NAMES);
+        let mut out = Vec::new();
+        let (b, _) = block(4);
+        view.on_message(&Message::CompensatedBlock(b), &mut out);
+        out.clear();
+        let line = LogLine::new(
+            ServiceId::Estimator,
+            LogLevel::Warn,
+            "vibro_estimator: late",
+        );
+        view.on_message(&Message::LogLine(line), &mut out);
+        assert_eq!(out.len(), 1);
+        assert_eq!(out[0].topic, LOG_TOPIC);
+        assert_eq!(
+            Some(out[0].log_time_ns),
+            Message::CompensatedBlock(b).data_ns()
+        );
+        let l = vibro_mcap::foxglove_proto::Log::decode(&out[0].data[..]).unwrap();
+        assert_eq!(l.message, "vibro_estimator: late");
+        assert_eq!(l.name, "estimator");
+        assert_eq!(l.level, 3, "WARNING");
+    }
+
     /// Heartbeats carry the wire codes as protobuf enums and sit at the latest data
     /// time; the strongest tone on each axis is the one named.
     #[test]
@@ -725,7 +823,8 @@ mod tests {
     #[test]
     fn every_topic_is_listed_with_its_schema() {
         let t = topics(UNIT_NAMES);
-        assert_eq!(t.len(), 3 + 3 + ServiceId::ALL.len());
+        assert_eq!(t.len(), 3 + 3 + ServiceId::ALL.len() + 1);
+        assert!(t.iter().any(|(n, s)| n == LOG_TOPIC && *s == FOXGLOVE_LOG));
         assert!(t
             .iter()
             .any(|(n, s)| n == "/view/AK2" && *s == VIEW_UNIT_STAGES));

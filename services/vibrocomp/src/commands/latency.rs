@@ -105,6 +105,11 @@ pub struct LatencyArgs {
     /// then wakes its process ahead of any normal-priority work, a `--load` included.
     #[arg(long, value_name = "1..99", value_parser = clap::value_parser!(u8).range(1..=99))]
     pub realtime_priority: Option<u8>,
+    /// Run the vibrocomp pipeline with the live view attached (`vibrocomp view` on a
+    /// free port of 127.0.0.1) and one Foxglove client subscribed to every view channel
+    /// and reading all it is sent: what a connected viewer costs the services.
+    #[arg(long)]
+    pub view: bool,
     #[arg(long)]
     pub json: bool,
 }
@@ -191,6 +196,87 @@ pub struct PipelineRun {
     pub end_to_end: HopUs,
     /// Percent of one core over the run.
     pub cpu_percent: Vec<(String, f64)>,
+    /// With `--view`: the live view and its client over the run.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub view: Option<ViewLoad>,
+}
+
+/// What the live view served a connected client during a `--view` run.
+#[derive(Debug, Clone, Serialize)]
+pub struct ViewLoad {
+    pub listen: String,
+    /// Channels the client subscribed to.
+    pub client_channels: usize,
+    /// View messages the client received (binary message frames).
+    pub client_messages: u64,
+    /// The view's own summary at exit (`vibrocomp view --json`).
+    pub view_summary: serde_json::Value,
+}
+
+/// A Foxglove WebSocket client on its own thread (`foxglove.sdk.v1`, the synchronous
+/// `tungstenite` client): subscribes to every channel the server advertises and counts
+/// the message frames until `stop`. Returns (channels, messages).
+fn view_client(
+    listen: std::net::SocketAddr,
+    stop: Arc<AtomicBool>,
+) -> std::thread::JoinHandle<anyhow::Result<(usize, u64)>> {
+    std::thread::spawn(move || -> anyhow::Result<(usize, u64)> {
+        use tungstenite::client::IntoClientRequest;
+        use tungstenite::Message as Ws;
+        let deadline = Instant::now() + Duration::from_secs(20);
+        let stream = loop {
+            match std::net::TcpStream::connect(listen) {
+                Ok(s) => break s,
+                Err(e) if Instant::now() < deadline => {
+                    let _ = e;
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+                Err(e) => {
+                    return Err(e).with_context(|| format!("connecting to the view on {listen}"))
+                }
+            }
+        };
+        stream.set_read_timeout(Some(Duration::from_millis(100)))?;
+        let mut request = format!("ws://{listen}").into_client_request()?;
+        request.headers_mut().insert(
+            "Sec-WebSocket-Protocol",
+            tungstenite::http::HeaderValue::from_static("foxglove.sdk.v1"),
+        );
+        let (mut ws, _) = tungstenite::client(request, stream)
+            .map_err(|e| anyhow::anyhow!("the WebSocket handshake with {listen}: {e}"))?;
+        let (mut channels, mut messages, mut next_id) = (0usize, 0u64, 1u32);
+        while !stop.load(Ordering::Acquire) {
+            match ws.read() {
+                Ok(Ws::Text(t)) => {
+                    let v: serde_json::Value = serde_json::from_str(t.as_str())?;
+                    if v["op"] == "advertise" {
+                        let subs: Vec<serde_json::Value> = v["channels"]
+                            .as_array()
+                            .into_iter()
+                            .flatten()
+                            .map(|c| {
+                                next_id += 1;
+                                serde_json::json!({"id": next_id, "channelId": c["id"]})
+                            })
+                            .collect();
+                        channels += subs.len();
+                        let sub = serde_json::json!({"op": "subscribe", "subscriptions": subs});
+                        ws.send(Ws::text(sub.to_string()))?;
+                    }
+                }
+                Ok(Ws::Binary(_)) => messages += 1,
+                Ok(_) => {}
+                Err(tungstenite::Error::Io(e))
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) => {}
+                Err(e) => return Err(anyhow::anyhow!("reading from the view: {e}")),
+            }
+        }
+        let _ = ws.close(None);
+        Ok((channels, messages))
+    })
 }
 
 #[derive(Debug, Serialize)]
@@ -580,6 +666,7 @@ fn summarize(
         service_to_subscriber: hop(&h.service_to_subscriber),
         end_to_end: hop(&h.end_to_end),
         cpu_percent,
+        view: None,
     })
 }
 
@@ -629,21 +716,60 @@ fn run_vibrocomp(
             comp.check_alive()
         },
     )?;
-    let pids = [
+    let mut pids = vec![
         ("estimator", est.pid()),
         ("compensator", comp.pid()),
         ("rig", std::process::id()),
     ];
+    // With --view: the live view and a client reading everything, before the rig starts.
+    let mut viewer = None;
+    if args.view {
+        let listen = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .context("a free port on 127.0.0.1 for the view")?;
+        spec.foxglove = Some(listen);
+        let view = spec.spawn(Role::View, Some(log))?;
+        pids.push(("view", view.pid()));
+        let stop = Arc::new(AtomicBool::new(false));
+        let client = view_client(listen, Arc::clone(&stop));
+        // Subscribed before the first block: the advertisement comes on connection.
+        std::thread::sleep(Duration::from_millis(500));
+        viewer = Some((listen, view, stop, client));
+    }
     let cpu = Cpu::start(&pids);
     let memory = MemorySampler::start(&pids[..2]);
     let result = run_iceoryx(args, prefix, k1);
     let memory = memory.finish();
     let (ka, kv, stamps) = result?;
     let cpu = cpu.finish();
+    let view = match viewer {
+        Some((listen, view, stop, client)) => {
+            // The view's last messages out, then the client and the view stopped.
+            std::thread::sleep(Duration::from_millis(300));
+            stop.store(true, Ordering::Release);
+            let (client_channels, client_messages) = client
+                .join()
+                .map_err(|_| anyhow::anyhow!("the view client panicked"))??;
+            let view_summary = view.stop(Duration::from_secs(10))?.summary()?;
+            Some(ViewLoad {
+                listen: listen.to_string(),
+                client_channels,
+                client_messages,
+                view_summary,
+            })
+        }
+        None => None,
+    };
     let c = comp.stop(Duration::from_secs(10))?.summary()?;
     let e = est.stop(Duration::from_secs(10))?.summary()?;
     let lost = losses(&c, "accel") + losses(&e, "vib");
-    let run = summarize("vibrocomp (iceoryx2)", args, (ka, kv, &stamps), lost, cpu)?;
+    let name = if view.is_some() {
+        "vibrocomp (iceoryx2), live view + 1 client"
+    } else {
+        "vibrocomp (iceoryx2)"
+    };
+    let mut run = summarize(name, args, (ka, kv, &stamps), lost, cpu)?;
+    run.view = view;
     Ok(VibrocompRun {
         run,
         stamps,
@@ -1733,6 +1859,16 @@ fn print_latency(args: &LatencyArgs, runs: Vec<PipelineRun>) -> anyhow::Result<(
                 .join(", ")
         )?;
         print_hops(r)?;
+        if let Some(v) = &r.view {
+            outln!(
+                "  live view on ws://{}: its client subscribed to {} channels and received {} \
+                 messages; the view dropped {}",
+                v.listen,
+                v.client_channels,
+                v.client_messages,
+                v.view_summary["dropped"]
+            )?;
+        }
     }
     if let Some(r) = &report.ratios {
         outln!(

@@ -22,8 +22,8 @@ use vibro_ipc::{create_node, create_waitset, Ipc, StreamSubscriber};
 use vibro_log::{topic, DEFAULT_RECORD_STREAMS};
 use vibro_mcap::Message;
 use vibro_msgs::{
-    CompensatedBlock, Heartbeat, MessageKind, ServiceNames, Stream, TruthBlock, VibEstimate,
-    WireMessage,
+    CompensatedBlock, Heartbeat, LogLine, MessageKind, ServiceNames, Stream, TruthBlock,
+    VibEstimate, WireMessage,
 };
 use vibro_service::{init_tracing, run_service};
 use vibro_view::{ViewBuilder, ViewMessage, UNIT_NAMES};
@@ -139,6 +139,7 @@ fn subscribe(
         MessageKind::TruthBlock => sub::<TruthBlock>(node, names, stream),
         MessageKind::VibEstimate => sub::<VibEstimate>(node, names, stream),
         MessageKind::Heartbeat => sub::<Heartbeat>(node, names, stream),
+        MessageKind::LogLine => sub::<LogLine>(node, names, stream),
         // The raw rig streams make no view channel of their own.
         MessageKind::AccelBlock | MessageKind::VibBlock => Ok(None),
     }

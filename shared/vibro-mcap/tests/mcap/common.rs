@@ -169,11 +169,23 @@ pub fn heartbeat(seq: u64) -> Heartbeat {
     }
 }
 
+pub fn log_line(seq: u64) -> vibro_msgs::LogLine {
+    let mut m = vibro_msgs::LogLine::new(
+        ServiceId::Compensator,
+        vibro_msgs::LogLevel::Warn,
+        &format!("vibro_compensator: stale estimate – line {seq} ✓"),
+    );
+    m.seq = seq;
+    m.publish_ns = 9_500 + seq;
+    m.wall_ns = 1_790_000_000_000_000_000 + seq;
+    m
+}
+
 /// A topic, its message type, and the fixture message for a sequence number.
 pub type Topic = (&'static str, vibro_msgs::MessageKind, fn(u64) -> Message);
 
 /// The topic each fixture is recorded on, and the message for sequence `seq`.
-pub fn topics() -> [Topic; 6] {
+pub fn topics() -> [Topic; 7] {
     use vibro_msgs::MessageKind as K;
     [
         ("/accel", K::AccelBlock, |s| accel(s).into()),
@@ -186,5 +198,6 @@ pub fn topics() -> [Topic; 6] {
         ("/heartbeat/compensator", K::Heartbeat, |s| {
             heartbeat(s).into()
         }),
+        ("/log/compensator", K::LogLine, |s| log_line(s).into()),
     ]
 }

@@ -4,7 +4,9 @@
 //! Doubles are compared by their bits. Fails, never skips, if Python or the packages
 //! are missing.
 
-use crate::common::{accel, compensated, estimate, heartbeat, scratch, topics, truth, vib};
+use crate::common::{
+    accel, compensated, estimate, heartbeat, log_line, scratch, topics, truth, vib,
+};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -302,6 +304,23 @@ fn the_python_reference_reader_decodes_every_type_to_the_written_values() {
     ] {
         assert_eq!(int(c, field), want, "Heartbeat.{field}");
     }
+
+    let l = log_line(0);
+    let c = &channels["/log/compensator"];
+    for (field, want) in [
+        ("seq", l.seq),
+        ("publish_ns", l.publish_ns),
+        ("wall_ns", l.wall_ns),
+        ("service", l.service.into()),
+        ("level", l.level.into()),
+    ] {
+        assert_eq!(int(c, field), want, "LogLine.{field}");
+    }
+    assert_eq!(
+        c["first_message"]["text"].as_str(),
+        Some(l.text().as_ref()),
+        "LogLine.text"
+    );
 }
 
 #[test]

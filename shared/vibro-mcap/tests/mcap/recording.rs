@@ -65,8 +65,8 @@ fn every_type_reads_back_in_log_time_order_bit_identical() {
         }
     }
     let summary = recorder.finish().unwrap();
-    assert_eq!(summary.messages, 240);
-    assert_eq!(summary.messages_per_topic.len(), 6);
+    assert_eq!(summary.messages, 280);
+    assert_eq!(summary.messages_per_topic.len(), 7);
     assert!(summary.messages_per_topic.values().all(|&n| n == 40));
     assert_eq!(summary.rejected_full, 0);
     assert_eq!((summary.attachments, summary.metadata), (1, 1));
@@ -76,7 +76,7 @@ fn every_type_reads_back_in_log_time_order_bit_identical() {
     // The expected order: by log time, ties in the order written (stable sort).
     written.sort_by_key(|w| w.log_time_ns);
     let mut reader = Reader::open(&path).unwrap();
-    assert_eq!(reader.message_count(), Some(240));
+    assert_eq!(reader.message_count(), Some(280));
     assert_eq!(
         reader.channels(),
         vec![
@@ -84,6 +84,7 @@ fn every_type_reads_back_in_log_time_order_bit_identical() {
             ("/compensated".to_string(), MessageKind::CompensatedBlock),
             ("/estimate".to_string(), MessageKind::VibEstimate),
             ("/heartbeat/compensator".to_string(), MessageKind::Heartbeat),
+            ("/log/compensator".to_string(), MessageKind::LogLine),
             ("/truth".to_string(), MessageKind::TruthBlock),
             ("/vib".to_string(), MessageKind::VibBlock),
         ]
