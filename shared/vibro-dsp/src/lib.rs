@@ -72,6 +72,7 @@ mod config;
 mod detect;
 mod estimator;
 mod kurtosis;
+mod leakage;
 mod output;
 mod response;
 mod sinefit;
@@ -84,6 +85,7 @@ pub use config::{
     MIN_SEGMENT_SAMPLES, MIN_WINDOW_SAMPLES, RIG_PSD_BANDS_HZ, TONE_EDGE_BINS,
 };
 pub use estimator::{BlockStatus, Counters, Estimator, SampleBlock, MAX_ABS_SAMPLE_G};
+pub use leakage::BandLeakage;
 pub use output::{BandEstimate, Broadband, Estimate, FixedList, Flags, ToneEstimate};
 
 /// Most tones an estimate can hold.
