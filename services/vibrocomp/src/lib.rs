@@ -7,6 +7,7 @@
 #[macro_use]
 pub mod output;
 pub mod commands;
+pub mod files;
 pub mod flags;
 pub mod system;
 
