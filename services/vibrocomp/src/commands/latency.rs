@@ -105,6 +105,7 @@ pub struct LatencyArgs {
     /// then wakes its process ahead of any normal-priority work, a `--load` included.
     #[arg(long, value_name = "1..99", value_parser = clap::value_parser!(u8).range(1..=99))]
     pub realtime_priority: Option<u8>,
+    /// Print the measured latencies as JSON.
     #[arg(long)]
     pub json: bool,
 }
@@ -115,21 +116,26 @@ pub enum PeerCommand {
     /// Answers every accelerometer block on `{prefix}accel` with a compensated block
     /// holding its timestamps, nothing computed.
     Bare {
+        /// Service-name prefix of the streams.
         #[arg(long)]
         prefix: String,
+        /// Loop mode: event or spin.
         #[arg(long, default_value = "event")]
         mode: LoopMode,
     },
     /// Takes every vibration block on `{prefix}vib` and drops it: the estimator's
     /// process without the estimation, so that the bare pipeline moves both streams.
     BareVib {
+        /// Service-name prefix of the streams.
         #[arg(long)]
         prefix: String,
+        /// Loop mode: event or spin.
         #[arg(long, default_value = "event")]
         mode: LoopMode,
     },
     /// The estimator's and the compensator's logic over two Unix stream sockets in DIR.
     Uds {
+        /// The folder of the two Unix sockets.
         #[arg(long = "socket-dir")]
         socket_dir: PathBuf,
         /// The estimator's configuration [default: its default one].
@@ -142,8 +148,10 @@ pub enum PeerCommand {
     /// "wall_s"}` on stdout (`cpu_s`: its own and its waited-for runs' CPU).
     /// Stops at the first failed run.
     Load {
+        /// The campaign table or log `lab diagnose` runs on.
         #[arg(long)]
         input: PathBuf,
+        /// Runs at a time.
         #[arg(long, default_value_t = 1)]
         jobs: u32,
     },

@@ -98,6 +98,7 @@ pub struct SimArgs {
     /// Prints the effects library and exits.
     #[arg(long)]
     pub list_effects: bool,
+    /// Print the report (or the effects library) as JSON.
     #[arg(long)]
     pub json: bool,
 }

@@ -48,6 +48,7 @@ pub struct UpArgs {
     /// Restarts allowed per service within --restart-window-s before `up` gives up.
     #[arg(long, default_value_t = 5)]
     pub max_restarts: u32,
+    /// The window --max-restarts counts restarts in, s.
     #[arg(long = "restart-window-s", default_value_t = 60.0)]
     pub restart_window_s: f64,
     /// Seconds a stopping process gets before it is killed.
