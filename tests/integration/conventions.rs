@@ -116,3 +116,112 @@ fn quiet_and_verbose_set_the_log_level() {
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
 }
+
+/// The 1-based line of the first line of `text` that starts with `start`.
+fn line_of(text: &str, start: &str) -> usize {
+    text.lines()
+        .position(|l| l.starts_with(start))
+        .unwrap_or_else(|| panic!("{start:?} not in the text"))
+        + 1
+}
+
+/// A scenario file with three unknown keys: all three are reported at once, each with
+/// its table path, line and the key it is a near miss of; with `--json`, the error
+/// object carries the file and the first one's line and key.
+#[test]
+fn a_config_file_reports_every_unknown_key_with_its_line() {
+    let dir = crate::processes::Dir::new("conv-unknown");
+    let text = std::fs::read_to_string(crate::common::repo_path(
+        "config/scenarios/cyclone-4-short.toml",
+    ))
+    .unwrap()
+    .replace("seed = 4\n", "seed = 4\nsede = 5\n")
+    .replace("output_hz = 800\n", "output_hz = 800\noutput_hzz = 1\n")
+    .replace("adc_bits = 24\n", "adc_bits = 24\nadc_bit = 2\n");
+    let file = dir.path("scenario.toml");
+    std::fs::write(&file, &text).unwrap();
+    let f = file.to_str().unwrap();
+    let out = bin().args(["sim", f, "--json"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    for (key, path, suggestion) in [
+        ("sede =", "sede", "seed"),
+        ("output_hzz =", "rates.output_hzz", "output_hz"),
+        ("adc_bit =", "sensor.adc_bit", "adc_bits"),
+    ] {
+        let want = format!(
+            "line {}, column 1: {path}: unknown key (did you mean {suggestion}?)",
+            line_of(&text, key)
+        );
+        assert!(stderr.contains(&want), "missing {want:?} in:\n{stderr}");
+    }
+    assert!(stderr.contains("3 unknown keys"), "{stderr}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)));
+    let e = &v["error"];
+    assert_eq!(e["file"], f, "{v}");
+    assert_eq!(e["line"], line_of(&text, "sede ="), "{v}");
+    assert_eq!(e["key"], "sede", "{v}");
+}
+
+/// A TOML syntax error keeps toml's snippet: the offending line and a caret under it
+/// (not a flattened one-liner); `--json` gives its file, line and (for a value the
+/// type refuses) key.
+#[test]
+fn a_config_syntax_error_shows_the_line_and_a_caret() {
+    let dir = crate::processes::Dir::new("conv-syntax");
+    let text =
+        std::fs::read_to_string(crate::common::repo_path("config/accelerometers/al-15.toml"))
+            .unwrap();
+    let broken = text.replace("k2_ppm_per_g = 105.0", "k2_ppm_per_g = = 105.0");
+    let file = dir.path("broken.toml");
+    std::fs::write(&file, &broken).unwrap();
+    let f = file.to_str().unwrap();
+    let out = bin()
+        .args(["model", "ve", "--passport", f, "--aL3-g", "1", "--json"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let n = line_of(&broken, "k2_ppm_per_g");
+    let shown = format!("{n} | k2_ppm_per_g = = 105.0");
+    let caret = format!("{} |{}^", " ".repeat(n.to_string().len()), " ".repeat(16));
+    assert!(
+        stderr.contains(&shown) && stderr.contains(&caret),
+        "no snippet {shown:?} / {caret:?} in:\n{stderr}"
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["error"]["file"], f, "{v}");
+    assert_eq!(v["error"]["line"], n, "{v}");
+
+    // A value of the wrong type: the key too.
+    let typed = text.replace("k2_ppm_per_g = 105.0", "k2_ppm_per_g = \"high\"");
+    std::fs::write(&file, &typed).unwrap();
+    let out = bin()
+        .args(["model", "ve", "--passport", f, "--aL3-g", "1", "--json"])
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["error"]["key"], "k2_ppm_per_g", "{v}");
+    assert_eq!(v["error"]["line"], line_of(&typed, "k2_ppm_per_g"), "{v}");
+}
+
+/// An error about no file (a flag's value) has no `file`, `line` or `key` in its JSON
+/// error object: they are absent, not null.
+#[test]
+fn a_json_error_without_a_file_has_no_location_fields() {
+    let out = bin()
+        .args(["sim", "cyclone-4-short", "--duration-s=-1", "--json"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let e = v["error"].as_object().unwrap();
+    assert!(
+        e["message"].as_str().unwrap().contains("--duration-s"),
+        "{v}"
+    );
+    for field in ["file", "line", "key"] {
+        assert!(!e.contains_key(field), "{field} in {v}");
+    }
+}

@@ -7,6 +7,7 @@
 #[macro_use]
 pub mod output;
 pub mod commands;
+pub mod files;
 pub mod flags;
 pub mod system;
 
@@ -102,19 +103,70 @@ where
             if json {
                 // With --json, the failure as JSON too (on stdout, where the result
                 // would have been): the whole message and each cause on its own.
-                let chain: Vec<String> = e.chain().map(ToString::to_string).collect();
-                let v = serde_json::json!({
-                    "error": {
-                        "message": format!("{e:#}"),
-                        "chain": chain,
-                        "exit_code": 1,
-                    }
-                });
-                println!("{v}");
+                println!("{}", error_json(&e));
             }
             ExitCode::FAILURE
         }
     }
+}
+
+/// The JSON error object of `--json` (README, "Conventions"): the whole message, each
+/// cause on its own, and where a file is concerned its `file`, and where known the
+/// `line` (1-based) and `key` (dotted path) of the problem; those three are absent
+/// when the error has none.
+pub fn error_json(e: &anyhow::Error) -> serde_json::Value {
+    let chain: Vec<String> = e.chain().map(ToString::to_string).collect();
+    let mut error = serde_json::json!({
+        "message": format!("{e:#}"),
+        "chain": chain,
+        "exit_code": 1,
+    });
+    if let Some(l) = error_location(e) {
+        error["file"] = l.file.into();
+        if let Some(line) = l.line {
+            error["line"] = line.into();
+        }
+        if let Some(column) = l.column {
+            error["column"] = column.into();
+        }
+        if let Some(key) = l.key {
+            error["key"] = key.into();
+        }
+    }
+    serde_json::json!({ "error": error })
+}
+
+/// The file, line and key of an error, from the first cause in its chain whose
+/// library error type carries them (a configuration's TOML errors, a scenario, an
+/// extended model, a campaign table).
+pub fn error_location(e: &anyhow::Error) -> Option<vibro_toml::Location> {
+    e.chain().find_map(|cause| {
+        if let Some(x) = cause.downcast_ref::<vibro_toml::Error>() {
+            return Some(x.location());
+        }
+        if let Some(x) = cause.downcast_ref::<vibro_config::ConfigError>() {
+            return x.location();
+        }
+        if let Some(x) = cause.downcast_ref::<vibro_service::ConfigError>() {
+            return Some(x.location());
+        }
+        if let Some(x) = cause.downcast_ref::<vibro_sim::Error>() {
+            return x.location();
+        }
+        if let Some(x) = cause.downcast_ref::<vibro_effects::Error>() {
+            return x.location();
+        }
+        match cause.downcast_ref::<vibro_lab::Error>()? {
+            vibro_lab::Error::Effects(x) => x.location(),
+            vibro_lab::Error::Table { path, .. } | vibro_lab::Error::Io { path, .. } => {
+                Some(vibro_toml::Location {
+                    file: path.clone(),
+                    ..Default::default()
+                })
+            }
+            _ => None,
+        }
+    })
 }
 
 /// Dispatches a parsed command line.

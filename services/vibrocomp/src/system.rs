@@ -55,6 +55,8 @@ pub struct SystemSpec {
     pub realtime_priority: Option<u8>,
     /// Record everything into this log.
     pub record: Option<PathBuf>,
+    /// The recorder may replace an existing log (`--force`).
+    pub force_record: bool,
     /// Serve the live view to Foxglove on this address.
     pub foxglove: Option<std::net::SocketAddr>,
     /// Ask the services (and the recorder) for their JSON summaries at exit.
@@ -117,6 +119,9 @@ impl SystemSpec {
                 push("record");
                 if let Some(out) = &self.record {
                     a.push(out.clone().into_os_string());
+                }
+                if self.force_record {
+                    a.push("--force".into());
                 }
                 a.push("--prefix".into());
                 a.push(self.prefix.clone().into());

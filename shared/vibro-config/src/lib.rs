@@ -33,6 +33,9 @@ pub enum ConfigError {
     },
     #[error("{file}: {message}")]
     Parse { file: String, message: String },
+    /// A TOML file that does not parse, or has unknown keys (every one of them).
+    #[error(transparent)]
+    Toml(#[from] vibro_toml::Error),
     #[error("{file}: {}", problems.join("; "))]
     Invalid { file: String, problems: Vec<String> },
     #[error("{arg:?} is neither a readable file nor a known {kind} id (known: {known})")]
@@ -53,16 +56,18 @@ fn read(path: &std::path::Path) -> Result<String> {
     })
 }
 
-fn toml_error(file: &str, e: toml::de::Error) -> ConfigError {
-    // toml's message already names the line, column and key; keep it on one line.
-    let message = e
-        .to_string()
-        .replace('\n', " ")
-        .split_whitespace()
-        .collect::<Vec<_>>()
-        .join(" ");
-    ConfigError::Parse {
-        file: file.to_string(),
-        message,
+impl ConfigError {
+    /// The file, line and key of the problem, where known.
+    pub fn location(&self) -> Option<vibro_toml::Location> {
+        match self {
+            ConfigError::Toml(e) => Some(e.location()),
+            ConfigError::Io { file, .. }
+            | ConfigError::Parse { file, .. }
+            | ConfigError::Invalid { file, .. } => Some(vibro_toml::Location {
+                file: file.clone(),
+                ..Default::default()
+            }),
+            ConfigError::Unknown { .. } => None,
+        }
     }
 }

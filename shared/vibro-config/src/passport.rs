@@ -1,6 +1,6 @@
 //! Accelerometer passports: `config/accelerometers/*.toml`.
 
-use crate::{read, toml_error, ConfigError, Result};
+use crate::{read, ConfigError, Result};
 use std::path::Path;
 use vibro_physics::passport::{Passport, PassportSpec};
 
@@ -25,7 +25,7 @@ pub const EMBEDDED_PASSPORTS: [(&str, &str, &str); 3] = [
 
 /// Parses and validates a passport from TOML text; `file` names it in errors.
 pub fn parse_passport(text: &str, file: &str) -> Result<Passport> {
-    let spec: PassportSpec = toml::from_str(text).map_err(|e| toml_error(file, e))?;
+    let spec: PassportSpec = vibro_toml::from_str(text, file)?;
     Passport::try_from_spec(&spec).map_err(|e| match e {
         vibro_physics::Error::InvalidPassport { problems } => ConfigError::Invalid {
             file: file.to_string(),

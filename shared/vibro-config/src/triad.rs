@@ -1,6 +1,6 @@
 //! Triad geometries: `config/triads/*.toml`.
 
-use crate::{read, resolve_passport, toml_error, ConfigError, Result};
+use crate::{read, resolve_passport, ConfigError, Result};
 use serde::Deserialize;
 use std::path::Path;
 use vibro_physics::passport::Passport;
@@ -40,7 +40,7 @@ pub struct TriadConfig {
 /// Parses and validates a triad from TOML text; `file` names it in errors. Passport
 /// references are resolved relative to the working directory, or as shipped ids.
 pub fn parse_triad(text: &str, file: &str) -> Result<TriadConfig> {
-    let raw: RawTriad = toml::from_str(text).map_err(|e| toml_error(file, e))?;
+    let raw: RawTriad = vibro_toml::from_str(text, file)?;
     let mut problems = Vec::new();
     if raw.unit.len() != 3 {
         problems.push(format!(

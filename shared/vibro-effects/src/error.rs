@@ -25,6 +25,9 @@ pub enum Error {
     /// A model file with problems: every problem, one per line.
     #[error("{path}: {}", problems.join("\n  "))]
     Model { path: String, problems: Vec<String> },
+    /// A model file that does not parse, or has unknown keys (every one of them).
+    #[error(transparent)]
+    Toml(#[from] vibro_toml::Error),
     /// Reading or writing a model file.
     #[error("{path}: {source}")]
     Io {
@@ -36,6 +39,20 @@ pub enum Error {
     /// condition, an invalid vibration).
     #[error("{what}: {reason}")]
     Predict { what: String, reason: String },
+}
+
+impl Error {
+    /// The file, and the line and key where known (a model file's TOML errors).
+    pub fn location(&self) -> Option<vibro_toml::Location> {
+        match self {
+            Error::Toml(e) => Some(e.location()),
+            Error::Model { path, .. } | Error::Io { path, .. } => Some(vibro_toml::Location {
+                file: path.clone(),
+                ..Default::default()
+            }),
+            _ => None,
+        }
+    }
 }
 
 /// Result of the effects library.

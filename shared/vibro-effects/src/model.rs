@@ -141,7 +141,7 @@ impl LabModel {
             path: file.to_string(),
             problems,
         };
-        let raw: RawModel = toml::from_str(text).map_err(|e| bad(vec![e.to_string()]))?;
+        let raw: RawModel = vibro_toml::from_str(text, file)?;
         let mut problems = Vec::new();
         if let Some(f) = &raw.format {
             if f != FORMAT {
@@ -336,7 +336,7 @@ mod tests {
         let e = LabModel::parse("speed = 3\n", "m.toml")
             .unwrap_err()
             .to_string();
-        assert!(e.contains("unknown field `speed`"), "{e}");
+        assert!(e.contains("line 1, column 1: speed: unknown key"), "{e}");
     }
 
     /// An empirical correction is a model's effect like any other (and its bad keys

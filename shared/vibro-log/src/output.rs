@@ -40,7 +40,7 @@ impl Kind {
     fn refusal(self, out: &Path) -> String {
         let special = |what: &str| {
             format!(
-                "is {what}, not a regular file: refused even with --force (the log would replace it with a regular file)"
+                "is {what}, not a regular file: refused even with --force (the output would replace it with a regular file)"
             )
         };
         match self {
@@ -52,7 +52,7 @@ impl Kind {
                     |t| t.display().to_string(),
                 );
                 format!(
-                    "is a symbolic link to {target}: refused, not followed (the log would replace the link, not the file it points to); name the target itself"
+                    "is a symbolic link to {target}: refused, not followed (the output would replace the link, not the file it points to); name the target itself"
                 )
             }
             Kind::Fifo => special("a FIFO (named pipe)"),
@@ -271,7 +271,7 @@ mod tests {
         let msg = |out: &Path| check_output(out, &[&input], true).unwrap_err().to_string();
         assert_eq!(
             msg(&fifo),
-            format!("output {}: is a FIFO (named pipe), not a regular file: refused even with --force (the log would replace it with a regular file)", fifo.display())
+            format!("output {}: is a FIFO (named pipe), not a regular file: refused even with --force (the output would replace it with a regular file)", fifo.display())
         );
         assert!(
             msg(&socket).contains(": is a socket, not a regular file: refused even with --force")
@@ -279,7 +279,7 @@ mod tests {
         assert!(msg(&dir).ends_with(": is a directory, not a file"));
         assert_eq!(
             msg(&link),
-            format!("output {}: is a symbolic link to {}: refused, not followed (the log would replace the link, not the file it points to); name the target itself", link.display(), target.display())
+            format!("output {}: is a symbolic link to {}: refused, not followed (the output would replace the link, not the file it points to); name the target itself", link.display(), target.display())
         );
         // A FIFO made after the check is not replaced by the commit either.
         let late = dir.join("late.mcap");

@@ -15,6 +15,9 @@ use vibro_msgs::ServiceNames;
 pub struct ConfigError {
     pub file: String,
     pub problems: Vec<String>,
+    /// The line and key of a TOML error (`vibro_toml`), for `--json` errors (boxed:
+    /// the error stays small on the `Ok` path).
+    pub location: Option<Box<vibro_toml::Location>>,
 }
 
 impl ConfigError {
@@ -22,6 +25,7 @@ impl ConfigError {
         Self {
             file: file.into(),
             problems,
+            location: None,
         }
     }
 
@@ -29,8 +33,25 @@ impl ConfigError {
     pub fn in_file(self, file: &str) -> Self {
         Self {
             file: file.to_string(),
+            location: self.location.map(|l| {
+                Box::new(vibro_toml::Location {
+                    file: file.to_string(),
+                    ..*l
+                })
+            }),
             ..self
         }
+    }
+
+    /// The file, and the line and key where known.
+    pub fn location(&self) -> vibro_toml::Location {
+        self.location
+            .as_deref()
+            .cloned()
+            .unwrap_or_else(|| vibro_toml::Location {
+                file: self.file.clone(),
+                ..Default::default()
+            })
     }
 }
 
@@ -65,19 +86,16 @@ pub fn read_config_file(path: &Path) -> Result<String, ConfigError> {
     })
 }
 
-/// Parses TOML into a raw configuration; the message (which names line, column and
-/// key) is kept on one line.
+/// Parses TOML into a raw configuration (`vibro_toml`): a syntax error keeps its line
+/// and caret, and every unknown key is reported at once with its line.
 pub fn parse_toml<T: serde::de::DeserializeOwned>(
     text: &str,
     file: &str,
 ) -> Result<T, ConfigError> {
-    toml::from_str(text).map_err(|e| {
-        let message = e
-            .to_string()
-            .split_whitespace()
-            .collect::<Vec<_>>()
-            .join(" ");
-        ConfigError::new(file, vec![message])
+    vibro_toml::from_str(text, file).map_err(|e| ConfigError {
+        file: file.to_string(),
+        problems: vec![e.detail()],
+        location: Some(Box::new(e.location())),
     })
 }
 

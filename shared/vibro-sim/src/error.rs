@@ -24,6 +24,9 @@ pub enum Error {
     /// A file a scenario refers to (passport, triad, PSD table) could not be loaded.
     #[error(transparent)]
     Config(#[from] vibro_config::ConfigError),
+    /// A scenario file that does not parse, or has unknown keys (every one of them).
+    #[error(transparent)]
+    Toml(#[from] vibro_toml::Error),
     /// A file could not be read.
     #[error("{file}: cannot read: {source}")]
     Io {
@@ -47,6 +50,23 @@ pub enum Error {
     /// a condition without a tone).
     #[error("{what}: {reason}")]
     Unsupported { what: String, reason: String },
+}
+
+impl Error {
+    /// The file, and the line and key where known (a scenario's or a referenced
+    /// file's TOML errors).
+    pub fn location(&self) -> Option<vibro_toml::Location> {
+        match self {
+            Error::Toml(e) => Some(e.location()),
+            Error::Config(e) => e.location(),
+            Error::Effects(e) => e.location(),
+            Error::Scenario { file, .. } | Error::Io { file, .. } => Some(vibro_toml::Location {
+                file: file.clone(),
+                ..Default::default()
+            }),
+            _ => None,
+        }
+    }
 }
 
 /// Result of the simulator.

@@ -38,9 +38,13 @@ pub struct DemoArgs {
     /// Flight scenario: a TOML file or a shipped id.
     #[arg(long, default_value = "cyclone-4-short")]
     pub scenario: String,
-    /// Where the flight log, the session recording and the services' log go.
+    /// Where the flight log, the session recording and the services' log go (created
+    /// if missing; one holding a previous run is refused unless --force).
     #[arg(long = "out-dir", default_value = "vibrocomp-demo")]
     pub out_dir: PathBuf,
+    /// Replace the files of a previous run in --out-dir.
+    #[arg(long)]
+    pub force: bool,
     /// Averaging window of the error measure, s.
     #[arg(long = "window-s", default_value_t = 0.5)]
     pub window_s: f64,
@@ -88,6 +92,9 @@ fn losses(v: &serde_json::Value) -> u64 {
         + get(&["lost"])
 }
 
+/// The files of a run, in the folder `--out-dir`.
+const DEMO_FILES: [&str; 3] = ["flight.mcap", "session.mcap", "services.log"];
+
 pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let started = Instant::now();
     let scenario = vibro_sim::resolve_scenario(&args.scenario)
@@ -108,11 +115,10 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         flight.duration_s,
     );
     problems.finish()?;
-    std::fs::create_dir_all(&args.out_dir)
-        .with_context(|| format!("creating {}", args.out_dir.display()))?;
-    let flight_log = args.out_dir.join("flight.mcap");
-    let session_log = args.out_dir.join("session.mcap");
-    let services_log = args.out_dir.join("services.log");
+    // README, "Files": a folder of a previous run is replaced only with --force.
+    crate::files::check_dir(&args.out_dir, &DEMO_FILES, args.force)?;
+    crate::files::create_dir(&args.out_dir)?;
+    let [flight_log, session_log, services_log] = DEMO_FILES.map(|f| args.out_dir.join(f));
     let _ = std::fs::remove_file(&services_log);
 
     // 1. The flight.
@@ -123,7 +129,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             flight_log.display()
         )?;
     }
-    let flight = simulate_flight(&scenario, Some(&flight_log), None)?;
+    let flight = simulate_flight(&scenario, Some(&flight_log), None, args.force)?;
 
     // 2. The system, under a prefix of its own.
     let prefix = private_prefix("vcdemo");
@@ -131,6 +137,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let spec = SystemSpec {
         prefix: prefix.clone(),
         record: Some(session_log.clone()),
+        // The folder was checked above: a previous run's recording is replaced.
+        force_record: true,
         json: true,
         ..SystemSpec::default()
     };

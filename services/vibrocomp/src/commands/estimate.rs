@@ -34,6 +34,11 @@ pub enum Units {
     V,
 }
 
+/// `vibro_dsp::DEFAULT_BROADBAND_BAND_HZ` in the form `--band-hz` takes (LO,HI), which
+/// help shows as it is (`default_values_t` would show `20 2000`, which does not parse);
+/// a unit test keeps the two equal.
+const DEFAULT_BAND_HZ: &str = "20,2000";
+
 #[derive(Debug, Args)]
 pub struct EstimateArgs {
     /// CSV file: three columns (axes x, y, z), one sample a row, at `--rate-hz`. A
@@ -50,7 +55,7 @@ pub struct EstimateArgs {
     /// A negative value flips the axis.
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     pub sensitivity_v_per_g: Option<Vec<f64>>,
-    /// Window length.
+    /// Window length, s.
     #[arg(long, default_value_t = vibro_dsp::DEFAULT_WINDOW_S)]
     pub window_s: f64,
     /// Overlap of consecutive windows, as a fraction of the window (0 <= overlap < 1).
@@ -70,7 +75,7 @@ pub struct EstimateArgs {
     #[arg(long, value_delimiter = ',')]
     pub tone_band_hz: Option<Vec<f64>>,
     /// Band of the broadband RMS, covariance and kurtosis, LO,HI in Hz.
-    #[arg(long, value_delimiter = ',', default_values_t = vibro_dsp::DEFAULT_BROADBAND_BAND_HZ)]
+    #[arg(long, value_delimiter = ',', default_value = DEFAULT_BAND_HZ)]
     pub band_hz: Vec<f64>,
     /// PSD bands, LO-HI in Hz, comma separated (default: RIG.md's random-vibration table).
     #[arg(
@@ -79,10 +84,10 @@ pub struct EstimateArgs {
         default_value = "20-40,40-80,80-160,160-320,320-640"
     )]
     pub psd_bands_hz: Vec<String>,
-    /// Welch segment length (Hann, 50% overlap).
+    /// Welch segment length, s (Hann, 50% overlap).
     #[arg(long, default_value_t = vibro_dsp::DEFAULT_WELCH_SEGMENT_S)]
     pub welch_segment_s: f64,
-    /// Corner of the sensors' AC coupling (first-order high-pass), divided out.
+    /// Corner of the sensors' AC coupling (first-order high-pass), Hz, divided out.
     #[arg(long)]
     pub ac_corner_hz: Option<f64>,
     /// Frequency-response correction table (CSV: frequency_hz, gain_x, gain_y, gain_z,
@@ -659,6 +664,15 @@ fn flags_text(e: &Estimate) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_band_flag_default_is_the_library_default() {
+        let parsed: Vec<f64> = DEFAULT_BAND_HZ
+            .split(',')
+            .map(|x| x.parse().unwrap())
+            .collect();
+        assert_eq!(parsed, vibro_dsp::DEFAULT_BROADBAND_BAND_HZ);
+    }
 
     #[test]
     fn numbers_keep_four_significant_digits() {

@@ -47,6 +47,7 @@ pub struct PositionsArgs {
     /// Passport file, or the id of a shipped one (AL-15, AL-1M, AKS-05); gives K1.
     #[arg(long)]
     pub passport: String,
+    /// Identification method(s).
     #[arg(long, value_enum, default_value_t = MethodArg::Both)]
     pub method: MethodArg,
     /// Flight accelerations along IA at which to predict the VE by (23), g.

@@ -43,9 +43,13 @@ pub enum LabCommand {
 pub struct ReportArgs {
     #[command(flatten)]
     pub input: Input,
-    /// The folder to write `index.html` (and the plots as SVG files) into.
+    /// The folder to write `index.html` (and the plots as SVG files) into (created if
+    /// missing; one holding a previous report is refused unless --force).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace the files of a previous report in --out.
+    #[arg(long)]
+    pub force: bool,
     /// At most this many effects added by the stepwise search.
     #[arg(long, default_value_t = 4)]
     pub max_effects: usize,
@@ -119,9 +123,12 @@ pub struct AddArgs {
     /// The model to extend (default the model of MODEL.md, exact mode).
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Where to write the extended model.
+    /// Where to write the extended model (an existing file only with --force; never
+    /// an input).
     #[arg(long)]
     pub out: PathBuf,
+    #[arg(long, help = crate::files::FORCE_HELP)]
+    pub force: bool,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -714,6 +721,10 @@ struct AddReport<'a> {
 }
 
 fn add(a: &AddArgs) -> anyhow::Result<()> {
+    // README, "Files": checked before the fit runs; the inputs are never replaced.
+    let mut inputs: Vec<&Path> = a.from.iter().map(PathBuf::as_path).collect();
+    inputs.extend(a.model.as_deref());
+    crate::files::check(&a.out, &inputs, a.force)?;
     let Loaded { model, table, log } = load(&a.from, a.model.as_deref(), BaseMode::Exact, &a.log)?;
     let kinds: Vec<String> = if a.diagnosed {
         let (bar, progress) = fit_progress();
@@ -745,9 +756,11 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
     }
     let refs: Vec<&str> = kinds.iter().map(String::as_str).collect();
     let (extended, fit) = vibro_lab::add_effects(&model, &table, &refs, a.freeze)?;
-    extended
-        .save(&a.out)
-        .with_context(|| format!("{}: cannot write the extended model", a.out.display()))?;
+    crate::files::write_with(&a.out, a.force, |tmp| {
+        extended
+            .save(tmp)
+            .with_context(|| format!("{}: cannot write the extended model", a.out.display()))
+    })?;
     if a.json {
         return print_json_with_log(
             &AddReport {
@@ -821,9 +834,11 @@ fn add_empirical(
             vibro_lab::empirical::OFFER_FRACTION
         );
     };
-    extended
-        .save(&a.out)
-        .with_context(|| format!("{}: cannot write the extended model", a.out.display()))?;
+    crate::files::write_with(&a.out, a.force, |tmp| {
+        extended
+            .save(tmp)
+            .with_context(|| format!("{}: cannot write the extended model", a.out.display()))
+    })?;
     if a.json {
         return print_json_with_log(
             &AddEmpiricalReport {
@@ -909,6 +924,7 @@ fn verdict_line(v: &Verdict) -> String {
 }
 
 fn report(a: &ReportArgs) -> anyhow::Result<()> {
+    crate::files::check_dir(&a.out, super::lab_report::REPORT_FILES, a.force)?;
     let Loaded { model, table, log } = load(
         &a.input.input,
         a.input.model.as_deref(),
@@ -930,6 +946,7 @@ fn report(a: &ReportArgs) -> anyhow::Result<()> {
     let after = vibro_lab::compare(&extended, &table)?;
     let summary = super::lab_report::write(
         &a.out,
+        a.force,
         &super::lab_report::ReportInput {
             table: &table,
             model: &model,

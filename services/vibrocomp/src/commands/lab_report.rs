@@ -921,8 +921,12 @@ fn log_units(table: &CampaignTable) -> Vec<(f64, String)> {
     out
 }
 
-/// Writes `dir/index.html` (and each plot as an SVG file beside it).
-pub fn write(dir: &Path, r: &ReportInput<'_>) -> anyhow::Result<ReportSummary> {
+/// The file whose presence marks a previous report in a folder (README, "Files").
+pub const REPORT_FILES: &[&str] = &["index.html"];
+
+/// Writes `dir/index.html` (and each plot as an SVG file beside it), each file complete
+/// or not at all (`crate::files`); the folder was checked by `files::check_dir`.
+pub fn write(dir: &Path, force: bool, r: &ReportInput<'_>) -> anyhow::Result<ReportSummary> {
     let ReportInput {
         table,
         model,
@@ -932,8 +936,7 @@ pub fn write(dir: &Path, r: &ReportInput<'_>) -> anyhow::Result<ReportSummary> {
         final_model,
         after,
     } = *r;
-    std::fs::create_dir_all(dir)
-        .map_err(|e| anyhow::anyhow!("{}: cannot create: {e}", dir.display()))?;
+    crate::files::create_dir(dir)?;
     let before = &diagnosis.comparison;
     let s = &before.summary;
     let floor_g = s.noise_floor_g;
@@ -1035,8 +1038,9 @@ pub fn write(dir: &Path, r: &ReportInput<'_>) -> anyhow::Result<ReportSummary> {
         Some(plots.len() - 1)
     };
     for (name, text) in &plots {
-        std::fs::write(dir.join(name), text)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", dir.join(name).display()))?;
+        // The plots of a report without its index.html (a run that failed midway) are
+        // this command's own: replaced without --force.
+        crate::files::write_bytes(&dir.join(name), true, text.as_bytes())?;
     }
 
     let mut h = String::new();
@@ -1150,7 +1154,8 @@ pub fn write(dir: &Path, r: &ReportInput<'_>) -> anyhow::Result<ReportSummary> {
     );
     h.push_str("</body></html>\n");
     let html = dir.join("index.html");
-    std::fs::write(&html, &h).map_err(|e| anyhow::anyhow!("{}: {e}", html.display()))?;
+    // Last: its presence marks a complete report.
+    crate::files::write_bytes(&html, force, h.as_bytes())?;
     Ok(ReportSummary {
         html: html.display().to_string(),
         plots: plots.len(),

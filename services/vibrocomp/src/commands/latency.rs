@@ -110,6 +110,7 @@ pub struct LatencyArgs {
     /// and reading all it is sent: what a connected viewer costs the services.
     #[arg(long)]
     pub view: bool,
+    /// Print the measured latencies as JSON.
     #[arg(long)]
     pub json: bool,
 }
@@ -120,21 +121,26 @@ pub enum PeerCommand {
     /// Answers every accelerometer block on `{prefix}accel` with a compensated block
     /// holding its timestamps, nothing computed.
     Bare {
+        /// Service-name prefix of the streams.
         #[arg(long)]
         prefix: String,
+        /// Loop mode: event or spin.
         #[arg(long, default_value = "event")]
         mode: LoopMode,
     },
     /// Takes every vibration block on `{prefix}vib` and drops it: the estimator's
     /// process without the estimation, so that the bare pipeline moves both streams.
     BareVib {
+        /// Service-name prefix of the streams.
         #[arg(long)]
         prefix: String,
+        /// Loop mode: event or spin.
         #[arg(long, default_value = "event")]
         mode: LoopMode,
     },
     /// The estimator's and the compensator's logic over two Unix stream sockets in DIR.
     Uds {
+        /// The folder of the two Unix sockets.
         #[arg(long = "socket-dir")]
         socket_dir: PathBuf,
         /// The estimator's configuration [default: its default one].
@@ -147,8 +153,10 @@ pub enum PeerCommand {
     /// "wall_s"}` on stdout (`cpu_s`: its own and its waited-for runs' CPU).
     /// Stops at the first failed run.
     Load {
+        /// The campaign table or log `lab diagnose` runs on.
         #[arg(long)]
         input: PathBuf,
+        /// Runs at a time.
         #[arg(long, default_value_t = 1)]
         jobs: u32,
     },

@@ -55,13 +55,28 @@ pub struct VibrationArgs {
     #[arg(long)]
     pub passport: String,
     /// Deterministic vibration amplitude along IA, g.
-    #[arg(long = "aB3-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "aB3-g",
+        alias = "ab3-g",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub ab3_g: f64,
     /// Deterministic vibration amplitude along OA, g.
-    #[arg(long = "aB1-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "aB1-g",
+        alias = "ab1-g",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub ab1_g: f64,
     /// Deterministic vibration amplitude along PA, g.
-    #[arg(long = "aB2-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "aB2-g",
+        alias = "ab2-g",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub ab2_g: f64,
     /// Vibration frequency, Hz (selects lambda(f) from the passport; 0 means lambda = 1).
     #[arg(long = "freq-hz", default_value_t = 0.0, allow_negative_numbers = true)]
@@ -226,13 +241,23 @@ impl VibrationArgs {
 #[derive(Debug, Args)]
 pub struct FlightArgs {
     /// Flight acceleration along IA, g.
-    #[arg(long = "aL3-g", allow_negative_numbers = true)]
+    #[arg(long = "aL3-g", alias = "al3-g", allow_negative_numbers = true)]
     pub al3_g: f64,
     /// Flight acceleration along OA, g.
-    #[arg(long = "aL1-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "aL1-g",
+        alias = "al1-g",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub al1_g: f64,
     /// Flight acceleration along PA, g.
-    #[arg(long = "aL2-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "aL2-g",
+        alias = "al2-g",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub al2_g: f64,
 }
 

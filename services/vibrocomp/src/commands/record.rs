@@ -16,8 +16,12 @@ use crate::output::print_json;
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct RecordArgs {
-    /// The log to write (replaced if it exists).
+    /// The log to write (an existing file only with --force). Written in place, chunk
+    /// by chunk, so that a crash leaves what `vibrocomp log recover` restores.
     pub out: PathBuf,
+    /// Replace OUT if it exists.
+    #[arg(long)]
+    pub force: bool,
     /// Service-name prefix of the system to record.
     #[arg(long, default_value = vibro_msgs::DEFAULT_PREFIX)]
     pub prefix: String,
@@ -147,6 +151,11 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         .duration_s
         .and_then(|d| problems.seconds("--duration-s", d, 1e-3, 1e9));
     problems.finish()?;
+    // README, "Files": the attached files and configurations are inputs.
+    let mut inputs: Vec<&Path> = args.attach.iter().map(PathBuf::as_path).collect();
+    inputs.extend(args.estimator_config.as_deref());
+    inputs.extend(args.compensator_config.as_deref());
+    crate::files::check_recording(&args.out, &inputs, args.force)?;
     let mut extras = LogExtras::recorded();
     extras.metadata(
         RECORDER_METADATA,

@@ -21,16 +21,31 @@ pub struct RequireArgs {
     #[arg(long = "dstar-g", allow_negative_numbers = true)]
     pub dstar_g: f64,
     /// Mean flight acceleration along IA, g.
-    #[arg(long = "aL3-g", allow_negative_numbers = true)]
+    #[arg(long = "aL3-g", alias = "al3-g", allow_negative_numbers = true)]
     pub al3_g: f64,
     /// Deterministic vibration amplitude along IA, g.
-    #[arg(long = "aB3-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "aB3-g",
+        alias = "ab3-g",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub ab3_g: f64,
     /// Deterministic vibration amplitude along OA, g.
-    #[arg(long = "aB1-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "aB1-g",
+        alias = "ab1-g",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub ab1_g: f64,
     /// Deterministic vibration amplitude along PA, g.
-    #[arg(long = "aB2-g", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long = "aB2-g",
+        alias = "ab2-g",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub ab2_g: f64,
     /// RMS random vibration along IA seen by the unit, g.
     #[arg(

@@ -57,9 +57,10 @@ pub struct SimArgs {
     /// Switches off every effect of the scenario (before `--effect`).
     #[arg(long)]
     pub no_effects: bool,
-    /// Flight: writes the rig streams, the truth and the scenario to this MCAP log.
-    /// Stopped by SIGINT/SIGTERM, the flight ends early with the log finished (valid,
-    /// holding what was generated so far) and exit status 1.
+    /// Flight: writes the rig streams, the truth and the scenario to this MCAP log
+    /// (an existing file only with --force; it appears when finished). Stopped by
+    /// SIGINT/SIGTERM, the flight ends early with the log finished (valid, holding what
+    /// was generated so far) and exit status 1.
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Flight: publishes the rig streams over iceoryx2 at real-time rate.
@@ -71,10 +72,12 @@ pub struct SimArgs {
     /// Live speed as a multiple of real time.
     #[arg(long, default_value_t = 1.0)]
     pub rate: f64,
-    /// Campaign: writes the per-condition summary table (CSV).
+    /// Campaign: writes the per-condition summary table (CSV; an existing file only
+    /// with --force).
     #[arg(long = "summary-csv")]
     pub summary_csv: Option<PathBuf>,
-    /// Campaign: writes the campaign table of the model lab (docs/lab.md) for `vibrocomp lab`.
+    /// Campaign: writes the campaign table of the model lab (docs/lab.md) for
+    /// `vibrocomp lab` (an existing file only with --force).
     #[arg(long = "lab-csv")]
     pub lab_csv: Option<PathBuf>,
     /// Campaign: optional floor of the uncertainty written to `--lab-csv`, g. Each
@@ -83,15 +86,19 @@ pub struct SimArgs {
     /// `vibro_sim::campaign::Z_FLOOR_G` (1e-9 g, what a noise-free run is compared at).
     #[arg(long = "ve-resolution-g", default_value_t = 0.0)]
     pub ve_resolution_g: f64,
-    /// Campaign: writes the conditions as test positions for `identify positions`.
+    /// Campaign: writes the conditions as test positions for `identify positions` (an
+    /// existing file only with --force).
     #[arg(long = "positions-csv")]
     pub positions_csv: Option<PathBuf>,
+    #[arg(long, help = crate::files::FORCE_HELP)]
+    pub force: bool,
     /// Campaign: conditions simulated in parallel (results do not depend on it).
     #[arg(long, default_value_t = 1)]
     pub threads: usize,
     /// Prints the effects library and exits.
     #[arg(long)]
     pub list_effects: bool,
+    /// Print the report (or the effects library) as JSON.
     #[arg(long)]
     pub json: bool,
 }
@@ -106,6 +113,24 @@ pub fn run(args: &SimArgs) -> anyhow::Result<()> {
     let mut scenario =
         vibro_sim::resolve_scenario(arg).with_context(|| format!("scenario {arg}"))?;
     apply_overrides(&mut scenario, args)?;
+    // Every output, before anything runs (README, "Files"); the scenario file is an input.
+    let scenario_file = Path::new(arg);
+    let inputs: Vec<&Path> = if scenario_file.is_file() {
+        vec![scenario_file]
+    } else {
+        Vec::new()
+    };
+    for out in [
+        &args.out,
+        &args.summary_csv,
+        &args.lab_csv,
+        &args.positions_csv,
+    ]
+    .into_iter()
+    .flatten()
+    {
+        crate::files::check(out, &inputs, args.force)?;
+    }
     match &scenario.kind {
         ScenarioKind::Flight(_) => run_flight(&scenario, args),
         ScenarioKind::Campaign(_) => run_campaign(&scenario, args),
@@ -388,9 +413,15 @@ impl Live {
 
 /// Opens a recorder for a flight log, with the scenario as metadata and the passports
 /// and scenario description as attachments.
-fn open_log(path: &Path, scenario: &Scenario, effects: &[String]) -> anyhow::Result<Recorder> {
+/// `path` is where it is written (a temporary name), `shown` the log it becomes.
+fn open_log(
+    path: &Path,
+    shown: &Path,
+    scenario: &Scenario,
+    effects: &[String],
+) -> anyhow::Result<Recorder> {
     let mut rec = Recorder::create(path, RecorderOptions::default())
-        .with_context(|| format!("{}: cannot create the log", path.display()))?;
+        .with_context(|| format!("{}: cannot create the log", shown.display()))?;
     for s in [Stream::Vib, Stream::Accel, Stream::Truth] {
         rec.add_channel(&topic(s), s.kind())?;
     }
@@ -493,7 +524,13 @@ fn run_flight(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
     // Only a flight into a file is worth finishing on a signal; a live-only flight
     // keeps the default action (its publishers are released when the process ends).
     let stop = args.out.as_ref().map(|_| StopSignal::install());
-    let result = simulate(scenario, args.out.as_deref(), live, stop.as_ref());
+    let result = simulate(
+        scenario,
+        args.out.as_deref(),
+        live,
+        stop.as_ref(),
+        args.force,
+    );
     drop(stop);
     let mut report = result?;
     report.live_prefix = args.live.then(|| args.prefix.clone());
@@ -511,8 +548,9 @@ pub fn simulate_flight(
     scenario: &Scenario,
     out: Option<&Path>,
     live: Option<Live>,
+    force: bool,
 ) -> anyhow::Result<FlightReport> {
-    simulate(scenario, out, live, None)
+    simulate(scenario, out, live, None, force)
 }
 
 /// The signal (SIGINT or SIGTERM) caught while a [`StopSignal`] is installed, or 0.
@@ -574,6 +612,7 @@ fn simulate(
     out: Option<&Path>,
     mut live: Option<Live>,
     stop: Option<&StopSignal>,
+    force: bool,
 ) -> anyhow::Result<FlightReport> {
     let effects_text = effect_labels(scenario);
     let effects = vibro_sim::scenario_effects(scenario)?;
@@ -590,9 +629,11 @@ fn simulate(
         .unwrap_or_default();
     let total = sim.total_samples();
     let mut packetizer = Packetizer::new(rates.sensor_hz, rates.output_hz, 512, 32, 1);
-    let recorder = match out {
-        Some(path) => Some(open_log(path, scenario, &effects_text)?),
-        None => None,
+    // Written under a temporary name, renamed to `out` once finished (README, "Files").
+    let part = out.map(vibro_log::output::PartFile::beside);
+    let recorder = match (&part, out) {
+        (Some(part), Some(path)) => Some(open_log(part.path(), path, scenario, &effects_text)?),
+        _ => None,
     };
     let bar = progress_bar(total.output, "simulating");
     // Sums per unit, and per batch for the standard error.
@@ -663,6 +704,16 @@ fn simulate(
         Some(rec) => Some(rec.finish().context("finishing the log")?),
         None => None,
     };
+    // Finished, also when interrupted: a valid log of what was generated.
+    if let (Some(part), Some(path)) = (part, out) {
+        if !force && std::fs::symlink_metadata(path).is_ok() {
+            bail!(
+                "output {}: appeared while the flight was simulated; pass --force to overwrite it",
+                path.display()
+            );
+        }
+        part.commit(path)?;
+    }
     if let Some(signal) = interrupted {
         let reached_s = n as f64 / rates.output_hz;
         let log = match (&finished, out) {
@@ -826,19 +877,18 @@ fn run_campaign(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
     let summaries = vibro_sim::run_campaign(scenario, &options, &mut |_| bar.inc(1))?;
     bar.finish_and_clear();
     let write = |path: &PathBuf, positions: bool| -> anyhow::Result<()> {
-        let file = std::fs::File::create(path)
-            .with_context(|| format!("{}: cannot create", path.display()))?;
-        let w = std::io::BufWriter::new(file);
-        if positions {
-            let comment = vec![format!(
-                "simulated by vibrocomp sim {} (seed {})",
-                scenario.name, scenario.seed
-            )];
-            vibro_sim::write_positions_csv(w, &summaries, &comment)?;
-        } else {
-            vibro_sim::write_summary_csv(w, &summaries)?;
-        }
-        Ok(())
+        crate::files::write_file(path, args.force, |w| {
+            if positions {
+                let comment = vec![format!(
+                    "simulated by vibrocomp sim {} (seed {})",
+                    scenario.name, scenario.seed
+                )];
+                vibro_sim::write_positions_csv(w, &summaries, &comment)?;
+            } else {
+                vibro_sim::write_summary_csv(w, &summaries)?;
+            }
+            Ok(())
+        })
     };
     if let Some(p) = &args.summary_csv {
         write(p, false)?;
@@ -850,21 +900,21 @@ fn run_campaign(scenario: &Scenario, args: &SimArgs) -> anyhow::Result<()> {
         // `--ve-resolution-g` was checked before the campaign ran (`apply_overrides`).
         let table =
             vibro_lab::CampaignTable::from_campaign(p, scenario, &summaries, args.ve_resolution_g)?;
-        let file =
-            std::fs::File::create(p).with_context(|| format!("{}: cannot create", p.display()))?;
-        let mut w = std::io::BufWriter::new(file);
-        use std::io::Write as _;
-        writeln!(
-            w,
-            "# campaign table of the model lab (docs/lab.md): vibrocomp sim {} (seed {}{})",
-            scenario.name,
-            scenario.seed,
-            effect_labels(scenario)
-                .iter()
-                .map(|e| format!(", effect {e}"))
-                .collect::<String>()
-        )?;
-        table.write_csv(w)?;
+        crate::files::write_file(p, args.force, |w| {
+            use std::io::Write as _;
+            writeln!(
+                w,
+                "# campaign table of the model lab (docs/lab.md): vibrocomp sim {} (seed {}{})",
+                scenario.name,
+                scenario.seed,
+                effect_labels(scenario)
+                    .iter()
+                    .map(|e| format!(", effect {e}"))
+                    .collect::<String>()
+            )?;
+            table.write_csv(w)?;
+            Ok(())
+        })?;
     }
     let conditions: Vec<ConditionReport> = summaries
         .iter()

@@ -20,9 +20,13 @@ pub struct UpArgs {
     /// Service-name prefix of the system.
     #[arg(long, default_value = vibro_msgs::DEFAULT_PREFIX)]
     pub prefix: String,
-    /// Records every stream into this log while the system runs.
+    /// Records every stream into this log while the system runs (an existing file only
+    /// with --force; written in place, so that a crash leaves what `log recover` restores).
     #[arg(long, value_name = "OUT.mcap")]
     pub record: Option<PathBuf>,
+    /// Replace the --record log if it exists.
+    #[arg(long, requires = "record")]
+    pub force: bool,
     /// Serves the live view to Foxglove (`vibrocomp view`) on this address
     /// [default when given alone: 127.0.0.1:8765].
     #[arg(long, value_name = "HOST:PORT", num_args = 0..=1,
@@ -44,6 +48,7 @@ pub struct UpArgs {
     /// Restarts allowed per service within --restart-window-s before `up` gives up.
     #[arg(long, default_value_t = 5)]
     pub max_restarts: u32,
+    /// The window --max-restarts counts restarts in, s.
     #[arg(long = "restart-window-s", default_value_t = 60.0)]
     pub restart_window_s: f64,
     /// Seconds a stopping process gets before it is killed.
@@ -81,7 +86,7 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
         None => drop(vibro_compensator::Config::load_default()?),
     }
     if let Some(out) = &args.record {
-        check_record_path(out)?;
+        check_record_path(out, args.force)?;
     }
     // Two systems on one prefix would each compensate every block: refuse to start
     // beside a running one (docs/services.md, "Running the system"). The claim (a
@@ -127,6 +132,7 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
         mode: args.mode.clone(),
         realtime_priority: args.realtime_priority,
         record: args.record.clone(),
+        force_record: args.force,
         foxglove: args.foxglove,
         json: false,
         exe: None,
@@ -212,11 +218,11 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
 }
 
 /// Refuses a recording path the recorder could not write, before any service starts:
-/// a directory, a missing folder, a device or link ([`vibro_log::output::check_output`];
-/// an existing regular file is replaced, as `vibrocomp record` does), or a folder this
-/// user cannot create a file in (probed by creating the file's entry and removing it).
-fn check_record_path(out: &std::path::Path) -> anyhow::Result<()> {
-    vibro_log::output::check_output(out, &[], true)
+/// a directory, a missing folder, a device or link ([`vibro_log::output::check_output`]),
+/// an existing regular file without --force (README, "Files"), or a folder this user
+/// cannot create a file in (probed by creating the file's entry and removing it).
+fn check_record_path(out: &std::path::Path, force: bool) -> anyhow::Result<()> {
+    vibro_log::output::check_output(out, &[], force)
         .with_context(|| format!("--record {}", out.display()))?;
     if out.exists() {
         std::fs::OpenOptions::new()

@@ -130,19 +130,6 @@ pub const EMBEDDED_SCENARIOS: [(&str, &str, &str); 10] = [
 // ---------------------------------------------------------------------------------
 // Loading
 
-fn toml_error(file: &str, e: toml::de::Error) -> Error {
-    // toml's message names the line, column and key; keep it on one line.
-    let message = e
-        .to_string()
-        .split_whitespace()
-        .collect::<Vec<_>>()
-        .join(" ");
-    Error::Scenario {
-        file: file.to_string(),
-        problems: vec![message],
-    }
-}
-
 /// Resolves file references of a scenario.
 struct Refs<'a> {
     base_dir: Option<&'a Path>,
@@ -204,7 +191,7 @@ impl Refs<'_> {
 /// Parses and validates a scenario from TOML text; `file` names it in errors and
 /// `base_dir` (the file's directory) anchors its relative references.
 pub fn parse_scenario(text: &str, file: &str, base_dir: Option<&Path>) -> Result<Scenario> {
-    let raw: ScenarioRaw = toml::from_str(text).map_err(|e| toml_error(file, e))?;
+    let raw: ScenarioRaw = vibro_toml::from_str(text, file)?;
     Scenario::try_from_raw(raw, file, base_dir)
 }
 

@@ -140,7 +140,7 @@ fn errors_name_file_key_value_and_rule_all_at_once() {
         .unwrap_err()
         .to_string();
     assert!(
-        e.starts_with("u.toml: ") && e.contains("unknown field `still_min`"),
+        e.starts_with("u.toml: ") && e.contains("still_min: unknown key"),
         "{e}"
     );
     let campaign = shipped_text("ten-positions")

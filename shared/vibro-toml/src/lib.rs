@@ -1,0 +1,418 @@
+//! # vibro-toml
+//!
+//! Reads a TOML configuration file into its raw type (a `#[serde(deny_unknown_fields)]`
+//! struct, STYLE.md "Config") so that the errors keep what the file's author needs:
+//!
+//! - a syntax or type error keeps toml's multi-line snippet: the line, and a caret
+//!   under the offending text;
+//! - **every** unknown key is reported at once (serde stops at the first), each with
+//!   its table path, line and column, and a "did you mean" when a known key is a near
+//!   miss.
+//!
+//! The unknown keys are found by the raw type itself: each `unknown field` error of
+//! its deserializer names the key and the known ones and points at the key's span in
+//! the spanned document (`toml::de::DeTable`); the key is taken out of the document and
+//! the type deserialized again, until no unknown key is left. The rules stay in one
+//! place (the raw type), and no second list of keys can drift from it.
+//!
+//! ```
+//! #[derive(Debug, serde::Deserialize)]
+//! #[serde(deny_unknown_fields)]
+//! struct Raw { window_s: f64, hop_s: f64 }
+//!
+//! let e = vibro_toml::from_str::<Raw>("window_s = 1.0\nwindw_s = 2.0\nhop_s = 0.5\nhops = 1\n", "a.toml")
+//!     .unwrap_err();
+//! let text = e.to_string();
+//! assert!(text.contains("line 2, column 1: windw_s: unknown key (did you mean window_s?)"), "{text}");
+//! assert!(text.contains("line 4, column 1: hops: unknown key"), "{text}");
+//! assert_eq!(e.location().line, Some(2));
+//! ```
+
+use serde::de::DeserializeOwned;
+use std::ops::Range;
+use toml::de::{DeTable, DeValue};
+use toml::Spanned;
+
+/// Where in a file an error is: what `--json` errors carry (`file`, `line`, `key`).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Location {
+    pub file: String,
+    /// 1-based.
+    pub line: Option<usize>,
+    /// 1-based, in characters.
+    pub column: Option<usize>,
+    /// The key's dotted path (`effects[0].corner_hz`).
+    pub key: Option<String>,
+}
+
+/// A key the file's type does not know.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct UnknownKey {
+    /// Dotted path of the key (`rates.sensr_hz`, `effects[1].kind`).
+    pub key: String,
+    pub line: usize,
+    pub column: usize,
+    /// The known key it is a near miss of.
+    pub suggestion: Option<String>,
+    /// The keys its table knows.
+    pub known: Vec<String>,
+}
+
+/// Errors reading a TOML file.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum Error {
+    /// A syntax error, or a value the type refuses: toml's own message with the line
+    /// and a caret under the offending text.
+    #[error("{file}: {}", snippet.trim_end())]
+    Toml {
+        file: String,
+        line: Option<usize>,
+        column: Option<usize>,
+        key: Option<String>,
+        snippet: String,
+    },
+    /// Keys the file's type does not know, every one of them.
+    #[error("{file}: {}", unknown_text(keys))]
+    UnknownKeys { file: String, keys: Vec<UnknownKey> },
+}
+
+fn unknown_text(keys: &[UnknownKey]) -> String {
+    let lines: Vec<String> = keys
+        .iter()
+        .map(|k| {
+            let hint = match &k.suggestion {
+                Some(s) => format!(" (did you mean {s}?)"),
+                None if k.known.is_empty() => " (this table takes no keys)".to_string(),
+                None => format!(" (known: {})", k.known.join(", ")),
+            };
+            format!(
+                "line {}, column {}: {}: unknown key{hint}",
+                k.line, k.column, k.key
+            )
+        })
+        .collect();
+    match lines.len() {
+        1 => lines[0].clone(),
+        n => format!("{n} unknown keys:\n  {}", lines.join("\n  ")),
+    }
+}
+
+impl Error {
+    /// The message without the file's name (for an error type that names it itself).
+    pub fn detail(&self) -> String {
+        match self {
+            Error::Toml { snippet, .. } => snippet.trim_end().to_string(),
+            Error::UnknownKeys { keys, .. } => unknown_text(keys),
+        }
+    }
+
+    /// The file, and the line and key of the (first) problem.
+    pub fn location(&self) -> Location {
+        match self {
+            Error::Toml {
+                file,
+                line,
+                column,
+                key,
+                ..
+            } => Location {
+                file: file.clone(),
+                line: *line,
+                column: *column,
+                key: key.clone(),
+            },
+            Error::UnknownKeys { file, keys } => Location {
+                file: file.clone(),
+                line: keys.first().map(|k| k.line),
+                column: keys.first().map(|k| k.column),
+                key: keys.first().map(|k| k.key.clone()),
+            },
+        }
+    }
+}
+
+/// Result of reading a TOML file.
+pub type Result<T> = std::result::Result<T, Error>;
+
+/// At most this many unknown keys are collected (each costs a deserialization).
+const MAX_UNKNOWN: usize = 64;
+
+/// Parses `text` (the file `file`) into `T`, reporting every unknown key at once
+/// (module docs).
+pub fn from_str<T: DeserializeOwned>(text: &str, file: &str) -> Result<T> {
+    let mut root = DeTable::parse(text).map_err(|e| toml_error(file, text, None, e))?;
+    let mut unknown: Vec<UnknownKey> = Vec::new();
+    loop {
+        let e = match T::deserialize(toml::de::Deserializer::from(root.clone())) {
+            Ok(value) if unknown.is_empty() => return Ok(value),
+            Ok(_) => break,
+            Err(e) => e,
+        };
+        let taken = match (unknown_field(e.message()), e.span()) {
+            (Some((name, known)), Some(span)) if unknown.len() < MAX_UNKNOWN => {
+                take_key(root.get_mut(), &span, "").map(|path| {
+                    let (line, column) = position(text, span.start);
+                    UnknownKey {
+                        key: path,
+                        line,
+                        column,
+                        suggestion: near_miss(&name, &known),
+                        known,
+                    }
+                })
+            }
+            _ => None,
+        };
+        match taken {
+            Some(k) => unknown.push(k),
+            // Unknown keys first: another problem may be one of their doing.
+            None if !unknown.is_empty() => break,
+            None => {
+                let key = e.span().and_then(|s| key_at(root.get_ref(), &s, ""));
+                return Err(toml_error(file, text, key, e));
+            }
+        }
+    }
+    unknown.sort_by_key(|k| (k.line, k.column));
+    Err(Error::UnknownKeys {
+        file: file.to_string(),
+        keys: unknown,
+    })
+}
+
+fn toml_error(file: &str, text: &str, key: Option<String>, mut e: toml::de::Error) -> Error {
+    e.set_input(Some(text));
+    let (line, column) = e
+        .span()
+        .map(|s| position(text, s.start))
+        .map_or((None, None), |(l, c)| (Some(l), Some(c)));
+    Error::Toml {
+        file: file.to_string(),
+        line,
+        column,
+        key,
+        snippet: e.to_string(),
+    }
+}
+
+/// 1-based line and column (in characters) of byte `offset`.
+fn position(text: &str, offset: usize) -> (usize, usize) {
+    let offset = offset.min(text.len());
+    let before = text.get(..offset).unwrap_or(text);
+    let line = before.matches('\n').count() + 1;
+    let column = before.rsplit('\n').next().unwrap_or("").chars().count() + 1;
+    (line, column)
+}
+
+/// serde's `unknown field `x`, expected one of `a`, `b`` (or `expected `a``, or
+/// `there are no fields`): the name and the known ones.
+fn unknown_field(message: &str) -> Option<(String, Vec<String>)> {
+    let rest = message.strip_prefix("unknown field `")?;
+    let (name, rest) = rest.split_once('`')?;
+    let known = rest
+        .split('`')
+        .skip(1)
+        .step_by(2)
+        .map(str::to_string)
+        .collect();
+    Some((name.to_string(), known))
+}
+
+/// Removes the entry whose key is at `span`; its dotted path.
+fn take_key(table: &mut DeTable<'_>, span: &Range<usize>, path: &str) -> Option<String> {
+    let hit = table
+        .keys()
+        .find(|k| k.span() == *span)
+        .map(|k| k.get_ref().to_string());
+    if let Some(name) = hit {
+        table.remove(name.as_str());
+        return Some(join(path, &name));
+    }
+    for (k, v) in table.iter_mut() {
+        let here = join(path, k.get_ref());
+        if let Some(found) = take_in_value(v.get_mut(), span, &here) {
+            return Some(found);
+        }
+    }
+    None
+}
+
+fn take_in_value(value: &mut DeValue<'_>, span: &Range<usize>, path: &str) -> Option<String> {
+    match value {
+        DeValue::Table(t) => take_key(t, span, path),
+        DeValue::Array(items) => items
+            .iter_mut()
+            .enumerate()
+            .find_map(|(i, item)| take_in_value(item.get_mut(), span, &format!("{path}[{i}]"))),
+        _ => None,
+    }
+}
+
+/// The dotted path of the innermost key whose key or value holds `span`.
+fn key_at(table: &DeTable<'_>, span: &Range<usize>, path: &str) -> Option<String> {
+    for (k, v) in table.iter() {
+        let here = join(path, k.get_ref());
+        if k.span() == *span {
+            return Some(here);
+        }
+        if let Some(inner) = key_in_value(v, span, &here) {
+            return Some(inner);
+        }
+    }
+    None
+}
+
+fn key_in_value(v: &Spanned<DeValue<'_>>, span: &Range<usize>, path: &str) -> Option<String> {
+    let inner = match v.get_ref() {
+        DeValue::Table(t) => key_at(t, span, path),
+        DeValue::Array(items) => items
+            .iter()
+            .enumerate()
+            .find_map(|(i, item)| key_in_value(item, span, &format!("{path}[{i}]"))),
+        _ => None,
+    };
+    let holds = v.span().start <= span.start && span.end <= v.span().end;
+    inner.or_else(|| holds.then(|| path.to_string()))
+}
+
+fn join(path: &str, key: &str) -> String {
+    if path.is_empty() {
+        key.to_string()
+    } else {
+        format!("{path}.{key}")
+    }
+}
+
+/// The known key `name` is most likely a misspelling of: the same but for case, or
+/// within an edit distance of a third of its length (at least 1).
+fn near_miss(name: &str, known: &[String]) -> Option<String> {
+    if let Some(k) = known.iter().find(|k| k.eq_ignore_ascii_case(name)) {
+        return Some(k.clone());
+    }
+    let limit = (name.chars().count() / 3).max(1);
+    known
+        .iter()
+        .map(|k| (edit_distance(name, k), k))
+        .filter(|(d, _)| *d <= limit)
+        .min_by_key(|(d, _)| *d)
+        .map(|(_, k)| k.clone())
+}
+
+/// Edit distance in characters, a swap of neighbours counting one edit (optimal string
+/// alignment: `nmae` is one edit from `name`).
+fn edit_distance(a: &str, b: &str) -> usize {
+    let (a, b): (Vec<char>, Vec<char>) = (a.chars().collect(), b.chars().collect());
+    let mut d = vec![vec![0usize; b.len() + 1]; a.len() + 1];
+    for (i, row) in d.iter_mut().enumerate() {
+        row[0] = i;
+    }
+    for (j, cell) in d[0].iter_mut().enumerate() {
+        *cell = j;
+    }
+    for i in 1..=a.len() {
+        for j in 1..=b.len() {
+            let cost = usize::from(a[i - 1] != b[j - 1]);
+            let mut best = (d[i - 1][j] + 1)
+                .min(d[i][j - 1] + 1)
+                .min(d[i - 1][j - 1] + cost);
+            if i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] {
+                best = best.min(d[i - 2][j - 2] + 1);
+            }
+            d[i][j] = best;
+        }
+    }
+    d[a.len()][b.len()]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde::Deserialize;
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Rates {
+        sensor_hz: f64,
+        output_hz: f64,
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Effect {
+        kind: String,
+    }
+
+    #[derive(Debug, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Raw {
+        name: String,
+        rates: Rates,
+        #[serde(default)]
+        effects: Vec<Effect>,
+    }
+
+    #[test]
+    fn every_unknown_key_is_reported_with_its_table_and_line() {
+        let text = "name = \"x\"\nnmae = \"y\"\n\n[rates]\nsensor_hz = 1.0\nsensr_hz = 2.0\noutput_hz = 3.0\n\n[[effects]]\nkind = \"a\"\n\n[[effects]]\nkind = \"b\"\nunits = [0]\n";
+        let e = from_str::<Raw>(text, "s.toml").unwrap_err();
+        let Error::UnknownKeys { keys, .. } = &e else {
+            panic!("{e}")
+        };
+        let got: Vec<(&str, usize, Option<&str>)> = keys
+            .iter()
+            .map(|k| (k.key.as_str(), k.line, k.suggestion.as_deref()))
+            .collect();
+        assert_eq!(
+            got,
+            [
+                ("nmae", 2, Some("name")),
+                ("rates.sensr_hz", 6, Some("sensor_hz")),
+                ("effects[1].units", 14, None),
+            ]
+        );
+        assert_eq!(
+            e.to_string(),
+            "s.toml: 3 unknown keys:\n  line 2, column 1: nmae: unknown key (did you mean name?)\n  \
+             line 6, column 1: rates.sensr_hz: unknown key (did you mean sensor_hz?)\n  \
+             line 14, column 1: effects[1].units: unknown key (known: kind)"
+        );
+        assert_eq!(e.location().key.as_deref(), Some("nmae"));
+    }
+
+    #[test]
+    fn a_syntax_error_keeps_the_caret_and_a_type_error_its_key() {
+        let e = from_str::<Raw>("name = \"x\"\n[rates]\nsensor_hz = = 1\n", "s.toml").unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.contains("3 | sensor_hz = = 1\n") && text.contains("|             ^"),
+            "{text}"
+        );
+        assert_eq!(e.location().line, Some(3));
+        let e = from_str::<Raw>(
+            "name = \"x\"\n[rates]\nsensor_hz = \"fast\"\noutput_hz = 1.0\n",
+            "s.toml",
+        )
+        .unwrap_err();
+        let l = e.location();
+        assert_eq!(
+            (l.line, l.key.as_deref()),
+            (Some(3), Some("rates.sensor_hz"))
+        );
+        assert!(e.to_string().contains("3 | sensor_hz = \"fast\""), "{e}");
+    }
+
+    #[test]
+    fn edit_distance_counts_characters() {
+        assert_eq!(edit_distance("kitten", "sitting"), 3);
+        assert_eq!(edit_distance("", "ab"), 2);
+        assert_eq!(edit_distance("nmae", "name"), 1);
+        assert_eq!(
+            near_miss("Window_S", &["window_s".into()]).as_deref(),
+            Some("window_s")
+        );
+        assert_eq!(near_miss("zzz", &["window_s".into()]), None);
+    }
+}
