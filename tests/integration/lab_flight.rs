@@ -104,7 +104,14 @@ impl Fitted {
 
 /// The resonance's `freq_hz` and `q` fitted by `lab add` to `inputs`.
 fn resonance_fit(dir: &Dir, inputs: &[&std::path::Path]) -> [Fitted; 2] {
-    let out = dir.path("fitted.toml");
+    // One model file per fit (an existing output is kept unless --force).
+    let name = inputs
+        .iter()
+        .filter_map(|p| p.file_stem())
+        .map(|s| s.to_string_lossy().into_owned())
+        .collect::<Vec<_>>()
+        .join("+");
+    let out = dir.path(&format!("fitted-{name}.toml"));
     let mut args = vec!["lab", "add", "mount_resonance", "--from"];
     args.extend(inputs.iter().map(|p| s(p)));
     args.extend(["--out", s(&out), "--json"]);
