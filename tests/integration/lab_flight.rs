@@ -114,7 +114,8 @@ fn resonance_fit(dir: &Dir, inputs: &[&std::path::Path]) -> [Fitted; 2] {
     let out = dir.path(&format!("fitted-{name}.toml"));
     let mut args = vec!["lab", "add", "mount_resonance", "--from"];
     args.extend(inputs.iter().map(|p| s(p)));
-    args.extend(["--out", s(&out), "--json"]);
+    // The same file for every fit: replaced on purpose.
+    args.extend(["--out", s(&out), "--force", "--json"]);
     let a = run_json(&args);
     let params = a["fit"]["params"].as_array().expect("params");
     let get = |name: &str| {

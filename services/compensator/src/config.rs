@@ -516,7 +516,7 @@ mod tests {
             ConfigSource::File("c.toml".into()),
         )
         .unwrap_err();
-        assert!(e.to_string().contains("unknown field `speed`"), "{e}");
+        assert!(e.to_string().contains("service.speed: unknown key"), "{e}");
     }
 
     #[test]

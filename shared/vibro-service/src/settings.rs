@@ -331,7 +331,11 @@ mod tests {
         assert_eq!(e.file, "x.toml");
         assert!(e.problems[0].contains("unknown variant `fast`"), "{e}");
         let e = parse_toml::<ServiceSettingsRaw>("period = 1.0", "x.toml").unwrap_err();
-        assert!(e.to_string().contains("unknown field `period`"), "{e}");
+        assert!(
+            e.to_string()
+                .contains("line 1, column 1: period: unknown key"),
+            "{e}"
+        );
         assert_eq!(s.realtime_priority, None);
         for (p, ok) in [(0, false), (1, true), (99, true), (100, false), (-5, false)] {
             let raw: ServiceSettingsRaw =
