@@ -780,8 +780,10 @@ mod tests {
             for p in panel["paths"].as_array().into_iter().flatten() {
                 paths.push(p["value"].as_str().unwrap().to_string());
             }
-            if let Some(t) = panel["topicPath"].as_str() {
-                paths.push(t.to_string());
+            for key in ["topicPath", "topicToRender"] {
+                if let Some(t) = panel[key].as_str() {
+                    paths.push(t.to_string());
+                }
             }
         }
         assert!(paths.len() >= 20, "{paths:?}");
