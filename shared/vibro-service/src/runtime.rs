@@ -135,19 +135,23 @@ where
     if let Some(priority) = args.realtime_priority {
         config.service_mut().realtime_priority = Some(priority);
     }
-    // The log lines on `{prefix}log/{service}` while the service runs (stderr only if
-    // the stream cannot be opened).
-    let _log_stream = match config.log_stream() {
-        Some((names, service)) => match crate::logstream::start(&names, service) {
-            Ok(s) => Some(s),
-            Err(e) => {
-                tracing::warn!("log lines to stderr only: {e:#}");
-                None
-            }
-        },
-        None => None,
-    };
-    let summary = run_service(|shutdown| run_async(config, shutdown))?;
+    let log_stream = config.log_stream();
+    let summary = run_service(|shutdown| async move {
+        // The log lines on `{prefix}log/{service}` while the service runs (stderr only
+        // if the stream cannot be opened). Opened once the signal handlers are in
+        // place, and released before the runtime ends, as every port is.
+        let _log_stream = match log_stream {
+            Some((names, service)) => match crate::logstream::start(&names, service) {
+                Ok(s) => Some(s),
+                Err(e) => {
+                    tracing::warn!("log lines to stderr only: {e:#}");
+                    None
+                }
+            },
+            None => None,
+        };
+        run_async(config, shutdown).await
+    })?;
     if args.json {
         println!("{}", summary.to_json());
     }
