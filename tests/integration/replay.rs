@@ -604,6 +604,24 @@ fn a_looped_replay_is_one_continuous_stream() {
     assert_eq!(comp_s["input_gap_blocks"], 0, "{comp_s}");
 }
 
+/// `vibrocomp view` on system `p`, listening on a free port of 127.0.0.1: the process
+/// and its address, once it accepts connections.
+fn start_view(p: &str) -> (Kid, String) {
+    let listen = format!("127.0.0.1:{}", free_port());
+    let mut view_cmd = bin();
+    view_cmd.args(["view", "--prefix", p, "--listen", &listen, "--json"]);
+    let view = Kid::spawn(view_cmd, "view");
+    assert!(
+        poll(Duration::from_secs(20), || std::net::TcpStream::connect(
+            &listen
+        )
+        .is_ok()),
+        "the view does not listen on {listen}: {}",
+        view.stderr()
+    );
+    (view, listen)
+}
+
 /// A Foxglove client (`tests/python/foxglove_client.py`) subscribed to the view on
 /// `listen` while `log` is replayed at 5x into the system `p`: what it decoded, once
 /// the unit channels have been quiet for 2 s.
@@ -664,19 +682,7 @@ fn a_foxglove_client_sees_the_live_view_as_the_recording_holds_it() {
     let services_log = dir.path("services.log");
     let session = dir.path("session.mcap");
     let [est, comp, rec] = start_recorded(&p, &session, &services_log);
-    let port = free_port();
-    let listen = format!("127.0.0.1:{port}");
-    let mut view_cmd = bin();
-    view_cmd.args(["view", "--prefix", &p, "--listen", &listen, "--json"]);
-    let mut view = Kid::spawn(view_cmd, "view");
-    assert!(
-        poll(Duration::from_secs(20), || std::net::TcpStream::connect(
-            &listen
-        )
-        .is_ok()),
-        "the view does not listen on {listen}: {}",
-        view.stderr()
-    );
+    let (mut view, listen) = start_view(&p);
     let py = watch_replay(&dir, &listen, &p, &log);
     std::thread::sleep(Duration::from_millis(300));
     let (status, view_out, view_err) = view.stop(libc::SIGTERM, Duration::from_secs(20));
@@ -937,19 +943,7 @@ fn a_stalled_foxglove_client_never_holds_up_the_system() {
     let services_log = dir.path("services.log");
     let session = dir.path("session.mcap");
     let [est, comp, rec] = start_recorded(&p, &session, &services_log);
-    let port = free_port();
-    let listen = format!("127.0.0.1:{port}");
-    let mut view_cmd = bin();
-    view_cmd.args(["view", "--prefix", &p, "--listen", &listen, "--json"]);
-    let mut view = Kid::spawn(view_cmd, "view");
-    assert!(
-        poll(Duration::from_secs(20), || std::net::TcpStream::connect(
-            &listen
-        )
-        .is_ok()),
-        "the view does not listen on {listen}: {}",
-        view.stderr()
-    );
+    let (mut view, listen) = start_view(&p);
     let ready = dir.path("ready");
     let mut client_cmd = Command::new("python3");
     client_cmd

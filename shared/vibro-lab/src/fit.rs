@@ -680,7 +680,30 @@ struct Problem<'a> {
     project: Option<&'a DMatrix<f64>>,
 }
 
-impl Problem<'_> {
+impl<'a> Problem<'a> {
+    fn new(
+        model: &'a LabModel,
+        table: &'a CampaignTable,
+        prep: &'a Prepared,
+        terms: &'a [&'static Candidate],
+        what: String,
+        meter: &'a Meter,
+        project: Option<&'a DMatrix<f64>>,
+    ) -> Self {
+        Self {
+            model,
+            table,
+            prep,
+            terms,
+            specs: terms.iter().flat_map(|c| c.params.iter()).collect(),
+            what,
+            residual_g: prep.residual_g(),
+            evaluations: 0,
+            meter,
+            project,
+        }
+    }
+
     /// Weighted residuals `(r_i - s_i(theta))/u_i`, or an error.
     fn weighted(&mut self, theta: &[f64]) -> Result<DVector<f64>> {
         let b = self.meter.budget;
@@ -952,18 +975,7 @@ pub(crate) fn fit_joint_projected(
             ),
         });
     }
-    let mut pb = Problem {
-        model,
-        table,
-        prep,
-        terms,
-        specs: specs.clone(),
-        what: what.clone(),
-        residual_g: residual_g.clone(),
-        evaluations: 0,
-        meter,
-        project,
-    };
+    let mut pb = Problem::new(model, table, prep, terms, what.clone(), meter, project);
     let linear: Vec<bool> = specs
         .iter()
         .map(|p| matches!(p.search, Search::Linear))
@@ -1151,19 +1163,10 @@ pub(crate) fn profile(
         )));
     }
     let theta0: Vec<f64> = fit.params.iter().map(|p| p.value).collect();
-    let mut pb = Problem {
-        model,
-        table,
-        prep,
-        terms,
-        specs: specs.clone(),
-        what: format!("{} (profile)", fit.kinds.join("+")),
-        residual_g: prep.residual_g(),
-        evaluations: 0,
-        meter,
-        project: None,
-    };
-    let chi2_min = pb.weighted(&theta0)?.norm_squared();
+    let what = format!("{} (profile)", fit.kinds.join("+"));
+    let mut pb = Problem::new(model, table, prep, terms, what, meter, None);
+    // The fit's minimum, on the same weights.
+    let chi2_min = fit.chi2_after;
     let dof = fit.n.saturating_sub(fit.k).max(1);
     let b2 = (chi2_min / dof as f64).max(1.0);
     for k in 0..specs.len() {
@@ -1314,18 +1317,7 @@ mod tests {
         terms: &'a [&'static Candidate],
         meter: &'a Meter,
     ) -> Problem<'a> {
-        Problem {
-            model,
-            table: t,
-            prep,
-            terms,
-            specs: terms.iter().flat_map(|c| c.params.iter()).collect(),
-            what: "test".into(),
-            residual_g: prep.residual_g(),
-            evaluations: 0,
-            meter,
-            project: None,
-        }
+        Problem::new(model, t, prep, terms, "test".into(), meter, None)
     }
 
     /// `high_order_nonlinearity` enters the exact mean output linearly in k6 and k7,

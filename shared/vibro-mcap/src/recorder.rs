@@ -341,11 +341,7 @@ impl Recorder {
                 requested: kind,
             });
         }
-        let id = self.next_channel_id;
-        self.next_channel_id = id.checked_add(1).ok_or(Error::TooManyChannels {
-            topic: topic.to_string(),
-            max: u16::MAX,
-        })?;
+        let id = self.take_channel_id(topic)?;
         self.send_control(Command::Channel {
             id,
             topic: topic.to_string(),
@@ -358,6 +354,16 @@ impl Recorder {
         };
         self.channels.insert(topic.to_string(), channel.clone());
         Ok(channel)
+    }
+
+    /// The next free MCAP channel ID, for `topic` (named in the error when none is left).
+    fn take_channel_id(&mut self, topic: &str) -> Result<u16> {
+        let id = self.next_channel_id;
+        self.next_channel_id = id.checked_add(1).ok_or(Error::TooManyChannels {
+            topic: topic.to_string(),
+            max: u16::MAX,
+        })?;
+        Ok(id)
     }
 
     /// Registers a view channel `topic` (docs/view.md) with its protobuf `schema`:
@@ -381,11 +387,7 @@ impl Recorder {
                 requested: schema.name,
             });
         }
-        let id = self.next_channel_id;
-        self.next_channel_id = id.checked_add(1).ok_or(Error::TooManyChannels {
-            topic: topic.to_string(),
-            max: u16::MAX,
-        })?;
+        let id = self.take_channel_id(topic)?;
         self.send_control(Command::ViewChannel {
             id,
             topic: topic.to_string(),
@@ -696,14 +698,7 @@ impl WriterThread {
                     log_time: log_time_ns,
                     publish_time: publish_time_ns,
                 };
-                self.writer
-                    .write_to_known_channel(&header, &data)
-                    .map_err(|e| write_error(path, e))?;
-                if let Some((_, n)) = self.topics.get_mut(&channel_id) {
-                    *n += 1;
-                }
-                self.counters.written.fetch_add(1, Ordering::Relaxed);
-                Ok(true)
+                self.write_record(&header, &data)
             }
             Command::Message {
                 channel_id,
@@ -719,14 +714,11 @@ impl WriterThread {
                     log_time: log_time_ns,
                     publish_time: publish_time_ns,
                 };
-                self.writer
-                    .write_to_known_channel(&header, &self.buf)
-                    .map_err(|e| write_error(path, e))?;
-                if let Some((_, n)) = self.topics.get_mut(&channel_id) {
-                    *n += 1;
-                }
-                self.counters.written.fetch_add(1, Ordering::Relaxed);
-                Ok(true)
+                // The encoding buffer is kept (lent out while it is written).
+                let buf = std::mem::take(&mut self.buf);
+                let written = self.write_record(&header, &buf);
+                self.buf = buf;
+                written
             }
             Command::Attachment {
                 name,
@@ -759,6 +751,18 @@ impl WriterThread {
                 Ok(false)
             }
         }
+    }
+
+    /// Writes one message record into the open chunk and counts it.
+    fn write_record(&mut self, header: &mcap::records::MessageHeader, data: &[u8]) -> Result<bool> {
+        self.writer
+            .write_to_known_channel(header, data)
+            .map_err(|e| write_error(&self.path, e))?;
+        if let Some((_, n)) = self.topics.get_mut(&header.channel_id) {
+            *n += 1;
+        }
+        self.counters.written.fetch_add(1, Ordering::Relaxed);
+        Ok(true)
     }
 
     fn flush(&mut self) -> Result<()> {

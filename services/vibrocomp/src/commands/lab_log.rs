@@ -214,7 +214,7 @@ fn estimator_config(
 /// reported PSDs as they are when the leakage cannot be solved.
 // Per-axis loops index the estimate's arrays and the bands' PSDs at once.
 #[allow(clippy::needless_range_loop)]
-fn sensor_spectrum(est: &VibEstimate, leakage: &BandLeakage) -> Vec<PsdBand> {
+fn sensor_spectrum(est: &VibEstimate, solver: &mut SpectrumSolver) -> Vec<PsdBand> {
     let n = (est.band_count as usize).min(MAX_BANDS);
     if n == 0 {
         return Vec::new();
@@ -249,23 +249,7 @@ fn sensor_spectrum(est: &VibEstimate, leakage: &BandLeakage) -> Vec<PsdBand> {
     if gap_width > 0.0 {
         pieces.push(gaps.clone());
     }
-    let m: Vec<Vec<f64>> = pieces
-        .iter()
-        .map(|reported| {
-            pieces
-                .iter()
-                .map(|source| {
-                    let mut sum = 0.0;
-                    for r in reported {
-                        for s in source {
-                            sum += leakage.band_power_g2(*r, *s);
-                        }
-                    }
-                    sum
-                })
-                .collect()
-        })
-        .collect();
+    let lu = solver.factor(&pieces);
     let mut gap_psd = [0.0; 3];
     for j in 0..3 {
         let total = est.broadband_rms_g[j].powi(2);
@@ -277,7 +261,11 @@ fn sensor_spectrum(est: &VibEstimate, leakage: &BandLeakage) -> Vec<PsdBand> {
         if gap_width > 0.0 {
             reported.push(total - in_bands);
         }
-        let mut level = solve_linear(m.clone(), reported.clone()).unwrap_or_else(|| {
+        let solved = lu
+            .and_then(|lu| lu.solve(&nalgebra::DVector::from_vec(reported)))
+            .filter(|x| x.iter().all(|v| v.is_finite()))
+            .map(|x| x.as_slice().to_vec());
+        let mut level = solved.unwrap_or_else(|| {
             // Unsolvable: the reported levels, the gaps holding the remainder.
             let mut r: Vec<f64> = bands.iter().map(|b| b.psd_g2_per_hz[j]).collect();
             if gap_width > 0.0 {
@@ -315,33 +303,54 @@ fn sensor_spectrum(est: &VibEstimate, leakage: &BandLeakage) -> Vec<PsdBand> {
     bands
 }
 
-/// `x` with `m x = y` by Gaussian elimination with partial pivoting; `None` when `m` is
-/// singular or the result not finite.
-fn solve_linear(mut m: Vec<Vec<f64>>, mut y: Vec<f64>) -> Option<Vec<f64>> {
-    let n = y.len();
-    for c in 0..n {
-        let p = (c..n).max_by(|&a, &b| m[a][c].abs().total_cmp(&m[b][c].abs()))?;
-        if m[p][c] == 0.0 || !m[p][c].is_finite() {
-            return None;
-        }
-        m.swap(c, p);
-        y.swap(c, p);
-        let (pivot_rows, rest) = m.split_at_mut(c + 1);
-        let pivot = &pivot_rows[c];
-        for (i, row) in rest.iter_mut().enumerate() {
-            let f = row[c] / pivot[c];
-            for (x, p) in row[c..].iter_mut().zip(&pivot[c..]) {
-                *x -= f * p;
-            }
-            y[c + 1 + i] -= f * y[c];
+/// An LU factorization of a square matrix.
+type Lu = nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>;
+
+/// [`sensor_spectrum`]'s linear system: the leakage matrix of a set of pieces (each
+/// piece's reported power from each piece's flat level, `vibro_dsp::BandLeakage`),
+/// factored once and kept while the windows' bands stay the same (they do through a
+/// log: the estimator's configured bands).
+struct SpectrumSolver {
+    leakage: BandLeakage,
+    /// The pieces the factorization is for (`None`: none made yet).
+    pieces: Option<Vec<Vec<[f64; 2]>>>,
+    /// Their leakage matrix's factorization (`None`: singular or not finite).
+    lu: Option<Lu>,
+}
+
+impl SpectrumSolver {
+    fn new(leakage: BandLeakage) -> Self {
+        Self {
+            leakage,
+            pieces: None,
+            lu: None,
         }
     }
-    let mut x = vec![0.0; n];
-    for r in (0..n).rev() {
-        let s: f64 = (r + 1..n).map(|k| m[r][k] * x[k]).sum();
-        x[r] = (y[r] - s) / m[r][r];
+
+    /// The LU factorization of the leakage matrix of `pieces`; `None` when it is
+    /// singular or not finite.
+    fn factor(&mut self, pieces: &[Vec<[f64; 2]>]) -> Option<&Lu> {
+        if self.pieces.as_deref() != Some(pieces) {
+            let n = pieces.len();
+            let m = nalgebra::DMatrix::from_fn(n, n, |r, c| {
+                let mut sum = 0.0;
+                for reported in &pieces[r] {
+                    for source in &pieces[c] {
+                        sum += self.leakage.band_power_g2(*reported, *source);
+                    }
+                }
+                sum
+            });
+            let lu = m
+                .iter()
+                .all(|x| x.is_finite())
+                .then(|| m.lu())
+                .filter(|lu| lu.is_invertible());
+            self.pieces = Some(pieces.to_vec());
+            self.lu = lu;
+        }
+        self.lu.as_ref()
     }
-    x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
 /// The spectrum of unit `u` from the sensors' ([`sensor_spectrum`]): each axis reads its
@@ -381,8 +390,8 @@ pub fn table_from_log(
     let config = estimator_config(args, &mut reader, &mut summary)?;
     let mut estimator = vibro_estimator::InProcess::new(&config)?;
     let streams = read_streams(path, reader, &mut estimator, &mut summary)?;
-    let leakage = BandLeakage::new(&config.estimator);
-    let conditions = window_conditions(&streams, &units, &leakage, model, args, &mut summary)?;
+    let mut solver = SpectrumSolver::new(BandLeakage::new(&config.estimator));
+    let conditions = window_conditions(&streams, &units, &mut solver, model, args, &mut summary)?;
     summary.conditions = conditions.len();
     if conditions.is_empty() {
         bail!(
@@ -592,7 +601,7 @@ struct UsedWindow<'e> {
 fn window_conditions(
     streams: &LogStreams,
     units: &Units,
-    leakage: &BandLeakage,
+    solver: &mut SpectrumSolver,
     model: &LabModel,
     args: &LogArgs,
     summary: &mut LogTableSummary,
@@ -630,7 +639,7 @@ fn window_conditions(
         let mut w = UsedWindow {
             est,
             vib,
-            spectrum: sensor_spectrum(est, leakage),
+            spectrum: sensor_spectrum(est, solver),
             center_s,
             range,
             measured,
@@ -981,7 +990,10 @@ mod tests {
             "80-160 Hz reported {lent:+.4} off"
         );
 
-        let spectrum = sensor_spectrum(&est, &leakage);
+        let mut solver = SpectrumSolver::new(leakage);
+        let spectrum = sensor_spectrum(&est, &mut solver);
+        // The next window's bands are the same: the factorization is reused.
+        assert_eq!(sensor_spectrum(&est, &mut solver), spectrum);
         assert_eq!(spectrum.len(), 6, "{spectrum:?}");
         // Scaled to the reported broadband variance, which lost the power lent below
         // 20 Hz (0.8 %): the shape is the truth's.
@@ -1011,17 +1023,5 @@ mod tests {
         let unit = unit_bands(&spectrum, &[(2, 1.0), (0, -1.0), (1, 1.0)]);
         assert_eq!(unit[1].psd_g2_per_hz[0], spectrum[1].psd_g2_per_hz[2]);
         assert_eq!(unit[1].psd_g2_per_hz[1], spectrum[1].psd_g2_per_hz[0]);
-    }
-
-    #[test]
-    fn a_singular_system_is_none() {
-        assert_eq!(
-            solve_linear(vec![vec![2.0, 1.0], vec![1.0, 3.0]], vec![3.0, 4.0]),
-            Some(vec![1.0, 1.0])
-        );
-        assert_eq!(
-            solve_linear(vec![vec![1.0, 2.0], vec![2.0, 4.0]], vec![1.0, 2.0]),
-            None
-        );
     }
 }

@@ -235,9 +235,8 @@ fn view_client(
         let stream = loop {
             match std::net::TcpStream::connect(listen) {
                 Ok(s) => break s,
-                Err(e) if Instant::now() < deadline => {
-                    let _ = e;
-                    std::thread::sleep(Duration::from_millis(50));
+                Err(_) if Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(50))
                 }
                 Err(e) => {
                     return Err(e).with_context(|| format!("connecting to the view on {listen}"))
