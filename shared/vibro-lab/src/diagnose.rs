@@ -27,7 +27,8 @@
 //!      follows, and how much the best candidate would explain.
 
 use crate::fit::{
-    chi2_sf, fit_joint, fit_prepared, Budget, BudgetUsed, EffectFit, Meter, NotApplicable, Prepared,
+    chi2_sf, fit_joint, fit_prepared, fit_reweighted, Budget, BudgetUsed, EffectFit, Meter,
+    NotApplicable, Prepared,
 };
 use crate::library::{self, Candidate, LIBRARY};
 use crate::table::{CampaignTable, Condition, RandomCondition, ToneCondition};
@@ -1006,21 +1007,17 @@ pub fn diagnose(
             // The stated vibration's uncertainty through the model with the effects
             // found (near a resonance the VE rises faster with the amplitude than the
             // model as is says), and the set refitted under those weights.
-            if let Some(f) = current.as_ref() {
-                if table.conditions.iter().any(|c| c.ia_u_g() != (0.0, 0.0)) {
-                    prep.reweight(model, table, &f.tables)?;
-                    let known: Vec<Option<Vec<f64>>> =
-                        chosen.values.iter().cloned().map(Some).collect();
-                    if let Ok(g) = fit_joint(model, table, &prep, &chosen.terms, &known, &meter) {
-                        if let Some(st) = steps.last_mut() {
-                            st.chi2 = g.chi2_after;
-                            st.chi2_per_dof = g.chi2_per_dof_after;
-                            st.p_value = g.p_value_after;
-                            st.bic = g.bic_after;
-                        }
-                        chosen.values = g.kinds.iter().map(|k| g.values_of(k)).collect();
-                        current = Some(g);
+            if let Some(f) = current.clone() {
+                if table.conditions.iter().any(|c| c.states_vibration_u()) {
+                    let g = fit_reweighted(model, table, &mut prep, &chosen.terms, f, &meter)?;
+                    if let Some(st) = steps.last_mut() {
+                        st.chi2 = g.chi2_after;
+                        st.chi2_per_dof = g.chi2_per_dof_after;
+                        st.p_value = g.p_value_after;
+                        st.bic = g.bic_after;
                     }
+                    chosen.values = g.kinds.iter().map(|k| g.values_of(k)).collect();
+                    current = Some(g);
                 }
             }
             let cur = current.as_ref().unwrap_or(best);
@@ -1268,12 +1265,7 @@ pub fn add_effects(
     let mut fit = fit_joint(&frozen, table, &prep, &terms, &known, &meter)?;
     // The stated vibration's uncertainty through the model with the fitted effects
     // (as `diagnose` does after each step), and the effects refitted under it.
-    if table.conditions.iter().any(|c| c.ia_u_g() != (0.0, 0.0)) {
-        prep.reweight(&frozen, table, &fit.tables)?;
-        let known: Vec<Option<Vec<f64>>> =
-            terms.iter().map(|c| Some(fit.values_of(c.kind))).collect();
-        fit = fit_joint(&frozen, table, &prep, &terms, &known, &meter)?;
-    }
+    fit = fit_reweighted(&frozen, table, &mut prep, &terms, fit, &meter)?;
     crate::fit::profile(&frozen, table, &prep, &terms, &mut fit, &meter)?;
     let mut out = frozen.clone();
     for (c, t) in terms.iter().zip(&fit.tables) {

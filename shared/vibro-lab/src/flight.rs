@@ -392,6 +392,25 @@ pub fn pooled_bands(bands: &[Vec<PsdBand>]) -> Option<Vec<PsdBand>> {
     )
 }
 
+/// The standard uncertainties of [`pooled_bands`]' PSDs from the windows' own
+/// (`bands_u`, same edges): `sqrt(sum u^2) / k` per band and axis, the windows'
+/// estimates being independent. `None` when the windows' edges differ.
+pub fn pooled_bands_u(bands_u: &[Vec<PsdBand>]) -> Option<Vec<PsdBand>> {
+    let mut out = pooled_bands(bands_u)?;
+    let k = bands_u.len() as f64;
+    for (i, b) in out.iter_mut().enumerate() {
+        b.psd_g2_per_hz = std::array::from_fn(|axis| {
+            bands_u
+                .iter()
+                .map(|w| w[i].psd_g2_per_hz[axis].powi(2))
+                .sum::<f64>()
+                .sqrt()
+                / k
+        });
+    }
+    Some(out)
+}
+
 /// Phase difference `a - b` in degrees, wrapped to `(-180, 180]`.
 fn phase_difference_deg(a_rad: f64, b_rad: f64) -> f64 {
     let d = (a_rad - b_rad).to_degrees();
@@ -416,6 +435,8 @@ pub struct WindowInput {
     pub vibration: Vibration,
     /// Its random part's spectrum, unit axes (may be empty).
     pub bands: Vec<PsdBand>,
+    /// The standard uncertainties of `bands`' PSDs, same edges (empty: none stated).
+    pub bands_u: Vec<PsdBand>,
     pub measured: WindowVe,
     /// [`prediction_u_g`] of the window, g.
     pub prediction_u_g: f64,
@@ -453,6 +474,7 @@ pub fn condition(w: WindowInput) -> Condition {
         more_tones,
         random,
         bands: w.bands,
+        bands_u: w.bands_u,
         ve_measured_g: w.measured.ve_g,
         ve_uncertainty_g: w.measured.u_g.hypot(w.prediction_u_g),
         extra: w.extra,
@@ -720,6 +742,20 @@ mod tests {
 
     /// With only k2 (VE = k2 (aB3^2 / 2 + sigma3^2), MODEL.md 6) the pooled vibration
     /// predicts the mean of the windows' VEs exactly: the pool keeps the second moments.
+    /// The pooled PSDs' uncertainties are those of a mean of independent estimates:
+    /// `sqrt(u1^2 + u2^2) / 2` (3 and 4 give 2.5); differing edges pool nothing.
+    #[test]
+    fn pooled_band_uncertainties_add_in_quadrature() {
+        let band = |lo: f64, u: f64| PsdBand {
+            f_lo_hz: lo,
+            f_hi_hz: 80.0,
+            psd_g2_per_hz: [u, 2.0 * u, 0.0],
+        };
+        let got = pooled_bands_u(&[vec![band(20.0, 3.0)], vec![band(20.0, 4.0)]]).unwrap();
+        assert_eq!(got[0].psd_g2_per_hz, [2.5, 5.0, 0.0]);
+        assert!(pooled_bands_u(&[vec![band(20.0, 3.0)], vec![band(30.0, 4.0)]]).is_none());
+    }
+
     #[test]
     fn a_pooled_vibration_keeps_the_mean_second_moments() {
         let p = k2_only(None);
@@ -767,6 +803,7 @@ mod tests {
             passport: p,
             vibration: vib,
             bands: vec![],
+            bands_u: vec![],
             measured: WindowVe {
                 ve_g: 1e-3,
                 u_g: 3e-6,

@@ -137,6 +137,10 @@ pub struct Condition {
     /// estimated band PSDs, `crate::flight`); empty: `band_lo_hz`/`band_hi_hz` if given.
     #[serde(skip)]
     pub bands: Vec<PsdBand>,
+    /// Standard uncertainties of `bands`' PSDs, per band and axis, on the same edges (a
+    /// flight window's estimate states them); empty when none are stated.
+    #[serde(skip)]
+    pub bands_u: Vec<PsdBand>,
     pub ve_measured_g: f64,
     pub ve_uncertainty_g: f64,
     /// Extra numeric columns by name (NaN where empty).
@@ -278,6 +282,16 @@ impl Condition {
                 .unwrap_or(0.0)
         };
         (get(A_B3_U_COLUMN), get(SIGMA3_U_COLUMN))
+    }
+
+    /// Whether the row states an uncertainty of its vibration that a model can
+    /// propagate ([`Self::ia_u_g`], or [`Self::bands_u`]).
+    pub fn states_vibration_u(&self) -> bool {
+        self.ia_u_g() != (0.0, 0.0)
+            || self
+                .bands_u
+                .iter()
+                .any(|b| b.psd_g2_per_hz.iter().any(|u| *u > 0.0))
     }
 }
 
@@ -646,6 +660,7 @@ impl CampaignTable {
                 more_tones: Vec::new(),
                 random,
                 bands: Vec::new(),
+                bands_u: Vec::new(),
                 ve_measured_g,
                 ve_uncertainty_g,
                 extra,
@@ -819,6 +834,7 @@ impl CampaignTable {
                 more_tones: Vec::new(),
                 random,
                 bands: Vec::new(),
+                bands_u: Vec::new(),
                 ve_measured_g: s.measurement.ve_g,
                 ve_uncertainty_g: 0.0,
                 extra,

@@ -303,6 +303,53 @@ fn sensor_spectrum(est: &VibEstimate, solver: &mut SpectrumSolver) -> Vec<PsdBan
     bands
 }
 
+/// The standard uncertainties of [`sensor_spectrum`]'s levels (same pieces), per sensor
+/// axis: an estimate band's relative uncertainty as the estimate states it
+/// (`band_psd_u_g2_per_hz`) kept through the leakage solution and the scaling; a piece
+/// outside the bands (no stated uncertainty) takes the relative uncertainty a flat
+/// spectrum's Welch estimate has over its width, `rel^2 ∝ 1 / width` (the degrees of
+/// freedom grow with the bins), from the bands' own `rel_b^2 width_b`, averaged.
+// Per-axis loops index the estimate's arrays and the pieces' PSDs at once.
+#[allow(clippy::needless_range_loop)]
+fn sensor_spectrum_u(est: &VibEstimate, spectrum: &[PsdBand]) -> Vec<PsdBand> {
+    let n = (est.band_count as usize).min(MAX_BANDS);
+    let rel_of_band = |b: usize, j: usize| {
+        let (s, u) = (est.band_psd_g2_per_hz[b][j], est.band_psd_u_g2_per_hz[b][j]);
+        (s > 0.0 && u.is_finite() && u >= 0.0).then(|| u / s)
+    };
+    let mut per_width = [0.0; 3];
+    for j in 0..3 {
+        let known: Vec<f64> = (0..n)
+            .filter_map(|b| {
+                rel_of_band(b, j).map(|r| r * r * (est.band_f_hi_hz[b] - est.band_f_lo_hz[b]))
+            })
+            .collect();
+        if !known.is_empty() {
+            per_width[j] = known.iter().sum::<f64>() / known.len() as f64;
+        }
+    }
+    spectrum
+        .iter()
+        .map(|piece| {
+            let band = (0..n).find(|&b| {
+                est.band_f_lo_hz[b] == piece.f_lo_hz && est.band_f_hi_hz[b] == piece.f_hi_hz
+            });
+            let width = piece.f_hi_hz - piece.f_lo_hz;
+            PsdBand {
+                psd_g2_per_hz: std::array::from_fn(|j| {
+                    let rel = match band {
+                        Some(b) => rel_of_band(b, j).unwrap_or(0.0),
+                        None if width > 0.0 => (per_width[j] / width).sqrt(),
+                        None => 0.0,
+                    };
+                    rel * piece.psd_g2_per_hz[j]
+                }),
+                ..*piece
+            }
+        })
+        .collect()
+}
+
 /// An LU factorization of a square matrix.
 type Lu = nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>;
 
@@ -579,6 +626,8 @@ struct UsedWindow<'e> {
     vib: UnitVibrations,
     /// The random part's spectrum, sensor axes ([`sensor_spectrum`]).
     spectrum: Vec<PsdBand>,
+    /// Its levels' standard uncertainties ([`sensor_spectrum_u`]).
+    spectrum_u: Vec<PsdBand>,
     /// The window's centre from the first complete sample, s.
     center_s: f64,
     /// Its samples, `complete[range]`.
@@ -636,10 +685,12 @@ fn window_conditions(
         joined = true;
         summary.windows_used += 1;
         let center_s = est.center_ns.saturating_sub(t_first_ns) as f64 * 1e-9;
+        let spectrum = sensor_spectrum(est, solver);
         let mut w = UsedWindow {
             est,
             vib,
-            spectrum: sensor_spectrum(est, solver),
+            spectrum_u: sensor_spectrum_u(est, &spectrum),
+            spectrum,
             center_s,
             range,
             measured,
@@ -889,9 +940,14 @@ fn pool_condition(
         .iter()
         .map(|w| unit_bands(&w.spectrum, &units.map[u]))
         .collect();
-    let (Some(vibration), Some(bands)) = (
+    let bands_u: Vec<_> = group
+        .iter()
+        .map(|w| unit_bands(&w.spectrum_u, &units.map[u]))
+        .collect();
+    let (Some(vibration), Some(bands), Some(bands_u)) = (
         flight::pooled_vibration(&vibs),
         flight::pooled_bands(&bands),
+        flight::pooled_bands_u(&bands_u),
     ) else {
         bail!("{}: the pooled windows differ", context());
     };
@@ -934,6 +990,7 @@ fn pool_condition(
         passport: units.flat[u],
         vibration,
         bands,
+        bands_u,
         measured,
         prediction_u_g: curvature_u_g,
         extra,
@@ -1023,5 +1080,32 @@ mod tests {
         let unit = unit_bands(&spectrum, &[(2, 1.0), (0, -1.0), (1, 1.0)]);
         assert_eq!(unit[1].psd_g2_per_hz[0], spectrum[1].psd_g2_per_hz[2]);
         assert_eq!(unit[1].psd_g2_per_hz[1], spectrum[1].psd_g2_per_hz[0]);
+
+        // The levels' uncertainties: a band's relative one as stated; the piece above
+        // the bands (1360 Hz wide) that of a flat spectrum's Welch estimate over its
+        // width, rel^2 = mean(rel_b^2 width_b) / width (here rel_b^2 width_b = 4 Hz for
+        // every band: rel = sqrt(4 / 1360)).
+        for b in 0..5 {
+            let width = edges[b + 1] - edges[b];
+            est.band_psd_u_g2_per_hz[b] =
+                est.band_psd_g2_per_hz[b].map(|s| s * (4.0 / width).sqrt());
+        }
+        let u = sensor_spectrum_u(&est, &spectrum);
+        assert_eq!(u.len(), spectrum.len());
+        for j in 0..3 {
+            for b in 0..5 {
+                let rel = u[b].psd_g2_per_hz[j] / spectrum[b].psd_g2_per_hz[j];
+                let want = (4.0 / (edges[b + 1] - edges[b])).sqrt();
+                assert!(
+                    (rel / want - 1.0).abs() < 1e-12,
+                    "band {b}: {rel} vs {want}"
+                );
+            }
+            let rel = u[5].psd_g2_per_hz[j] / spectrum[5].psd_g2_per_hz[j];
+            assert!(
+                (rel / (4.0f64 / 1360.0).sqrt() - 1.0).abs() < 1e-12,
+                "{rel}"
+            );
+        }
     }
 }
