@@ -161,6 +161,10 @@ pub struct Comparison {
     pub rows: Vec<RowComparison>,
     pub summary: Summary,
     pub by_variable: Vec<ByVariable>,
+    /// A log's scales per unit on its stated uncertainties, from the residuals against
+    /// this model (`flight::data_scales`); empty for campaign tables.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub residual_scales: Vec<crate::flight::GroupScale>,
 }
 
 /// The residual against one variable.
@@ -344,12 +348,9 @@ fn groups_of(rows: &[RowComparison], keys: &[String]) -> Vec<Group> {
 /// Compares `model` with `table`.
 pub fn compare(model: &LabModel, table: &CampaignTable) -> Result<Comparison> {
     let prep = Prepared::new(model, table)?;
-    Ok(comparison_of(
-        model,
-        table,
-        &prep.predicted_g,
-        &prep.uncertainty_g,
-    ))
+    let mut c = comparison_of(model, table, &prep.predicted_g, &prep.uncertainty_g);
+    c.residual_scales = prep.scales;
+    Ok(c)
 }
 
 /// The comparison; `u_g` the rows' standard uncertainties of the residual (the
@@ -438,6 +439,7 @@ fn comparison_of(
         rows,
         summary,
         by_variable,
+        residual_scales: Vec::new(),
     }
 }
 
@@ -1008,7 +1010,7 @@ pub fn diagnose(
             // found (near a resonance the VE rises faster with the amplitude than the
             // model as is says), and the set refitted under those weights.
             if let Some(f) = current.clone() {
-                if table.conditions.iter().any(|c| c.states_vibration_u()) {
+                if table.weights_follow_model() {
                     let g = fit_reweighted(model, table, &mut prep, &chosen.terms, f, &meter)?;
                     if let Some(st) = steps.last_mut() {
                         st.chi2 = g.chi2_after;

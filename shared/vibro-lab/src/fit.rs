@@ -251,6 +251,9 @@ pub(crate) struct Prepared {
     model_tables: Vec<Vec<toml::Table>>,
     /// The model's effects that could not act on some rows.
     pub(crate) skipped: Vec<NotApplicable>,
+    /// The logs' scales per unit under the weights as they are
+    /// ([`crate::flight::data_scales`]).
+    pub(crate) scales: Vec<crate::flight::GroupScale>,
 }
 
 /// Adds `(line, run_id)` to the rows `kind` skipped.
@@ -280,7 +283,9 @@ impl Prepared {
             seen: Vec::new(),
             model_tables: Vec::new(),
             skipped: Vec::new(),
+            scales: Vec::new(),
         };
+        let mut row_effects = Vec::with_capacity(table.conditions.len());
         for c in &table.conditions {
             let mut tables = Vec::with_capacity(model.effects.len());
             for t in &model.effects {
@@ -291,7 +296,6 @@ impl Prepared {
                 }
             }
             let effects = build_effects(&tables, &c.passport)?;
-            let u_g = effective_u_g(model.mode, &effects, c)?;
             let row = |e: vibro_effects::Error| Error::Predict {
                 what: format!("{} (line {}, {})", table.path.display(), c.line, c.run_id),
                 reason: e.to_string(),
@@ -308,21 +312,7 @@ impl Prepared {
                 c.vibrating_s(),
             )
             .map_err(row)?;
-            // Residuals and weights must stay finite: `(r/u)^2` summed over the
-            // table is the fits' cost.
-            let z = (c.ve_measured_g - pred.ve_g) / u_g;
-            if !(pred.ve_g.is_finite() && (z * z).is_finite() && u_g > 0.0) {
-                return Err(Error::Numeric {
-                    what: format!("{} (line {}, {})", table.path.display(), c.line, c.run_id),
-                    reason: format!(
-                        "measured {:e} g, predicted {:e} g, uncertainty {:e} g: the predicted VE \
-                         and (residual/uncertainty)^2 must be finite",
-                        c.ve_measured_g, pred.ve_g, c.ve_uncertainty_g
-                    ),
-                });
-            }
             p.measured_g.push(c.ve_measured_g);
-            p.uncertainty_g.push(u_g);
             p.predicted_g.push(pred.ve_g);
             p.seen.push(
                 predict::unit_vibration(
@@ -336,26 +326,67 @@ impl Prepared {
             );
             p.truth.push(truth);
             p.model_tables.push(tables);
+            row_effects.push(effects);
+        }
+        let (factor, scales) = crate::flight::data_scales(&table.conditions, &p.residual_g());
+        p.scales = scales;
+        for ((c, effects), f) in table.conditions.iter().zip(&row_effects).zip(&factor) {
+            let u_g = effective_u_g(model.mode, effects, c, *f)?;
+            let i = p.uncertainty_g.len();
+            // Residuals and weights must stay finite: `(r/u)^2` summed over the
+            // table is the fits' cost.
+            let (m, pred) = (p.measured_g[i], p.predicted_g[i]);
+            let z = (m - pred) / u_g;
+            if !(pred.is_finite() && (z * z).is_finite() && u_g > 0.0) {
+                return Err(Error::Numeric {
+                    what: format!("{} (line {}, {})", table.path.display(), c.line, c.run_id),
+                    reason: format!(
+                        "measured {m:e} g, predicted {pred:e} g, uncertainty {:e} g: the \
+                         predicted VE and (residual/uncertainty)^2 must be finite",
+                        c.ve_uncertainty_g
+                    ),
+                });
+            }
+            p.uncertainty_g.push(u_g);
         }
         Ok(p)
     }
 
-    /// The rows' uncertainties again, the stated vibration's propagated through the
-    /// model with `extra` (fitted effects) added: the weights of the next fits.
+    /// The rows' uncertainties again with `extra` (fitted effects) added to `model`:
+    /// the stated vibration's propagated through it, and a log's scale from the
+    /// residuals against it ([`crate::flight::data_scales`]): the weights of the next
+    /// fits.
     pub(crate) fn reweight(
         &mut self,
         model: &LabModel,
         table: &CampaignTable,
         extra: &[toml::Table],
     ) -> Result<()> {
+        let scaled = table.conditions.iter().any(|c| c.scale_group.is_some());
+        let mut row_effects = Vec::with_capacity(table.conditions.len());
+        let mut residual_g = Vec::with_capacity(table.conditions.len());
         for (i, c) in table.conditions.iter().enumerate() {
-            if !c.states_vibration_u() {
+            if !(c.states_vibration_u() || c.scale_group.is_some()) {
+                row_effects.push(None);
+                residual_g.push(self.measured_g[i] - self.predicted_g[i]);
                 continue;
             }
             let mut tables = self.model_tables[i].clone();
             tables.extend(extra.iter().filter(|t| applies(kind_of(t), c)).cloned());
             let effects = build_effects(&tables, &c.passport)?;
-            self.uncertainty_g[i] = effective_u_g(model.mode, &effects, c)?;
+            residual_g.push(if scaled && c.scale_group.is_some() {
+                c.ve_measured_g - row_ve_g(model.mode, &effects, c, c)?
+            } else {
+                self.measured_g[i] - self.predicted_g[i]
+            });
+            row_effects.push(Some(effects));
+        }
+        let (factor, scales) = crate::flight::data_scales(&table.conditions, &residual_g);
+        self.scales = scales;
+        for (i, (c, effects)) in table.conditions.iter().zip(&row_effects).enumerate() {
+            if let Some(effects) = effects {
+                self.uncertainty_g[i] = effective_u_g(model.mode, effects, c, factor[i])?;
+            }
         }
         Ok(())
     }
@@ -369,6 +400,33 @@ impl Prepared {
     }
 }
 
+/// The VE `effects` predict at `row`'s stated conditions (`of`: the row the messages
+/// name).
+fn row_ve_g(
+    mode: vibro_effects::model::BaseMode,
+    effects: &[Box<dyn vibro_effects::Effect>],
+    row: &crate::table::Condition,
+    of: &crate::table::Condition,
+) -> Result<f64> {
+    predict::predict_ve(
+        mode,
+        effects,
+        &row.passport,
+        row.a_l_g,
+        &row.vibration(),
+        &row.psd(),
+        row.vibrating_s(),
+    )
+    .map(|p| p.ve_g)
+    .map_err(|e| Error::Predict {
+        what: format!(
+            "line {} ({}): the stated vibration's uncertainty",
+            of.line, of.run_id
+        ),
+        reason: e.to_string(),
+    })
+}
+
 /// A row's standard uncertainty of the residual: the measured VE's
 /// (`ve_uncertainty_g`) and the stated IA vibration's (`aB3_u_g`, `sigma3_u_g`)
 /// through the model with `effects`, `dVE/daB3` and `dVE/dsigma3` by central
@@ -378,28 +436,11 @@ pub(crate) fn effective_u_g(
     mode: vibro_effects::model::BaseMode,
     effects: &[Box<dyn vibro_effects::Effect>],
     c: &crate::table::Condition,
+    scale: f64,
 ) -> Result<f64> {
     let (ua_g, us_g) = c.ia_u_g();
-    let mut var = c.ve_uncertainty_g * c.ve_uncertainty_g;
-    let ve = |row: &crate::table::Condition| -> Result<f64> {
-        predict::predict_ve(
-            mode,
-            effects,
-            &row.passport,
-            row.a_l_g,
-            &row.vibration(),
-            &row.psd(),
-            row.vibrating_s(),
-        )
-        .map(|p| p.ve_g)
-        .map_err(|e| Error::Predict {
-            what: format!(
-                "line {} ({}): the stated vibration's uncertainty",
-                c.line, c.run_id
-            ),
-            reason: e.to_string(),
-        })
-    };
+    let mut var = (scale * c.ve_uncertainty_g).powi(2);
+    let ve = |row: &crate::table::Condition| row_ve_g(mode, effects, row, c);
     if let (Some(t), true) = (c.tone, ua_g > 0.0) {
         let h = 1e-3 * t.a_b_g[2].abs().max(ua_g);
         let mut up = c.clone();
@@ -987,7 +1028,7 @@ pub(crate) fn fit_reweighted(
     mut fit: EffectFit,
     meter: &Meter,
 ) -> Result<EffectFit> {
-    if !table.conditions.iter().any(|c| c.states_vibration_u()) {
+    if !table.weights_follow_model() {
         return Ok(fit);
     }
     for _ in 0..REWEIGHT_PASSES {
@@ -1442,7 +1483,7 @@ mod tests {
 
         let base = build_effects(&[], &c.passport).expect("no effects");
         assert_eq!(
-            effective_u_g(model.mode, &base, &c).expect("propagates"),
+            effective_u_g(model.mode, &base, &c, 1.0).expect("propagates"),
             0.0
         );
 
@@ -1450,7 +1491,7 @@ mod tests {
             toml::from_str("kind = \"mount_resonance\"\nfreq_hz = 48.0\nq = 1.56")
                 .expect("an effect table");
         let effects = build_effects(&[resonance], &c.passport).expect("the resonance builds");
-        let stated = effective_u_g(model.mode, &effects, &c).expect("propagates");
+        let stated = effective_u_g(model.mode, &effects, &c, 1.0).expect("propagates");
         let ve = |row: &crate::table::Condition| {
             predict::predict_ve(
                 model.mode,

@@ -114,6 +114,20 @@ pub struct RandomCondition {
     pub kurtosis3: f64,
 }
 
+/// Where a log's window belongs for the scale of its uncertainty
+/// (`crate::flight::data_scales`): the log, the unit, and the run of consecutive
+/// windows (none left out between them) it is part of. Rows of one group follow each
+/// other in the table in time order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+pub struct ScaleGroup {
+    /// Which input of a joint table (set by [`CampaignTable::joined`]).
+    pub source: u32,
+    /// The unit, 0-based, within the log.
+    pub unit: u32,
+    /// The run of consecutive windows, within the log.
+    pub run: u32,
+}
+
 /// One row of the table.
 #[derive(Debug, Clone, Serialize)]
 pub struct Condition {
@@ -141,6 +155,11 @@ pub struct Condition {
     /// flight window's estimate states them); empty when none are stated.
     #[serde(skip)]
     pub bands_u: Vec<PsdBand>,
+    /// A log's window: its stated uncertainty is scaled by the scatter of its group's
+    /// residuals against the model under test (`crate::flight::data_scales`). `None`
+    /// for table rows, whose uncertainty is what they state.
+    #[serde(skip)]
+    pub scale_group: Option<ScaleGroup>,
     pub ve_measured_g: f64,
     pub ve_uncertainty_g: f64,
     /// Extra numeric columns by name (NaN where empty).
@@ -304,6 +323,15 @@ pub struct CampaignTable {
 }
 
 impl CampaignTable {
+    /// Whether a row's uncertainty depends on the model under test: it states its
+    /// vibration's uncertainty ([`Condition::states_vibration_u`]) or takes its scale
+    /// from the residuals ([`Condition::scale_group`]).
+    pub fn weights_follow_model(&self) -> bool {
+        self.conditions
+            .iter()
+            .any(|c| c.states_vibration_u() || c.scale_group.is_some())
+    }
+
     /// Every condition variable ([`Condition::variables`]) as a column over the
     /// conditions, in the variables' order (NaN where one does not apply).
     pub fn variable_columns(&self) -> Vec<(String, Vec<f64>)> {
@@ -661,6 +689,7 @@ impl CampaignTable {
                 random,
                 bands: Vec::new(),
                 bands_u: Vec::new(),
+                scale_group: None,
                 ve_measured_g,
                 ve_uncertainty_g,
                 extra,
@@ -835,6 +864,7 @@ impl CampaignTable {
                 random,
                 bands: Vec::new(),
                 bands_u: Vec::new(),
+                scale_group: None,
                 ve_measured_g: s.measurement.ve_g,
                 ve_uncertainty_g: 0.0,
                 extra,
@@ -892,13 +922,16 @@ impl CampaignTable {
             }
         }
         let mut conditions = Vec::new();
-        for t in tables {
+        for (source, t) in (0u32..).zip(tables) {
             let file = t.path.file_name().map_or_else(
                 || t.path.display().to_string(),
                 |f| f.to_string_lossy().into(),
             );
             for mut c in t.conditions {
                 c.run_id = format!("{file}:{}", c.run_id);
+                if let Some(g) = c.scale_group.as_mut() {
+                    g.source = source;
+                }
                 for e in &extra_columns {
                     c.extra.entry(e.clone()).or_insert(f64::NAN);
                 }

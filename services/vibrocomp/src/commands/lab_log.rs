@@ -22,6 +22,7 @@ use vibro_config::TriadConfig;
 use vibro_dsp::{BandLeakage, EstimatorConfig};
 use vibro_effects::predict::flat_passport;
 use vibro_lab::flight::{self, ReferenceSample, VibrationU, WindowInput, WindowVe};
+use vibro_lab::table::ScaleGroup;
 use vibro_lab::{CampaignTable, Condition, LabModel};
 use vibro_log::topic;
 use vibro_mcap::{Message, Reader};
@@ -97,14 +98,6 @@ pub struct LogTableSummary {
     pub pool_windows: usize,
     /// Lab windows (pools of consecutive estimator windows).
     pub lab_windows: usize,
-    /// Per unit: the factor on the stated uncertainties from the residuals' second
-    /// differences (`vibro_lab::flight::residual_scale`): each unit's own when every
-    /// unit has at least [`PER_UNIT_SCALE_MIN_DIFFERENCES`], else one pooled over the
-    /// units; 1 when too few.
-    pub residual_scale: Vec<f64>,
-    /// Second differences it came from, and those left out beyond 3 sigma.
-    pub residual_scale_differences: usize,
-    pub residual_scale_clipped: usize,
     pub conditions: usize,
 }
 
@@ -126,12 +119,10 @@ struct Complete {
     a_sensed_ia_g: [f64; 3],
 }
 
-/// Second differences each unit needs for its own residual scale: the scale's relative
-/// standard error is about `1 / sqrt(2 n)`, 13 % at 30. Below, one scale pooled over
-/// the units (a 20 s log has about 17 per unit). The units' scales differ (the
-/// correlation of the measured and the predicted VE's errors depends on the unit's
-/// coefficients: 0.6 against 1.2 times the pooled scale on a 600 s `cyclone-4`).
-const PER_UNIT_SCALE_MIN_DIFFERENCES: usize = 30;
+/// Windows on each side whose batch-means variance a window's measured VE pools
+/// (`flight::neighbour_pooled_u`): 5 windows of 8 batches, 35 degrees of freedom
+/// instead of 7.
+const NEIGHBOUR_WINDOWS: usize = 2;
 
 /// Window edges this close are the same edge (sample times are rounded to 1 ns).
 const SAME_EDGE_NS: u64 = 1_000;
@@ -636,8 +627,6 @@ struct UsedWindow<'e> {
     measured: Vec<WindowVe>,
     /// Per unit: the stated uncertainty `sqrt(u_measured^2 + u_prediction^2)`, g.
     stated_u_g: Vec<f64>,
-    /// Per unit: the measured VE minus the base model's, g.
-    residual_g: Vec<f64>,
     /// Follows the previous used window with none left out between them.
     joined: bool,
 }
@@ -645,8 +634,8 @@ struct UsedWindow<'e> {
 /// The table's conditions: the estimator windows that do not overlap the previous one
 /// kept and that [`measure_window`] does not leave out, pooled into lab windows of
 /// consecutive ones ([`pools`]), one condition per lab window and unit, with the
-/// stated uncertainties scaled by the residuals' own scatter
-/// (`vibro_lab::flight::residual_scale`).
+/// stated uncertainties to be scaled by the residuals' own scatter against the model
+/// under test (`vibro_lab::flight::data_scales`, by each row's `ScaleGroup`).
 fn window_conditions(
     streams: &LogStreams,
     units: &Units,
@@ -686,7 +675,7 @@ fn window_conditions(
         summary.windows_used += 1;
         let center_s = est.center_ns.saturating_sub(t_first_ns) as f64 * 1e-9;
         let spectrum = sensor_spectrum(est, solver);
-        let mut w = UsedWindow {
+        used.push(UsedWindow {
             est,
             vib,
             spectrum_u: sensor_spectrum_u(est, &spectrum),
@@ -695,46 +684,32 @@ fn window_conditions(
             range,
             measured,
             stated_u_g: Vec::with_capacity(3),
-            residual_g: Vec::with_capacity(3),
             joined: follows,
-        };
-        for u in 0..w.measured.len() {
-            let (stated, residual) = stated_u_and_residual(&w, u, units, model)?;
-            w.stated_u_g.push(stated);
-            w.residual_g.push(residual);
-        }
-        used.push(w);
+        });
     }
-    // Per unit, runs of consecutive windows: the residuals' scatter.
+    // Per unit, the measured VE's batch-means variance pooled over the neighbouring
+    // windows of its run (`flight::neighbour_pooled_u`), then the stated uncertainty.
     let n_units = units.flat.len();
-    let mut series: Vec<Vec<Vec<(f64, f64)>>> = vec![Vec::new(); n_units];
-    for (u, runs) in series.iter_mut().enumerate() {
-        for w in &used {
-            if !w.joined || runs.is_empty() {
-                runs.push(Vec::new());
-            }
-            if let Some(run) = runs.last_mut() {
-                run.push((w.residual_g[u], w.stated_u_g[u]));
+    let mut start = 0;
+    while start < used.len() {
+        let end = (start + 1..used.len())
+            .find(|&j| !used[j].joined)
+            .unwrap_or(used.len());
+        for u in 0..n_units {
+            let own: Vec<f64> = used[start..end].iter().map(|w| w.measured[u].u_g).collect();
+            let pooled = flight::neighbour_pooled_u(&own, NEIGHBOUR_WINDOWS);
+            for (w, p) in used[start..end].iter_mut().zip(pooled) {
+                w.measured[u].u_g = p;
             }
         }
+        start = end;
     }
-    let per_unit: Vec<_> = series.iter().map(|s| flight::residual_scale(s)).collect();
-    let own = per_unit
-        .iter()
-        .all(|s| s.is_some_and(|s| s.differences >= PER_UNIT_SCALE_MIN_DIFFERENCES));
-    if own {
-        let scales: Vec<_> = per_unit.into_iter().flatten().collect();
-        summary.residual_scale = scales.iter().map(|s| s.scale).collect();
-        summary.residual_scale_differences = scales.iter().map(|s| s.differences).sum();
-        summary.residual_scale_clipped = scales.iter().map(|s| s.clipped).sum();
-    } else {
-        let all: Vec<_> = series.concat();
-        let scale = flight::residual_scale(&all);
-        summary.residual_scale = vec![scale.map_or(1.0, |s| s.scale); n_units];
-        summary.residual_scale_differences = scale.map_or(0, |s| s.differences);
-        summary.residual_scale_clipped = scale.map_or(0, |s| s.clipped);
+    for w in &mut used {
+        for u in 0..w.measured.len() {
+            let stated = stated_u(w, u, units, model)?;
+            w.stated_u_g.push(stated);
+        }
     }
-
     let pool_max = match args.pool_windows {
         0 => (used.len() / AUTO_POOL_TARGET).clamp(1, AUTO_POOL_MAX),
         k => k,
@@ -742,8 +717,19 @@ fn window_conditions(
     summary.pool_windows = pool_max;
     let groups = pools(&used, &complete, units, pool_max, args);
     summary.lab_windows = groups.len();
+    // Runs of consecutive windows, for the scale of the stated uncertainties.
+    let run_of: Vec<u32> = used
+        .iter()
+        .scan(0u32, |run, w| {
+            if !w.joined {
+                *run += 1;
+            }
+            Some(*run)
+        })
+        .collect();
     let mut conditions = Vec::new();
     for g in groups {
+        let run = run_of[g.start];
         for u in 0..units.flat.len() {
             let line = conditions.len() + 1;
             conditions.push(pool_condition(
@@ -753,7 +739,11 @@ fn window_conditions(
                 units,
                 model,
                 args,
-                summary.residual_scale[u],
+                ScaleGroup {
+                    source: 0,
+                    unit: u as u32,
+                    run,
+                },
                 line,
             )?);
         }
@@ -871,12 +861,7 @@ fn measure_window(
 /// The stated uncertainty of unit `u` over one estimator window (the measured VE's by
 /// batch means and the prediction's from the estimate's uncertainties,
 /// `flight::prediction_u_g`), and its residual against the base model, g.
-fn stated_u_and_residual(
-    w: &UsedWindow<'_>,
-    u: usize,
-    units: &Units,
-    model: &LabModel,
-) -> anyhow::Result<(f64, f64)> {
+fn stated_u(w: &UsedWindow<'_>, u: usize, units: &Units, model: &LabModel) -> anyhow::Result<f64> {
     let (est, map) = (w.est, &units.map);
     let v = w.vib.units[u];
     let m = w.measured[u];
@@ -910,14 +895,12 @@ fn stated_u_and_residual(
         &u_vib,
     )
     .with_context(context)?;
-    let base = vibro_effects::predict::base_ve_g(model.mode, &units.flat[u], m.a_l_unit_g, &v)
-        .with_context(context)?;
-    Ok((m.u_g.hypot(prediction_u_g), m.ve_g - base))
+    Ok(m.u_g.hypot(prediction_u_g))
 }
 
 /// The condition of unit `u` over a lab window (consecutive used windows `group`):
 /// the measured VE over all its samples, the pooled vibration and spectrum, and the
-/// uncertainty `scale * sqrt(sum u_j^2) / k` of its `k` windows' stated ones (their
+/// uncertainty `sqrt(sum u_j^2) / k` of its `k` windows' stated ones (their
 /// errors are independent), plus, for a pool, the curvature of the VE over the pool's
 /// `aL3` (`flight::prediction_u_g` without the vibration's uncertainties).
 #[allow(clippy::too_many_arguments)]
@@ -928,7 +911,7 @@ fn pool_condition(
     units: &Units,
     model: &LabModel,
     args: &LogArgs,
-    scale: f64,
+    scale_group: ScaleGroup,
     line: usize,
 ) -> anyhow::Result<Condition> {
     let k = group.len();
@@ -951,12 +934,11 @@ fn pool_condition(
     ) else {
         bail!("{}: the pooled windows differ", context());
     };
-    let stated_u_g = scale
-        * group
-            .iter()
-            .map(|w| w.stated_u_g[u].powi(2))
-            .sum::<f64>()
-            .sqrt()
+    let stated_u_g = group
+        .iter()
+        .map(|w| w.stated_u_g[u].powi(2))
+        .sum::<f64>()
+        .sqrt()
         / k as f64;
     let (mut measured, curvature_u_g) = if k == 1 {
         (first.measured[u], 0.0)
@@ -993,6 +975,7 @@ fn pool_condition(
         bands_u,
         measured,
         prediction_u_g: curvature_u_g,
+        scale_group: Some(scale_group),
         extra,
     }))
 }
