@@ -1,0 +1,528 @@
+//! The Zenoh bridge (`vibrocomp bridge`, shared/vibro-bridge, docs/bridge.md).
+//!
+//! - its configuration refused with file, line, key and every problem at once;
+//! - a peer that cannot be reached at start: a clear error naming the endpoint;
+//! - a message lost and one reordered on the network, put into Zenoh by this test as a
+//!   remote bridge would: the receiving bridge's counters and the compensator's own
+//!   counters and flags against what the test left out and swapped;
+//! - the Python `eclipse-zenoh` client decoding the bridged compensated stream by
+//!   docs/messages.md, against the blocks read from iceoryx2 here;
+//! - two hosts on one machine (two iceoryx2 roots joined only by Zenoh over loopback):
+//!   `demo --hosts 2` against `demo`, bit for bit.
+//!
+//! Every test uses its own service-name prefix, its own free port on 127.0.0.1 and
+//! temporary folders it removes; the processes stop when their handles drop.
+
+use crate::common::{bin, repo_path, run_failing};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+use vibro_ipc::{create_node, StreamPublisher, StreamSubscriber};
+use vibro_msgs::compensation_flags as cf;
+use vibro_msgs::{AccelBlock, CompensatedBlock, ServiceId, ServiceNames, Stream, WireMessage};
+use vibrocomp::hosts::free_port;
+use zenoh::Wait;
+
+fn next_id() -> u32 {
+    static NEXT: AtomicU32 = AtomicU32::new(0);
+    NEXT.fetch_add(1, Ordering::Relaxed)
+}
+
+/// A short prefix of this test's own.
+fn prefix(what: &str) -> String {
+    format!("vcb{what}-{}-{}/", std::process::id(), next_id())
+}
+
+/// A temporary folder, removed on drop.
+struct Dir(PathBuf);
+
+impl Dir {
+    fn new(what: &str) -> Self {
+        let d = std::env::temp_dir().join(format!("vcb-{what}-{}-{}", std::process::id(), next_id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        Self(d)
+    }
+    fn path(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+}
+
+impl Drop for Dir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A child process, stderr to a file, stopped with SIGTERM (then SIGKILL) on drop.
+struct Kid {
+    name: &'static str,
+    child: Option<Child>,
+    stderr: PathBuf,
+}
+
+impl Kid {
+    fn spawn(name: &'static str, cmd: &mut Command, dir: &Dir) -> Self {
+        let stderr = dir.path(&format!("{name}.stderr"));
+        let child = cmd
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&stderr).unwrap())
+            .spawn()
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        Self {
+            name,
+            child: Some(child),
+            stderr,
+        }
+    }
+
+    fn stderr(&self) -> String {
+        std::fs::read_to_string(&self.stderr).unwrap_or_default()
+    }
+
+    /// SIGTERM, then the JSON summary it printed (it must exit 0).
+    fn summary(mut self) -> Value {
+        let mut child = self.child.take().unwrap();
+        let _ = Command::new("kill")
+            .args(["-TERM", &child.id().to_string()])
+            .status();
+        let start = Instant::now();
+        while child.try_wait().unwrap().is_none() {
+            if start.elapsed() > Duration::from_secs(10) {
+                let _ = child.kill();
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let out = child.wait_with_output().unwrap();
+        assert!(
+            out.status.success(),
+            "{} exited with {:?}:\n{}",
+            self.name,
+            out.status,
+            self.stderr()
+        );
+        let text = String::from_utf8_lossy(&out.stdout);
+        let start = text.find('{').unwrap_or_else(|| panic!("{}: no JSON in {text:?}", self.name));
+        serde_json::from_str(&text[start..]).unwrap()
+    }
+}
+
+impl Drop for Kid {
+    fn drop(&mut self) {
+        if let Some(mut c) = self.child.take() {
+            let _ = Command::new("kill").args(["-TERM", &c.id().to_string()]).status();
+            let start = Instant::now();
+            while start.elapsed() < Duration::from_secs(5) {
+                if let Ok(Some(_)) = c.try_wait() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+fn write(path: &Path, text: &str) -> PathBuf {
+    std::fs::write(path, text).unwrap();
+    path.to_path_buf()
+}
+
+/// The compensator as a process on `prefix` (the shipped configuration).
+fn compensator(prefix: &str, dir: &Dir) -> Kid {
+    Kid::spawn(
+        "compensator",
+        bin().args([
+            "service",
+            "compensator",
+            "--prefix",
+            prefix,
+            "--config",
+            repo_path("config/services/compensator.toml").to_str().unwrap(),
+            "--json",
+        ]),
+        dir,
+    )
+}
+
+fn bridge(config: &Path, dir: &Dir) -> Kid {
+    Kid::spawn(
+        "bridge",
+        bin().args(["bridge", "--config", config.to_str().unwrap(), "--json"]),
+        dir,
+    )
+}
+
+/// Waits until `ok()` or fails after `timeout`, saying what was awaited.
+fn wait_until(what: &str, timeout: Duration, mut ok: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !ok() {
+        assert!(start.elapsed() < timeout, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// Accelerometer block `seq` of a steady 800 Hz stream (sample values vary per block).
+fn accel_block(seq: u64) -> AccelBlock {
+    const PERIOD_NS: u64 = 1_250_000;
+    let mut b = AccelBlock::ZEROED;
+    b.seq = seq;
+    b.first_sample_index = seq * 32;
+    b.t0_ns = (seq * 32 + 1) * PERIOD_NS;
+    b.sample_period_ns = PERIOD_NS;
+    b.count = 32;
+    b.source_id = 7;
+    for (i, s) in b.output_v.iter_mut().enumerate() {
+        let x = (seq * 32 + i as u64) as f64 * 1e-4;
+        *s = [-1.67 + x, -0.02 - x, 0.01 + 0.5 * x];
+    }
+    b
+}
+
+#[test]
+fn bridge_config_errors_name_file_line_key_and_every_problem() {
+    let dir = Dir::new("cfg");
+    let unknown = write(
+        &dir.path("unknown.toml"),
+        "key_prefix = \"vibrocomp/a\"\n[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:7447\"]\nconnect_timeout_s = 1.0\nconect = []\n[export]\nstreams = [\"vib\"]\n",
+    );
+    let out = run_failing(&["bridge", "--config", unknown.to_str().unwrap(), "--json"]);
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let e = &v["error"];
+    assert_eq!(e["file"], unknown.to_str().unwrap(), "{v}");
+    assert_eq!(e["line"], 6, "{v}");
+    assert!(
+        e["message"].as_str().unwrap().contains("conect: unknown key (did you mean connect?)"),
+        "{v}"
+    );
+
+    let bad = write(
+        &dir.path("bad.toml"),
+        "key_prefix = \"vibrocomp/**\"\n[zenoh]\nmode = \"router\"\nlisten = [\"tcp/0.0.0.0:7447\"]\nconnect_timeout_s = 0.0\n[export]\nstreams = [\"vibe\"]\n[import]\nqueue_depth = 0\n",
+    );
+    let out = run_failing(&["bridge", "--config", bad.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stderr);
+    for needle in [
+        "key_prefix = \"vibrocomp/**\"",
+        "zenoh.mode = \"router\": must be peer or client",
+        "zenoh.listen[0] = \"tcp/0.0.0.0:7447\": listens beyond loopback, so it needs [tls] with mutual = true and [access] allow_cert_common_names",
+        "zenoh.connect_timeout_s = 0: must be finite",
+        "export.streams: \"vibe\" is not a stream",
+        "import.queue_depth = 0",
+    ] {
+        assert!(text.contains(needle), "missing {needle:?} in:\n{text}");
+    }
+    assert!(text.contains(bad.to_str().unwrap()), "{text}");
+}
+
+#[test]
+fn the_shipped_two_host_configurations_are_valid_and_match() {
+    let rig = vibro_bridge::BridgeConfig::load(&repo_path("config/bridge/rig-host.toml")).unwrap();
+    let compute =
+        vibro_bridge::BridgeConfig::load(&repo_path("config/bridge/compute-host.toml")).unwrap();
+    assert_eq!(rig.key_prefix, compute.key_prefix);
+    // What one sends, the other receives, and nothing goes both ways.
+    let mut a = rig.export.clone();
+    let mut b = compute.import.clone();
+    a.sort_by_key(|s| s.suffix());
+    b.sort_by_key(|s| s.suffix());
+    assert_eq!(a, b);
+    let mut a = rig.import.clone();
+    let mut b = compute.export.clone();
+    a.sort_by_key(|s| s.suffix());
+    b.sort_by_key(|s| s.suffix());
+    assert_eq!(a, b);
+}
+
+#[test]
+fn an_unreachable_peer_fails_at_start_naming_the_endpoint() {
+    let dir = Dir::new("unreach");
+    let port = free_port().unwrap();
+    let config = write(
+        &dir.path("b.toml"),
+        &format!(
+            "prefix = {:?}\nkey_prefix = \"vibrocomp/unreach\"\n[zenoh]\nmode = \"peer\"\nconnect = [\"tcp/127.0.0.1:{port}\"]\nconnect_timeout_s = 0.5\n[export]\nstreams = [\"compensated\"]\n",
+            prefix("u")
+        ),
+    );
+    let start = Instant::now();
+    let out = run_failing(&["bridge", "--config", config.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        text.contains(&format!("connect [tcp/127.0.0.1:{port}]")),
+        "{text}"
+    );
+    assert!(text.contains("connect_timeout_s = 0.5"), "{text}");
+    assert!(start.elapsed() < Duration::from_secs(8), "{:?}", start.elapsed());
+}
+
+/// This test stands for a remote bridge: it puts accelerometer blocks 0..=9 into Zenoh
+/// without block 5 and with block 4 after block 6. The receiving bridge counts the gap
+/// and the late block; the compensator behind it counts and flags them exactly as it
+/// does a local loss (docs/services.md, loss accounting).
+#[test]
+fn a_message_lost_or_reordered_on_the_network_is_counted_and_flagged() {
+    let dir = Dir::new("loss");
+    let prefix = prefix("l");
+    let port = free_port().unwrap();
+    let key_prefix = format!("vibrocomp/loss{}", next_id());
+    let config = write(
+        &dir.path("b.toml"),
+        &format!(
+            "prefix = {prefix:?}\nkey_prefix = {key_prefix:?}\n[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\nconnect_timeout_s = 5.0\n[import]\nstreams = [\"accel\"]\n"
+        ),
+    );
+    let names = ServiceNames::new(&prefix).unwrap();
+    let node = create_node("vcb-loss").unwrap();
+    let out = StreamSubscriber::<CompensatedBlock>::open(&node, &names, Stream::Compensated).unwrap();
+    let comp = compensator(&prefix, &dir);
+    let br = bridge(&config, &dir);
+    // The bridge's iceoryx2 publisher and the compensator's subscriber meet.
+    let probe = StreamSubscriber::<vibro_msgs::Heartbeat>::open(
+        &node,
+        &names,
+        Stream::Heartbeat(ServiceId::Compensator),
+    )
+    .unwrap();
+    wait_until("the compensator's heartbeat", Duration::from_secs(20), || {
+        probe.receive().unwrap().is_some()
+    });
+
+    let mut zc = zenoh::Config::default();
+    zc.insert_json5("mode", "\"peer\"").unwrap();
+    zc.insert_json5("connect/endpoints", &format!("[\"tcp/127.0.0.1:{port}\"]"))
+        .unwrap();
+    zc.insert_json5("connect/timeout_ms", "10000").unwrap();
+    zc.insert_json5("connect/exit_on_failure", "true").unwrap();
+    zc.insert_json5("listen/endpoints", "[]").unwrap();
+    zc.insert_json5("scouting/multicast/enabled", "false").unwrap();
+    let session = zenoh::open(zc).wait().unwrap();
+    let publisher = session
+        .declare_publisher(format!("{key_prefix}/accel"))
+        .encoding(vibro_bridge::encoding_of(vibro_msgs::MessageKind::AccelBlock))
+        .congestion_control(zenoh::qos::CongestionControl::Block)
+        .wait()
+        .unwrap();
+    wait_until("the bridge's Zenoh subscriber", Duration::from_secs(10), || {
+        publisher.matching_status().wait().unwrap().matching()
+    });
+    let order = [0u64, 1, 2, 3, 6, 4, 7, 8, 9];
+    for seq in order {
+        publisher.put(accel_block(seq).bytes()).wait().unwrap();
+    }
+    // Blocks 0..=3, 6..=9 compensated; 4 (late) refused, 5 never sent.
+    let mut got = Vec::new();
+    wait_until("8 compensated blocks", Duration::from_secs(10), || {
+        while let Some(b) = out.receive().unwrap() {
+            got.push(*b);
+        }
+        got.len() >= 8
+    });
+    drop(publisher);
+    session.close().wait().unwrap();
+    let b = br.summary();
+    let c = comp.summary();
+    let inputs: Vec<u64> = got.iter().map(|b| b.input_seq).collect();
+    assert_eq!(inputs, [0, 1, 2, 3, 6, 7, 8, 9]);
+    for blk in &got {
+        let gap = blk.flags & cf::INPUT_GAP != 0;
+        assert_eq!(gap, blk.input_seq == 6, "block {}: flags {:#x}", blk.input_seq, blk.flags);
+    }
+    // The reference: what this test did. Never sent: 1 (seq 5); late: 1 (seq 4), so when
+    // seq 6 arrived two were missing, and one of them came after.
+    let (never_sent, late) = (1u64, 1u64);
+    let s = &b["streams"][0];
+    assert_eq!(s["stream"], "accel", "{b}");
+    assert_eq!(s["forwarded"], order.len() as u64, "{b}");
+    assert_eq!(s["gap_messages"], never_sent + late, "{b}");
+    assert_eq!(s["out_of_order"], late, "{b}");
+    assert_eq!(s["queue_dropped"], 0, "{b}");
+    assert_eq!(c["accel"]["lost_messages"], never_sent + late, "{c}");
+    assert_eq!(c["accel"]["out_of_order"], late, "{c}");
+    assert_eq!(c["accel"]["lost_samples"], (never_sent + late) * 32, "{c}");
+}
+
+/// The Python `eclipse-zenoh` client subscribes to the compensated stream a bridge
+/// exports and decodes it by docs/messages.md; every field of every block equals the
+/// block read from iceoryx2 here (doubles bit for bit).
+#[test]
+fn a_python_zenoh_client_decodes_the_bridged_compensated_stream() {
+    const BLOCKS: u64 = 12;
+    let dir = Dir::new("py");
+    let prefix = prefix("p");
+    let port = free_port().unwrap();
+    let key_prefix = format!("vibrocomp/py{}", next_id());
+    let config = write(
+        &dir.path("b.toml"),
+        &format!(
+            "prefix = {prefix:?}\nkey_prefix = {key_prefix:?}\n[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\nconnect_timeout_s = 5.0\n[export]\nstreams = [\"compensated\"]\n"
+        ),
+    );
+    let names = ServiceNames::new(&prefix).unwrap();
+    let node = create_node("vcb-py").unwrap();
+    let out = StreamSubscriber::<CompensatedBlock>::open(&node, &names, Stream::Compensated).unwrap();
+    let mut accel = StreamPublisher::<AccelBlock>::open(&node, &names, Stream::Accel).unwrap();
+    let comp = compensator(&prefix, &dir);
+    let br = bridge(&config, &dir);
+    let py_out = dir.path("py.stdout");
+    let mut py = Command::new("python3")
+        .arg(repo_path("tests/python/zenoh_client.py"))
+        .args([
+            &format!("tcp/127.0.0.1:{port}"),
+            &format!("{key_prefix}/compensated"),
+            "CompensatedBlock",
+            &BLOCKS.to_string(),
+            "30",
+        ])
+        .stdout(std::fs::File::create(&py_out).unwrap())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
+    wait_until("the Python client", Duration::from_secs(20), || {
+        std::fs::read_to_string(&py_out).unwrap_or_default().starts_with("ready")
+    });
+    wait_until("the compensator's accel subscriber", Duration::from_secs(20), || {
+        accel.subscriber_count() >= 1
+    });
+    // The client's subscription reaches the bridge (a message sent before that is
+    // counted unmatched, and this test would fail on the count below).
+    std::thread::sleep(Duration::from_millis(1000));
+    for seq in 0..BLOCKS {
+        accel.publish(&accel_block(seq)).unwrap();
+    }
+    let mut local = Vec::new();
+    wait_until("the compensated blocks", Duration::from_secs(10), || {
+        while let Some(b) = out.receive().unwrap() {
+            local.push(*b);
+        }
+        local.len() as u64 >= BLOCKS
+    });
+    let status = py.wait().unwrap();
+    let err = {
+        use std::io::Read;
+        let mut s = String::new();
+        py.stderr.take().unwrap().read_to_string(&mut s).unwrap();
+        s
+    };
+    assert!(status.success(), "zenoh_client.py: {status}\n{err}");
+    let b = br.summary();
+    drop(comp);
+    assert_eq!(b["streams"][0]["forwarded"], BLOCKS, "{b}");
+    assert_eq!(b["lost"], 0, "{b}");
+    let text = std::fs::read_to_string(&py_out).unwrap();
+    let decoded: Vec<Value> = text
+        .lines()
+        .skip(1)
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(decoded.len() as u64, BLOCKS);
+    for (d, blk) in decoded.iter().zip(&local) {
+        assert_eq!(d["key"], format!("{key_prefix}/compensated"));
+        let f = &d["fields"];
+        assert_eq!(f["seq"], blk.seq);
+        assert_eq!(f["input_seq"], blk.input_seq);
+        assert_eq!(f["t0_ns"], blk.t0_ns);
+        assert_eq!(f["sample_period_ns"], blk.sample_period_ns);
+        assert_eq!(f["publish_ns"], blk.publish_ns);
+        assert_eq!(f["count"], blk.count);
+        assert_eq!(f["source_id"], blk.source_id);
+        assert_eq!(f["flags"], blk.flags);
+        assert_eq!(f["mode"], blk.mode);
+        for (name, arr) in [("a1_g", &blk.a1_g), ("a2_g", &blk.a2_g), ("a4_g", &blk.a4_g)] {
+            let bits: Vec<u64> = arr.iter().flatten().map(|x| x.to_bits()).collect();
+            let py_bits: Vec<u64> = f[name]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_u64().unwrap())
+                .collect();
+            assert_eq!(py_bits, bits, "{name} of block {}", blk.seq);
+        }
+    }
+}
+
+/// The compensated blocks of a recording, without the stamps of the clock of the
+/// machine (`input_publish_ns`, `recv_ns`, `publish_ns`), as bytes.
+fn compensated_of(session: &Path) -> Vec<Vec<u8>> {
+    let recs: Vec<vibro_mcap::Record> = vibro_mcap::Reader::open(session)
+        .unwrap()
+        .map(|r| r.unwrap())
+        .collect();
+    recs.iter()
+        .filter_map(|r| match &r.message {
+            vibro_mcap::Message::CompensatedBlock(b) if &*r.topic == "/compensated" => {
+                let mut b = *b;
+                b.input_publish_ns = 0;
+                b.recv_ns = 0;
+                b.publish_ns = 0;
+                Some(b.bytes().to_vec())
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+/// `demo --hosts 2`: the flight replayed on host A into the services on host B (another
+/// iceoryx2 root), recorded on host A, only Zenoh between them. The compensated output
+/// is the one-host run's, bit for bit, and the same table is printed.
+#[test]
+fn the_two_host_demo_is_bit_identical_to_the_one_host_demo() {
+    let dir = Dir::new("demo");
+    let text = std::fs::read_to_string(repo_path("config/scenarios/cyclone-4-short.toml"))
+        .unwrap()
+        .replace("duration_s = 20.0", "duration_s = 3.0");
+    let scenario = write(&dir.path("short.toml"), &text);
+    let run = |hosts: &str, out: &str| {
+        let o = bin()
+            .current_dir(repo_path(""))
+            .args([
+                "demo",
+                "--scenario",
+                scenario.to_str().unwrap(),
+                "--out-dir",
+                dir.path(out).to_str().unwrap(),
+                "--hosts",
+                hosts,
+                "--json",
+            ])
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "demo --hosts {hosts}: {}\n{}",
+            String::from_utf8_lossy(&o.stderr),
+            std::fs::read_to_string(dir.path(out).join("services.log")).unwrap_or_default()
+        );
+        serde_json::from_slice::<Value>(&o.stdout).unwrap()
+    };
+    let one = run("1", "one");
+    let two = run("2", "two");
+    let a = compensated_of(&dir.path("one/session.mcap"));
+    let b = compensated_of(&dir.path("two/session.mcap"));
+    assert!(a.len() > 50, "{} compensated blocks", a.len());
+    assert_eq!(a.len(), b.len());
+    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+        assert!(x == y, "compensated block {i} differs between one and two hosts");
+    }
+    assert_eq!(one["errors"], two["errors"]);
+    assert_eq!(two["lost_messages"], 0, "{two}");
+    assert_eq!(two["bridges"].as_array().unwrap().len(), 2, "{two}");
+    for br in two["bridges"].as_array().unwrap() {
+        assert_eq!(br["summary"]["lost"], 0, "{br}");
+    }
+    // Nothing of the two hosts' iceoryx2 roots is left.
+    let leftovers: Vec<_> = std::fs::read_dir(std::env::temp_dir())
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| {
+            let n = e.file_name().to_string_lossy().into_owned();
+            n.starts_with("iox2-vcd") && n.contains(&format!("{}", two["prefix"].as_str().unwrap().trim_start_matches("vcdemo-").trim_end_matches('/')))
+        })
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+}
