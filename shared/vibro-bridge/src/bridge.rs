@@ -308,6 +308,8 @@ trait ExportPort {
     /// A progress stream: takes what is there now, sent by the next [`Self::drain`].
     fn hold(&self) -> Result<()>;
     fn drain(&self) -> Result<usize>;
+    /// At stop: what is still pending never reached anybody.
+    fn finish(&self);
 }
 
 /// Most progress messages held through one pass (a stream's subscriber buffer).
@@ -319,7 +321,14 @@ struct Exporter<T: WireMessage> {
     /// messages are taken first and sent after the other streams' of the same pass,
     /// so that on the other side none overtakes an output it reports.
     deferred: bool,
-    held: std::cell::RefCell<Vec<vibro_ipc::Received<T>>>,
+    /// Copies (a subscriber may borrow only 2 samples from shared memory at a time).
+    held: std::cell::RefCell<Vec<T>>,
+    /// A stream with a history for late subscribers (`estimate` 1, `log/*` 32,
+    /// `vibro_ipc::stream_config`): the last that many messages taken while nobody on
+    /// the other side was matched, sent when somebody is (as iceoryx2 would to a late
+    /// subscriber); older ones are counted `unmatched`.
+    history: usize,
+    pending: std::cell::RefCell<std::collections::VecDeque<T>>,
     publisher: zenoh::pubsub::Publisher<'static>,
     matched: Arc<AtomicBool>,
     stats: Arc<StreamStats>,
@@ -365,9 +374,12 @@ impl<T: WireMessage> Exporter<T> {
                 reason: e.to_string(),
             })?;
         let deferred = matches!(stream, Stream::Progress(_));
+        let history = vibro_ipc::stream_config(stream).history;
         Ok(Self {
             sub,
             deferred,
+            history,
+            pending: std::cell::RefCell::new(std::collections::VecDeque::with_capacity(history)),
             held: std::cell::RefCell::new(Vec::with_capacity(if deferred {
                 HOLD_MAX
             } else {
@@ -393,12 +405,17 @@ impl<T: WireMessage> ExportPort for Exporter<T> {
         }
     }
 
+    fn finish(&self) {
+        let n = self.pending.borrow().len() as u64;
+        StreamStats::add(&self.stats.unmatched, n);
+    }
+
     fn hold(&self) -> Result<()> {
         if self.deferred {
             let mut held = self.held.borrow_mut();
             while held.len() < HOLD_MAX {
                 match self.sub.receive()? {
-                    Some(s) => held.push(s),
+                    Some(s) => held.push(*s),
                     None => break,
                 }
             }
@@ -407,11 +424,17 @@ impl<T: WireMessage> ExportPort for Exporter<T> {
     }
 
     fn drain(&self) -> Result<usize> {
+        if self.history > 0 && self.matched.load(Ordering::Acquire) {
+            let mut pending = self.pending.borrow_mut();
+            while let Some(m) = pending.pop_front() {
+                self.send(m.bytes());
+            }
+        }
         if self.deferred {
             let mut held = self.held.borrow_mut();
             let n = held.len();
-            for sample in held.iter() {
-                self.send(sample.bytes());
+            for m in held.iter() {
+                self.send(m.bytes());
             }
             held.clear();
             return Ok(n);
@@ -419,6 +442,15 @@ impl<T: WireMessage> ExportPort for Exporter<T> {
         let mut n = 0;
         while let Some(sample) = self.sub.receive()? {
             n += 1;
+            if self.history > 0 && !self.matched.load(Ordering::Acquire) {
+                let mut pending = self.pending.borrow_mut();
+                if pending.len() == self.history {
+                    pending.pop_front();
+                    StreamStats::add(&self.stats.unmatched, 1);
+                }
+                pending.push_back(*sample);
+                continue;
+            }
             self.send(sample.bytes());
         }
         Ok(n)
@@ -499,6 +531,9 @@ fn export_loop(
         }
     }
     drop(guards);
+    for p in &ports {
+        p.finish();
+    }
     Ok(())
 }
 
