@@ -40,7 +40,8 @@ struct Dir(PathBuf);
 
 impl Dir {
     fn new(what: &str) -> Self {
-        let d = std::env::temp_dir().join(format!("vcb-{what}-{}-{}", std::process::id(), next_id()));
+        let d =
+            std::env::temp_dir().join(format!("vcb-{what}-{}-{}", std::process::id(), next_id()));
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(&d).unwrap();
         Self(d)
@@ -106,7 +107,9 @@ impl Kid {
             self.stderr()
         );
         let text = String::from_utf8_lossy(&out.stdout);
-        let start = text.find('{').unwrap_or_else(|| panic!("{}: no JSON in {text:?}", self.name));
+        let start = text
+            .find('{')
+            .unwrap_or_else(|| panic!("{}: no JSON in {text:?}", self.name));
         serde_json::from_str(&text[start..]).unwrap()
     }
 }
@@ -114,7 +117,9 @@ impl Kid {
 impl Drop for Kid {
     fn drop(&mut self) {
         if let Some(mut c) = self.child.take() {
-            let _ = Command::new("kill").args(["-TERM", &c.id().to_string()]).status();
+            let _ = Command::new("kill")
+                .args(["-TERM", &c.id().to_string()])
+                .status();
             let start = Instant::now();
             while start.elapsed() < Duration::from_secs(5) {
                 if let Ok(Some(_)) = c.try_wait() {
@@ -143,7 +148,9 @@ fn compensator(prefix: &str, dir: &Dir) -> Kid {
             "--prefix",
             prefix,
             "--config",
-            repo_path("config/services/compensator.toml").to_str().unwrap(),
+            repo_path("config/services/compensator.toml")
+                .to_str()
+                .unwrap(),
             "--json",
         ]),
         dir,
@@ -197,7 +204,10 @@ fn bridge_config_errors_name_file_line_key_and_every_problem() {
     assert_eq!(e["file"], unknown.to_str().unwrap(), "{v}");
     assert_eq!(e["line"], 6, "{v}");
     assert!(
-        e["message"].as_str().unwrap().contains("conect: unknown key (did you mean connect?)"),
+        e["message"]
+            .as_str()
+            .unwrap()
+            .contains("conect: unknown key (did you mean connect?)"),
         "{v}"
     );
 
@@ -258,7 +268,11 @@ fn an_unreachable_peer_fails_at_start_naming_the_endpoint() {
         "{text}"
     );
     assert!(text.contains("connect_timeout_s = 0.5"), "{text}");
-    assert!(start.elapsed() < Duration::from_secs(8), "{:?}", start.elapsed());
+    assert!(
+        start.elapsed() < Duration::from_secs(8),
+        "{:?}",
+        start.elapsed()
+    );
 }
 
 /// This test stands for a remote bridge: it puts accelerometer blocks 0..=9 into Zenoh
@@ -279,7 +293,8 @@ fn a_message_lost_or_reordered_on_the_network_is_counted_and_flagged() {
     );
     let names = ServiceNames::new(&prefix).unwrap();
     let node = create_node("vcb-loss").unwrap();
-    let out = StreamSubscriber::<CompensatedBlock>::open(&node, &names, Stream::Compensated).unwrap();
+    let out =
+        StreamSubscriber::<CompensatedBlock>::open(&node, &names, Stream::Compensated).unwrap();
     let comp = compensator(&prefix, &dir);
     let br = bridge(&config, &dir);
     // The bridge's iceoryx2 publisher and the compensator's subscriber meet.
@@ -289,9 +304,11 @@ fn a_message_lost_or_reordered_on_the_network_is_counted_and_flagged() {
         Stream::Heartbeat(ServiceId::Compensator),
     )
     .unwrap();
-    wait_until("the compensator's heartbeat", Duration::from_secs(20), || {
-        probe.receive().unwrap().is_some()
-    });
+    wait_until(
+        "the compensator's heartbeat",
+        Duration::from_secs(20),
+        || probe.receive().unwrap().is_some(),
+    );
 
     let mut zc = zenoh::Config::default();
     zc.insert_json5("mode", "\"peer\"").unwrap();
@@ -300,17 +317,22 @@ fn a_message_lost_or_reordered_on_the_network_is_counted_and_flagged() {
     zc.insert_json5("connect/timeout_ms", "10000").unwrap();
     zc.insert_json5("connect/exit_on_failure", "true").unwrap();
     zc.insert_json5("listen/endpoints", "[]").unwrap();
-    zc.insert_json5("scouting/multicast/enabled", "false").unwrap();
+    zc.insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
     let session = zenoh::open(zc).wait().unwrap();
     let publisher = session
         .declare_publisher(format!("{key_prefix}/accel"))
-        .encoding(vibro_bridge::encoding_of(vibro_msgs::MessageKind::AccelBlock))
+        .encoding(vibro_bridge::encoding_of(
+            vibro_msgs::MessageKind::AccelBlock,
+        ))
         .congestion_control(zenoh::qos::CongestionControl::Block)
         .wait()
         .unwrap();
-    wait_until("the bridge's Zenoh subscriber", Duration::from_secs(10), || {
-        publisher.matching_status().wait().unwrap().matching()
-    });
+    wait_until(
+        "the bridge's Zenoh subscriber",
+        Duration::from_secs(10),
+        || publisher.matching_status().wait().unwrap().matching(),
+    );
     let order = [0u64, 1, 2, 3, 6, 4, 7, 8, 9];
     for seq in order {
         publisher.put(accel_block(seq).bytes()).wait().unwrap();
@@ -331,7 +353,13 @@ fn a_message_lost_or_reordered_on_the_network_is_counted_and_flagged() {
     assert_eq!(inputs, [0, 1, 2, 3, 6, 7, 8, 9]);
     for blk in &got {
         let gap = blk.flags & cf::INPUT_GAP != 0;
-        assert_eq!(gap, blk.input_seq == 6, "block {}: flags {:#x}", blk.input_seq, blk.flags);
+        assert_eq!(
+            gap,
+            blk.input_seq == 6,
+            "block {}: flags {:#x}",
+            blk.input_seq,
+            blk.flags
+        );
     }
     // The reference: what this test did. Never sent: 1 (seq 5); late: 1 (seq 4), so when
     // seq 6 arrived two were missing, and one of them came after.
@@ -365,7 +393,8 @@ fn a_python_zenoh_client_decodes_the_bridged_compensated_stream() {
     );
     let names = ServiceNames::new(&prefix).unwrap();
     let node = create_node("vcb-py").unwrap();
-    let out = StreamSubscriber::<CompensatedBlock>::open(&node, &names, Stream::Compensated).unwrap();
+    let out =
+        StreamSubscriber::<CompensatedBlock>::open(&node, &names, Stream::Compensated).unwrap();
     let mut accel = StreamPublisher::<AccelBlock>::open(&node, &names, Stream::Accel).unwrap();
     let comp = compensator(&prefix, &dir);
     let br = bridge(&config, &dir);
@@ -384,11 +413,15 @@ fn a_python_zenoh_client_decodes_the_bridged_compensated_stream() {
         .spawn()
         .expect("python3 runs (pip install -r tests/python/requirements.txt)");
     wait_until("the Python client", Duration::from_secs(20), || {
-        std::fs::read_to_string(&py_out).unwrap_or_default().starts_with("ready")
+        std::fs::read_to_string(&py_out)
+            .unwrap_or_default()
+            .starts_with("ready")
     });
-    wait_until("the compensator's accel subscriber", Duration::from_secs(20), || {
-        accel.subscriber_count() >= 1
-    });
+    wait_until(
+        "the compensator's accel subscriber",
+        Duration::from_secs(20),
+        || accel.subscriber_count() >= 1,
+    );
     // The client's subscription reaches the bridge (a message sent before that is
     // counted unmatched, and this test would fail on the count below).
     std::thread::sleep(Duration::from_millis(1000));
@@ -433,7 +466,11 @@ fn a_python_zenoh_client_decodes_the_bridged_compensated_stream() {
         assert_eq!(f["source_id"], blk.source_id);
         assert_eq!(f["flags"], blk.flags);
         assert_eq!(f["mode"], blk.mode);
-        for (name, arr) in [("a1_g", &blk.a1_g), ("a2_g", &blk.a2_g), ("a4_g", &blk.a4_g)] {
+        for (name, arr) in [
+            ("a1_g", &blk.a1_g),
+            ("a2_g", &blk.a2_g),
+            ("a4_g", &blk.a4_g),
+        ] {
             let bits: Vec<u64> = arr.iter().flatten().map(|x| x.to_bits()).collect();
             let py_bits: Vec<u64> = f[name]
                 .as_array()
@@ -507,7 +544,10 @@ fn the_two_host_demo_is_bit_identical_to_the_one_host_demo() {
     assert!(a.len() > 50, "{} compensated blocks", a.len());
     assert_eq!(a.len(), b.len());
     for (i, (x, y)) in a.iter().zip(&b).enumerate() {
-        assert!(x == y, "compensated block {i} differs between one and two hosts");
+        assert!(
+            x == y,
+            "compensated block {i} differs between one and two hosts"
+        );
     }
     assert_eq!(one["errors"], two["errors"]);
     assert_eq!(two["lost_messages"], 0, "{two}");
@@ -515,14 +555,193 @@ fn the_two_host_demo_is_bit_identical_to_the_one_host_demo() {
     for br in two["bridges"].as_array().unwrap() {
         assert_eq!(br["summary"]["lost"], 0, "{br}");
     }
-    // Nothing of the two hosts' iceoryx2 roots is left.
-    let leftovers: Vec<_> = std::fs::read_dir(std::env::temp_dir())
-        .unwrap()
-        .filter_map(|e| e.ok())
-        .filter(|e| {
+    // Nothing of the two hosts' iceoryx2 roots is left, in /tmp or in /dev/shm.
+    let tag = format!(
+        "vcd{}",
+        two["prefix"]
+            .as_str()
+            .unwrap()
+            .trim_start_matches("vcdemo-")
+            .trim_end_matches('/')
+    );
+    let mut leftovers = Vec::new();
+    for folder in [std::env::temp_dir(), PathBuf::from("/dev/shm")] {
+        for e in std::fs::read_dir(&folder).unwrap().flatten() {
             let n = e.file_name().to_string_lossy().into_owned();
-            n.starts_with("iox2-vcd") && n.contains(&format!("{}", two["prefix"].as_str().unwrap().trim_start_matches("vcdemo-").trim_end_matches('/')))
-        })
-        .collect();
+            if n.starts_with(&format!("iox2-{tag}"))
+                || n.starts_with(&format!("{tag}a_"))
+                || n.starts_with(&format!("{tag}b_"))
+            {
+                leftovers.push(e.path());
+            }
+        }
+    }
     assert!(leftovers.is_empty(), "{leftovers:?}");
+}
+
+/// A bridge killed mid-run: host B (`vibrocomp up --bridge`, services and bridge in
+/// their own iceoryx2 root) and host A (this test's root: its bridge, a paced replay,
+/// and this test reading what comes back). Host B's bridge is killed with SIGKILL two
+/// seconds in; `up` restarts it. Host A's bridge counts what it sent while nobody
+/// listened (`unmatched`); the compensator on host B counts the same blocks as a gap
+/// in `seq` (its progress messages, bridged back, carry `lost`), flags the block after
+/// the gap `INPUT_GAP`, the blocks until the estimator's window is full again
+/// `VIBRATION_ESTIMATE_STALE`, and recovers.
+#[test]
+fn a_bridge_killed_mid_run_is_restarted_and_the_gap_is_counted_on_both_sides() {
+    use crate::processes::{children, flight_log, kill, Dir as PDir};
+    let pdir = PDir::new("bkill");
+    let dir = Dir::new("bkill");
+    let prefix = prefix("k");
+    let flight = flight_log(&pdir, "6");
+    let tag = format!("vck{}x{}", std::process::id(), next_id());
+    let hosts = vibrocomp::hosts::TwoHosts::create(&dir.path("hosts"), &tag, &prefix).unwrap();
+    // The shipped model with estimates stale after 1.2 s instead of 2 s: in steady
+    // state an estimate is at most a hop (0.5 s) old, and the outage (about 1 s: the
+    // restart's back-off and the reconnection) then ages it past 1.2 s.
+    let comp_config = write(
+        &dir.path("compensator.toml"),
+        "prefix = \"vibrocomp/\"\nmode = \"exact\"\ntriad = \"default\"\nmax_estimate_age_s = 1.2\nreload_poll_s = 0.0\n",
+    );
+    <vibro_compensator::Config as vibro_service::ServiceConfig>::load(&comp_config).unwrap();
+    let up = Kid::spawn(
+        "up",
+        bin()
+            .current_dir(&hosts.b.dir)
+            .args(["up", "--json", "--prefix", &prefix, "--bridge"])
+            .arg(&hosts.b.bridge_config)
+            .arg("--estimator-config")
+            .arg(repo_path("config/services/estimator.toml"))
+            .arg("--compensator-config")
+            .arg(&comp_config),
+        &dir,
+    );
+    // Host A's bridge runs in this process's iceoryx2 root.
+    let br_a = bridge(&hosts.a.bridge_config, &dir);
+    let names = ServiceNames::new(&prefix).unwrap();
+    let node = create_node("vcb-kill").unwrap();
+    let out =
+        StreamSubscriber::<CompensatedBlock>::open(&node, &names, Stream::Compensated).unwrap();
+    let progress = StreamSubscriber::<vibro_msgs::Heartbeat>::open(
+        &node,
+        &names,
+        Stream::Progress(ServiceId::Compensator),
+    )
+    .unwrap();
+    let hb = StreamSubscriber::<vibro_msgs::Heartbeat>::open(
+        &node,
+        &names,
+        Stream::Heartbeat(ServiceId::Compensator),
+    )
+    .unwrap();
+    wait_until(
+        "host B's compensator heartbeat on host A",
+        Duration::from_secs(30),
+        || hb.receive().unwrap().is_some(),
+    );
+    let up_pid = up.child.as_ref().unwrap().id();
+    let mut replay = Kid::spawn(
+        "replay",
+        bin()
+            .args(["replay", "--rate", "1", "--prefix", &prefix, "--json"])
+            .arg(&flight),
+        &dir,
+    );
+    let mut blocks: Vec<CompensatedBlock> = Vec::new();
+    let mut lost = 0;
+    let mut killed_after = None;
+    let start = Instant::now();
+    loop {
+        while let Some(b) = out.receive().unwrap() {
+            blocks.push(*b);
+        }
+        while let Some(p) = progress.receive().unwrap() {
+            lost = p.lost;
+        }
+        if killed_after.is_none() && blocks.len() >= 50 {
+            let (pid, _) = children(up_pid)
+                .into_iter()
+                .find(|(_, cmd)| cmd.contains(" bridge "))
+                .expect("host B's bridge under up");
+            kill(pid, libc::SIGKILL);
+            killed_after = Some(blocks.last().unwrap().input_seq);
+        }
+        if replay.child.as_mut().unwrap().try_wait().unwrap().is_some() {
+            break;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "the replay did not end"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // What is still on its way back.
+    std::thread::sleep(Duration::from_millis(500));
+    while let Some(b) = out.receive().unwrap() {
+        blocks.push(*b);
+    }
+    while let Some(p) = progress.receive().unwrap() {
+        lost = p.lost;
+    }
+    let _ = replay.summary();
+    let a = br_a.summary();
+    let report = up.summary();
+    let killed_after = killed_after.expect("the bridge was killed");
+
+    let bridge_report = report["processes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["role"] == "bridge")
+        .unwrap_or_else(|| panic!("{report}"));
+    assert_eq!(bridge_report["starts"], 2, "{report}");
+    assert_eq!(bridge_report["crashes"], 1, "{report}");
+    let stream = |name: &str| {
+        a["streams"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["stream"] == name)
+            .unwrap()
+            .clone()
+    };
+    let unmatched = stream("accel")["unmatched"].as_u64().unwrap();
+    assert!(unmatched > 0, "{a}");
+    assert!(stream("vib")["unmatched"].as_u64().unwrap() > 0, "{a}");
+    // Both sides count the same gap; a block already on the wire when the bridge died
+    // is counted by the compensator only (at most the link's few in flight).
+    assert!(
+        (unmatched..=unmatched + 2).contains(&lost),
+        "host A's bridge sent {unmatched} accelerometer blocks while nobody listened; the compensator counted {lost} lost"
+    );
+    let after: Vec<&CompensatedBlock> = blocks
+        .iter()
+        .filter(|b| b.input_seq > killed_after)
+        .collect();
+    assert!(
+        after.iter().any(|b| b.flags & cf::INPUT_GAP != 0),
+        "no block after the restart flagged INPUT_GAP"
+    );
+    // On the way back: compensated blocks the dead bridge never sent are a gap in
+    // their `seq` here, counted by host A's bridge as the test sees it.
+    let missing: u64 = blocks.windows(2).map(|w| w[1].seq - w[0].seq - 1).sum();
+    assert_eq!(stream("compensated")["gap_messages"], missing, "{a}");
+    assert!(
+        after
+            .iter()
+            .any(|b| b.flags & cf::VIBRATION_ESTIMATE_STALE != 0),
+        "no stale block after the gap ({unmatched} blocks unmatched): {:?}",
+        after
+            .iter()
+            .map(|b| (b.input_seq, b.flags, b.estimate_age_ns / 1_000_000))
+            .collect::<Vec<_>>()
+    );
+    let last = blocks.last().unwrap();
+    assert_eq!(
+        last.flags & (cf::VIBRATION_ESTIMATE_STALE | cf::MAIN_ONLY | cf::ESTIMATE_MISSING),
+        0,
+        "not recovered by the end: {:#x}",
+        last.flags
+    );
+    drop(hosts);
 }

@@ -31,6 +31,8 @@ pub fn compute_to_rig() -> Vec<Stream> {
 #[derive(Debug, Clone)]
 pub struct Host {
     pub dir: PathBuf,
+    /// The prefix of its files in /dev/shm (iceoryx2's `global.prefix`).
+    pub shm_prefix: String,
     /// The iceoryx2 root (`root-path`), removed when the hosts are dropped.
     pub root: PathBuf,
     /// `{dir}/config/iceoryx2.toml`.
@@ -92,10 +94,11 @@ impl TwoHosts {
                 .with_context(|| format!("creating {}", dir.display()))?;
             let root = std::env::temp_dir().join(format!("iox2-{tag}-{name}"));
             let iceoryx_config = dir.join("config/iceoryx2.toml");
+            let shm_prefix = format!("{tag}{name}_");
             std::fs::write(
                 &iceoryx_config,
                 format!(
-                    "[global]\nroot-path = \"{}/\"\nprefix = \"{tag}{name}_\"\n",
+                    "[global]\nroot-path = \"{}/\"\nprefix = \"{shm_prefix}\"\n",
                     root.display()
                 ),
             )
@@ -108,6 +111,7 @@ impl TwoHosts {
             .with_context(|| format!("writing {}", bridge_config.display()))?;
             anyhow::Ok(Host {
                 dir,
+                shm_prefix,
                 root,
                 iceoryx_config,
                 bridge_config,
@@ -122,9 +126,18 @@ impl TwoHosts {
 
 impl Drop for TwoHosts {
     fn drop(&mut self) {
-        // The roots hold only the files of nodes and services that are gone by now.
+        // The roots hold only the files of nodes and services that are gone by now,
+        // and /dev/shm iceoryx2's management segment of each prefix (which it keeps
+        // for the next process of that prefix: there is none).
         for h in [&self.a, &self.b] {
             let _ = std::fs::remove_dir_all(&h.root);
+            if let Ok(entries) = std::fs::read_dir("/dev/shm") {
+                for e in entries.flatten() {
+                    if e.file_name().to_string_lossy().starts_with(&h.shm_prefix) {
+                        let _ = std::fs::remove_file(e.path());
+                    }
+                }
+            }
         }
     }
 }

@@ -169,7 +169,11 @@ pub fn run(config: &BridgeConfig, stop: &AtomicBool) -> Result<BridgeSummary> {
 }
 
 /// [`run`] on an open session.
-pub fn run_on(config: &BridgeConfig, session: &Session, stop: &AtomicBool) -> Result<BridgeSummary> {
+pub fn run_on(
+    config: &BridgeConfig,
+    session: &Session,
+    stop: &AtomicBool,
+) -> Result<BridgeSummary> {
     let zid = session.zid().to_string();
     let export_stats: Vec<Arc<StreamStats>> =
         config.export.iter().map(|_| Arc::default()).collect();
@@ -210,8 +214,8 @@ pub fn run_on(config: &BridgeConfig, session: &Session, stop: &AtomicBool) -> Re
                     r
                 })
         });
-        let join = |h: Option<std::io::Result<std::thread::ScopedJoinHandle<'_, Result<()>>>>| {
-            match h {
+        let join =
+            |h: Option<std::io::Result<std::thread::ScopedJoinHandle<'_, Result<()>>>>| match h {
                 None => Ok(()),
                 Some(Err(e)) => {
                     failed.store(true, Ordering::Release);
@@ -220,8 +224,7 @@ pub fn run_on(config: &BridgeConfig, session: &Session, stop: &AtomicBool) -> Re
                 Some(Ok(h)) => h
                     .join()
                     .unwrap_or_else(|_| Err(Error::Thread("a bridge thread panicked".into()))),
-            }
-        };
+            };
         (join(export), join(import))
     });
     export_result?;
@@ -380,11 +383,7 @@ impl<T: WireMessage> Exporter<T> {
             deferred,
             history,
             pending: std::cell::RefCell::new(std::collections::VecDeque::with_capacity(history)),
-            held: std::cell::RefCell::new(Vec::with_capacity(if deferred {
-                HOLD_MAX
-            } else {
-                0
-            })),
+            held: std::cell::RefCell::new(Vec::with_capacity(if deferred { HOLD_MAX } else { 0 })),
             publisher,
             matched,
             stats,
@@ -485,6 +484,8 @@ fn export_loop(
     stopping: &dyn Fn() -> bool,
 ) -> Result<()> {
     let node = create_node("vibrocomp-bridge-out")?;
+    // A bridge killed before this one (restarted by `vibrocomp up`) left its ports.
+    vibro_ipc::cleanup_dead_nodes(&node);
     let mut ports: Vec<Box<dyn ExportPort>> = Vec::with_capacity(config.export.len());
     for (stream, st) in config.export.iter().zip(stats) {
         let key = config.key(*stream);
@@ -502,15 +503,13 @@ fn export_loop(
     let waitset = create_waitset()?;
     let mut guards = Vec::with_capacity(ports.len());
     for (p, s) in ports.iter().zip(&config.export) {
-        guards.push(
-            waitset
-                .attach_notification(p.listener())
-                .map_err(|e| vibro_ipc::Error::Iceoryx {
-                    operation: "attach to the wait set",
-                    service: config.names.event(*s),
-                    reason: format!("{e:?}"),
-                })?,
-        );
+        guards.push(waitset.attach_notification(p.listener()).map_err(|e| {
+            vibro_ipc::Error::Iceoryx {
+                operation: "attach to the wait set",
+                service: config.names.event(*s),
+                reason: format!("{e:?}"),
+            }
+        })?);
     }
     while !stopping() {
         waitset
@@ -641,6 +640,9 @@ impl<T: WireMessage> ImportPort for Importer<T> {
     }
 }
 
+/// A received sample and the index of its import stream.
+type Queued = (usize, Sample);
+
 fn import_loop(
     config: &BridgeConfig,
     session: &Session,
@@ -648,6 +650,7 @@ fn import_loop(
     stopping: &dyn Fn() -> bool,
 ) -> Result<()> {
     let node = create_node("vibrocomp-bridge-in")?;
+    vibro_ipc::cleanup_dead_nodes(&node);
     let mut ports: Vec<Box<dyn ImportPort>> = Vec::with_capacity(config.import.len());
     for (stream, st) in config.import.iter().zip(stats) {
         let key = config.key(*stream);
@@ -659,8 +662,7 @@ fn import_loop(
     // One bounded queue between Zenoh's receive tasks and this thread: a full queue
     // drops the newest message and counts it (the publisher's `seq` shows the gap
     // downstream too).
-    let (tx, rx): (SyncSender<(usize, Sample)>, Receiver<(usize, Sample)>) =
-        sync_channel(config.queue_depth);
+    let (tx, rx): (SyncSender<Queued>, Receiver<Queued>) = sync_channel(config.queue_depth);
     let mut subscribers = Vec::with_capacity(config.import.len());
     for (i, (stream, st)) in config.import.iter().zip(stats).enumerate() {
         let key = config.key(*stream);

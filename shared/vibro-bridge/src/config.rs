@@ -295,7 +295,9 @@ impl BridgeConfig {
             p.push("import.congestion: set on the exporting side (export.congestion)".into());
         }
         if raw.export.queue_depth.is_some() {
-            p.push("export.queue_depth: the queue is the importing side's (import.queue_depth)".into());
+            p.push(
+                "export.queue_depth: the queue is the importing side's (import.queue_depth)".into(),
+            );
         }
         let congestion = match raw.export.congestion.as_deref() {
             None | Some("block") => Congestion::Block,
@@ -347,10 +349,20 @@ impl BridgeConfig {
             }
         });
         if let Some(t) = &tls {
-            if !t.mutual && access.as_ref().is_some_and(|a| !a.allow_cert_common_names.is_empty()) {
+            if !t.mutual
+                && access
+                    .as_ref()
+                    .is_some_and(|a| !a.allow_cert_common_names.is_empty())
+            {
                 p.push("tls.mutual = false: access.allow_cert_common_names needs the peers' certificates (mutual = true)".into());
             }
-            for (i, e) in raw.zenoh.listen.iter().chain(&raw.zenoh.connect).enumerate() {
+            for (i, e) in raw
+                .zenoh
+                .listen
+                .iter()
+                .chain(&raw.zenoh.connect)
+                .enumerate()
+            {
                 if e.starts_with("tcp/") {
                     p.push(format!(
                         "endpoint {i} {e:?}: with [tls], every endpoint is tls/ (a tcp/ one would bypass it)"
@@ -558,8 +570,12 @@ queue_depth = 0
         let text = GOOD.replace("queue_depth = 64", "queue_dept = 64");
         let e = BridgeConfig::parse(&text, "c.toml").unwrap_err();
         let loc = e.location();
-        assert_eq!(loc.line, Some(13), "{e}");
-        assert!(e.to_string().contains("queue_dept: unknown key"), "{e}");
+        assert_eq!(loc.line, Some(12), "{e}");
+        assert!(
+            e.to_string()
+                .contains("import.queue_dept: unknown key (did you mean queue_depth?)"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -246,8 +246,7 @@ pub fn use_config_file(path: &std::path::Path) -> Result<()> {
     };
     let file = FilePath::new(shown.as_bytes()).map_err(|e| err(format!("{e:?}")))?;
     let wanted = Config::from_file(&file).map_err(|e| err(format!("{e:?}")))?;
-    let config =
-        Config::setup_global_config_from_file(&file).map_err(|e| err(format!("{e:?}")))?;
+    let config = Config::setup_global_config_from_file(&file).map_err(|e| err(format!("{e:?}")))?;
     if config.global.root_path() != wanted.global.root_path()
         || config.global.prefix != wanted.global.prefix
     {

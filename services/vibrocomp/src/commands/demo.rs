@@ -29,8 +29,8 @@ use vibro_sim::ScenarioKind;
 
 use crate::commands::replay::replay_with_bar;
 use crate::commands::sim::simulate_flight;
-use crate::output::{fmt_g, fmt_ratio, print_json};
 use crate::hosts::TwoHosts;
+use crate::output::{fmt_g, fmt_ratio, print_json};
 use crate::system::{Role, SystemSpec};
 use vibro_service::supervise::{private_prefix, wait_for_heartbeats};
 
@@ -220,7 +220,10 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let est = estimator.stop(timeout)?.summary()?;
     let comp = compensator.stop(timeout)?.summary()?;
     let mut bridge_summaries = Vec::new();
-    for (b, host) in bridges.into_iter().zip(["bridge on host B", "bridge on host A"]) {
+    for (b, host) in bridges
+        .into_iter()
+        .zip(["bridge on host B", "bridge on host A"])
+    {
         bridge_summaries.push(ServiceLosses {
             service: host,
             summary: b.stop(timeout)?.summary()?,
@@ -287,9 +290,7 @@ fn two_host_specs(
         ..spec.clone()
     };
     let a = SystemSpec {
-        record: session_log
-            .file_name()
-            .map(|f| out_dir.join(f)),
+        record: session_log.file_name().map(|f| out_dir.join(f)),
         cwd: Some(hosts.a.dir.clone()),
         bridge: Some(hosts.a.bridge_config.clone()),
         ..common.clone()
