@@ -275,6 +275,39 @@ fn an_unreachable_peer_fails_at_start_naming_the_endpoint() {
     );
 }
 
+/// A Zenoh peer connected to the bridge listening on `port`, with a publisher of
+/// accelerometer blocks on `{key_prefix}/accel` that the bridge has matched: what a
+/// remote bridge would be.
+fn remote_accel_publisher(
+    port: u16,
+    key_prefix: &str,
+) -> (zenoh::Session, zenoh::pubsub::Publisher<'static>) {
+    let mut zc = zenoh::Config::default();
+    zc.insert_json5("mode", "\"peer\"").unwrap();
+    zc.insert_json5("connect/endpoints", &format!("[\"tcp/127.0.0.1:{port}\"]"))
+        .unwrap();
+    zc.insert_json5("connect/timeout_ms", "10000").unwrap();
+    zc.insert_json5("connect/exit_on_failure", "true").unwrap();
+    zc.insert_json5("listen/endpoints", "[]").unwrap();
+    zc.insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    let session = zenoh::open(zc).wait().unwrap();
+    let publisher = session
+        .declare_publisher(format!("{key_prefix}/accel"))
+        .encoding(vibro_bridge::encoding_of(
+            vibro_msgs::MessageKind::AccelBlock,
+        ))
+        .congestion_control(zenoh::qos::CongestionControl::Block)
+        .wait()
+        .unwrap();
+    wait_until(
+        "the bridge's Zenoh subscriber",
+        Duration::from_secs(10),
+        || publisher.matching_status().wait().unwrap().matching(),
+    );
+    (session, publisher)
+}
+
 /// This test stands for a remote bridge: it puts accelerometer blocks 0..=9 into Zenoh
 /// without block 5 and with block 4 after block 6. The receiving bridge counts the gap
 /// and the late block; the compensator behind it counts and flags them exactly as it
@@ -744,4 +777,67 @@ fn a_bridge_killed_mid_run_is_restarted_and_the_gap_is_counted_on_both_sides() {
         last.flags
     );
     drop(hosts);
+}
+
+/// A slow receiving side: the bridge's iceoryx2 publisher is held back by a subscriber
+/// that reads nothing (its buffer full, the publisher waits its bounded second), so the
+/// bridge's bounded import queue (`queue_depth = 2`) fills while a burst arrives from
+/// the network. The queue drops, counts (`queue_dropped`), and the compensator behind
+/// it counts exactly as many lost from the gaps in `seq`; nothing else is lost.
+#[test]
+fn a_slow_receiving_side_drops_at_its_bounded_queue_and_counts_it() {
+    const BURST: u64 = 400;
+    let dir = Dir::new("slow");
+    let prefix = prefix("s");
+    let port = free_port().unwrap();
+    let key_prefix = format!("vibrocomp/slow{}", next_id());
+    let config = write(
+        &dir.path("b.toml"),
+        &format!(
+            "prefix = {prefix:?}\nkey_prefix = {key_prefix:?}\n[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\nconnect_timeout_s = 5.0\n[import]\nstreams = [\"accel\"]\nqueue_depth = 2\n"
+        ),
+    );
+    let names = ServiceNames::new(&prefix).unwrap();
+    let node = create_node("vcb-slow").unwrap();
+    let comp = compensator(&prefix, &dir);
+    let br = bridge(&config, &dir);
+    let probe = StreamSubscriber::<vibro_msgs::Heartbeat>::open(
+        &node,
+        &names,
+        Stream::Heartbeat(ServiceId::Compensator),
+    )
+    .unwrap();
+    wait_until(
+        "the compensator's heartbeat",
+        Duration::from_secs(20),
+        || probe.receive().unwrap().is_some(),
+    );
+    let stuck = StreamSubscriber::<AccelBlock>::open(&node, &names, Stream::Accel).unwrap();
+    let (session, publisher) = remote_accel_publisher(port, &key_prefix);
+    for seq in 0..BURST {
+        publisher.put(accel_block(seq).bytes()).wait().unwrap();
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    drop(stuck);
+    // A last block after the burst has drained, so that a drop at the burst's end is
+    // a gap too.
+    std::thread::sleep(Duration::from_millis(1500));
+    publisher.put(accel_block(BURST).bytes()).wait().unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    drop(publisher);
+    session.close().wait().unwrap();
+    let b = br.summary();
+    let c = comp.summary();
+    let s = &b["streams"][0];
+    let dropped = s["queue_dropped"].as_u64().unwrap();
+    assert!(dropped > 0, "{b}");
+    assert_eq!(s["forwarded"].as_u64().unwrap() + dropped, BURST + 1, "{b}");
+    assert_eq!(s["gap_messages"], 0, "{b}");
+    assert_eq!(
+        c["accel"]["received"].as_u64().unwrap() + dropped,
+        BURST + 1,
+        "{c}"
+    );
+    assert_eq!(c["accel"]["lost_messages"], dropped, "{c}");
+    assert_eq!(c["accel"]["lost_samples"], dropped * 32, "{c}");
 }

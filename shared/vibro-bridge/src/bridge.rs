@@ -32,8 +32,8 @@ pub struct StreamStats {
     pub forwarded: AtomicU64,
     /// Export: messages sent while no remote subscriber was matched (nobody got them).
     pub unmatched: AtomicU64,
-    /// Import: messages missing by the producer's sequence numbers (a network or
-    /// remote loss, or a restart of the remote bridge).
+    /// Import: messages missing by the producer's sequence numbers that this bridge
+    /// did not drop itself (lost on the network or on the remote side).
     pub gap_messages: AtomicU64,
     /// Import: messages whose `seq` was below the next expected one.
     pub out_of_order: AtomicU64,
@@ -549,6 +549,8 @@ struct Importer<T: WireMessage> {
     /// The wire bytes of one message, gathered from Zenoh's slices (allocated once).
     scratch: Vec<u8>,
     next_seq: Option<u64>,
+    /// Of `stats.queue_dropped`, the drops already matched with a gap in `seq`.
+    drops_seen: u64,
     refused_logged: bool,
     gap_logged: bool,
 }
@@ -569,6 +571,7 @@ impl<T: WireMessage> Importer<T> {
             encoding: encoding_of(T::KIND),
             scratch: Vec::with_capacity(T::KIND.size_bytes()),
             next_seq: None,
+            drops_seen: 0,
             refused_logged: false,
             gap_logged: false,
         })
@@ -612,8 +615,15 @@ impl<T: WireMessage> ImportPort for Importer<T> {
         let seq = msg.seq();
         match self.next_seq {
             Some(next) if seq > next => {
-                StreamStats::add(&self.stats.gap_messages, seq - next);
-                if !self.gap_logged {
+                // Messages this bridge's own queue dropped are counted there already;
+                // the rest of the gap was lost before they reached it.
+                let missing = seq - next;
+                let dropped_here = StreamStats::get(&self.stats.queue_dropped);
+                let explained = missing.min(dropped_here.saturating_sub(self.drops_seen));
+                self.drops_seen += explained;
+                let lost = missing - explained;
+                StreamStats::add(&self.stats.gap_messages, lost);
+                if lost > 0 && !self.gap_logged {
                     self.gap_logged = true;
                     warn!(key = %self.key, expected = next, got = seq, "messages lost on the network (further gaps counted)");
                 }
