@@ -841,3 +841,206 @@ fn a_slow_receiving_side_drops_at_its_bounded_queue_and_counts_it() {
     assert_eq!(c["accel"]["lost_messages"], dropped, "{c}");
     assert_eq!(c["accel"]["lost_samples"], dropped * 32, "{c}");
 }
+
+/// A CA and certificates for `names` (common name = the name, valid for localhost and
+/// 127.0.0.1), made with the `openssl` command line in `dir`.
+fn certificates(dir: &Dir, names: &[&str]) {
+    let run = |args: &[&str]| {
+        let out = Command::new("openssl")
+            .current_dir(&dir.0)
+            .args(args)
+            .output()
+            .expect("openssl runs");
+        assert!(
+            out.status.success(),
+            "openssl {args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
+    let ec = [
+        "-newkey",
+        "ec",
+        "-pkeyopt",
+        "ec_paramgen_curve:prime256v1",
+        "-nodes",
+    ];
+    let mut ca = vec!["req", "-x509"];
+    ca.extend(ec);
+    ca.extend([
+        "-keyout",
+        "ca.key",
+        "-out",
+        "ca.pem",
+        "-days",
+        "2",
+        "-subj",
+        "/CN=vibrocomp-test-ca",
+    ]);
+    run(&ca);
+    std::fs::write(
+        dir.path("ext.cnf"),
+        "subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\nkeyUsage=digitalSignature\nextendedKeyUsage=serverAuth,clientAuth\n",
+    )
+    .unwrap();
+    for n in names {
+        let (key, csr, pem, subj) = (
+            format!("{n}.key"),
+            format!("{n}.csr"),
+            format!("{n}.pem"),
+            format!("/CN={n}"),
+        );
+        let mut req = vec!["req"];
+        req.extend(ec);
+        req.extend(["-keyout", &key, "-out", &csr, "-subj", &subj]);
+        run(&req);
+        run(&[
+            "x509",
+            "-req",
+            "-in",
+            &csr,
+            "-CA",
+            "ca.pem",
+            "-CAkey",
+            "ca.key",
+            "-CAcreateserial",
+            "-out",
+            &pem,
+            "-days",
+            "2",
+            "-extfile",
+            "ext.cnf",
+        ]);
+    }
+}
+
+/// A Zenoh peer over TLS to `tls/localhost:{port}` with the certificate of `name`
+/// (none: no client certificate), or the error of opening it.
+fn tls_peer(dir: &Dir, port: u16, name: Option<&str>) -> zenoh::Result<zenoh::Session> {
+    let mut zc = zenoh::Config::default();
+    let q = |p: PathBuf| format!("{:?}", p.display().to_string());
+    zc.insert_json5("mode", "\"peer\"").unwrap();
+    zc.insert_json5("connect/endpoints", &format!("[\"tls/localhost:{port}\"]"))
+        .unwrap();
+    zc.insert_json5("connect/timeout_ms", "3000").unwrap();
+    zc.insert_json5("connect/exit_on_failure", "true").unwrap();
+    zc.insert_json5("listen/endpoints", "[]").unwrap();
+    zc.insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    zc.insert_json5(
+        "transport/link/tls/root_ca_certificate",
+        &q(dir.path("ca.pem")),
+    )
+    .unwrap();
+    if let Some(n) = name {
+        zc.insert_json5("transport/link/tls/enable_mtls", "true")
+            .unwrap();
+        zc.insert_json5(
+            "transport/link/tls/connect_certificate",
+            &q(dir.path(&format!("{n}.pem"))),
+        )
+        .unwrap();
+        zc.insert_json5(
+            "transport/link/tls/connect_private_key",
+            &q(dir.path(&format!("{n}.key"))),
+        )
+        .unwrap();
+    }
+    zenoh::open(zc).wait()
+}
+
+/// Who may connect: a bridge with mutual TLS and `[access] allow_cert_common_names =
+/// ["rig-a"]` takes blocks from `rig-a`; a peer whose certificate (signed by the same
+/// CA) says `intruder` is connected but refused by Zenoh's access control (its
+/// publisher is never matched, nothing it puts arrives; with `intruder` named too, this
+/// test fails there); a peer without a certificate fails the TLS handshake.
+#[test]
+fn a_tls_bridge_takes_only_the_clients_its_configuration_names() {
+    let dir = Dir::new("tls");
+    certificates(&dir, &["compute-1", "rig-a", "intruder"]);
+    let prefix = prefix("t");
+    let port = free_port().unwrap();
+    let key_prefix = format!("vibrocomp/tls{}", next_id());
+    let p = |n: &str| dir.path(n).display().to_string();
+    let config = write(
+        &dir.path("b.toml"),
+        &format!(
+            "prefix = {prefix:?}\nkey_prefix = {key_prefix:?}\n[zenoh]\nmode = \"peer\"\nlisten = [\"tls/127.0.0.1:{port}\"]\nconnect_timeout_s = 5.0\n[import]\nstreams = [\"accel\"]\n[tls]\nroot_ca_certificate = {:?}\ncertificate = {:?}\nprivate_key = {:?}\nmutual = true\n[access]\nallow_cert_common_names = [\"rig-a\"]\n",
+            p("ca.pem"),
+            p("compute-1.pem"),
+            p("compute-1.key")
+        ),
+    );
+    let names = ServiceNames::new(&prefix).unwrap();
+    let node = create_node("vcb-tls").unwrap();
+    let accel = StreamSubscriber::<AccelBlock>::open(&node, &names, Stream::Accel).unwrap();
+    let br = bridge(&config, &dir);
+    let key = format!("{key_prefix}/accel");
+    let encoding = vibro_bridge::encoding_of(vibro_msgs::MessageKind::AccelBlock);
+
+    // Named: matched, and its blocks arrive.
+    let rig = {
+        let start = Instant::now();
+        loop {
+            match tls_peer(&dir, port, Some("rig-a")) {
+                Ok(s) => break s,
+                Err(_) if start.elapsed() < Duration::from_secs(10) => {
+                    std::thread::sleep(Duration::from_millis(100));
+                }
+                Err(e) => panic!("rig-a could not connect: {e}\n{}", br.stderr()),
+            }
+        }
+    };
+    let publisher = rig
+        .declare_publisher(key.clone())
+        .encoding(encoding.clone())
+        .wait()
+        .unwrap();
+    wait_until("the bridge matching rig-a", Duration::from_secs(10), || {
+        publisher.matching_status().wait().unwrap().matching()
+    });
+    for seq in 0..3 {
+        publisher.put(accel_block(seq).bytes()).wait().unwrap();
+    }
+    let mut got = Vec::new();
+    wait_until("rig-a's 3 blocks", Duration::from_secs(10), || {
+        while let Some(b) = accel.receive().unwrap() {
+            got.push(b.seq);
+        }
+        got.len() >= 3
+    });
+    assert_eq!(got, [0, 1, 2]);
+
+    // Not named: connected by TLS, refused by access control.
+    let intruder =
+        tls_peer(&dir, port, Some("intruder")).expect("the TLS handshake itself succeeds");
+    let p2 = intruder
+        .declare_publisher(key.clone())
+        .encoding(encoding)
+        .wait()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(1500));
+    assert!(
+        !p2.matching_status().wait().unwrap().matching(),
+        "the intruder was matched"
+    );
+    for seq in 3..6 {
+        p2.put(accel_block(seq).bytes()).wait().unwrap();
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    assert!(
+        accel.receive().unwrap().is_none(),
+        "a block of the intruder arrived"
+    );
+
+    // No certificate: the handshake fails.
+    assert!(
+        tls_peer(&dir, port, None).is_err(),
+        "a peer without a certificate connected"
+    );
+
+    drop((publisher, p2));
+    let _ = rig.close().wait();
+    let _ = intruder.close().wait();
+    let b = br.summary();
+    assert_eq!(b["streams"][0]["forwarded"], 3, "{b}");
+}
