@@ -921,7 +921,7 @@ fn tls_peer(dir: &Dir, port: u16, name: Option<&str>) -> zenoh::Result<zenoh::Se
     zc.insert_json5("mode", "\"peer\"").unwrap();
     zc.insert_json5("connect/endpoints", &format!("[\"tls/localhost:{port}\"]"))
         .unwrap();
-    zc.insert_json5("connect/timeout_ms", "3000").unwrap();
+    zc.insert_json5("connect/timeout_ms", "1500").unwrap();
     zc.insert_json5("connect/exit_on_failure", "true").unwrap();
     zc.insert_json5("listen/endpoints", "[]").unwrap();
     zc.insert_json5("scouting/multicast/enabled", "false")

@@ -358,6 +358,10 @@ impl<T: WireMessage> Exporter<T> {
             .declare_publisher(key.clone())
             .encoding(encoding_of(T::KIND))
             .congestion_control(cc)
+            // Each message goes out at once instead of waiting for a batch to fill
+            // (Zenoh's batching holds a message up to 1 ms): a block is due within
+            // one sample period.
+            .express(true)
             .wait()
             .map_err(|e| Error::Zenoh {
                 operation: "declare publisher",

@@ -53,6 +53,9 @@ use vibro_msgs::{
 };
 use vibro_service::{LoopMode, ServiceConfig};
 
+#[path = "latency_hosts.rs"]
+mod hosts;
+
 use crate::output::print_json;
 use crate::system::{Role, SystemSpec};
 use vibro_service::supervise::{private_prefix, wait_for_heartbeats};
@@ -110,6 +113,11 @@ pub struct LatencyArgs {
     /// and reading all it is sent: what a connected viewer costs the services.
     #[arg(long)]
     pub view: bool,
+    /// 2: also the vibrocomp pipeline across two hosts on this machine (the services
+    /// in another iceoryx2 root, two Zenoh bridges over loopback TCP between), and a
+    /// bare Zenoh publisher/subscriber pair as its baseline (docs/bridge.md).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
+    pub hosts: u8,
     /// Print the measured latencies as JSON.
     #[arg(long)]
     pub json: bool,
@@ -1816,11 +1824,17 @@ fn run_pipelines(
         runs.push(run_bare(args, k1, log)?);
         runs.push(run_uds(args, k1, log, estimator_config)?);
     }
+    if args.hosts == 2 {
+        runs.push(hosts::run_bridged(args, k1, log, estimator_config)?);
+        if !args.no_baselines {
+            runs.push(hosts::run_bare_zenoh(args, k1)?);
+        }
+    }
     Ok(runs)
 }
 
 fn print_latency(args: &LatencyArgs, runs: Vec<PipelineRun>) -> anyhow::Result<()> {
-    let ratios = (runs.len() == 3).then(|| {
+    let ratios = (!args.no_baselines && runs.len() >= 3).then(|| {
         let (v, b, u) = (
             &runs[0].end_to_end,
             &runs[1].end_to_end,
