@@ -261,8 +261,10 @@ fn an_unreachable_peer_fails_at_start_naming_the_endpoint() {
         ),
     );
     let start = Instant::now();
-    let out = run_failing(&["bridge", "--config", config.to_str().unwrap()]);
+    let out = run_failing(&["bridge", "--config", config.to_str().unwrap(), "--json"]);
     let text = String::from_utf8_lossy(&out.stderr);
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["error"]["file"], config.to_str().unwrap(), "{v}");
     assert!(
         text.contains(&format!("connect [tcp/127.0.0.1:{port}]")),
         "{text}"

@@ -160,6 +160,15 @@ pub fn error_location(e: &anyhow::Error) -> Option<vibro_toml::Location> {
         if let Some(x) = cause.downcast_ref::<vibro_effects::Error>() {
             return x.location();
         }
+        if let Some(
+            vibro_bridge::Error::Open { file, .. } | vibro_bridge::Error::ZenohConfig { file, .. },
+        ) = cause.downcast_ref::<vibro_bridge::Error>()
+        {
+            return Some(vibro_toml::Location {
+                file: file.clone(),
+                ..Default::default()
+            });
+        }
         match cause.downcast_ref::<vibro_lab::Error>()? {
             vibro_lab::Error::Effects(x) => x.location(),
             vibro_lab::Error::Table { path, .. } | vibro_lab::Error::Io { path, .. } => {
