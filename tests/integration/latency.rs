@@ -149,7 +149,7 @@ fn latency_across_two_hosts_answers_every_block_through_the_bridges() {
         &names[3..],
         [
             "vibrocomp, 2 hosts (iceoryx2 + Zenoh bridges over loopback TCP)",
-            "bare Zenoh (2 sessions, loopback TCP)"
+            "bare Zenoh (2 processes, loopback TCP)"
         ],
         "{v}"
     );
@@ -173,4 +173,12 @@ fn latency_across_two_hosts_answers_every_block_through_the_bridges() {
         ["estimator", "compensator", "bridge A", "bridge B", "rig"],
         "{v}"
     );
+    // The bare Zenoh pair is two processes too, as the bridged hops are.
+    let procs: Vec<&str> = runs[4]["cpu_percent"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p[0].as_str().unwrap())
+        .collect();
+    assert_eq!(procs, ["peer", "rig"], "{v}");
 }

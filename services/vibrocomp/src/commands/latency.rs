@@ -146,6 +146,17 @@ pub enum PeerCommand {
         #[arg(long, default_value = "event")]
         mode: LoopMode,
     },
+    /// The bare Zenoh baseline's peer (`--hosts 2`): connects to ENDPOINT, answers
+    /// every accelerometer block on `{key}/accel` on `{key}/compensated` with its
+    /// timestamps, takes the vibration blocks on `{key}/vib`; until SIGTERM.
+    BareZenoh {
+        /// The rig's Zenoh endpoint (`tcp/127.0.0.1:PORT`).
+        #[arg(long)]
+        endpoint: String,
+        /// The key prefix.
+        #[arg(long)]
+        key: String,
+    },
     /// The estimator's and the compensator's logic over two Unix stream sockets in DIR.
     Uds {
         /// The folder of the two Unix sockets.
@@ -1827,7 +1838,7 @@ fn run_pipelines(
     if args.hosts == 2 {
         runs.push(hosts::run_bridged(args, k1, log, estimator_config)?);
         if !args.no_baselines {
-            runs.push(hosts::run_bare_zenoh(args, k1)?);
+            runs.push(hosts::run_bare_zenoh(args, k1, log)?);
         }
     }
     Ok(runs)
@@ -2110,6 +2121,9 @@ pub fn run_peer(cmd: &PeerCommand) -> anyhow::Result<()> {
     match cmd {
         PeerCommand::Bare { prefix, mode } => peer_bare(prefix, *mode),
         PeerCommand::BareVib { prefix, mode } => peer_bare_vib(prefix, *mode),
+        PeerCommand::BareZenoh { endpoint, key } => {
+            hosts::peer_bare_zenoh(endpoint, key, install_stop()?)
+        }
         PeerCommand::Uds {
             socket_dir,
             estimator_config,

@@ -8,11 +8,12 @@
 //! `CLOCK_MONOTONIC`: the hops' stamps compare as in the local pipelines, and
 //! `rig -> service` and `service -> subscriber` now include a bridge each way.
 //!
-//! The baseline: two Zenoh sessions in this process, one listening on a free loopback
-//! port and one connected to it, with the messages of the pipeline: the rig's session
-//! puts accelerometer blocks (answered by the other with a compensated-block-sized
-//! message carrying the stamps) and vibration blocks (taken and dropped): Zenoh's own
-//! cost for the same traffic, two hops per answer, no iceoryx2 and no computation.
+//! The baseline: two Zenoh sessions in two processes, the rig's listening on a free
+//! loopback port and a peer (`latency-peer bare-zenoh`) connected to it, with the
+//! messages of the pipeline: the rig puts accelerometer blocks (answered by the peer
+//! with a compensated-block-sized message carrying the stamps) and vibration blocks
+//! (taken and dropped): Zenoh's own cost for the same traffic, two hops per answer, no
+//! iceoryx2 and no computation.
 //! Its publishers are `express` (not batched), as the bridge's are.
 
 use anyhow::Context;
@@ -125,15 +126,15 @@ fn session(endpoint: (&str, &str)) -> anyhow::Result<zenoh::Session> {
         .map_err(|e| anyhow::anyhow!("opening a Zenoh session on {ep}: {e}"))
 }
 
-/// The bare Zenoh baseline.
-pub(super) fn run_bare_zenoh(args: &LatencyArgs, k1: [f64; 3]) -> anyhow::Result<PipelineRun> {
-    let port = free_port()?;
-    let ep = format!("tcp/127.0.0.1:{port}");
-    let rig = session(("listen", &ep))?;
-    let peer = session(("connect", &ep))?;
-    let key = format!("vibrocomp/latency-{}", std::process::id());
+/// The bare Zenoh baseline's peer process: answers each accelerometer block with a
+/// compensated-block-sized message holding the stamps, takes the vibration blocks.
+pub(super) fn peer_bare_zenoh(
+    endpoint: &str,
+    key: &str,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+) -> anyhow::Result<()> {
+    let peer = session(("connect", endpoint))?;
     let zerr = |what: &'static str| move |e: zenoh::Error| anyhow::anyhow!("{what}: {e}");
-    // The peer: answers each accelerometer block, takes the vibration blocks.
     let answer = peer
         .declare_publisher(format!("{key}/compensated"))
         .express(true)
@@ -165,6 +166,43 @@ pub(super) fn run_bare_zenoh(args: &LatencyArgs, k1: [f64; 3]) -> anyhow::Result
         })
         .wait()
         .map_err(zerr("declare the vib subscriber"))?;
+    while !stop.load(std::sync::atomic::Ordering::Acquire) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let _ = peer.close().wait();
+    Ok(())
+}
+
+/// The bare Zenoh baseline: this process (the rig) listens, the peer process connects.
+pub(super) fn run_bare_zenoh(
+    args: &LatencyArgs,
+    k1: [f64; 3],
+    log: &Path,
+) -> anyhow::Result<PipelineRun> {
+    let port = free_port()?;
+    let ep = format!("tcp/127.0.0.1:{port}");
+    let rig = session(("listen", &ep))?;
+    let key = format!("vibrocomp/latency-{}", std::process::id());
+    let zerr = |what: &'static str| move |e: zenoh::Error| anyhow::anyhow!("{what}: {e}");
+    let mut child = std::process::Command::new(std::env::current_exe()?)
+        .args([
+            "latency-peer",
+            "bare-zenoh",
+            "--endpoint",
+            &ep,
+            "--key",
+            &key,
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(log)?,
+        )
+        .spawn()
+        .context("starting the bare Zenoh peer")?;
+    let peer = super::KillOnDrop(Some(&mut child));
     // The rig's receiver.
     let capacity = (args.duration_s * args.rate_hz / f64::from(args.block_samples)) as usize + 16;
     let stamps = Arc::new(Mutex::new(Vec::<Stamps>::with_capacity(capacity)));
@@ -203,20 +241,23 @@ pub(super) fn run_bare_zenoh(args: &LatencyArgs, k1: [f64; 3]) -> anyhow::Result
         .wait()
         .map_err(zerr("declare the vib publisher"))?;
     let t = std::time::Instant::now();
-    while !accel
-        .matching_status()
-        .wait()
-        .map_err(zerr("matching status"))?
-        .matching()
-    {
+    let matched = |p: &zenoh::pubsub::Publisher<'_>| {
+        p.matching_status()
+            .wait()
+            .map(|m| m.matching())
+            .unwrap_or(false)
+    };
+    while !(matched(&accel) && matched(&vib)) {
         anyhow::ensure!(
             t.elapsed() < Duration::from_secs(10),
-            "the bare Zenoh peer did not subscribe within 10 s"
+            "the bare Zenoh peer did not subscribe within 10 s (its log: {})",
+            log.display()
         );
         std::thread::sleep(Duration::from_millis(5));
     }
-    std::thread::sleep(Duration::from_millis(200));
-    let cpu = Cpu::start(&[("rig + peer", std::process::id())]);
+    // Its answer publisher reaches this subscriber too.
+    std::thread::sleep(Duration::from_millis(300));
+    let cpu = Cpu::start(&[("peer", peer.pid()), ("rig", std::process::id())]);
     let mut stream = RigStream::new(args, k1);
     let (ka, kv) = pace(
         args,
@@ -226,15 +267,15 @@ pub(super) fn run_bare_zenoh(args: &LatencyArgs, k1: [f64; 3]) -> anyhow::Result
     )?;
     std::thread::sleep(Duration::from_millis(300));
     let cpu = cpu.finish();
+    drop(peer);
     let stamps = stamps
         .lock()
         .map_err(|_| anyhow::anyhow!("the answer subscriber panicked"))?
         .clone();
     drop((accel, vib));
-    let _ = peer.close().wait();
     let _ = rig.close().wait();
     summarize(
-        "bare Zenoh (2 sessions, loopback TCP)",
+        "bare Zenoh (2 processes, loopback TCP)",
         args,
         (ka, kv, &stamps),
         0,
