@@ -123,3 +123,62 @@ fn latency_with_a_connected_viewer_reports_what_the_viewer_got() {
         .collect();
     assert!(processes.contains(&"view"), "{processes:?}");
 }
+
+/// `latency --hosts 2`: besides the local pipeline, the services on a second "host"
+/// (another iceoryx2 root, two Zenoh bridges over loopback) and the bare Zenoh pair;
+/// every accelerometer block answered through both, nothing lost (bridges included).
+#[test]
+fn latency_across_two_hosts_answers_every_block_through_the_bridges() {
+    let v = run_json(&[
+        "latency",
+        "--json",
+        "--duration-s",
+        "1",
+        "--warmup-s",
+        "0.2",
+        "--hosts",
+        "2",
+    ]);
+    let runs = v["runs"].as_array().unwrap();
+    let names: Vec<&str> = runs
+        .iter()
+        .map(|r| r["pipeline"].as_str().unwrap())
+        .collect();
+    assert_eq!(names.len(), 5, "{v}");
+    assert_eq!(
+        &names[3..],
+        [
+            "vibrocomp, 2 hosts (iceoryx2 + Zenoh bridges over loopback TCP)",
+            "bare Zenoh (2 processes, loopback TCP)"
+        ],
+        "{v}"
+    );
+    for r in &runs[3..] {
+        // 1 s at 800 Hz in blocks of 32: 25 blocks; those whose first sample ends at
+        // or after 0.2 s, t0 = (32 k + 1) 1.25 ms, are k = 5..24.
+        assert_eq!(r["accel_blocks_sent"], 25, "{r}");
+        assert_eq!(r["compensated_received"], 25, "{r}");
+        assert_eq!(r["lost_samples"], 0, "{r}");
+        assert_eq!(r["end_to_end"]["count"], 20, "{r}");
+    }
+    // The bridged pipeline's processes: the services and a bridge on each host.
+    let procs: Vec<&str> = runs[3]["cpu_percent"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p[0].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        procs,
+        ["estimator", "compensator", "bridge A", "bridge B", "rig"],
+        "{v}"
+    );
+    // The bare Zenoh pair is two processes too, as the bridged hops are.
+    let procs: Vec<&str> = runs[4]["cpu_percent"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p[0].as_str().unwrap())
+        .collect();
+    assert_eq!(procs, ["peer", "rig"], "{v}");
+}

@@ -1,6 +1,7 @@
 //! Integration tests of vibrocomp: one binary, a module per topic.
 
 mod bad_input;
+mod bridge;
 mod cli_flags;
 mod closed_pipe;
 mod common;

@@ -9,6 +9,7 @@ pub mod output;
 pub mod commands;
 pub mod files;
 pub mod flags;
+pub mod hosts;
 pub mod system;
 
 use clap::{Parser, Subcommand};
@@ -57,6 +58,9 @@ pub enum Command {
     /// Start the estimator and compensator (and a recorder), restart them on a crash,
     /// stop them on Ctrl-C.
     Up(commands::up::UpArgs),
+    /// Forward streams between this host's services and other hosts over Zenoh
+    /// (docs/bridge.md).
+    Bridge(commands::bridge::BridgeArgs),
     /// Record the live streams into an MCAP log.
     Record(commands::record::RecordArgs),
     /// Replay the rig streams of an MCAP log into the services.
@@ -156,6 +160,15 @@ pub fn error_location(e: &anyhow::Error) -> Option<vibro_toml::Location> {
         if let Some(x) = cause.downcast_ref::<vibro_effects::Error>() {
             return x.location();
         }
+        if let Some(
+            vibro_bridge::Error::Open { file, .. } | vibro_bridge::Error::ZenohConfig { file, .. },
+        ) = cause.downcast_ref::<vibro_bridge::Error>()
+        {
+            return Some(vibro_toml::Location {
+                file: file.clone(),
+                ..Default::default()
+            });
+        }
         match cause.downcast_ref::<vibro_lab::Error>()? {
             vibro_lab::Error::Effects(x) => x.location(),
             vibro_lab::Error::Table { path, .. } | vibro_lab::Error::Io { path, .. } => {
@@ -184,6 +197,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Up(args) => commands::up::run(&args),
         Command::Latency(args) => commands::latency::run(&args),
         Command::LatencyPeer(cmd) => commands::latency::run_peer(&cmd),
+        Command::Bridge(args) => commands::bridge::run(&args),
         Command::Record(args) => commands::record::run(&args),
         Command::Replay(args) => commands::replay::run(&args),
         Command::View(args) => commands::view::run(&args),

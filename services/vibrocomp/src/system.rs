@@ -19,6 +19,8 @@ pub enum Role {
     Recorder,
     /// The live view (`vibrocomp view`, Foxglove's WebSocket protocol).
     View,
+    /// The Zenoh bridge to other hosts (`vibrocomp bridge`, docs/bridge.md).
+    Bridge,
 }
 
 impl Role {
@@ -28,6 +30,7 @@ impl Role {
             Role::Compensator => "compensator",
             Role::Recorder => "recorder",
             Role::View => "view",
+            Role::Bridge => "bridge",
         }
     }
 
@@ -36,8 +39,8 @@ impl Role {
             Role::Estimator => ServiceId::Estimator,
             Role::Compensator => ServiceId::Compensator,
             Role::Recorder => ServiceId::Recorder,
-            // A user interface; it publishes no heartbeat of its own.
-            Role::View => ServiceId::Monitor,
+            // A user interface and a transport: no heartbeat of their own.
+            Role::View | Role::Bridge => ServiceId::Monitor,
         }
     }
 }
@@ -63,6 +66,11 @@ pub struct SystemSpec {
     pub json: bool,
     /// The `vibrocomp` executable [default: this process's own].
     pub exe: Option<PathBuf>,
+    /// Bridge streams to other hosts with this configuration (`vibrocomp bridge`).
+    pub bridge: Option<PathBuf>,
+    /// The working directory of the processes [default: this process's]: where they
+    /// find `config/iceoryx2.toml`, i.e. which iceoryx2 root ("host") they join.
+    pub cwd: Option<PathBuf>,
 }
 
 impl SystemSpec {
@@ -74,6 +82,9 @@ impl SystemSpec {
         }
         if self.foxglove.is_some() {
             roles.push(Role::View);
+        }
+        if self.bridge.is_some() {
+            roles.push(Role::Bridge);
         }
         roles
     }
@@ -135,6 +146,15 @@ impl SystemSpec {
                     }
                 }
             }
+            Role::Bridge => {
+                push("bridge");
+                if let Some(c) = &self.bridge {
+                    a.push("--config".into());
+                    a.push(c.clone().into_os_string());
+                }
+                a.push("--prefix".into());
+                a.push(self.prefix.clone().into());
+            }
             Role::View => {
                 push("view");
                 push("--prefix");
@@ -159,6 +179,9 @@ impl SystemSpec {
         };
         let mut c = Command::new(exe);
         c.args(self.args(role));
+        if let Some(dir) = &self.cwd {
+            c.current_dir(dir);
+        }
         stop_with_parent(&mut c);
         Ok(c)
     }

@@ -233,6 +233,31 @@ pub fn create_node(name: &str) -> Result<IpcNode> {
         .map_err(|e| node_error(config, name, e))
 }
 
+/// Makes this process join the iceoryx2 system of the config file `path` (its
+/// `root-path` and shared-memory file `prefix`: another "host" on this machine) instead
+/// of the one `config/iceoryx2.toml` in the working directory names. Must come before
+/// the first node of the process; fails if another configuration is already in use.
+pub fn use_config_file(path: &std::path::Path) -> Result<()> {
+    let shown = path.display().to_string();
+    let err = |reason: String| Error::Iceoryx {
+        operation: "load the iceoryx2 config file",
+        service: shown.clone(),
+        reason,
+    };
+    let file = FilePath::new(shown.as_bytes()).map_err(|e| err(format!("{e:?}")))?;
+    let wanted = Config::from_file(&file).map_err(|e| err(format!("{e:?}")))?;
+    let config = Config::setup_global_config_from_file(&file).map_err(|e| err(format!("{e:?}")))?;
+    if config.global.root_path() != wanted.global.root_path()
+        || config.global.prefix != wanted.global.prefix
+    {
+        return Err(err(format!(
+            "this process already uses the iceoryx2 root {} (set before this file was read)",
+            iceoryx_root(config)
+        )));
+    }
+    Ok(())
+}
+
 /// The directory under which iceoryx2 keeps its files (`/tmp/iceoryx2/` unless an
 /// iceoryx2 config file, e.g. `config/iceoryx2.toml` in the working directory, says
 /// otherwise).

@@ -581,6 +581,11 @@ pub trait WireMessage: Copy + std::fmt::Debug + ZeroCopySend + 'static {
     /// The message's bytes in shared memory (native byte order, no padding holes).
     fn bytes(&self) -> &[u8];
 
+    /// The message from its bytes (native byte order), e.g. received from a network
+    /// bridge; `None` unless `bytes` is exactly the type's size. Counts are not
+    /// checked: call [`WireMessage::validate`] before indexing the arrays.
+    fn from_wire_bytes(bytes: &[u8]) -> Option<Self>;
+
     /// The producer's sequence number (every type has one).
     fn seq(&self) -> u64;
 
@@ -598,6 +603,9 @@ macro_rules! wire_message {
                 }
                 fn bytes(&self) -> &[u8] {
                     self.as_bytes()
+                }
+                fn from_wire_bytes(bytes: &[u8]) -> Option<Self> {
+                    Self::from_bytes(bytes)
                 }
                 fn seq(&self) -> u64 {
                     self.seq

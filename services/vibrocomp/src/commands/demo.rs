@@ -29,6 +29,7 @@ use vibro_sim::ScenarioKind;
 
 use crate::commands::replay::replay_with_bar;
 use crate::commands::sim::simulate_flight;
+use crate::hosts::TwoHosts;
 use crate::output::{fmt_g, fmt_ratio, print_json};
 use crate::system::{Role, SystemSpec};
 use vibro_service::supervise::{private_prefix, wait_for_heartbeats};
@@ -48,6 +49,11 @@ pub struct DemoArgs {
     /// Averaging window of the error measure, s.
     #[arg(long = "window-s", default_value_t = 0.5)]
     pub window_s: f64,
+    /// 2: the services on a second "host" (its own iceoryx2 root), reached only
+    /// through two Zenoh bridges over loopback TCP; the replay and the recorder stay on
+    /// the first (README, "Several hosts").
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
+    pub hosts: u8,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -71,6 +77,8 @@ struct DemoReport {
     replay: ReplaySummary,
     recording: serde_json::Value,
     services: Vec<ServiceLosses>,
+    /// The bridges' `--json` counters (`--hosts 2`).
+    bridges: Vec<ServiceLosses>,
     lost_messages: u64,
     errors: SessionErrors,
     elapsed_s: f64,
@@ -146,9 +154,24 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         let c = vibro_compensator::Config::load_default()?;
         c.model.triad.passports.map(|p| p.k1_v_per_g)
     };
-    let mut estimator = spec.spawn(Role::Estimator, Some(&services_log))?;
-    let mut compensator = spec.spawn(Role::Compensator, Some(&services_log))?;
-    let mut recorder = spec.spawn(Role::Recorder, Some(&services_log))?;
+    // With --hosts 2: host B runs the services and the bridge that listens; host A
+    // (this process: the replay) the recorder and the bridge that connects.
+    let (spec_a, spec_b, hosts) = if args.hosts == 2 {
+        let (a, b, hosts) = two_host_specs(&spec, &args.out_dir, &session_log)?;
+        (a, b, Some(hosts))
+    } else {
+        (spec.clone(), spec.clone(), None)
+    };
+    let mut bridges = Vec::new();
+    if hosts.is_some() {
+        bridges.push(spec_b.spawn(Role::Bridge, Some(&services_log))?);
+    }
+    let mut estimator = spec_b.spawn(Role::Estimator, Some(&services_log))?;
+    let mut compensator = spec_b.spawn(Role::Compensator, Some(&services_log))?;
+    if hosts.is_some() {
+        bridges.push(spec_a.spawn(Role::Bridge, Some(&services_log))?);
+    }
+    let mut recorder = spec_a.spawn(Role::Recorder, Some(&services_log))?;
     wait_for_heartbeats(
         &names,
         &[
@@ -160,6 +183,9 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         || {
             estimator.check_alive()?;
             compensator.check_alive()?;
+            for b in &mut bridges {
+                b.check_alive()?;
+            }
             recorder.check_alive()
         },
     )
@@ -170,9 +196,17 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         )
     })?;
     if !args.json {
-        outln!(
-            "Services up under {prefix} (estimator, compensator, recorder); replaying the flight as fast as possible, lock-stepped ..."
-        )?;
+        match &hosts {
+            Some(h) => outln!(
+                "Services up under {prefix} on host B ({}), recorder on host A ({}), bridged over Zenoh (tcp/127.0.0.1:{}); replaying the flight on host A as fast as possible, lock-stepped ...",
+                h.b.dir.display(),
+                h.a.dir.display(),
+                h.port_b
+            )?,
+            None => outln!(
+                "Services up under {prefix} (estimator, compensator, recorder); replaying the flight as fast as possible, lock-stepped ..."
+            )?,
+        }
     }
 
     // 3. The replay.
@@ -185,9 +219,24 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let recording = recorder.stop(timeout)?.summary()?;
     let est = estimator.stop(timeout)?.summary()?;
     let comp = compensator.stop(timeout)?.summary()?;
+    let mut bridge_summaries = Vec::new();
+    for (b, host) in bridges
+        .into_iter()
+        .zip(["bridge on host B", "bridge on host A"])
+    {
+        bridge_summaries.push(ServiceLosses {
+            service: host,
+            summary: b.stop(timeout)?.summary()?,
+        });
+    }
+    drop(hosts);
     let lost_messages = losses(&est)
         + losses(&comp)
         + recording.get("lost").and_then(|x| x.as_u64()).unwrap_or(0)
+        + bridge_summaries
+            .iter()
+            .map(|b| b.summary.get("lost").and_then(|x| x.as_u64()).unwrap_or(0))
+            .sum::<u64>()
         + replay.undelivered;
     let errors = session_errors(&session_log, k1_v_per_g, args.window_s)?;
     let report = DemoReport {
@@ -209,6 +258,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
                 summary: comp,
             },
         ],
+        bridges: bridge_summaries,
         lost_messages,
         errors,
         elapsed_s: started.elapsed().as_secs_f64(),
@@ -217,6 +267,40 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         return print_json(&report);
     }
     print_report(&report)
+}
+
+/// The systems of host A (recorder, bridge) and host B (services, bridge) for
+/// `--hosts 2`, from the one-host `spec`: every path absolute (their processes run in
+/// the hosts' folders), the shipped service configurations of this working directory
+/// passed on (as the one-host run reads them), and this process joined to host A.
+fn two_host_specs(
+    spec: &SystemSpec,
+    out_dir: &std::path::Path,
+    session_log: &std::path::Path,
+) -> anyhow::Result<(SystemSpec, SystemSpec, TwoHosts)> {
+    let out_dir = std::fs::canonicalize(out_dir)
+        .with_context(|| format!("--out-dir {}", out_dir.display()))?;
+    let tag = format!("vcd{}", std::process::id());
+    let hosts = TwoHosts::create(&out_dir.join("hosts"), &tag, &spec.prefix)?;
+    vibro_ipc::use_config_file(&hosts.a.iceoryx_config)?;
+    let shipped = |rel: &str| std::fs::canonicalize(rel).ok();
+    let common = SystemSpec {
+        estimator_config: shipped(vibro_estimator::Config::DEFAULT_CONFIG_PATH),
+        compensator_config: shipped(vibro_compensator::Config::DEFAULT_CONFIG_PATH),
+        ..spec.clone()
+    };
+    let a = SystemSpec {
+        record: session_log.file_name().map(|f| out_dir.join(f)),
+        cwd: Some(hosts.a.dir.clone()),
+        bridge: Some(hosts.a.bridge_config.clone()),
+        ..common.clone()
+    };
+    let b = SystemSpec {
+        cwd: Some(hosts.b.dir.clone()),
+        bridge: Some(hosts.b.bridge_config.clone()),
+        ..common
+    };
+    Ok((a, b, hosts))
 }
 
 fn print_report(r: &DemoReport) -> anyhow::Result<()> {

@@ -53,6 +53,9 @@ use vibro_msgs::{
 };
 use vibro_service::{LoopMode, ServiceConfig};
 
+#[path = "latency_hosts.rs"]
+mod hosts;
+
 use crate::output::print_json;
 use crate::system::{Role, SystemSpec};
 use vibro_service::supervise::{private_prefix, wait_for_heartbeats};
@@ -110,6 +113,11 @@ pub struct LatencyArgs {
     /// and reading all it is sent: what a connected viewer costs the services.
     #[arg(long)]
     pub view: bool,
+    /// 2: also the vibrocomp pipeline across two hosts on this machine (the services
+    /// in another iceoryx2 root, two Zenoh bridges over loopback TCP between), and a
+    /// bare Zenoh publisher/subscriber pair as its baseline (docs/bridge.md).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
+    pub hosts: u8,
     /// Print the measured latencies as JSON.
     #[arg(long)]
     pub json: bool,
@@ -137,6 +145,17 @@ pub enum PeerCommand {
         /// Loop mode: event or spin.
         #[arg(long, default_value = "event")]
         mode: LoopMode,
+    },
+    /// The bare Zenoh baseline's peer (`--hosts 2`): connects to ENDPOINT, answers
+    /// every accelerometer block on `{key}/accel` on `{key}/compensated` with its
+    /// timestamps, takes the vibration blocks on `{key}/vib`; until SIGTERM.
+    BareZenoh {
+        /// The rig's Zenoh endpoint (`tcp/127.0.0.1:PORT`).
+        #[arg(long)]
+        endpoint: String,
+        /// The key prefix.
+        #[arg(long)]
+        key: String,
     },
     /// The estimator's and the compensator's logic over two Unix stream sockets in DIR.
     Uds {
@@ -1816,11 +1835,17 @@ fn run_pipelines(
         runs.push(run_bare(args, k1, log)?);
         runs.push(run_uds(args, k1, log, estimator_config)?);
     }
+    if args.hosts == 2 {
+        runs.push(hosts::run_bridged(args, k1, log, estimator_config)?);
+        if !args.no_baselines {
+            runs.push(hosts::run_bare_zenoh(args, k1, log)?);
+        }
+    }
     Ok(runs)
 }
 
 fn print_latency(args: &LatencyArgs, runs: Vec<PipelineRun>) -> anyhow::Result<()> {
-    let ratios = (runs.len() == 3).then(|| {
+    let ratios = (!args.no_baselines && runs.len() >= 3).then(|| {
         let (v, b, u) = (
             &runs[0].end_to_end,
             &runs[1].end_to_end,
@@ -2096,6 +2121,9 @@ pub fn run_peer(cmd: &PeerCommand) -> anyhow::Result<()> {
     match cmd {
         PeerCommand::Bare { prefix, mode } => peer_bare(prefix, *mode),
         PeerCommand::BareVib { prefix, mode } => peer_bare_vib(prefix, *mode),
+        PeerCommand::BareZenoh { endpoint, key } => {
+            hosts::peer_bare_zenoh(endpoint, key, install_stop()?)
+        }
         PeerCommand::Uds {
             socket_dir,
             estimator_config,

@@ -45,6 +45,10 @@ pub struct UpArgs {
     /// overriding their `[service] realtime_priority`; needs CAP_SYS_NICE.
     #[arg(long, value_name = "1..99", value_parser = clap::value_parser!(u8).range(1..=99))]
     pub realtime_priority: Option<u8>,
+    /// Also run a Zenoh bridge to other hosts with this configuration (docs/bridge.md),
+    /// restarted like the services.
+    #[arg(long, value_name = "FILE")]
+    pub bridge: Option<PathBuf>,
     /// Restarts allowed per service within --restart-window-s before `up` gives up.
     #[arg(long, default_value_t = 5)]
     pub max_restarts: u32,
@@ -84,6 +88,9 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
     match &args.compensator_config {
         Some(p) => drop(vibro_compensator::Config::load(p)?),
         None => drop(vibro_compensator::Config::load_default()?),
+    }
+    if let Some(path) = &args.bridge {
+        drop(vibro_bridge::BridgeConfig::load(path)?);
     }
     if let Some(out) = &args.record {
         check_record_path(out, args.force)?;
@@ -136,6 +143,8 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
         foxglove: args.foxglove,
         json: false,
         exe: None,
+        bridge: args.bridge.clone(),
+        cwd: None,
     };
     let roles = spec.roles();
     let reports = run_service(|shutdown| async move {
