@@ -345,29 +345,7 @@ fn a_message_lost_or_reordered_on_the_network_is_counted_and_flagged() {
         || probe.receive().unwrap().is_some(),
     );
 
-    let mut zc = zenoh::Config::default();
-    zc.insert_json5("mode", "\"peer\"").unwrap();
-    zc.insert_json5("connect/endpoints", &format!("[\"tcp/127.0.0.1:{port}\"]"))
-        .unwrap();
-    zc.insert_json5("connect/timeout_ms", "10000").unwrap();
-    zc.insert_json5("connect/exit_on_failure", "true").unwrap();
-    zc.insert_json5("listen/endpoints", "[]").unwrap();
-    zc.insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    let session = zenoh::open(zc).wait().unwrap();
-    let publisher = session
-        .declare_publisher(format!("{key_prefix}/accel"))
-        .encoding(vibro_bridge::encoding_of(
-            vibro_msgs::MessageKind::AccelBlock,
-        ))
-        .congestion_control(zenoh::qos::CongestionControl::Block)
-        .wait()
-        .unwrap();
-    wait_until(
-        "the bridge's Zenoh subscriber",
-        Duration::from_secs(10),
-        || publisher.matching_status().wait().unwrap().matching(),
-    );
+    let (session, publisher) = remote_accel_publisher(port, &key_prefix);
     let order = [0u64, 1, 2, 3, 6, 4, 7, 8, 9];
     for seq in order {
         publisher.put(accel_block(seq).bytes()).wait().unwrap();

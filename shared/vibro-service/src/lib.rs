@@ -78,7 +78,9 @@ pub use continuity::{Arrival, Continuity, StreamCounters};
 pub use heartbeat::{HeartbeatPublisher, HeartbeatReport};
 pub use json::JsonObject;
 pub use latency::{Latency, Quantiles};
-pub use runtime::{init_tracing, main_with, run_service, ServiceSummary, SAME_REQUEST};
+pub use runtime::{
+    init_tracing, main_with, on_own_thread, run_service, ServiceSummary, SAME_REQUEST,
+};
 pub use settings::{
     check_prefix, check_seconds, data_stream_config, default_prefix, estimate_stream_config,
     parse_toml, read_config_file, ConfigError, ConfigSource, LoopMode, ServiceSettings,

@@ -7,6 +7,37 @@ use anyhow::Context;
 use std::future::Future;
 use tokio::signal::unix::{signal, SignalKind};
 
+/// Runs `work` on a thread of its own named `name` until it returns: blocking code (an
+/// iceoryx2 loop, Zenoh's blocking calls, file I/O) never runs on a tokio worker. A
+/// shutdown (SIGINT, SIGTERM) sets the flag `work` polls, which should then end soon.
+/// Its result, or an error naming the thread if it panicked.
+pub async fn on_own_thread<T, W>(name: &str, shutdown: Shutdown, work: W) -> anyhow::Result<T>
+where
+    T: Send + 'static,
+    W: FnOnce(&std::sync::atomic::AtomicBool) -> T + Send + 'static,
+{
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    let stop = Arc::new(AtomicBool::new(false));
+    let worker = Arc::clone(&stop);
+    std::thread::Builder::new()
+        .name(name.into())
+        .spawn(move || {
+            let _ = tx.send(work(&worker));
+        })
+        .with_context(|| format!("spawning the {name} thread"))?;
+    let watcher = tokio::spawn(async move {
+        shutdown.triggered().await;
+        stop.store(true, Ordering::Release);
+    });
+    let result = rx
+        .await
+        .map_err(|_| anyhow::anyhow!("the {name} thread ended without a result (it panicked)"));
+    watcher.abort();
+    result
+}
+
 /// Logs to stderr, INFO by default, `RUST_LOG` to change it; the same lines go to the
 /// service's log stream once [`crate::logstream::start`]ed. Safe to call twice.
 pub fn init_tracing() {

@@ -2,10 +2,7 @@
 //! host's iceoryx2 system and Zenoh (`vibro_bridge`, docs/bridge.md), until Ctrl-C /
 //! SIGTERM; `--json` prints every stream's counters at exit.
 
-use anyhow::Context;
 use std::path::PathBuf;
-use std::sync::atomic::Ordering;
-use std::sync::Arc;
 use vibro_bridge::BridgeConfig;
 
 #[derive(Debug, Clone, clap::Args)]
@@ -33,29 +30,12 @@ pub fn load(args: &BridgeArgs) -> anyhow::Result<BridgeConfig> {
 pub fn run(args: &BridgeArgs) -> anyhow::Result<()> {
     vibro_service::init_tracing();
     let config = load(args)?;
+    // Zenoh's blocking calls and the iceoryx2 loops: on a thread of their own.
     let summary = vibro_service::run_service(|shutdown| async move {
-        let (tx, rx) = tokio::sync::oneshot::channel();
-        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
-        let worker = Arc::clone(&stop);
-        // Zenoh's blocking calls and the iceoryx2 loops: on threads of their own,
-        // never on a tokio worker.
-        std::thread::Builder::new()
-            .name("vibrocomp-bridge".into())
-            .spawn(move || {
-                let _ = tx.send(vibro_bridge::run(&config, &worker));
-            })
-            .context("spawning the bridge thread")?;
-        let watcher = tokio::spawn({
-            let stop = Arc::clone(&stop);
-            async move {
-                shutdown.triggered().await;
-                stop.store(true, Ordering::Release);
-            }
-        });
-        let result = rx.await.map_err(|_| {
-            anyhow::anyhow!("the bridge thread ended without a result (it panicked)")
-        })?;
-        watcher.abort();
+        let result = vibro_service::on_own_thread("vibrocomp-bridge", shutdown, move |stop| {
+            vibro_bridge::run(&config, stop)
+        })
+        .await?;
         Ok(result?)
     })?;
     if args.json {

@@ -6,8 +6,7 @@ use anyhow::Context;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::io::IsTerminal;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
 use vibro_log::{replay, Pace, ReplayOptions, ReplaySummary};
 use vibro_msgs::ServiceNames;
 
@@ -122,34 +121,13 @@ pub fn replay_with_bar(
 pub fn run(args: &ReplayArgs) -> anyhow::Result<()> {
     vibro_service::init_tracing();
     let options = args.options()?;
-    let stop = Arc::new(AtomicBool::new(false));
     // Ctrl-C / SIGTERM: stop after the current message, the ports released cleanly.
     let summary = vibro_service::run_service(|shutdown| {
-        let stop = Arc::clone(&stop);
         let input = args.input.clone();
-        async move {
-            let (tx, rx) = tokio::sync::oneshot::channel();
-            let worker = Arc::clone(&stop);
-            std::thread::Builder::new()
-                .name("vibrocomp-replay".into())
-                .spawn(move || {
-                    let _ = tx.send(replay_with_bar(&input, &options, &worker));
-                })
-                .context("spawning the replay thread")?;
-            let watcher = tokio::spawn({
-                let stop = Arc::clone(&stop);
-                async move {
-                    shutdown.triggered().await;
-                    stop.store(true, Ordering::Release);
-                }
-            });
-            let result = rx.await.map_err(|_| {
-                anyhow::anyhow!("the replay thread ended without a result (it panicked)")
-            })?;
-            watcher.abort();
-            result
-        }
-    })?;
+        vibro_service::on_own_thread("vibrocomp-replay", shutdown, move |stop| {
+            replay_with_bar(&input, &options, stop)
+        })
+    })??;
     if args.json {
         return print_json(&summary);
     }
