@@ -21,7 +21,10 @@ outputs do not depend on timing: before each accelerometer block the client send
 vibration blocks up to that block's end and waits until the estimator's progress
 stream (``{prefix}progress/estimator``) says it consumed them, which means every
 estimate they completed is already published; at most ``--max-in-flight``
-accelerometer blocks wait for their compensated block.
+accelerometer blocks wait for their compensated block, and none when the next
+vibration blocks complete an estimate (the progress stream's
+``input_samples_to_output``): a compensator that is behind would otherwise take that
+newer estimate for a block sent before it.
 
 Wire layouts, type names and QoS: ``docs/messages.md`` and ``shared/vibro-ipc``. They
 must match the Rust side exactly or iceoryx2 refuses to open the services.
@@ -406,6 +409,9 @@ class Client:
         self.vib_next = 0
         self.accel_next = 0
         self.estimator_received = 0
+        # Vibration samples the estimator still needs for its next estimate (its
+        # progress stream's `input_samples_to_output`), None until it reported.
+        self.samples_to_estimate: int | None = None
         self.estimates = []
         self.expected_estimate = {}
         self.blocks = []
@@ -451,6 +457,8 @@ class Client:
 
     def take_progress(self) -> bool:
         for hb in self.progress.drain():
+            if hb.received >= self.estimator_received:
+                self.samples_to_estimate = hb.input_samples_to_output
             self.estimator_received = max(self.estimator_received, hb.received)
         for e in self.estimate.drain():
             self.estimates.append(self.estimate_record(e))
@@ -551,6 +559,19 @@ class Client:
                 None,
             )
 
+    def before_an_estimate(self, end_ns: int) -> None:
+        """If the vibration blocks up to `end_ns` will complete an estimate, waits until
+        no accelerometer block is still waiting for its output: a compensator that is
+        behind would otherwise take the new estimate for a block sent before it, and
+        the outputs would depend on timing."""
+        k, new = self.vib_next, 0
+        while k < self.vib_total and time_ns(k, VIB_RATE_HZ) < end_ns:
+            step = min(VIB_BLOCK_MAX, self.vib_total - k)
+            new += step
+            k += step
+        if new and (self.samples_to_estimate is None or new >= self.samples_to_estimate):
+            self.wait_compensated(0)
+
     def run(self) -> dict:
         start = time.monotonic()
         self.wait_for_services()
@@ -560,6 +581,7 @@ class Client:
             # End of the block's last averaging interval.
             end_ns = time_ns(self.accel_next + 1, ACCEL_RATE_HZ) + (count - 1) * period
             sent_vib = self.vib.sent
+            self.before_an_estimate(end_ns)
             while self.vib_next < self.vib_total and time_ns(self.vib_next, VIB_RATE_HZ) < end_ns:
                 self.send_vib_block()
             if self.vib.sent != sent_vib:
@@ -567,6 +589,7 @@ class Client:
             self.send_accel_block()
             if self.accel.sent - len(self.blocks) >= self.args.max_in_flight:
                 self.wait_compensated(self.args.max_in_flight - 1)
+        self.wait_compensated(0)
         while self.vib_next < self.vib_total:
             self.send_vib_block()
         self.sync_estimator()

@@ -390,6 +390,38 @@ fn python_rig_client_round_trips_through_both_services() {
             .arg(&results_path),
         &dir,
     );
+    // Behind on purpose: once the client is well under way, the compensator is stopped
+    // for 0.5 s (SIGSTOP, SIGCONT) while the client and the estimator go on, so that
+    // accelerometer blocks queue up while newer estimates could be published. Each block
+    // must still use the latest estimate sent before it (`check_results`): the client
+    // waits for its outputs before it sends the vibration that completes an estimate.
+    // Without that wait a compensator that was behind took the newer estimate.
+    {
+        let node = create_node(&format!("vct-py-probe-{}", next_id())).expect("probe node");
+        let names = ServiceNames::new(&prefix).expect("names");
+        let out = StreamSubscriber::<CompensatedBlock>::open(&node, &names, Stream::Compensated)
+            .expect("the compensated stream");
+        let mut seen = 0;
+        let t = Instant::now();
+        while seen < 40 && t.elapsed() < Duration::from_secs(60) {
+            while let Ok(Some(_)) = out.receive() {
+                seen += 1;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        assert!(seen >= 40, "only {seen} compensated blocks within 60 s");
+        let pid = compensator.child.id().to_string();
+        let signal = |sig: &str| {
+            let ok = Command::new("kill")
+                .args([sig, &pid])
+                .status()
+                .is_ok_and(|s| s.success());
+            assert!(ok, "kill {sig} {pid}");
+        };
+        signal("-STOP");
+        std::thread::sleep(Duration::from_millis(500));
+        signal("-CONT");
+    }
     let status = client.wait(Duration::from_secs(180));
     let client_s = started.elapsed().as_secs_f64();
     assert!(
