@@ -139,6 +139,21 @@ fn write(path: &Path, text: &str) -> PathBuf {
 }
 
 /// The compensator as a process on `prefix` (the shipped configuration).
+/// A bridge configuration in `dir` on `prefix`, listening on a free loopback port
+/// under a fresh key prefix named after `what`, with the `streams` section given
+/// (e.g. `[import]\nstreams = ["accel"]\n`): the file, the port and the key prefix.
+fn listening_config(dir: &Dir, prefix: &str, what: &str, streams: &str) -> (PathBuf, u16, String) {
+    let port = free_port().unwrap();
+    let key_prefix = format!("vibrocomp/{what}{}", next_id());
+    let config = write(
+        &dir.path("b.toml"),
+        &format!(
+            "prefix = {prefix:?}\nkey_prefix = {key_prefix:?}\n[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\nconnect_timeout_s = 5.0\n{streams}"
+        ),
+    );
+    (config, port, key_prefix)
+}
+
 fn compensator(prefix: &str, dir: &Dir) -> Kid {
     Kid::spawn(
         "compensator",
@@ -318,14 +333,8 @@ fn remote_accel_publisher(
 fn a_message_lost_or_reordered_on_the_network_is_counted_and_flagged() {
     let dir = Dir::new("loss");
     let prefix = prefix("l");
-    let port = free_port().unwrap();
-    let key_prefix = format!("vibrocomp/loss{}", next_id());
-    let config = write(
-        &dir.path("b.toml"),
-        &format!(
-            "prefix = {prefix:?}\nkey_prefix = {key_prefix:?}\n[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\nconnect_timeout_s = 5.0\n[import]\nstreams = [\"accel\"]\n"
-        ),
-    );
+    let (config, port, key_prefix) =
+        listening_config(&dir, &prefix, "loss", "[import]\nstreams = [\"accel\"]\n");
     let names = ServiceNames::new(&prefix).unwrap();
     let node = create_node("vcb-loss").unwrap();
     let out =
@@ -396,13 +405,11 @@ fn a_python_zenoh_client_decodes_the_bridged_compensated_stream() {
     const BLOCKS: u64 = 12;
     let dir = Dir::new("py");
     let prefix = prefix("p");
-    let port = free_port().unwrap();
-    let key_prefix = format!("vibrocomp/py{}", next_id());
-    let config = write(
-        &dir.path("b.toml"),
-        &format!(
-            "prefix = {prefix:?}\nkey_prefix = {key_prefix:?}\n[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\nconnect_timeout_s = 5.0\n[export]\nstreams = [\"compensated\"]\n"
-        ),
+    let (config, port, key_prefix) = listening_config(
+        &dir,
+        &prefix,
+        "py",
+        "[export]\nstreams = [\"compensated\"]\n",
     );
     let names = ServiceNames::new(&prefix).unwrap();
     let node = create_node("vcb-py").unwrap();
@@ -769,13 +776,11 @@ fn a_slow_receiving_side_drops_at_its_bounded_queue_and_counts_it() {
     const BURST: u64 = 400;
     let dir = Dir::new("slow");
     let prefix = prefix("s");
-    let port = free_port().unwrap();
-    let key_prefix = format!("vibrocomp/slow{}", next_id());
-    let config = write(
-        &dir.path("b.toml"),
-        &format!(
-            "prefix = {prefix:?}\nkey_prefix = {key_prefix:?}\n[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\nconnect_timeout_s = 5.0\n[import]\nstreams = [\"accel\"]\nqueue_depth = 2\n"
-        ),
+    let (config, port, key_prefix) = listening_config(
+        &dir,
+        &prefix,
+        "slow",
+        "[import]\nstreams = [\"accel\"]\nqueue_depth = 2\n",
     );
     let names = ServiceNames::new(&prefix).unwrap();
     let node = create_node("vcb-slow").unwrap();

@@ -362,7 +362,6 @@ impl Prepared {
         table: &CampaignTable,
         extra: &[toml::Table],
     ) -> Result<()> {
-        let scaled = table.conditions.iter().any(|c| c.scale_group.is_some());
         let mut row_effects = Vec::with_capacity(table.conditions.len());
         let mut residual_g = Vec::with_capacity(table.conditions.len());
         for (i, c) in table.conditions.iter().enumerate() {
@@ -374,7 +373,7 @@ impl Prepared {
             let mut tables = self.model_tables[i].clone();
             tables.extend(extra.iter().filter(|t| applies(kind_of(t), c)).cloned());
             let effects = build_effects(&tables, &c.passport)?;
-            residual_g.push(if scaled && c.scale_group.is_some() {
+            residual_g.push(if c.scale_group.is_some() {
                 c.ve_measured_g - row_ve_g(model.mode, &effects, c, c)?
             } else {
                 self.measured_g[i] - self.predicted_g[i]

@@ -805,28 +805,35 @@ fn run_vibrocomp(
     })
 }
 
+/// This executable's `latency-peer` with `args`, its stderr appended to `log`
+/// (`what`: how an error names it).
+pub(super) fn spawn_peer(
+    args: &[&str],
+    log: &Path,
+    what: &str,
+) -> anyhow::Result<std::process::Child> {
+    std::process::Command::new(std::env::current_exe()?)
+        .arg("latency-peer")
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(log)?,
+        )
+        .spawn()
+        .with_context(|| format!("starting {what}"))
+}
+
 fn run_bare(args: &LatencyArgs, k1: [f64; 3], log: &Path) -> anyhow::Result<PipelineRun> {
     let prefix = private_prefix("vcbare");
-    let exe = std::env::current_exe()?;
-    let spawn = |peer: &str, what: &str| -> anyhow::Result<std::process::Child> {
-        std::process::Command::new(&exe)
-            .args([
-                "latency-peer",
-                peer,
-                "--prefix",
-                &prefix,
-                "--mode",
-                args.mode.as_str(),
-            ])
-            .stdout(std::process::Stdio::null())
-            .stderr(
-                std::fs::OpenOptions::new()
-                    .create(true)
-                    .append(true)
-                    .open(log)?,
-            )
-            .spawn()
-            .with_context(|| format!("starting the bare {what}"))
+    let spawn = |peer: &str, what: &str| {
+        spawn_peer(
+            &[peer, "--prefix", &prefix, "--mode", args.mode.as_str()],
+            log,
+            &format!("the bare {what}"),
+        )
     };
     // Both streams travel, as in the vibrocomp pipeline: the forwarder answers the
     // accelerometer blocks, the sink takes the vibration blocks (the estimator's

@@ -184,24 +184,11 @@ pub(super) fn run_bare_zenoh(
     let rig = session(("listen", &ep))?;
     let key = format!("vibrocomp/latency-{}", std::process::id());
     let zerr = |what: &'static str| move |e: zenoh::Error| anyhow::anyhow!("{what}: {e}");
-    let mut child = std::process::Command::new(std::env::current_exe()?)
-        .args([
-            "latency-peer",
-            "bare-zenoh",
-            "--endpoint",
-            &ep,
-            "--key",
-            &key,
-        ])
-        .stdout(std::process::Stdio::null())
-        .stderr(
-            std::fs::OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(log)?,
-        )
-        .spawn()
-        .context("starting the bare Zenoh peer")?;
+    let mut child = super::spawn_peer(
+        &["bare-zenoh", "--endpoint", &ep, "--key", &key],
+        log,
+        "the bare Zenoh peer",
+    )?;
     let peer = super::KillOnDrop(Some(&mut child));
     // The rig's receiver.
     let capacity = (args.duration_s * args.rate_hz / f64::from(args.block_samples)) as usize + 16;
