@@ -45,8 +45,6 @@
 
 mod config;
 mod core;
-pub mod interval;
-pub mod mapping;
 mod reload;
 mod service;
 
@@ -54,3 +52,5 @@ pub use self::core::{InProcess, OutputSink, Summary, MAX_ABS_READING_G};
 pub use config::{wire_mode, Config, EstimateMappingRaw, Model, RawConfig, DEFAULT_CONFIG_PATH};
 pub use mapping::{unit_vibrations, EstimateMapping, KurtosisUse, MappingError, UnitVibrations};
 pub use service::{run, run_async};
+/// From an estimate to each unit's vibration, shared with the lab (`vibro_effects`).
+pub use vibro_effects::{interval, mapping};

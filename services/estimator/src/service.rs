@@ -2,18 +2,18 @@
 //! the wait set, heartbeats and the periodic summary. What happens to each block is
 //! the core's (`crate::core`).
 
-use crate::core::{InProcess, Summary};
 use crate::Config;
 use anyhow::{anyhow, Context};
 use iceoryx2::prelude::CallbackProgression;
 use tracing::{debug, info, warn};
+use vibro_estimator_core::{InProcess, Summary};
 use vibro_ipc::{
     cleanup_dead_nodes, create_node, create_waitset, StreamPublisher, StreamSubscriber,
 };
 use vibro_msgs::{ServiceId, ServiceState, Stream, VibBlock, VibEstimate};
 use vibro_service::{
-    count_first, data_stream_config, estimate_stream_config, now_ns, HeartbeatPublisher,
-    HeartbeatReport, LoopMode, Quantiles, Shutdown,
+    data_stream_config, estimate_stream_config, now_ns, HeartbeatPublisher, HeartbeatReport,
+    LoopMode, Quantiles, Shutdown,
 };
 
 /// Runs the estimator until `shutdown` is triggered: the hot loop on its own thread,
@@ -82,13 +82,13 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
         .attach_interval(config.service.heartbeat_period)
         .context("attaching the heartbeat interval to the wait set")?;
 
-    let mut core = InProcess::new(&config)?;
+    let mut core = InProcess::new(&config.estimator)?;
 
     let heartbeat_ns = config.service.heartbeat_period.as_nanos() as u64;
     let summary_ns = config.service.summary_period.as_nanos() as u64;
     let mut next_heartbeat_ns = started_ns;
     let mut next_summary_ns = started_ns.saturating_add(summary_ns);
-    let mut last_period = core.c;
+    let mut last_period = core.counters();
     let mut period_start_ns = started_ns;
 
     info!(
@@ -112,7 +112,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
                 )
                 .context("waiting on the estimator's wait set")?;
             if let Err(e) = vib.clear_events() {
-                if count_first(&mut core.c.receive_errors) {
+                if core.count_receive_error() {
                     warn!("{e}");
                 }
             }
@@ -123,7 +123,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
                 Ok(Some(s)) => s,
                 Ok(None) => break,
                 Err(e) => {
-                    if count_first(&mut core.c.receive_errors) {
+                    if core.count_receive_error() {
                         warn!("{e}");
                     }
                     break;
@@ -138,7 +138,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
         }
         if received_any {
             // Once per wake-up: every estimate the blocks completed is out.
-            let c = &core.c;
+            let c = core.counters();
             let report = HeartbeatReport {
                 received: c.vib.received,
                 published: c.estimates_published,
@@ -165,8 +165,8 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
         let now = now_ns();
         if now >= next_heartbeat_ns {
             next_heartbeat_ns = now.saturating_add(heartbeat_ns);
-            let c = &core.c;
-            let period = core.latency.period();
+            let c = core.counters();
+            let period = core.latency_mut().period();
             // A seq or sample-index jump (vibro_service::continuity) degrades like a loss.
             let lost_now = c.vib.lost_messages
                 + c.vib.lost_samples
@@ -205,8 +205,8 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
         if now >= next_summary_ns {
             next_summary_ns = now.saturating_add(summary_ns);
             let dt_s = (now.saturating_sub(period_start_ns)) as f64 * 1e-9;
-            let q = core.latency.period();
-            let c = &core.c;
+            let q = core.latency_mut().period();
+            let c = core.counters();
             let dsp = core.dsp_counters();
             info!(
                 "estimator: {:.1} blocks/s, {} estimates ({} flagged), lost {} blocks / {} samples, rate mismatches {}, latency p50 {:.1} us p99 {:.1} us, dsp gap samples {}, non-finite {}",
@@ -221,8 +221,8 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
                 dsp.gap_samples,
                 dsp.non_finite_samples,
             );
-            core.latency.reset_period();
-            last_period = core.c;
+            core.latency_mut().reset_period();
+            last_period = core.counters();
             period_start_ns = now;
             let cleaned = cleanup_dead_nodes(&node);
             if cleaned > 0 {
@@ -231,13 +231,13 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
         }
     }
 
-    let c = &core.c;
+    let c = core.counters();
     let report = HeartbeatReport {
         received: c.vib.received,
         published: c.estimates_published,
         lost: c.vib.lost_messages,
         stale: c.estimates_flagged,
-        latency: core.latency.period(),
+        latency: core.latency_mut().period(),
         state: ServiceState::Stopping,
         input_samples_to_output: core.samples_to_next_estimate(),
         input_samples_per_output: core.samples_per_estimate(),

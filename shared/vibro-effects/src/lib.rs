@@ -23,7 +23,12 @@
 //! - [`model`]: the extended model file (`MODEL.toml`, docs/lab.md): a base mode and
 //!   the `[[effect]]` tables added to it ([`LabModel`]);
 //! - [`predict`]: the extended model's vibration error for one condition
-//!   ([`predict_ve`]).
+//!   ([`predict_ve`]);
+//! - [`mapping`]: from one vibration estimate (the estimator's wire `VibEstimate`, in
+//!   the sensors' axes) to the vibration each unit sees in its own axes;
+//! - [`interval`]: the part of that vibration *within* one output interval (what a
+//!   reading that is a mean over the interval rectifies unseen). The compensator and
+//!   the lab share these two, so that both read an estimate the same way.
 //!
 //! ```
 //! use vibro_effects::model::{build_effects, BaseMode};
@@ -60,6 +65,8 @@ pub mod effect;
 pub mod effects;
 pub mod empirical;
 mod error;
+pub mod interval;
+pub mod mapping;
 pub mod model;
 pub mod predict;
 

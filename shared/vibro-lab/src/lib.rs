@@ -15,6 +15,11 @@
 //!   "unexplained"), `add_effect`, `error_ladder`.
 //! - [`empirical`]: beyond the library, a cross-validated empirical correction
 //!   (not physical) offered when the verdict is "unexplained".
+//! - [`log_table`]: an MCAP log with a reference turned into the lab's table (the
+//!   estimator's core run offline over its vibration stream, windows measured and
+//!   pooled); [`spectrum`]: the spectrum behind an estimate's band powers.
+//! - [`report`]: the self-contained HTML report of a diagnosis, with its SVG plots;
+//!   [`text`]: the lab's results as the command line prints them.
 //!
 //! The effects, the extended model file (`MODEL.toml`: base mode plus effects,
 //! [`LabModel`]) and its prediction are the effects library's (`vibro_effects`),
@@ -30,7 +35,11 @@ pub mod empirical;
 pub mod fit;
 pub mod flight;
 pub mod library;
+pub mod log_table;
+pub mod report;
+pub mod spectrum;
 pub mod table;
+pub mod text;
 
 pub use diagnose::{
     add_effect, add_effects, add_empirical, compare, diagnose, error_ladder, fit_effect,
@@ -75,6 +84,43 @@ pub enum Error {
     /// effect that cannot be built or evaluated), its message unchanged.
     #[error(transparent)]
     Effects(#[from] vibro_effects::Error),
+    /// An MCAP log the lab reads (`log_table`), its message unchanged.
+    #[error(transparent)]
+    Mcap(#[from] vibro_mcap::Error),
+    /// A log's attachments (`vibro_log`), its message unchanged.
+    #[error(transparent)]
+    Log(#[from] vibro_log::Error),
+    /// A passport or triad (a log's attached passport), its message unchanged.
+    #[error(transparent)]
+    Config(#[from] vibro_config::ConfigError),
+    /// Drawing one of the report's plots (`report`), the plotting library's message.
+    #[error("{0}")]
+    Render(String),
+    /// What the lab was doing when a step below it failed: `what: cause`.
+    #[error("{what}")]
+    Context {
+        what: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync + 'static>,
+    },
+}
+
+impl<E: std::error::Error + Send + Sync> From<plotters::drawing::DrawingAreaErrorKind<E>>
+    for Error
+{
+    fn from(e: plotters::drawing::DrawingAreaErrorKind<E>) -> Self {
+        Error::Render(e.to_string())
+    }
+}
+
+impl Error {
+    /// This error as the cause of `what` (`what: self`).
+    pub fn context(self, what: impl Into<String>) -> Self {
+        Error::Context {
+            what: what.into(),
+            source: Box::new(self),
+        }
+    }
 }
 
 pub type Result<T> = std::result::Result<T, Error>;

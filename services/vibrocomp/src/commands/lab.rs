@@ -1,28 +1,18 @@
 //! `vibrocomp lab`: compare the VE model with a campaign, find the missing physical
 //! effect, fit it and add it to the model (`vibro_lab`, docs/lab.md).
 
+use super::lab_log::{table_from_log, LogArgs};
 use crate::output::{print_json, print_text};
-use std::fmt::Write as _;
-
-/// Appends a line to the output text (printed at once at the end, so that a closed
-/// pipe ends it quietly).
-macro_rules! p {
-    ($o:expr) => {{
-        let _ = writeln!($o);
-    }};
-    ($o:expr, $($arg:tt)*) => {{
-        let _ = writeln!($o, $($arg)*);
-    }};
-}
-use super::lab_log::{table_from_log, LogArgs, LogTableSummary};
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use std::fmt::Write as _;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use vibro_lab::diagnose::Progress;
-use vibro_lab::diagnose::{Diagnosis, Verdict};
-use vibro_lab::{BaseMode, CampaignTable, Comparison, DiagnoseOptions, LabModel};
+use vibro_lab::log_table::LogTableSummary;
+use vibro_lab::text;
+use vibro_lab::{BaseMode, CampaignTable, DiagnoseOptions, LabModel};
 
 #[derive(Debug, Subcommand)]
 pub enum LabCommand {
@@ -224,25 +214,6 @@ fn fit_progress() -> (ProgressBar, Progress) {
     (bar, progress)
 }
 
-/// One line on what became of a log's windows.
-fn print_log_summary(o: &mut String, s: &LogTableSummary) {
-    p!(
-        o,
-        "{}: {} conditions from {} of {} estimator windows ({} s, units {}, passports from {}); \
-         left out: {} flagged, {} incomplete, {} with aL changing",
-        s.log,
-        s.conditions,
-        s.windows_used,
-        s.windows,
-        s.estimator_window_s,
-        s.units.join(", "),
-        s.passports_from,
-        s.left_out_flagged,
-        s.left_out_incomplete,
-        s.left_out_al_span
-    );
-}
-
 /// A command's JSON with the logs' summaries beside it when inputs were logs (`log`:
 /// the one log's, `logs`: every log's when there are several).
 #[derive(serde::Serialize)]
@@ -255,443 +226,44 @@ struct WithLog<'a, T: serde::Serialize> {
     logs: Option<&'a [LogTableSummary]>,
 }
 
-fn print_json_with_log<T: serde::Serialize>(
+/// Prints `inner` as JSON with the logs' summaries beside it, or the logs' summary
+/// lines followed by the text `write` appends.
+fn print_result<T: serde::Serialize>(
+    json: bool,
     inner: &T,
     logs: &[LogTableSummary],
+    write: impl FnOnce(&mut String),
 ) -> anyhow::Result<()> {
-    print_json(&WithLog {
-        inner,
-        log: (logs.len() == 1).then(|| &logs[0]),
-        logs: (logs.len() > 1).then_some(logs),
-    })
-}
-
-fn g(x: f64) -> String {
-    format!("{x:>11.3e}")
-}
-
-fn print_comparison(o: &mut String, c: &Comparison, all: bool) {
-    let s = &c.summary;
-    let effects = if c.effects.is_empty() {
-        "none".to_string()
-    } else {
-        c.effects.join(", ")
-    };
-    p!(
-        o,
-        "{}: {} conditions; model {} mode, effects: {}",
-        c.table,
-        s.n,
-        c.mode,
-        effects
-    );
-    p!(
-        o,
-        "residual RMS {:.3e} g (max {:.3e} g), measured VE RMS {:.3e} g, noise floor {:.3e} g",
-        s.rms_residual_g,
-        s.max_abs_residual_g,
-        s.rms_measured_g,
-        s.noise_floor_g
-    );
-    p!(
-        o,
-        "chi2 {:.4} for {} dof: {:.4} per dof, p = {:.3e}",
-        s.chi2,
-        s.dof,
-        s.chi2_per_dof,
-        s.p_value
-    );
-    let mut rows: Vec<_> = c.rows.iter().collect();
-    if !all {
-        rows.sort_by(|a, b| b.z.abs().total_cmp(&a.z.abs()));
-        rows.truncate(10);
-        p!(o, "\nlargest residuals (--all for every condition):");
-    } else {
-        p!(o);
-    }
-    p!(
-        o,
-        "{:<10} {:>5} {:>11} {:>11} {:>11} {:>11} {:>10}",
-        "run_id",
-        "line",
-        "measured_g",
-        "u_g",
-        "predicted_g",
-        "residual_g",
-        "z"
-    );
-    for r in rows {
-        p!(
-            o,
-            "{:<10} {:>5} {} {} {} {} {:>10.2}",
-            r.run_id,
-            r.line,
-            g(r.measured_g),
-            g(r.uncertainty_g),
-            g(r.predicted_g),
-            g(r.residual_g),
-            r.z
-        );
-    }
-    p!(
-        o,
-        "\nresidual by condition variable (RMS residual per group, g):"
-    );
-    for v in &c.by_variable {
-        let groups: Vec<String> = v
-            .groups
-            .iter()
-            .map(|gr| format!("{} ({}): {:.2e}", gr.label, gr.n, gr.rms_residual_g))
-            .collect();
-        p!(o, "  {:<12} {}", v.variable, groups.join("; "));
-    }
-}
-
-fn compare(a: &CompareArgs) -> anyhow::Result<()> {
-    let Loaded { model, table, log } = load(
-        &a.input.input,
-        a.input.model.as_deref(),
-        base_mode(a.input.mode),
-        &a.input.log,
-    )?;
-    let c = vibro_lab::compare(&model, &table)?;
-    if a.input.json {
-        return print_json_with_log(&c, &log);
+    if json {
+        return print_json(&WithLog {
+            inner,
+            log: (logs.len() == 1).then(|| &logs[0]),
+            logs: (logs.len() > 1).then_some(logs),
+        });
     }
     let mut o = String::new();
-    for s in &log {
-        print_log_summary(&mut o, s);
+    for s in logs {
+        text::write_log_summary(&mut o, s);
     }
-    print_comparison(&mut o, &c, a.all);
+    write(&mut o);
     print_text(&o)
 }
 
-fn params_text(params: &[vibro_lab::fit::FittedParam]) -> String {
-    params
-        .iter()
-        .map(|p| {
-            if !p.sigma.is_finite() {
-                format!(
-                    "{} = {:.6e} (not determined by this table)",
-                    p.name, p.value
-                )
-            } else if vibro_lab::fit::asymmetric(p) {
-                format!(
-                    "{} = {:.6e} -{:.2e} +{:.2e} (profile likelihood; 3 sigma: {:.3e} .. {:.3e})",
-                    p.name,
-                    p.value,
-                    p.sigma_minus,
-                    p.sigma_plus,
-                    p.value - p.three_sigma_minus,
-                    p.value + p.three_sigma_plus
-                )
-            } else if p.sigma.is_finite() {
-                format!("{} = {:.6e} +- {:.2e}", p.name, p.value, p.sigma)
-            } else {
-                format!(
-                    "{} = {:.6e} (not determined by this table)",
-                    p.name, p.value
-                )
-            }
-        })
-        .collect::<Vec<_>>()
-        .join(", ")
+/// Loads the inputs and the model of the compare, diagnose and report commands.
+fn load_input(i: &Input) -> anyhow::Result<Loaded> {
+    load(&i.input, i.model.as_deref(), base_mode(i.mode), &i.log)
 }
 
-fn print_diagnosis(o: &mut String, d: &Diagnosis) {
-    let s = &d.comparison.summary;
-    p!(
-            o,
-        "{}: {} conditions; residual RMS {:.3e} g against a noise floor of {:.3e} g; chi2 per dof {:.4}, p = {:.3e}",
-        d.comparison.table, s.n, s.rms_residual_g, s.noise_floor_g, s.chi2_per_dof, s.p_value
-    );
-    p!(
-        o,
-        "\nwhere the residual goes (weighted quadratic in each variable, F-test):"
-    );
-    for t in d.trends.iter().take(8) {
-        p!(
-            o,
-            "  {:<12} explains {:>6.1} % of the residual, p = {:.2e} ({} values)",
-            t.variable,
-            100.0 * t.explained_fraction,
-            t.p_value,
-            t.distinct_values
-        );
-    }
-    if let Some(l) = &d.lack_of_fit {
-        p!(
-            o,
-            "lack of fit over {} repeated conditions: F = {:.3}, p = {:.3e}; pure error chi2 per dof {:.3}",
-            l.repeated_groups, l.f, l.p_value, l.pure_error_chi2_per_dof
-        );
-    }
-    if d.candidates.is_empty() {
-        p!(
-            o,
-            "\ncandidates: not fitted (the model as is passes the chi-square test: nothing to \
-             attribute; `lab add EFFECT` fits one on request)"
-        );
-    } else {
-        p!(
-            o,
-            "\ncandidates, each alone against the model as is, best first (delta BIC < -10: \
-             supported):"
-        );
-    }
-    p!(
-        o,
-        "  {:<24} {:>14} {:>12} {:>12}  parameters",
-        "effect",
-        "delta_bic",
-        "rms_after_g",
-        "chi2/dof"
-    );
-    for c in &d.candidates {
-        match &c.fit {
-            Some(f) => p!(
-                o,
-                "  {:<24} {:>14.1} {} {:>12.3}  {}",
-                c.kind,
-                f.delta_bic,
-                g(f.rms_residual_after_g),
-                f.chi2_per_dof_after,
-                params_text(&f.params_of(&c.kind))
-            ),
-            None => p!(
-                o,
-                "  {:<24} not applicable: {}",
-                c.kind,
-                c.not_applicable.as_deref().unwrap_or("")
-            ),
-        }
-    }
-    for n in &d.not_applicable {
-        p!(o, "{}", not_applicable_line(n));
-    }
-    if let Some(c) = d.candidates.iter().find_map(|c| c.fit.as_ref()) {
-        for n in &c.not_applicable {
-            p!(o, "{}", not_applicable_line(n));
-        }
-    }
-    if d.steps.len() > 1 {
-        p!(
-            o,
-            "\nstepwise search (each step refits all chosen effects jointly; an addition \
-             needs delta BIC < {}):",
-            d.options.bic_support
-        );
-        p!(
-            o,
-            "  {:<28} {:>14} {:>12} {:>10} {:>10}  next best",
-            "step",
-            "delta_bic",
-            "rms_g",
-            "chi2/dof",
-            "p"
-        );
-        for st in &d.steps {
-            let next: Vec<String> = st
-                .runners_up
-                .iter()
-                .take(2)
-                .map(|(k, b)| format!("{k} {b:.1}"))
-                .collect();
-            p!(
-                o,
-                "  {:<28} {:>14.1} {} {:>10.3} {:>10.2e}  {}",
-                st.action,
-                st.delta_bic,
-                g(st.rms_residual_g),
-                st.chi2_per_dof,
-                st.p_value,
-                next.join(", ")
-            );
-        }
-    }
-    p!(o);
-    match &d.verdict {
-        Verdict::Noise {
-            p_value,
-            chi2_per_dof,
-        } => p!(
-            o,
-            "Verdict: the model agrees with the measurements within their uncertainty \
-             (chi2 per dof {chi2_per_dof:.3}, p = {p_value:.3}): no effect is missing that this \
-             campaign can see."
-        ),
-        Verdict::Effect {
-            kinds,
-            delta_bic,
-            rms_residual_before_g,
-            rms_residual_after_g,
-            chi2_per_dof_after,
-            physics,
-            ..
-        } => {
-            let what = if kinds.len() > 1 {
-                format!("missing effects `{}`", kinds.join("` + `"))
-            } else {
-                format!("missing effect `{}`", kinds.join(""))
-            };
-            p!(o, "Verdict: {what} (delta BIC {delta_bic:.1}).");
-            if let Some(f) = &d.selected {
-                print_fit_params(o, f);
-            }
-            p!(
-                o,
-                "  residual RMS {rms_residual_before_g:.3e} g -> {rms_residual_after_g:.3e} g \
-                 (chi2 per dof {chi2_per_dof_after:.3}) with {}",
-                if kinds.len() > 1 { "them" } else { "it" }
-            );
-            for ph in physics {
-                p!(o, "  physics: {ph}");
-            }
-            p!(
-                o,
-                "  add {}: vibrocomp lab add {} --from {} --out model.toml",
-                if kinds.len() > 1 { "them" } else { "it" },
-                kinds.join(","),
-                d.comparison.table
-            );
-        }
-        Verdict::Confounded {
-            kinds,
-            correlation,
-            suggestions,
-            found,
-        } => {
-            if !found.is_empty() {
-                p!(o, "Found first: {}.", found.join(", "));
-            }
-            p!(
-                o,
-                "Verdict: confounded. {} explain the residual equally well (their fitted VE \
-                 changes correlate at {correlation:.4} over this campaign): this campaign \
-                 cannot tell them apart.",
-                kinds.join(" and ")
-            );
-            p!(o, "  add conditions where they differ most:");
-            for s in suggestions {
-                let preds: Vec<String> = s
-                    .predictions_g
-                    .iter()
-                    .map(|(k, v)| format!("{k} {v:.3e} g"))
-                    .collect();
-                p!(
-                    o,
-                    "  - {}: {} ({:.0} sigma apart)",
-                    s.description,
-                    preds.join(", "),
-                    s.separation_sigma
-                );
-            }
-        }
-        Verdict::Unexplained {
-            chi2_per_dof,
-            variables,
-            best,
-            best_explained_fraction,
-            found,
-            found_explained_fraction,
-        } => {
-            if found.is_empty() {
-                p!(
-                    o,
-                    "Verdict: unexplained structure (chi2 per dof {chi2_per_dof:.3}): no effect \
-                     of the library explains it."
-                );
-            } else {
-                p!(
-                    o,
-                    "Verdict: found {} (removing {:.1} % of the chi-square), but structure \
-                     remains unexplained (chi2 per dof {chi2_per_dof:.3} with {}).",
-                    found.join(" + "),
-                    100.0 * found_explained_fraction,
-                    if found.len() > 1 { "them" } else { "it" }
-                );
-                if let Some(f) = &d.selected {
-                    print_fit_params(o, f);
-                }
-            }
-            if !variables.is_empty() {
-                p!(o, "  the residual left follows: {}", variables.join(", "));
-            }
-            if let Some(b) = best {
-                p!(
-                    o,
-                    "  the best candidate left, {b}, would explain only {:.1} % of it: \
-                     not attributed",
-                    100.0 * best_explained_fraction
-                );
-            }
-            print_empirical(o, d);
-        }
-    }
-}
-
-/// An empirical correction's terms, the effects refitted beside it or dropped, and
-/// what it does to the residual.
-fn print_correction(o: &mut String, e: &vibro_lab::EmpiricalFit) {
-    for t in &e.terms {
-        p!(
-            o,
-            "  {:<20} {:>13.6e} +- {:.2e}   ({})",
-            t.key,
-            t.value,
-            t.sigma,
-            t.meaning
-        );
-    }
-    if !e.found.is_empty() {
-        p!(o, "  beside it, refitted: {}", params_text(&e.found));
-    }
-    for dropped in &e.dropped {
-        p!(o, "  not needed beside it: {dropped}");
-    }
-    p!(
-        o,
-        "  cross-validated chi2 {:.1} -> {:.1}; residual RMS {:.3e} g -> {:.3e} g (chi2 per \
-         dof {:.3}, p = {:.3})",
-        e.cv_chi2_before,
-        e.cv_chi2_after,
-        e.rms_residual_before_g,
-        e.rms_residual_after_g,
-        e.chi2_per_dof_after,
-        e.p_value_after
-    );
-}
-
-/// Beyond the library: the empirical correction offered (or why none is).
-fn print_empirical(o: &mut String, d: &Diagnosis) {
-    if let Some(why) = &d.empirical_none {
-        p!(o, "Beyond the library: {why}.");
-    }
-    let Some(e) = &d.empirical else {
-        return;
-    };
-    p!(
-        o,
-        "Beyond the library: an empirical correction, NOT PHYSICAL (a smooth function of {}, \
-         chosen by leave-one-out cross-validation; an extrapolation outside the conditions \
-         measured):",
-        e.variables.join(", ")
-    );
-    print_correction(o, e);
-    p!(
-        o,
-        "  add it: vibrocomp lab add empirical --from {} --out model.toml",
-        d.comparison.table
-    );
+fn compare(a: &CompareArgs) -> anyhow::Result<()> {
+    let Loaded { model, table, log } = load_input(&a.input)?;
+    let c = vibro_lab::compare(&model, &table)?;
+    print_result(a.input.json, &c, &log, |o| {
+        text::write_comparison(o, &c, a.all)
+    })
 }
 
 fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
-    let Loaded { model, table, log } = load(
-        &a.input.input,
-        a.input.model.as_deref(),
-        base_mode(a.input.mode),
-        &a.input.log,
-    )?;
+    let Loaded { model, table, log } = load_input(&a.input)?;
     let (bar, progress) = fit_progress();
     let opts = DiagnoseOptions {
         candidates: a.effects.clone(),
@@ -702,22 +274,17 @@ fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
     let d = vibro_lab::diagnose(&model, &table, &opts);
     bar.finish_and_clear();
     let d = d?;
-    if a.input.json {
-        return print_json_with_log(&d, &log);
-    }
-    let mut o = String::new();
-    for s in &log {
-        print_log_summary(&mut o, s);
-    }
-    print_diagnosis(&mut o, &d);
-    print_text(&o)
+    print_result(a.input.json, &d, &log, |o| text::write_diagnosis(o, &d))
 }
 
 #[derive(serde::Serialize)]
 struct AddReport<'a> {
     out: String,
     effects: Vec<String>,
-    fit: &'a vibro_lab::EffectFit,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    fit: Option<&'a vibro_lab::EffectFit>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    empirical: Option<&'a vibro_lab::EmpiricalFit>,
 }
 
 fn add(a: &AddArgs) -> anyhow::Result<()> {
@@ -740,197 +307,61 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
             !kinds.is_empty(),
             "--diagnosed: the diagnosis of {} found no effect to add ({})",
             table.path.display(),
-            verdict_line(&d.verdict)
+            text::verdict_line(&d.verdict)
         );
         kinds
     } else {
         a.effects.clone()
     };
-    if kinds.iter().any(|k| k == vibro_effects::empirical::KIND) {
-        anyhow::ensure!(
-            kinds.len() == 1 && !a.freeze,
-            "`empirical` is added alone and refits the model's effects beside it (no \
-             --freeze): first add the physical effects, then `lab add empirical`"
-        );
-        return add_empirical(a, &model, &table, &log);
-    }
-    let refs: Vec<&str> = kinds.iter().map(String::as_str).collect();
-    let (extended, fit) = vibro_lab::add_effects(&model, &table, &refs, a.freeze)?;
-    crate::files::write_with(&a.out, a.force, |tmp| {
-        extended
-            .save(tmp)
-            .with_context(|| format!("{}: cannot write the extended model", a.out.display()))
-    })?;
-    if a.json {
-        return print_json_with_log(
-            &AddReport {
-                out: a.out.display().to_string(),
-                effects: extended.effect_kinds(),
-                fit: &fit,
-            },
-            &log,
-        );
-    }
-    let mut o = String::new();
-    for s in &log {
-        print_log_summary(&mut o, s);
-    }
-    let before_g = extended
-        .fits
-        .last()
-        .map_or(fit.rms_residual_before_g, |r| r.rms_residual_before_g);
-    p!(
-        o,
-        "{} fitted {}to {} ({} conditions):",
-        fit.kinds.join(" + "),
-        if fit.kinds.len() > 1 { "jointly " } else { "" },
-        table.path.display(),
-        fit.n
+    let empirical = kinds.iter().any(|k| k == vibro_effects::empirical::KIND);
+    anyhow::ensure!(
+        !empirical || (kinds.len() == 1 && !a.freeze),
+        "`empirical` is added alone and refits the model's effects beside it (no \
+         --freeze): first add the physical effects, then `lab add empirical`"
     );
-    print_fit_params(&mut o, &fit);
-    p!(
-        o,
-        "residual RMS {:.3e} g -> {:.3e} g, chi2 per dof {:.4}, delta BIC {:.1}",
-        before_g,
-        fit.rms_residual_after_g,
-        fit.chi2_per_dof_after,
-        fit.delta_bic
-    );
-    for n in &fit.not_applicable {
-        p!(o, "{}", not_applicable_line(n));
-    }
-    p!(
-        o,
-        "wrote {} (effects: {})",
-        a.out.display(),
-        extended.effect_kinds().join(", ")
-    );
-    print_text(&o)
-}
-
-#[derive(serde::Serialize)]
-struct AddEmpiricalReport<'a> {
-    out: String,
-    effects: Vec<String>,
-    empirical: &'a vibro_lab::EmpiricalFit,
-}
-
-/// `lab add empirical`: the cross-validated correction (not physical) beside the
-/// model's effects, refitted jointly.
-fn add_empirical(
-    a: &AddArgs,
-    model: &vibro_lab::LabModel,
-    table: &vibro_lab::CampaignTable,
-    log: &[LogTableSummary],
-) -> anyhow::Result<()> {
-    let Some((extended, e)) = vibro_lab::add_empirical(model, table)? else {
-        anyhow::bail!(
-            "{}: no empirical correction: no smooth function of the vibration and the flight \
-             acceleration predicts the residual out of sample (no set of terms, each \
-             lowering the leave-one-out chi-square by {}, brings it below {} of its value); \
-             nothing written",
-            table.path.display(),
-            vibro_lab::empirical::CV_SUPPORT,
-            vibro_lab::empirical::OFFER_FRACTION
-        );
+    let (extended, fit, correction) = if empirical {
+        let Some((extended, e)) = vibro_lab::add_empirical(&model, &table)? else {
+            anyhow::bail!(
+                "{}: no empirical correction: no smooth function of the vibration and the \
+                 flight acceleration predicts the residual out of sample (no set of terms, \
+                 each lowering the leave-one-out chi-square by {}, brings it below {} of its \
+                 value); nothing written",
+                table.path.display(),
+                vibro_lab::empirical::CV_SUPPORT,
+                vibro_lab::empirical::OFFER_FRACTION
+            );
+        };
+        (extended, None, Some(e))
+    } else {
+        let refs: Vec<&str> = kinds.iter().map(String::as_str).collect();
+        let (extended, fit) = vibro_lab::add_effects(&model, &table, &refs, a.freeze)?;
+        (extended, Some(fit), None)
     };
     crate::files::write_with(&a.out, a.force, |tmp| {
         extended
             .save(tmp)
             .with_context(|| format!("{}: cannot write the extended model", a.out.display()))
     })?;
-    if a.json {
-        return print_json_with_log(
-            &AddEmpiricalReport {
-                out: a.out.display().to_string(),
-                effects: extended.effect_kinds(),
-                empirical: &e,
-            },
-            log,
+    let report = AddReport {
+        out: a.out.display().to_string(),
+        effects: extended.effect_kinds(),
+        fit: fit.as_ref(),
+        empirical: correction.as_ref(),
+    };
+    print_result(a.json, &report, &log, |o| {
+        text::write_added(o, &extended, &table.path, fit.as_ref(), correction.as_ref());
+        let _ = writeln!(
+            o,
+            "wrote {} (effects: {})",
+            report.out,
+            report.effects.join(", ")
         );
-    }
-    let mut o = String::new();
-    for s in log {
-        print_log_summary(&mut o, s);
-    }
-    p!(
-        o,
-        "empirical correction (NOT PHYSICAL) fitted to {} ({} conditions):",
-        table.path.display(),
-        e.n
-    );
-    print_correction(&mut o, &e);
-    p!(
-        o,
-        "wrote {} (effects: {})",
-        a.out.display(),
-        extended.effect_kinds().join(", ")
-    );
-    print_text(&o)
-}
-
-/// Each effect's parameters on a line, then the correlations beyond 0.5 in size.
-fn print_fit_params(o: &mut String, f: &vibro_lab::EffectFit) {
-    for k in &f.kinds {
-        p!(o, "  {k}: {}", params_text(&f.params_of(k)));
-    }
-    let mut strong = Vec::new();
-    for i in 0..f.params.len() {
-        for j in 0..i {
-            let r = f.correlation[i][j];
-            if r.abs() > 0.5 {
-                strong.push(format!(
-                    "{}.{} ~ {}.{} {r:+.3}",
-                    f.params[i].effect, f.params[i].name, f.params[j].effect, f.params[j].name
-                ));
-            }
-        }
-    }
-    if !strong.is_empty() {
-        p!(o, "  correlations beyond 0.5: {}", strong.join("; "));
-    }
-}
-
-/// The rows an effect could not act on, in a line (the first ten named).
-fn not_applicable_line(n: &vibro_lab::fit::NotApplicable) -> String {
-    let mut rows: Vec<String> = n
-        .rows
-        .iter()
-        .take(10)
-        .map(|(l, r)| format!("line {l} ({r})"))
-        .collect();
-    if n.rows.len() > 10 {
-        rows.push(format!("and {} more", n.rows.len() - 10));
-    }
-    format!(
-        "  {} not evaluated on {} rows: {}: {}",
-        n.effect,
-        n.rows.len(),
-        rows.join(", "),
-        n.reason
-    )
-}
-
-/// The verdict in a few words.
-fn verdict_line(v: &Verdict) -> String {
-    match v {
-        Verdict::Noise { chi2_per_dof, .. } => format!("noise, chi2 per dof {chi2_per_dof:.3}"),
-        Verdict::Effect { kinds, .. } => format!("effects {}", kinds.join(", ")),
-        Verdict::Confounded { kinds, .. } => format!("confounded: {}", kinds.join(", ")),
-        Verdict::Unexplained { chi2_per_dof, .. } => {
-            format!("unexplained, chi2 per dof {chi2_per_dof:.3}")
-        }
-    }
+    })
 }
 
 fn report(a: &ReportArgs) -> anyhow::Result<()> {
-    crate::files::check_dir(&a.out, super::lab_report::REPORT_FILES, a.force)?;
-    let Loaded { model, table, log } = load(
-        &a.input.input,
-        a.input.model.as_deref(),
-        base_mode(a.input.mode),
-        &a.input.log,
-    )?;
+    crate::files::check_dir(&a.out, vibro_lab::report::REPORT_FILES, a.force)?;
+    let Loaded { model, table, log } = load_input(&a.input)?;
     let (bar, progress) = fit_progress();
     let opts = DiagnoseOptions {
         progress,
@@ -938,44 +369,60 @@ fn report(a: &ReportArgs) -> anyhow::Result<()> {
         ..DiagnoseOptions::default()
     };
     let diagnosis = vibro_lab::diagnose(&model, &table, &opts)?;
-    let mut text = String::new();
-    print_diagnosis(&mut text, &diagnosis);
     let (ladder, extended) =
         vibro_lab::diagnose::ladder_from(&model, &table, &opts, a.max_effects, Some(&diagnosis))?;
     bar.finish_and_clear();
     let after = vibro_lab::compare(&extended, &table)?;
-    let summary = super::lab_report::write(
-        &a.out,
-        a.force,
-        &super::lab_report::ReportInput {
-            table: &table,
-            model: &model,
-            diagnosis: &diagnosis,
-            diagnosis_text: &text,
-            ladder: &ladder,
-            final_model: &extended,
-            after: &after,
-        },
-    )?;
-    if a.input.json {
-        return print_json_with_log(&summary, &log);
-    }
-    let mut o = String::new();
-    for s in &log {
-        print_log_summary(&mut o, s);
-    }
-    p!(
-        o,
-        "wrote {} ({} plots); residual RMS {:.3e} g -> {:.3e} g with {}",
-        summary.html,
-        summary.plots,
-        summary.rms_before_g,
-        summary.rms_after_g,
-        if summary.effects_added.is_empty() {
+    let report = vibro_lab::report::render(&vibro_lab::report::ReportInput {
+        table: &table,
+        model: &model,
+        diagnosis: &diagnosis,
+        ladder: &ladder,
+        final_model: &extended,
+        after: &after,
+    })?;
+    let written = write_report(&a.out, a.force, report)?;
+    let s = &written.summary;
+    print_result(a.input.json, &written, &log, |o| {
+        let added = if s.effects_added.is_empty() {
             "no effect added".to_string()
         } else {
-            summary.effects_added.join(" + ")
-        }
-    );
-    print_text(&o)
+            s.effects_added.join(" + ")
+        };
+        let _ = writeln!(
+            o,
+            "wrote {} ({} plots); residual RMS {:.3e} g -> {:.3e} g with {added}",
+            written.html, s.plots, s.rms_before_g, s.rms_after_g
+        );
+    })
+}
+
+/// What `lab report --json` prints: where the page is, and what it holds.
+#[derive(serde::Serialize)]
+struct WrittenReport {
+    html: String,
+    #[serde(flatten)]
+    summary: vibro_lab::report::ReportSummary,
+}
+
+/// Writes the report into `dir` (checked by `files::check_dir`): each plot as an SVG
+/// file, then `index.html` last, since its presence marks a complete report; each file
+/// complete or not at all (`crate::files`).
+fn write_report(
+    dir: &Path,
+    force: bool,
+    report: vibro_lab::report::Report,
+) -> anyhow::Result<WrittenReport> {
+    crate::files::create_dir(dir)?;
+    for (name, text) in &report.plots {
+        // The plots of a report without its index.html (a run that failed midway) are
+        // this command's own: replaced without --force.
+        crate::files::write_bytes(&dir.join(name), true, text.as_bytes())?;
+    }
+    let html = dir.join("index.html");
+    crate::files::write_bytes(&html, force, report.index_html.as_bytes())?;
+    Ok(WrittenReport {
+        html: html.display().to_string(),
+        summary: report.summary,
+    })
 }

@@ -2083,7 +2083,7 @@ fn peer_uds(dir: &Path, estimator_config: Option<&Path>) -> anyhow::Result<()> {
     let (tx, rx) = std::sync::mpsc::channel::<VibEstimate>();
     let estimator = std::thread::spawn(move || -> anyhow::Result<()> {
         let (mut sock, _) = vib_listener.accept()?;
-        let mut est = vibro_estimator::InProcess::new(&est_config)?;
+        let mut est = vibro_estimator::InProcess::new(&est_config.estimator)?;
         let mut estimates = EstimateChannel(tx);
         let mut buf = vec![0u8; std::mem::size_of::<VibBlock>()];
         loop {

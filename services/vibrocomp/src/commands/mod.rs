@@ -6,7 +6,6 @@ pub mod estimate;
 pub mod identify;
 pub mod lab;
 pub mod lab_log;
-pub mod lab_report;
 pub mod latency;
 pub mod log;
 pub mod model;

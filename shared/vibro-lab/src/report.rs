@@ -1,4 +1,4 @@
-//! `vibrocomp lab report`: a self-contained HTML report of the lab's diagnosis, with
+//! The lab's report: a self-contained HTML report of the lab's diagnosis, with
 //! SVG plots drawn by plotters (inline, so the one file opens anywhere without network
 //! or scripts), laid out for a test engineer to read at a glance:
 //!
@@ -17,13 +17,16 @@
 //! - the candidates' first round (minus delta BIC, log scale) and the diagnosis text.
 //!
 //! Numbers are in engineering form (`1.20 mg`, `35.0 ng`, `48.0 Hz`).
+//!
+//! [`render`] draws the page and its plots in memory; the caller (`vibrocomp lab
+//! report`) writes them: each plot as an SVG file beside `index.html`, `index.html`
+//! last, since its presence marks a complete report ([`REPORT_FILES`]).
 
+use crate::diagnose::{Diagnosis, LadderStep, Step, Verdict};
+use crate::{CampaignTable, Comparison, EffectFit, Error, LabModel, Result};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::fmt::Write as _;
-use std::path::Path;
-use vibro_lab::diagnose::{Diagnosis, LadderStep, Step, Verdict};
-use vibro_lab::{CampaignTable, Comparison, EffectFit, LabModel};
 
 /// Colour of the points before (the model as given) and after.
 pub const BEFORE: RGBColor = RGBColor(214, 39, 40);
@@ -41,11 +44,7 @@ const PANEL: (u32, u32) = (660, 300);
 
 type Area<'a> = DrawingArea<SVGBackend<'a>, Shift>;
 
-fn svg(
-    width: u32,
-    height: u32,
-    draw: impl FnOnce(&Area<'_>) -> anyhow::Result<()>,
-) -> anyhow::Result<String> {
+fn svg(width: u32, height: u32, draw: impl FnOnce(&Area<'_>) -> Result<()>) -> Result<String> {
     let mut out = String::new();
     {
         let area = SVGBackend::with_string(&mut out, (width, height)).into_drawing_area();
@@ -196,7 +195,7 @@ enum Key {
 }
 
 /// A legend in a strip of its own above the plot, so it never covers a point.
-fn legend(area: &Area<'_>, keys: &[(Key, &str)]) -> anyhow::Result<()> {
+fn legend(area: &Area<'_>, keys: &[(Key, &str)]) -> Result<()> {
     let mut x = 70;
     let y = 12;
     for (key, label) in keys {
@@ -249,7 +248,7 @@ fn panel_pair(
     row: &Pair<'_>,
     before: &[(f64, f64, f64)],
     after: &[(f64, f64, f64)],
-) -> anyhow::Result<Vec<usize>> {
+) -> Result<Vec<usize>> {
     let mut at = Vec::with_capacity(2);
     let sides = [
         (Some(&row.before_title), "before", before, BEFORE),
@@ -275,7 +274,7 @@ fn residual_panel(
     colour: RGBColor,
     noise_floor_g: f64,
     x_span: (f64, f64),
-) -> anyhow::Result<String> {
+) -> Result<String> {
     let (x_title, x_unit) = describe(x_var);
     let (x0, x1) = padded(x_span.0, x_span.1);
     let floor = if noise_floor_g.is_finite() {
@@ -350,7 +349,7 @@ fn added_label(effects_added: &[String]) -> String {
 
 /// The residual RMS at each step of the stepwise search (log scale), against the
 /// noise floor; the model as is in red, the last step in blue.
-fn steps_plot(steps: &[Step], noise_floor_g: f64) -> anyhow::Result<String> {
+fn steps_plot(steps: &[Step], noise_floor_g: f64) -> Result<String> {
     let ys: Vec<f64> = steps.iter().map(|s| s.rms_residual_g.max(1e-15)).collect();
     let floor = if noise_floor_g.is_finite() && noise_floor_g > 0.0 {
         noise_floor_g
@@ -447,7 +446,7 @@ fn steps_plot(steps: &[Step], noise_floor_g: f64) -> anyhow::Result<String> {
 }
 
 /// Candidates of the first round: `-delta BIC` per candidate, log scale.
-fn ranking_plot(d: &Diagnosis) -> anyhow::Result<String> {
+fn ranking_plot(d: &Diagnosis) -> Result<String> {
     // (kind, bar length, label, supported): the bar is -delta BIC from 1 (none for a
     // candidate that does not lower the BIC), the label the delta BIC itself.
     let bars: Vec<(String, f64, String, bool)> = d
@@ -544,9 +543,9 @@ fn num(x: f64) -> String {
 /// `value_pm`, or with a profile-likelihood interval unlike `+- sigma`: the value
 /// with its 68 % reach below and above (`40.22 −2.02 +2.76 Hz`), both reaches in the
 /// value's prefix and to the decimals of the smaller.
-fn param_pm(p: &vibro_lab::fit::FittedParam) -> String {
+fn param_pm(p: &crate::fit::FittedParam) -> String {
     let (m, h) = (p.sigma_minus, p.sigma_plus);
-    if !(vibro_lab::fit::asymmetric(p) && m > 0.0 && h > 0.0) {
+    if !(crate::fit::asymmetric(p) && m > 0.0 && h > 0.0) {
         return value_pm(&p.name, p.value, p.sigma);
     }
     let unit = describe(&p.name).1;
@@ -864,9 +863,8 @@ fn fit_tables(h: &mut String, f: &EffectFit) {
 }
 
 /// What the report holds, for `--json`.
-#[derive(serde::Serialize)]
+#[derive(Debug, Clone, serde::Serialize)]
 pub struct ReportSummary {
-    pub html: String,
     pub plots: usize,
     pub ladder: Vec<LadderStep>,
     pub rms_before_g: f64,
@@ -885,9 +883,8 @@ pub struct ReportInput<'a> {
     pub table: &'a CampaignTable,
     /// The model as given.
     pub model: &'a LabModel,
-    /// Its diagnosis, and the diagnosis as text.
+    /// Its diagnosis (the report quotes it in full, as `crate::text` writes it).
     pub diagnosis: &'a Diagnosis,
-    pub diagnosis_text: &'a str,
     /// The steps of the lab adding effects, and the model they end with.
     pub ladder: &'a [LadderStep],
     pub final_model: &'a LabModel,
@@ -924,19 +921,26 @@ fn log_units(table: &CampaignTable) -> Vec<(f64, String)> {
 /// The file whose presence marks a previous report in a folder (README, "Files").
 pub const REPORT_FILES: &[&str] = &["index.html"];
 
-/// Writes `dir/index.html` (and each plot as an SVG file beside it), each file complete
-/// or not at all (`crate::files`); the folder was checked by `files::check_dir`.
-pub fn write(dir: &Path, force: bool, r: &ReportInput<'_>) -> anyhow::Result<ReportSummary> {
+/// A rendered report: the page and its plots, to be written into one folder.
+#[derive(Debug, Clone)]
+pub struct Report {
+    /// `index.html`, every plot inline.
+    pub index_html: String,
+    /// Each plot as a file of its own beside it: `(file name, SVG)`.
+    pub plots: Vec<(String, String)>,
+    pub summary: ReportSummary,
+}
+
+/// Draws the report of `r` (module doc).
+pub fn render(r: &ReportInput<'_>) -> Result<Report> {
     let ReportInput {
         table,
         model,
         diagnosis,
-        diagnosis_text,
         ladder,
         final_model,
         after,
     } = *r;
-    crate::files::create_dir(dir)?;
     let before = &diagnosis.comparison;
     let s = &before.summary;
     let floor_g = s.noise_floor_g;
@@ -980,7 +984,7 @@ pub fn write(dir: &Path, force: bool, r: &ReportInput<'_>) -> anyhow::Result<Rep
     for v in &variables {
         let xs = table
             .variable_column(v)
-            .ok_or_else(|| anyhow::anyhow!("no variable {v}"))?;
+            .ok_or_else(|| Error::Invalid(format!("no variable {v}")))?;
         let span = finite_range(xs.iter().copied()).unwrap_or((0.0, 1.0));
         let (b, a) = (points(&xs, before, &all), points(&xs, after, &all));
         let name = describe(v).0;
@@ -1037,11 +1041,6 @@ pub fn write(dir: &Path, force: bool, r: &ReportInput<'_>) -> anyhow::Result<Rep
         plots.push(("ranking.svg".into(), ranking_plot(diagnosis)?));
         Some(plots.len() - 1)
     };
-    for (name, text) in &plots {
-        // The plots of a report without its index.html (a run that failed midway) are
-        // this command's own: replaced without --force.
-        crate::files::write_bytes(&dir.join(name), true, text.as_bytes())?;
-    }
 
     let mut h = String::new();
     let _ = write!(
@@ -1150,14 +1149,14 @@ pub fn write(dir: &Path, force: bool, r: &ReportInput<'_>) -> anyhow::Result<Rep
     let _ = write!(
         h,
         "<h2>The diagnosis in full</h2><pre>{}</pre>",
-        esc(diagnosis_text)
+        esc(&{
+            let mut text = String::new();
+            crate::text::write_diagnosis(&mut text, diagnosis);
+            text
+        })
     );
     h.push_str("</body></html>\n");
-    let html = dir.join("index.html");
-    // Last: its presence marks a complete report.
-    crate::files::write_bytes(&html, force, h.as_bytes())?;
-    Ok(ReportSummary {
-        html: html.display().to_string(),
+    let summary = ReportSummary {
         plots: plots.len(),
         ladder: ladder.to_vec(),
         rms_before_g: s.rms_residual_g,
@@ -1166,6 +1165,11 @@ pub fn write(dir: &Path, force: bool, r: &ReportInput<'_>) -> anyhow::Result<Rep
         noise_floor_g: floor_g,
         variables,
         time_units: units.into_iter().map(|(_, n)| n).collect(),
+    };
+    Ok(Report {
+        index_html: h,
+        plots,
+        summary,
     })
 }
 
@@ -1189,7 +1193,7 @@ mod tests {
         assert_eq!(f(&0.0), "0");
         assert_eq!(value_pm("freq_hz", 48.00123, 0.0021), "48.0012 ± 0.0021 Hz");
         assert_eq!(value_pm("q", 1.5601, 0.00042), "1.56010 ± 0.00042");
-        let p = vibro_lab::fit::FittedParam {
+        let p = crate::fit::FittedParam {
             effect: "mount_resonance".into(),
             name: "freq_hz".into(),
             value: 40.21772,
@@ -1200,7 +1204,7 @@ mod tests {
             three_sigma_plus: 65.6,
         };
         assert_eq!(param_pm(&p), "40.2 −2.0 +2.8 Hz (profile likelihood)");
-        let q = vibro_lab::fit::FittedParam {
+        let q = crate::fit::FittedParam {
             sigma_minus: 2.2,
             sigma_plus: 2.3,
             ..p.clone()

@@ -1,20 +1,40 @@
+//! # vibro-estimator-core
+//!
 //! The estimator's handling of each vibration block without the transport: validation,
 //! continuity, restarts, producer flags, rate mismatches, the estimator itself, the
-//! estimates' flags and numbering, the counters. The service's hot loop
-//! (`crate::service`) feeds it from `{prefix}vib` and publishes on `{prefix}estimate`;
-//! offline users (the lab, the socket pipeline of `vibrocomp latency`) feed it
-//! in-process and get the same estimates.
+//! estimates' flags and numbering, the counters. The estimator service's hot loop
+//! (`vibro-estimator`) feeds it from `{prefix}vib` and publishes on `{prefix}estimate`;
+//! offline users (the lab reading a log, the socket pipeline of `vibrocomp latency`)
+//! feed it in-process and get the same estimates. It lives in `shared/` so that a
+//! library (the lab) can run it without depending on a service.
+//!
+//! ```
+//! use vibro_dsp::{EstimatorConfig, EstimatorConfigRaw};
+//! use vibro_estimator_core::InProcess;
+//! use vibro_msgs::{VibBlock, VibEstimate};
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let config = EstimatorConfig::try_from(EstimatorConfigRaw::new(4096.0, [0.1; 3]))?;
+//! let mut core = InProcess::new(&config)?;
+//! let mut estimates: Vec<VibEstimate> = Vec::new();
+//! let block = VibBlock::ZEROED; // an empty block only advances `seq`
+//! core.on_block(&block, 0, &mut estimates)?;
+//! assert!(estimates.is_empty());
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! References: `docs/services.md` (streams, flags, loss accounting), `docs/estimation.md`
+//! (the estimator).
 
-use crate::Config;
 use tracing::warn;
-use vibro_dsp::{Estimate, Estimator, SampleBlock};
+use vibro_dsp::{Estimate, Estimator, EstimatorConfig, SampleBlock};
 use vibro_ipc::StreamPublisher;
 use vibro_msgs::{estimate_flags, vib_flags, VibBlock, VibEstimate, WireMessage};
 use vibro_service::{
     count_first, now_ns, Continuity, JsonObject, Latency, Quantiles, StreamCounters,
 };
 
-/// What the estimator did, returned by [`run`](crate::run) when it stops (and printed
+/// What the estimator did, returned by the service's `run` when it stops (and printed
 /// by `--json`).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Summary {
@@ -196,18 +216,19 @@ impl EstimateSink for Vec<VibEstimate> {
     }
 }
 
-/// Everything the estimator counts; no allocation after start.
-#[derive(Debug, Clone, Copy, Default)]
-pub(crate) struct Counters {
-    pub(crate) vib: StreamCounters,
-    pub(crate) rate_mismatches: u64,
-    pub(crate) producer_flagged: u64,
-    pub(crate) estimates_published: u64,
-    pub(crate) estimates_flagged: u64,
-    pub(crate) undelivered: u64,
-    pub(crate) publish_errors: u64,
+/// Everything the estimator counts; no allocation after start. The fields are those of
+/// [`Summary`] that the service reports per period.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Counters {
+    pub vib: StreamCounters,
+    pub rate_mismatches: u64,
+    pub producer_flagged: u64,
+    pub estimates_published: u64,
+    pub estimates_flagged: u64,
+    pub undelivered: u64,
+    pub publish_errors: u64,
     /// The transport's: counted by the service's loop.
-    pub(crate) receive_errors: u64,
+    pub receive_errors: u64,
 }
 
 /// The estimator's handling of each vibration block without the transport: the same
@@ -225,17 +246,18 @@ pub struct InProcess {
     mismatch_span: Option<(u64, u64)>,
     /// `seq` of the next estimate.
     estimate_seq: u64,
-    pub(crate) c: Counters,
-    pub(crate) latency: Latency,
+    c: Counters,
+    latency: Latency,
 }
 
 impl InProcess {
-    /// The estimator of `config` (the transport settings are not used); allocates its
-    /// buffers and latency histograms here, never per block.
-    pub fn new(config: &Config) -> anyhow::Result<Self> {
+    /// The estimator of `config`; allocates its buffers and latency histograms here,
+    /// never per block. Errs only when the latency histograms cannot be made
+    /// (`vibro_service::Latency`, whose error is the service runtime's `anyhow`).
+    pub fn new(config: &EstimatorConfig) -> anyhow::Result<Self> {
         Ok(Self {
-            estimator: Estimator::new(config.estimator.clone()),
-            expected_period_ns: config.estimator.sample_period_ns(),
+            estimator: Estimator::new(config.clone()),
+            expected_period_ns: config.sample_period_ns(),
             continuity: Continuity::new(),
             mismatch_span: None,
             estimate_seq: 0,
@@ -370,6 +392,22 @@ impl InProcess {
         Ok(())
     }
 
+    /// The counters so far.
+    pub fn counters(&self) -> Counters {
+        self.c
+    }
+
+    /// A receive failure of the transport (counted by the service's loop): true for the
+    /// first one, which the caller logs (further ones are counted only).
+    pub fn count_receive_error(&mut self) -> bool {
+        count_first(&mut self.c.receive_errors)
+    }
+
+    /// The publish latencies (block that completed a window to its estimate published).
+    pub fn latency_mut(&mut self) -> &mut Latency {
+        &mut self.latency
+    }
+
     /// Contiguous input samples still needed before the next estimate.
     pub fn samples_to_next_estimate(&self) -> u64 {
         self.estimator.samples_to_next_estimate()
@@ -409,7 +447,18 @@ impl InProcess {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use vibro_service::ServiceConfig;
+
+    /// The `[estimator]` of the shipped service configuration
+    /// (`config/services/estimator.toml`).
+    fn shipped() -> EstimatorConfig {
+        #[derive(serde::Deserialize)]
+        struct File {
+            estimator: vibro_dsp::EstimatorConfigRaw,
+        }
+        let text = include_str!("../../../config/services/estimator.toml");
+        let file: File = toml::from_str(text).unwrap();
+        EstimatorConfig::try_from(file.estimator).unwrap()
+    }
 
     const BLOCK: usize = 512;
 
@@ -441,11 +490,11 @@ mod tests {
     /// numbered from 0 (what the lab and the socket pipeline computed by hand before).
     #[test]
     fn on_a_clean_stream_the_core_is_the_bare_estimator() {
-        let config = Config::shipped().unwrap();
-        let period_ns = config.estimator.sample_period_ns().round() as u64;
+        let config = shipped();
+        let period_ns = config.sample_period_ns().round() as u64;
         let blocks: Vec<VibBlock> = (0..120).map(|seq| block(seq, period_ns)).collect();
 
-        let mut bare = Estimator::new(config.estimator.clone());
+        let mut bare = Estimator::new(config.clone());
         let mut expected: Vec<VibEstimate> = Vec::new();
         for b in &blocks {
             let input = SampleBlock {
@@ -488,8 +537,8 @@ mod tests {
     /// blocks are dropped and counted; a producer restart starts a new window.
     #[test]
     fn rate_mismatches_malformed_blocks_and_restarts() {
-        let config = Config::shipped().unwrap();
-        let period_ns = config.estimator.sample_period_ns().round() as u64;
+        let config = shipped();
+        let period_ns = config.sample_period_ns().round() as u64;
         let mut core = InProcess::new(&config).unwrap();
         let mut out: Vec<VibEstimate> = Vec::new();
         for seq in 0..120 {
@@ -517,7 +566,7 @@ mod tests {
         assert_eq!(out.len(), before);
         assert_eq!(
             core.samples_to_next_estimate(),
-            config.estimator.window_samples() as u64 - BLOCK as u64
+            config.window_samples() as u64 - BLOCK as u64
         );
     }
 
