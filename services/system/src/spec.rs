@@ -1,8 +1,4 @@
-//! The running system as child processes of this executable: the estimator, the
-//! compensator and the recorder, started as `vibrocomp service ...` / `vibrocomp
-//! record ...` so that one built binary is all a user needs. Used by `up` (which
-//! supervises them), `demo` and `latency`; starting, stopping, watching and
-//! restarting them is `vibro_service::supervise`.
+//! [`SystemSpec`]: how to start each [`Role`] of the system as a child process.
 
 use anyhow::Context;
 use std::ffi::OsString;

@@ -5,7 +5,7 @@
 //! Host A is the rig's (replay, recorder), host B the compute host (estimator,
 //! compensator). A process joins a host by running in its folder, where
 //! `config/iceoryx2.toml` names the host's root; this process joins host A with
-//! [`vibro_ipc::use_config_file`].
+//! `vibro_ipc::use_config_file`.
 
 use anyhow::Context;
 use std::path::{Path, PathBuf};
