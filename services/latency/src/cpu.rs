@@ -108,3 +108,36 @@ pub(crate) fn rusage_cpu_s() -> f64 {
     }
     total
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stat_ticks_are_utime_plus_stime_after_the_command_name() {
+        // The command name holds spaces and parentheses; utime (field 14) = 250,
+        // stime (field 15) = 50.
+        let stat = "1234 (my (odd) cmd) S 1 1234 1234 0 -1 4194560 100 0 0 0 250 50 0 0 20 0 1 0";
+        assert_eq!(stat_ticks(stat), Some(300));
+        assert_eq!(stat_ticks("1234 (cmd)"), None);
+        assert_eq!(stat_ticks("1234 (cmd) S 1 2 3"), None);
+        assert_eq!(stat_ticks("no parenthesis"), None);
+    }
+
+    #[test]
+    fn this_process_has_cpu_ticks() {
+        assert!(cpu_ticks(std::process::id()).is_some());
+        assert!(ticks_per_s() > 0.0);
+    }
+
+    #[test]
+    fn machine_cpu_busy_is_all_but_idle_and_iowait() {
+        // user nice system idle iowait irq softirq steal guest guest_nice: the first 8
+        // are the total (621), idle + iowait (450) are not busy (171); guest time is
+        // already in user.
+        let stat = "cpu  100 20 30 400 50 6 7 8 9 10\ncpu0 50 10 15 200 25 3 3 4 4 5\nintr 1\n";
+        assert_eq!(MachineCpu::parse(stat), Some((171, 621)));
+        assert_eq!(MachineCpu::parse("cpu0 1 2 3 4\n"), None);
+        assert_eq!(MachineCpu::parse("cpu  1 2 3\n"), None);
+    }
+}

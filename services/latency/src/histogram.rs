@@ -178,3 +178,123 @@ pub(crate) fn end_to_end_histogram(
         buckets,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn close(a: f64, b: f64, rel: f64) -> bool {
+        (a - b).abs() <= rel * b.abs()
+    }
+
+    fn stamps_e2e_us(values_us: &[f64], t0_ns: u64) -> Vec<Stamps> {
+        values_us
+            .iter()
+            .map(|&v| Stamps {
+                t0_ns,
+                input_publish_ns: 1_000_000,
+                sub_recv_ns: 1_000_000 + (v * 1e3) as u64,
+                ..Stamps::default()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn hop_percentiles_of_one_to_a_thousand_ns() {
+        // Values below 2048 are exact at 3 significant digits; the q-quantile of
+        // 1..=1000 is the ceil(1000 q)-th value.
+        let mut h = Histograms::new().unwrap().end_to_end;
+        for v in 1..=1000u64 {
+            h.record(v).unwrap();
+        }
+        let p = hop(&h);
+        assert_eq!(p.count, 1000);
+        for (got, want_us) in [
+            (p.p50_us, 0.5),
+            (p.p90_us, 0.9),
+            (p.p99_us, 0.99),
+            (p.p999_us, 0.999),
+            (p.max_us, 1.0),
+        ] {
+            assert!((got - want_us).abs() <= 1e-3 + 1e-12, "{got} vs {want_us}");
+        }
+    }
+
+    #[test]
+    fn an_empty_hop_is_all_zero() {
+        let h = Histograms::new().unwrap();
+        let p = hop(&h.processing);
+        assert_eq!(p.count, 0);
+        assert_eq!(p.max_us, 0.0);
+    }
+
+    #[test]
+    fn a_block_records_each_hop_from_its_stamps() {
+        let mut h = Histograms::new().unwrap();
+        h.record(&Stamps {
+            input_publish_ns: 1_000,
+            recv_ns: 1_500,
+            publish_ns: 1_600,
+            sub_recv_ns: 2_100,
+            ..Stamps::default()
+        });
+        // A clock step backwards records the 1 ns floor, not a wrapped u64.
+        h.record(&Stamps {
+            input_publish_ns: 5_000,
+            recv_ns: 4_000,
+            publish_ns: 4_000,
+            sub_recv_ns: 4_000,
+            ..Stamps::default()
+        });
+        assert_eq!(h.rig_to_service.max(), 500);
+        assert_eq!(h.processing.max(), 100);
+        assert_eq!(h.service_to_subscriber.max(), 500);
+        assert_eq!(h.end_to_end.max(), 1_100);
+        for x in [&h.rig_to_service, &h.end_to_end] {
+            assert_eq!(x.min(), 1);
+            assert_eq!(x.len(), 2);
+        }
+    }
+
+    #[test]
+    fn end_to_end_buckets_and_percentiles_count_the_blocks_after_the_warmup() {
+        // 100 us sits in the first bucket (upper bounds inclusive); 60 ms is above the
+        // last bound; the block before the warm-up is left out.
+        let mut stamps = stamps_e2e_us(&[50.0, 100.0, 120.0, 150.0, 60_000.0], 2_000_000_000);
+        stamps.extend(stamps_e2e_us(&[75.0], 999_999_999));
+        let h = end_to_end_histogram(1.0, &stamps).unwrap();
+        assert_eq!(h.count, 5);
+        assert_eq!(h.buckets.len(), BUCKET_BOUNDS_US.len() + 1);
+        let nonzero: Vec<(f64, Option<f64>, u64)> = h
+            .buckets
+            .iter()
+            .filter(|b| b.blocks > 0)
+            .map(|b| (b.lower_us, b.upper_us, b.blocks))
+            .collect();
+        assert_eq!(
+            nonzero,
+            [
+                (0.0, Some(100.0), 2),
+                (100.0, Some(150.0), 2),
+                (50_000.0, None, 1)
+            ]
+        );
+        assert_eq!(h.buckets.iter().map(|b| b.blocks).sum::<u64>(), 5);
+        let row = |p: f64| h.percentiles.iter().find(|r| r.percentile == p).unwrap();
+        // p50: the 3rd of 5 values, 120 us (within the histogram's 0.1 %).
+        assert!(close(row(50.0).value_us, 120.0, 1e-3), "{:?}", row(50.0));
+        assert_eq!(row(50.0).blocks_at_or_below, 3);
+        assert!(close(row(100.0).value_us, 60_000.0, 1e-3));
+        assert_eq!(row(100.0).blocks_at_or_below, 5);
+        assert_eq!(h.percentiles.len(), 10);
+    }
+
+    #[test]
+    fn no_blocks_give_empty_percentiles_and_zero_buckets() {
+        let h = end_to_end_histogram(0.0, &[]).unwrap();
+        assert_eq!(h.count, 0);
+        assert!(h.percentiles.is_empty());
+        assert!(h.buckets.iter().all(|b| b.blocks == 0));
+        assert_eq!(h.buckets.last().map(|b| b.upper_us), Some(None));
+    }
+}

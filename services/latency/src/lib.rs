@@ -1,9 +1,9 @@
 //! The latency and soak harness behind `vibrocomp latency`: how late a compensated
 //! sample arrives, and how much of that is ours.
 //!
-//! The command is the rig: it publishes vibration-sensor and accelerometer blocks in
-//! real time at the given rates and receives the compensated blocks, and it measures
-//! from the timestamps the messages carry (all `CLOCK_MONOTONIC`, one clock for every
+//! The process calling [`run`] is the rig: it publishes vibration-sensor and
+//! accelerometer blocks in real time at the given rates and receives the compensated
+//! blocks, and it measures from the timestamps the messages carry (all `CLOCK_MONOTONIC`, one clock for every
 //! process): rig publish -> compensator receive (`recv_ns - input_publish_ns`),
 //! compensator receive -> publish (`publish_ns - recv_ns`), compensator publish ->
 //! subscriber receive, and end to end. Three pipelines, one after the other, with the
@@ -254,4 +254,67 @@ fn estimator_config_for(vib_rate_hz: f64, path: &Path) -> anyhow::Result<Option<
         format!("--vib-rate-hz = {vib_rate_hz}: {source} at this sample rate is not valid")
     })?;
     Ok(Some(path.to_path_buf()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_defaults_are_valid_and_out_of_range_options_are_refused() {
+        Options::default().check().unwrap();
+        for bad in [
+            Options {
+                block_samples: 0,
+                ..Options::default()
+            },
+            Options {
+                vib_block_samples: vibro_msgs::VIB_BLOCK_MAX as u32 + 1,
+                ..Options::default()
+            },
+            Options {
+                rate_hz: f64::NAN,
+                ..Options::default()
+            },
+            Options {
+                warmup_s: 5.0,
+                ..Options::default()
+            },
+        ] {
+            assert!(bad.check().is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn the_estimator_follows_the_vibration_rate() {
+        // Run from this crate's folder: the shipped configuration (25.6 kHz).
+        let path = std::env::temp_dir().join(format!(
+            "vibro-latency-test-{}.estimator.toml",
+            std::process::id()
+        ));
+        assert_eq!(estimator_config_for(25600.0, &path).unwrap(), None);
+        let written = estimator_config_for(51200.0, &path).unwrap();
+        assert_eq!(written.as_deref(), Some(path.as_path()));
+        // Written, and valid (checked by loading it), at the new rate.
+        let text = std::fs::read_to_string(&path).unwrap();
+        let _ = std::fs::remove_file(&path);
+        let table: toml::Table = text.parse().unwrap();
+        assert_eq!(
+            table["estimator"]["sample_rate_hz"].as_float(),
+            Some(51200.0)
+        );
+    }
+
+    #[test]
+    fn ratios_compare_end_to_end_medians_and_tails() {
+        let hop = |p50_us, p99_us| HopUs {
+            p50_us,
+            p99_us,
+            ..HopUs::default()
+        };
+        let r = Ratios::new(&hop(300.0, 900.0), &hop(100.0, 300.0), &hop(200.0, 450.0));
+        assert_eq!((r.vs_bare_p50, r.vs_bare_p99), (3.0, 3.0));
+        assert_eq!((r.added_p50_us, r.added_p99_us), (200.0, 600.0));
+        assert_eq!((r.vs_sockets_p50, r.vs_sockets_p99), (1.5, 2.0));
+    }
 }

@@ -182,3 +182,79 @@ pub(crate) fn memory_summary(s: &MemorySeries, warmup_s: f64) -> MemorySummary {
         series_kib: s.rss_kib.clone(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn series(rss_kib: &[u64], anon_kib: &[u64]) -> MemorySeries {
+        MemorySeries {
+            process: "estimator".into(),
+            t_s: (0..rss_kib.len()).map(|k| k as f64).collect(),
+            rss_kib: rss_kib.to_vec(),
+            anon_kib: anon_kib.to_vec(),
+        }
+    }
+
+    #[test]
+    fn status_kib_reads_the_named_key_only() {
+        let status =
+            "Name:\tvibrocomp\nVmRSS:\t   12345 kB\nRssAnon:\t     678 kB\nRssFile:\t 9 kB\n";
+        assert_eq!(status_kib(status, "VmRSS"), Some(12345));
+        assert_eq!(status_kib(status, "RssAnon"), Some(678));
+        // A key is a whole name before the colon, not a prefix of another.
+        assert_eq!(status_kib(status, "Rss"), None);
+        assert_eq!(status_kib(status, "VmHWM"), None);
+        assert_eq!(status_kib("VmRSS:\n", "VmRSS"), None);
+        assert_eq!(status_kib("VmRSS: lots kB\n", "VmRSS"), None);
+    }
+
+    #[test]
+    fn a_growing_series_after_the_warmup() {
+        // One sample a second; warm-up 1.5 s: the samples from t = 2 s, 210..240 KiB,
+        // rise 10 KiB/s = 600 KiB/min. RssAnon after it: 60, 61, 60, 62 (growth 2).
+        let s = series(&[100, 200, 210, 220, 230, 240], &[50, 60, 60, 61, 60, 62]);
+        let m = memory_summary(&s, 1.5);
+        assert_eq!(m.samples, 6);
+        assert_eq!((m.first_kib, m.last_kib, m.max_kib), (100, 240, 240));
+        assert_eq!(m.after_warmup_kib, 210);
+        assert_eq!(m.growth_after_warmup_kib, 30);
+        assert!(
+            (m.slope_kib_per_min - 600.0).abs() < 1e-9,
+            "{}",
+            m.slope_kib_per_min
+        );
+        assert_eq!((m.anon_first_kib, m.anon_last_kib), (50, 62));
+        assert_eq!(m.anon_growth_after_warmup_kib, 2);
+        // The second half, samples 3..6 (220, 230, 240): 240 - 220.
+        assert_eq!(m.second_half_growth_kib, 20);
+        assert!(m.flat);
+        assert_eq!(m.series_kib, s.rss_kib);
+    }
+
+    #[test]
+    fn anonymous_memory_above_the_bound_is_not_flat() {
+        let s = series(&[100, 100, 100], &[10, 10, 10 + MEMORY_FLAT_BOUND_KIB + 1]);
+        let m = memory_summary(&s, 0.0);
+        assert_eq!(m.anon_growth_after_warmup_kib, MEMORY_FLAT_BOUND_KIB + 1);
+        assert!(!m.flat);
+        assert_eq!(m.slope_kib_per_min, 0.0);
+    }
+
+    #[test]
+    fn a_run_shorter_than_the_warmup_uses_every_sample() {
+        let s = series(&[100, 130], &[5, 6]);
+        let m = memory_summary(&s, 10.0);
+        assert_eq!(m.after_warmup_kib, 100);
+        assert_eq!(m.growth_after_warmup_kib, 30);
+        // Two samples 1 s apart, 30 KiB: 1800 KiB/min.
+        assert!((m.slope_kib_per_min - 1800.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn no_samples_is_not_flat() {
+        let m = memory_summary(&series(&[], &[]), 1.0);
+        assert_eq!((m.samples, m.max_kib, m.second_half_growth_kib), (0, 0, 0));
+        assert!(!m.flat);
+    }
+}

@@ -19,9 +19,9 @@ use vibro_service::{LoopMode, ServiceConfig};
 use crate::hosts;
 use crate::load::peer_load;
 
-/// The hidden peers of the baselines (`vibrocomp latency-peer ...`). Defined here,
-/// beside [`spawn_peer`] and the other places that write these arguments, so that the
-/// command line a peer is started with and the one it parses stay one.
+// Defined here, beside `spawn_peer` and the other places that write these arguments,
+// so that the command line a peer is started with and the one it parses stay one.
+/// The hidden peers of the baselines.
 #[derive(Debug, Clone, clap::Subcommand)]
 pub enum PeerCommand {
     /// Answers every accelerometer block on `{prefix}accel` with a compensated block
@@ -344,4 +344,63 @@ fn peer_uds(dir: &Path, estimator_config: Option<&Path>) -> anyhow::Result<()> {
     let _ = writer.shutdown(std::net::Shutdown::Both);
     let _ = estimator.join();
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Peer {
+        #[command(subcommand)]
+        cmd: PeerCommand,
+    }
+
+    fn parse(args: &[&str]) -> PeerCommand {
+        Peer::try_parse_from(std::iter::once("latency-peer").chain(args.iter().copied()))
+            .unwrap()
+            .cmd
+    }
+
+    #[test]
+    fn the_arguments_the_rig_writes_parse_back() {
+        match parse(&["bare", "--prefix", "vcbare-1/", "--mode", "spin"]) {
+            PeerCommand::Bare { prefix, mode } => {
+                assert_eq!((prefix.as_str(), mode), ("vcbare-1/", LoopMode::Spin))
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(
+            parse(&["bare-vib", "--prefix", "p/"]),
+            PeerCommand::BareVib {
+                mode: LoopMode::Event,
+                ..
+            }
+        ));
+        assert!(matches!(
+            parse(&["bare-zenoh", "--endpoint", "tcp/127.0.0.1:1", "--key", "k"]),
+            PeerCommand::BareZenoh { .. }
+        ));
+        match parse(&[
+            "uds",
+            "--socket-dir",
+            "/tmp/d",
+            "--estimator-config",
+            "e.toml",
+        ]) {
+            PeerCommand::Uds {
+                socket_dir,
+                estimator_config,
+            } => {
+                assert_eq!(socket_dir, PathBuf::from("/tmp/d"));
+                assert_eq!(estimator_config, Some(PathBuf::from("e.toml")));
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(
+            parse(&["load", "--input", "c.csv", "--jobs", "3"]),
+            PeerCommand::Load { jobs: 3, .. }
+        ));
+    }
 }

@@ -254,3 +254,37 @@ pub(crate) fn run_iceoryx(
         .map_err(|_| anyhow::anyhow!("the receiver thread panicked"))??;
     Ok((ka, kv, stamps))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn blocks_carry_the_packetizer_stamps_and_the_signal() {
+        // 800 Hz in blocks of 32: 1.25 ms a sample, 40 ms a block. Block 2 starts at
+        // sample 64; its t0 is the end of that sample's interval: 65 x 1.25 ms.
+        let opts = Options::default();
+        let k1 = [0.5, 0.25, 2.0];
+        let mut s = RigStream::new(&opts, k1);
+        assert_eq!(s.accel_block_ns, 40_000_000);
+        // 25.6 kHz in blocks of 512: 20 ms a block.
+        assert_eq!(s.vib_block_ns, 20_000_000);
+        let a = *s.accel_block(0);
+        // At t = 0 the 12 Hz tone is 0: 1 g on every unit, k1 volts.
+        assert_eq!(a.output_v[0], k1);
+        let a = *s.accel_block(2);
+        assert_eq!((a.seq, a.first_sample_index, a.count), (2, 64, 32));
+        assert_eq!(a.t0_ns, 81_250_000);
+        assert_eq!(a.sample_period_ns, 1_250_000);
+        // Sample 64 at 80 ms: 1 + 0.05 sin(2 pi 12 Hz 0.08 s).
+        let g = 1.0 + 0.05 * (2.0 * std::f64::consts::PI * 12.0 * 0.08).sin();
+        assert!((a.output_v[0][2] - 2.0 * g).abs() < 1e-12);
+        let v = *s.vib_block(1);
+        // Vibration blocks are stamped at their first sample: 512 x 39.0625 us.
+        assert_eq!((v.seq, v.first_sample_index, v.t0_ns), (1, 512, 20_000_000));
+        assert!(v.sample_v[..512]
+            .iter()
+            .flatten()
+            .all(|x| x.abs() <= 0.1 * 1.5));
+    }
+}

@@ -179,3 +179,44 @@ pub(crate) fn run_soak(
         run: v.run,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn answers(input_seq: &[u64]) -> Vec<Stamps> {
+        input_seq
+            .iter()
+            .map(|&input_seq| Stamps {
+                input_seq,
+                ..Stamps::default()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn every_block_answered_once_in_order_is_continuous() {
+        let a = accel_check(3, &answers(&[0, 1, 2]));
+        assert_eq!((a.sent, a.answered, a.missing), (3, 3, 0));
+        assert_eq!((a.duplicates, a.out_of_order, a.unknown), (0, 0, 0));
+        assert!(a.continuous);
+    }
+
+    #[test]
+    fn gaps_repeats_and_strangers_are_each_counted() {
+        // Sent 0..5; answered 0, 1, 1, 3 and 7 (never sent): 2 and 4 missing, one
+        // duplicate, and 1 -> 1, 1 -> 3, 3 -> 7 out of order.
+        let a = accel_check(5, &answers(&[0, 1, 1, 3, 7]));
+        assert_eq!((a.answered, a.missing, a.duplicates), (3, 2, 1));
+        assert_eq!((a.out_of_order, a.unknown), (3, 1));
+        assert!(!a.continuous);
+    }
+
+    #[test]
+    fn a_first_answer_other_than_block_zero_is_out_of_order() {
+        let a = accel_check(2, &answers(&[1]));
+        assert_eq!((a.answered, a.missing, a.out_of_order), (1, 1, 1));
+        let none = accel_check(0, &[]);
+        assert!(none.continuous);
+    }
+}
