@@ -29,7 +29,7 @@ use std::time::{Duration, Instant};
 use vibro_ipc::{create_node, stream_config, StreamPublisher};
 use vibro_msgs::{MessageKind, ServiceId, ServiceNames, Stream, VibEstimate};
 use vibro_service::supervise::{wait_for_heartbeats, Process};
-use vibrocomp::system::{Role, SystemSpec};
+use vibro_system::{Role, SystemSpec};
 
 // ---------------------------------------------------------------------------------
 // Helpers

@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 use vibro_ipc::{create_node, StreamPublisher, StreamSubscriber};
 use vibro_msgs::compensation_flags as cf;
 use vibro_msgs::{AccelBlock, CompensatedBlock, ServiceId, ServiceNames, Stream, WireMessage};
-use vibrocomp::hosts::free_port;
+use vibro_system::hosts::free_port;
 use zenoh::Wait;
 
 fn next_id() -> u32 {
@@ -615,7 +615,7 @@ fn a_bridge_killed_mid_run_is_restarted_and_the_gap_is_counted_on_both_sides() {
     let prefix = prefix("k");
     let flight = flight_log(&pdir, "6");
     let tag = format!("vck{}x{}", std::process::id(), next_id());
-    let hosts = vibrocomp::hosts::TwoHosts::create(&dir.path("hosts"), &tag, &prefix).unwrap();
+    let hosts = vibro_system::hosts::TwoHosts::create(&dir.path("hosts"), &tag, &prefix).unwrap();
     // The shipped model with estimates stale after 1.2 s instead of 2 s: in steady
     // state an estimate is at most a hop (0.5 s) old, and the outage (about 1 s: the
     // restart's back-off and the reconnection) then ages it past 1.2 s.

@@ -35,7 +35,7 @@ use vibro_msgs::{
 };
 use vibro_service::supervise::wait_for_heartbeats;
 use vibro_service::ServiceConfig;
-use vibrocomp::system::{Role, SystemSpec};
+use vibro_system::{Role, SystemSpec};
 
 /// The soak needs both cores to itself: it takes this lock for writing, the other
 /// tests of this module for reading (they may run two at a time).

@@ -20,7 +20,7 @@ use vibro_msgs::compensation_flags::INPUT_GAP;
 use vibro_msgs::{CompensatedBlock, ServiceId, ServiceNames, VibEstimate};
 use vibro_service::supervise::{wait_for_heartbeats, Process};
 use vibro_service::ServiceConfig;
-use vibrocomp::system::{Role, SystemSpec};
+use vibro_system::{Role, SystemSpec};
 
 fn spec(prefix: &str, record: Option<PathBuf>) -> SystemSpec {
     SystemSpec {

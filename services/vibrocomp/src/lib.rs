@@ -9,8 +9,6 @@ pub mod output;
 pub mod commands;
 pub mod files;
 pub mod flags;
-pub mod hosts;
-pub mod system;
 
 use clap::{Parser, Subcommand};
 use std::ffi::OsString;

@@ -26,12 +26,12 @@ use vibro_log::{Pace, ReplayOptions, ReplaySummary};
 use vibro_msgs::{ServiceId, ServiceNames};
 use vibro_service::ServiceConfig;
 use vibro_sim::ScenarioKind;
+use vibro_system::hosts::TwoHosts;
+use vibro_system::{Role, SystemSpec};
 
 use crate::commands::replay::replay_with_bar;
 use crate::commands::sim::simulate_flight;
-use crate::hosts::TwoHosts;
 use crate::output::{fmt_g, fmt_ratio, print_json};
-use crate::system::{Role, SystemSpec};
 use vibro_service::supervise::{private_prefix, wait_for_heartbeats};
 
 #[derive(Debug, clap::Args)]

@@ -11,9 +11,9 @@ use tracing::info;
 use vibro_msgs::{ServiceId, ServiceNames};
 use vibro_service::supervise::{claim_prefix, running_on, supervise, ProcessReport, RestartLimits};
 use vibro_service::{init_tracing, run_service, ServiceConfig};
+use vibro_system::{Role, SystemSpec};
 
 use crate::output::print_json;
-use crate::system::{Role, SystemSpec};
 
 #[derive(Debug, Clone, clap::Args)]
 pub struct UpArgs {

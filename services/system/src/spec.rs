@@ -1,8 +1,4 @@
-//! The running system as child processes of this executable: the estimator, the
-//! compensator and the recorder, started as `vibrocomp service ...` / `vibrocomp
-//! record ...` so that one built binary is all a user needs. Used by `up` (which
-//! supervises them), `demo` and `latency`; starting, stopping, watching and
-//! restarting them is `vibro_service::supervise`.
+//! [`SystemSpec`]: how to start each [`Role`] of the system as a child process.
 
 use anyhow::Context;
 use std::ffi::OsString;
@@ -189,5 +185,88 @@ impl SystemSpec {
     /// Starts `role` as a [`Process`] with its log (stderr) appended to `log`.
     pub fn spawn(&self, role: Role, log: Option<&Path>) -> anyhow::Result<Process> {
         Process::spawn(self.command(role)?, role.name(), log)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn strings(a: Vec<OsString>) -> Vec<String> {
+        a.into_iter()
+            .map(|s| s.to_string_lossy().into_owned())
+            .collect()
+    }
+
+    #[test]
+    fn the_estimator_runs_one_priority_below_the_compensator() {
+        let spec = SystemSpec {
+            prefix: "p/".into(),
+            mode: Some("spin".into()),
+            realtime_priority: Some(1),
+            json: true,
+            ..SystemSpec::default()
+        };
+        assert_eq!(
+            strings(spec.args(Role::Compensator)),
+            [
+                "service",
+                "compensator",
+                "--prefix",
+                "p/",
+                "--mode",
+                "spin",
+                "--realtime-priority",
+                "1",
+                "--json"
+            ]
+        );
+        // One below 1 is still 1, the lowest SCHED_FIFO priority.
+        assert_eq!(
+            strings(spec.args(Role::Estimator))[6..8],
+            ["--realtime-priority", "1"]
+        );
+        let spec = SystemSpec {
+            realtime_priority: Some(50),
+            ..spec
+        };
+        assert_eq!(strings(spec.args(Role::Estimator))[7], "49");
+    }
+
+    #[test]
+    fn the_roles_follow_what_is_asked() {
+        let mut spec = SystemSpec {
+            prefix: "p/".into(),
+            record: Some("out.mcap".into()),
+            force_record: true,
+            estimator_config: Some("e.toml".into()),
+            ..SystemSpec::default()
+        };
+        assert_eq!(
+            spec.roles(),
+            [Role::Estimator, Role::Compensator, Role::Recorder]
+        );
+        assert_eq!(
+            strings(spec.args(Role::Recorder)),
+            [
+                "record",
+                "out.mcap",
+                "--force",
+                "--prefix",
+                "p/",
+                "--estimator-config",
+                "e.toml"
+            ]
+        );
+        spec.record = None;
+        spec.bridge = Some("bridge.toml".into());
+        assert_eq!(
+            spec.roles(),
+            [Role::Estimator, Role::Compensator, Role::Bridge]
+        );
+        assert_eq!(
+            strings(spec.args(Role::Bridge)),
+            ["bridge", "--config", "bridge.toml", "--prefix", "p/"]
+        );
     }
 }

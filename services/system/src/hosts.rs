@@ -5,7 +5,7 @@
 //! Host A is the rig's (replay, recorder), host B the compute host (estimator,
 //! compensator). A process joins a host by running in its folder, where
 //! `config/iceoryx2.toml` names the host's root; this process joins host A with
-//! [`vibro_ipc::use_config_file`].
+//! `vibro_ipc::use_config_file`.
 
 use anyhow::Context;
 use std::path::{Path, PathBuf};
@@ -139,5 +139,36 @@ impl Drop for TwoHosts {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_bridge_configuration_names_its_endpoint_and_streams() {
+        let text = bridge_toml(
+            "p/",
+            "vibrocomp/t",
+            ("listen", "tcp/127.0.0.1:7000"),
+            &RIG_TO_COMPUTE,
+            &[Stream::Estimate],
+        );
+        assert_eq!(
+            text,
+            "prefix = \"p/\"\nkey_prefix = \"vibrocomp/t\"\n\n[zenoh]\nmode = \"peer\"\n\
+             listen = [\"tcp/127.0.0.1:7000\"]\nconnect_timeout_s = 10.0\n\n[export]\n\
+             streams = [\"vib\", \"accel\"]\n\n[import]\nstreams = [\"estimate\"]\n\
+             queue_depth = 1024\n"
+        );
+    }
+
+    #[test]
+    fn the_compute_host_sends_back_outputs_and_each_service_s_status() {
+        let back = compute_to_rig();
+        assert_eq!(back.len(), 2 + 2 * 3);
+        assert!(back.contains(&Stream::Heartbeat(ServiceId::Compensator)));
+        assert!(!back.contains(&Stream::Accel));
     }
 }

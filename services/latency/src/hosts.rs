@@ -3,7 +3,7 @@
 //! it and the rig), and its baseline, a bare Zenoh publisher/subscriber pair.
 //!
 //! The rig (this process) stays in its own iceoryx2 root: host A, with host A's bridge
-//! in it. Host B is a folder of its own (`vibrocomp::hosts::TwoHosts`) where the
+//! in it. Host B is a folder of its own (`vibro_system::hosts::TwoHosts`) where the
 //! estimator, the compensator and host B's bridge run. One machine, one
 //! `CLOCK_MONOTONIC`: the hops' stamps compare as in the local pipelines, and
 //! `rig -> service` and `service -> subscriber` now include a bridge each way.
@@ -24,16 +24,20 @@ use vibro_ipc::now_ns;
 use vibro_msgs::{AccelBlock, CompensatedBlock, ServiceId, ServiceNames, WireMessage};
 use zenoh::Wait;
 
-use super::{
-    pace, run_iceoryx, spec_for, summarize, Cpu, LatencyArgs, PipelineRun, RigStream, Stamps,
-};
-use crate::hosts::{free_port, TwoHosts};
-use crate::system::Role;
 use vibro_service::supervise::{private_prefix, wait_for_heartbeats};
+use vibro_system::hosts::{free_port, TwoHosts};
+use vibro_system::Role;
+
+use crate::cpu::Cpu;
+use crate::histogram::Stamps;
+use crate::peers::{spawn_peer, KillOnDrop};
+use crate::pipelines::{losses, spec_for, summarize, PipelineRun};
+use crate::rig::{pace, run_iceoryx, RigStream};
+use crate::Options;
 
 /// The vibrocomp pipeline with the services on host B.
-pub(super) fn run_bridged(
-    args: &LatencyArgs,
+pub(crate) fn run_bridged(
+    opts: &Options,
     k1: [f64; 3],
     log: &Path,
     estimator_config: Option<&Path>,
@@ -43,7 +47,7 @@ pub(super) fn run_bridged(
     let tag = format!("vcl{}", std::process::id());
     let hosts = TwoHosts::create(&base, &tag, &prefix)?;
     let result = (|| {
-        let mut spec_b = spec_for(&prefix, args.mode, args.realtime_priority);
+        let mut spec_b = spec_for(&prefix, opts.mode, opts.realtime_priority);
         spec_b.estimator_config = estimator_config.map(Path::to_path_buf);
         spec_b.compensator_config = std::fs::canonicalize(
             <vibro_compensator::Config as vibro_service::ServiceConfig>::DEFAULT_CONFIG_PATH,
@@ -52,7 +56,7 @@ pub(super) fn run_bridged(
         spec_b.cwd = Some(hosts.b.dir.clone());
         spec_b.bridge = Some(hosts.b.bridge_config.clone());
         // Host A's bridge: in this process's iceoryx2 root.
-        let mut spec_a = spec_for(&prefix, args.mode, args.realtime_priority);
+        let mut spec_a = spec_for(&prefix, opts.mode, opts.realtime_priority);
         spec_a.bridge = Some(hosts.a.bridge_config.clone());
         let mut bridge_b = spec_b.spawn(Role::Bridge, Some(log))?;
         let mut est = spec_b.spawn(Role::Estimator, Some(log))?;
@@ -77,20 +81,20 @@ pub(super) fn run_bridged(
             ("bridge B", bridge_b.pid()),
             ("rig", std::process::id()),
         ]);
-        let (ka, kv, stamps) = run_iceoryx(args, &prefix, k1)?;
+        let (ka, kv, stamps) = run_iceoryx(opts, &prefix, k1)?;
         let cpu = cpu.finish();
         let timeout = Duration::from_secs(10);
         let c = comp.stop(timeout)?.summary()?;
         let e = est.stop(timeout)?.summary()?;
         let ba = bridge_a.stop(timeout)?.summary()?;
         let bb = bridge_b.stop(timeout)?.summary()?;
-        let lost = super::losses(&c, "accel")
-            + super::losses(&e, "vib")
+        let lost = losses(&c, "accel")
+            + losses(&e, "vib")
             + ba["lost"].as_u64().unwrap_or(0)
             + bb["lost"].as_u64().unwrap_or(0);
         summarize(
             "vibrocomp, 2 hosts (iceoryx2 + Zenoh bridges over loopback TCP)",
-            args,
+            opts,
             (ka, kv, &stamps),
             lost,
             cpu,
@@ -128,7 +132,7 @@ fn session(endpoint: (&str, &str)) -> anyhow::Result<zenoh::Session> {
 
 /// The bare Zenoh baseline's peer process: answers each accelerometer block with a
 /// compensated-block-sized message holding the stamps, takes the vibration blocks.
-pub(super) fn peer_bare_zenoh(
+pub(crate) fn peer_bare_zenoh(
     endpoint: &str,
     key: &str,
     stop: Arc<std::sync::atomic::AtomicBool>,
@@ -174,8 +178,8 @@ pub(super) fn peer_bare_zenoh(
 }
 
 /// The bare Zenoh baseline: this process (the rig) listens, the peer process connects.
-pub(super) fn run_bare_zenoh(
-    args: &LatencyArgs,
+pub(crate) fn run_bare_zenoh(
+    opts: &Options,
     k1: [f64; 3],
     log: &Path,
 ) -> anyhow::Result<PipelineRun> {
@@ -184,14 +188,14 @@ pub(super) fn run_bare_zenoh(
     let rig = session(("listen", &ep))?;
     let key = format!("vibrocomp/latency-{}", std::process::id());
     let zerr = |what: &'static str| move |e: zenoh::Error| anyhow::anyhow!("{what}: {e}");
-    let mut child = super::spawn_peer(
+    let mut child = spawn_peer(
         &["bare-zenoh", "--endpoint", &ep, "--key", &key],
         log,
         "the bare Zenoh peer",
     )?;
-    let peer = super::KillOnDrop(Some(&mut child));
+    let peer = KillOnDrop(Some(&mut child));
     // The rig's receiver.
-    let capacity = (args.duration_s * args.rate_hz / f64::from(args.block_samples)) as usize + 16;
+    let capacity = (opts.duration_s * opts.rate_hz / f64::from(opts.block_samples)) as usize + 16;
     let stamps = Arc::new(Mutex::new(Vec::<Stamps>::with_capacity(capacity)));
     let _answers = rig
         .declare_subscriber(format!("{key}/compensated"))
@@ -202,15 +206,7 @@ pub(super) fn run_bare_zenoh(
                 let bytes = s.payload().to_bytes();
                 if let Some(b) = CompensatedBlock::from_bytes(&bytes) {
                     if let Ok(mut v) = stamps.lock() {
-                        v.push(Stamps {
-                            input_seq: b.input_seq,
-                            t0_ns: b.t0_ns,
-                            input_publish_ns: b.input_publish_ns,
-                            recv_ns: b.recv_ns,
-                            publish_ns: b.publish_ns,
-                            sub_recv_ns,
-                            count: b.count,
-                        });
+                        v.push(Stamps::of(&b, sub_recv_ns));
                     }
                 }
             }
@@ -245,9 +241,9 @@ pub(super) fn run_bare_zenoh(
     // Its answer publisher reaches this subscriber too.
     std::thread::sleep(Duration::from_millis(300));
     let cpu = Cpu::start(&[("peer", peer.pid()), ("rig", std::process::id())]);
-    let mut stream = RigStream::new(args, k1);
+    let mut stream = RigStream::new(opts, k1);
     let (ka, kv) = pace(
-        args,
+        opts,
         &mut stream,
         |b| accel.put(b.bytes()).wait().map_err(zerr("put accel")),
         |b| vib.put(b.bytes()).wait().map_err(zerr("put vib")),
@@ -263,7 +259,7 @@ pub(super) fn run_bare_zenoh(
     let _ = rig.close().wait();
     summarize(
         "bare Zenoh (2 processes, loopback TCP)",
-        args,
+        opts,
         (ka, kv, &stamps),
         0,
         cpu,
