@@ -65,7 +65,8 @@ pub mod predict;
 
 pub use effect::{BlockCtx, Effect, MeanContext};
 pub use effects::{
-    build, build_for_rig, campaign_axes, catalogue, EffectInfo, EffectSpec, ParamInfo, Rig, Scope,
+    build, build_for_rig, campaign_axes, catalogue, listing, EffectInfo, EffectListing, EffectSpec,
+    ParamInfo, Rig, Scope,
 };
 pub use error::{Error, Result};
 pub use model::{BaseMode, FitRecord, LabModel};

@@ -30,7 +30,10 @@
 //!   written; the caller draws the progress ([`import::ImportProgress`]).
 //! - [`rig`]: the rig packetizer, which cuts a producer's sample streams into wire
 //!   blocks with continuous sequence numbers and sample indices (the simulator's
-//!   chunks, handed over as slices: this crate knows no simulator).
+//!   chunks, handed over as slices).
+//! - [`flight`]: a simulated flight (`vibro-sim`) into a log, live, or both, with each
+//!   unit's mean error against the exact model: the one module that knows the
+//!   simulator.
 //! - [`attachments`]: the names, writing and reading of every attachment and metadata
 //!   record a log carries (passports, scenario, service configurations, effects, CSV
 //!   headers), in one place; [`output`]: writing a file under a temporary name that
@@ -80,6 +83,7 @@
 //! sequence).
 
 pub mod attachments;
+pub mod flight;
 pub mod import;
 pub mod output;
 mod record;
@@ -105,6 +109,36 @@ pub enum Error {
     Mcap(#[from] vibro_mcap::Error),
     #[error(transparent)]
     Names(#[from] vibro_msgs::Error),
+    /// The simulator refused the scenario or failed while running it.
+    #[error(transparent)]
+    Sim(#[from] vibro_sim::Error),
+    /// The simulator of a flight cannot be built.
+    #[error("simulator")]
+    Simulator(#[source] vibro_sim::Error),
+    /// A passport that cannot be written as TOML into a flight log.
+    #[error("passport as TOML")]
+    PassportToml(#[source] toml::ser::Error),
+    /// A service-name prefix that makes no valid service names.
+    #[error("--prefix {prefix:?}")]
+    Prefix {
+        prefix: String,
+        #[source]
+        source: vibro_msgs::Error,
+    },
+    /// The iceoryx2 node of the live publishers cannot be created.
+    #[error("iceoryx2 node")]
+    Node(#[source] vibro_ipc::Error),
+    /// A flight stopped by a signal; its log, if any, is finished (`log` says so,
+    /// starting with "; ").
+    #[error(
+        "interrupted by {signal} at simulated time {reached_s:.3} s of {duration_s:.3} s{log}"
+    )]
+    Interrupted {
+        signal: &'static str,
+        reached_s: f64,
+        duration_s: f64,
+        log: String,
+    },
     /// A topic that is not one of the system's streams, or not one this operation
     /// can publish.
     #[error("topic {topic:?}: {rule} (known: {known})")]
