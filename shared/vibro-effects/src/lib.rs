@@ -62,6 +62,7 @@ pub mod empirical;
 mod error;
 pub mod model;
 pub mod predict;
+pub mod report;
 
 pub use effect::{BlockCtx, Effect, MeanContext};
 pub use effects::{
