@@ -34,6 +34,8 @@
 //! - [`flight`]: a simulated flight (`vibro-sim`) into a log, live, or both, with each
 //!   unit's mean error against the exact model: the one module that knows the
 //!   simulator.
+//! - [`samples`]: a recorded vibration-sensor stream as CSV through the estimator
+//!   (`vibro-dsp`) in blocks, and the frequency-response table it divides out.
 //! - [`attachments`]: the names, writing and reading of every attachment and metadata
 //!   record a log carries (passports, scenario, service configurations, effects, CSV
 //!   headers), in one place; [`output`]: writing a file under a temporary name that
@@ -89,6 +91,7 @@ pub mod output;
 mod record;
 mod replay;
 pub mod rig;
+pub mod samples;
 pub mod session;
 mod topics;
 
@@ -246,6 +249,13 @@ pub enum Error {
         cap: usize,
         /// Its first bytes, escaped.
         head: String,
+    },
+    /// A block of a recorded stream the estimator refused.
+    #[error("{path}: estimating the block from data row {first_row}")]
+    Estimate {
+        path: PathBuf,
+        first_row: u64,
+        source: vibro_dsp::Error,
     },
     /// An input file that cannot be imported as a whole.
     #[error("{path}: {problem}")]

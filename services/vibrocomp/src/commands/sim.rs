@@ -15,12 +15,11 @@
 //! chunks, finishes the log (a valid MCAP holding every message written so far), says
 //! on stderr the simulated time it reached and exits with status 1.
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use vibro_log::flight::{FlightOutput, LivePublishers};
 use vibro_service::StopSignal;
 use vibro_sim::{CampaignReport, Scenario, ScenarioKind};
@@ -187,16 +186,8 @@ fn list_effects(json: bool) -> anyhow::Result<()> {
 }
 
 fn progress_bar(len: u64, what: &str) -> ProgressBar {
-    if !std::io::stderr().is_terminal() {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::with_draw_target(Some(len), crate::output::progress_target());
-    if let Ok(style) =
-        ProgressStyle::with_template(&format!("{what} {{bar:40}} {{pos}}/{{len}} ({{eta}} left)"))
-    {
-        bar.set_style(style);
-    }
-    bar
+    let template = format!("{what} {{bar:40}} {{pos}}/{{len}} ({{eta}} left)");
+    crate::output::progress_bar(len, &template)
 }
 
 /// `vibro_log::flight::simulate_flight` with a progress bar, stopping between chunks
