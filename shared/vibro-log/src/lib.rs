@@ -34,6 +34,8 @@
 //! - [`flight`]: a simulated flight (`vibro-sim`) into a log, live, or both, with each
 //!   unit's mean error against the exact model: the one module that knows the
 //!   simulator.
+//! - [`inspect`]: a log's summary and the repair of a damaged log, each refusal with
+//!   its reason and, for a damaged log, the command that recovers it.
 //! - [`samples`]: a recorded vibration-sensor stream as CSV through the estimator
 //!   (`vibro-dsp`) in blocks, and the frequency-response table it divides out.
 //! - [`attachments`]: the names, writing and reading of every attachment and metadata
@@ -87,6 +89,7 @@
 pub mod attachments;
 pub mod flight;
 pub mod import;
+pub mod inspect;
 pub mod output;
 mod record;
 mod replay;
@@ -250,6 +253,23 @@ pub enum Error {
         /// Its first bytes, escaped.
         head: String,
     },
+    /// A log whose writer stopped before finishing it (no footer); `keep` says what
+    /// `vibrocomp log recover` keeps.
+    #[error("{path} is damaged: unfinished MCAP file (no footer: the writer stopped before finishing it, e.g. killed or out of disk): {keep}")]
+    Unfinished { path: PathBuf, keep: String },
+    /// A log that cannot be read or repaired: `context` names it (and, when damaged,
+    /// the command that recovers it).
+    #[error("{context}")]
+    ReadLog {
+        context: String,
+        source: vibro_mcap::Error,
+    },
+    /// The log given to `recover` is not an MCAP log at all.
+    #[error("the damaged log to recover")]
+    RecoverInput(#[source] Box<Error>),
+    /// A repaired log that cannot be read back.
+    #[error("reading back the recovered log")]
+    ReadBack(#[source] Box<Error>),
     /// A block of a recorded stream the estimator refused.
     #[error("{path}: estimating the block from data row {first_row}")]
     Estimate {
