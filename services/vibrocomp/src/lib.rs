@@ -155,6 +155,10 @@ pub fn error_location(e: &anyhow::Error) -> Option<vibro_toml::Location> {
         if let Some(x) = cause.downcast_ref::<vibro_sim::Error>() {
             return x.location();
         }
+        // A simulated flight's errors from the simulator (`vibro_log::flight`).
+        if let Some(vibro_log::Error::Sim(x)) = cause.downcast_ref::<vibro_log::Error>() {
+            return x.location();
+        }
         if let Some(x) = cause.downcast_ref::<vibro_effects::Error>() {
             return x.location();
         }

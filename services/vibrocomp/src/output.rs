@@ -31,6 +31,20 @@ pub fn progress_target() -> indicatif::ProgressDrawTarget {
     }
 }
 
+/// A progress bar of `len` steps drawn with `template` (indicatif's), only when stderr
+/// is a terminal: redirected stderr (scripts, tests) stays clean.
+pub fn progress_bar(len: u64, template: &str) -> indicatif::ProgressBar {
+    use std::io::IsTerminal;
+    if !std::io::stderr().is_terminal() {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::with_draw_target(Some(len), progress_target());
+    if let Ok(style) = indicatif::ProgressStyle::with_template(template) {
+        bar.set_style(style);
+    }
+    bar
+}
+
 /// A write to stdout failed because its reader closed the pipe (`vibrocomp ... | head`).
 /// Every printing path returns it as an error so that the command stops there;
 /// [`crate::main_with_args`] turns it into a quiet exit 0. It is its own type, not a

@@ -405,9 +405,24 @@ impl TryFrom<EstimatorConfigRaw> for EstimatorConfig {
     }
 }
 
+/// A band written `LO-HI` in Hz (`20-40`), as a command line gives the PSD bands;
+/// `None` unless both ends are numbers.
+pub fn parse_band_hz(text: &str) -> Option<[f64; 2]> {
+    let (lo, hi) = text.trim().split_once('-')?;
+    Some([lo.trim().parse().ok()?, hi.trim().parse().ok()?])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bands_parse_as_lo_hi() {
+        assert_eq!(parse_band_hz(" 20 - 40 "), Some([20.0, 40.0]));
+        assert_eq!(parse_band_hz("0.5-1e3"), Some([0.5, 1000.0]));
+        assert_eq!(parse_band_hz("20..40"), None);
+        assert_eq!(parse_band_hz("20-"), None);
+    }
 
     #[test]
     fn defaults_follow_the_issue() {

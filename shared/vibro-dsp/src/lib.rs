@@ -78,6 +78,7 @@ mod response;
 mod sinefit;
 mod welch;
 
+pub use config::parse_band_hz;
 pub use config::{
     EstimatorConfig, EstimatorConfigRaw, ResponsePoint, DEFAULT_BROADBAND_BAND_HZ,
     DEFAULT_MAX_INVALID_FRACTION, DEFAULT_MAX_TONES, DEFAULT_OVERLAP_FRACTION,

@@ -137,6 +137,31 @@ pub struct Flags {
     pub insufficient_data: bool,
 }
 
+impl Flags {
+    /// The flags raised that make an estimate incomplete, by their short names
+    /// (`insufficient`, `gap`, `bad-samples`, `out-of-order`, `saturated`), in that
+    /// order; `tone_free` is not one of them.
+    pub fn labels(&self) -> Vec<&'static str> {
+        let mut out = Vec::new();
+        if self.insufficient_data {
+            out.push("insufficient");
+        }
+        if self.gap {
+            out.push("gap");
+        }
+        if self.non_finite {
+            out.push("bad-samples");
+        }
+        if self.out_of_order {
+            out.push("out-of-order");
+        }
+        if self.saturated.iter().any(|s| *s) {
+            out.push("saturated");
+        }
+        out
+    }
+}
+
 /// The estimate of one window.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct Estimate {
@@ -163,6 +188,19 @@ pub struct Estimate {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn flag_labels_name_what_is_raised_in_order() {
+        assert!(Flags::default().labels().is_empty());
+        let f = Flags {
+            tone_free: true,
+            saturated: [false, true, false],
+            gap: true,
+            insufficient_data: true,
+            ..Flags::default()
+        };
+        assert_eq!(f.labels(), ["insufficient", "gap", "saturated"]);
+    }
 
     #[test]
     fn fixed_list_keeps_at_most_its_capacity_and_serialises_its_items() {

@@ -69,10 +69,12 @@ pub mod interval;
 pub mod mapping;
 pub mod model;
 pub mod predict;
+pub mod report;
 
 pub use effect::{BlockCtx, Effect, MeanContext};
 pub use effects::{
-    build, build_for_rig, campaign_axes, catalogue, EffectInfo, EffectSpec, ParamInfo, Rig, Scope,
+    build, build_for_rig, campaign_axes, catalogue, listing, EffectInfo, EffectListing, EffectSpec,
+    ParamInfo, Rig, Scope,
 };
 pub use error::{Error, Result};
 pub use model::{BaseMode, FitRecord, LabModel};

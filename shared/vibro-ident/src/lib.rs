@@ -64,6 +64,8 @@ mod components;
 mod linalg;
 pub mod measure;
 mod positions;
+pub mod report;
+pub mod table;
 mod wls;
 
 #[cfg(test)]
@@ -77,6 +79,11 @@ pub use measure::{
     measure_ve, measure_ve_from_samples, MeasureOptions, Phase, RecordMean, VeMeasurement,
 };
 pub use positions::{cos_deg, standard_ten_positions, Amplitudes, TestPosition};
+pub use report::{
+    identify_positions, measure_file, passport_terms, CoefficientReport, MeasureReport,
+    MethodChoice, MethodReport, PositionsReport, PositionsRequest, Skipped,
+};
+pub use table::{read_positions, read_records, POSITION_COLUMNS};
 pub use wls::{
     wls_coefficients, wls_components, CoefficientEstimate, PassportTerms, WlsOptions, TERM_NAMES,
 };
@@ -178,6 +185,85 @@ pub enum Error {
     /// input; kept so that no input path panics).
     #[error("the SVD of the {rows} x {cols} least-squares design did not converge")]
     SvdFailed { rows: usize, cols: usize },
+    /// A CSV file that cannot be read.
+    #[error("{file}: cannot read")]
+    ReadFile {
+        file: String,
+        source: Cause<std::io::Error>,
+    },
+    /// A CSV file that is not CSV (`what`: its header or a record).
+    #[error("{file}: {what}")]
+    Csv {
+        file: String,
+        what: &'static str,
+        source: Cause<csv::Error>,
+    },
+    /// A CSV file with no header row.
+    #[error("{file}: empty file: a header row is required")]
+    EmptyTable { file: String },
+    /// Every problem of a CSV file, each naming its line, column, value and rule.
+    #[error("{file}: {}", problems_text(problems))]
+    Table { file: String, problems: Vec<String> },
+    /// An identification method that failed on a file; `located` says where the
+    /// library pointed (a position's line) and what to do about it. One message: the
+    /// cause is part of it, not a cause of its own.
+    #[error("{file}: {method}: {cause}{located}")]
+    Method {
+        file: String,
+        method: &'static str,
+        cause: Box<Error>,
+        located: String,
+    },
+    /// No requested method applies to the positions: each one's reason.
+    #[error("no method applies:\n  {}", reasons.join("\n  "))]
+    NoMethod { reasons: Vec<String> },
+    /// The section-8 measurement of a file of records failed.
+    #[error("{file}: VE measurement (MODEL.md section 8)")]
+    Measurement { file: String, source: Box<Error> },
+}
+
+/// The cause of a file error (an I/O or CSV error), shared so that [`Error`] stays
+/// `Clone` and `PartialEq` (two causes are equal when they say the same). It says
+/// what its error says, and has its error's cause.
+#[derive(Debug)]
+pub struct Cause<E>(pub std::sync::Arc<E>);
+
+impl<E> Clone for Cause<E> {
+    fn clone(&self) -> Self {
+        Cause(self.0.clone())
+    }
+}
+
+impl<E> From<E> for Cause<E> {
+    fn from(e: E) -> Self {
+        Cause(std::sync::Arc::new(e))
+    }
+}
+
+impl<E: std::fmt::Display> std::fmt::Display for Cause<E> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.0.fmt(f)
+    }
+}
+
+impl<E: std::error::Error> std::error::Error for Cause<E> {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        self.0.source()
+    }
+}
+
+impl<E: std::fmt::Display> PartialEq for Cause<E> {
+    fn eq(&self, other: &Self) -> bool {
+        self.0.to_string() == other.0.to_string()
+    }
+}
+
+/// A file's problems: the one, or their count and each on its own line.
+fn problems_text(problems: &[String]) -> String {
+    match problems {
+        [one] => one.clone(),
+        _ => format!("{} problems:\n  {}", problems.len(), problems.join("\n  ")),
+    }
 }
 
 /// Result of measurement and identification.

@@ -30,7 +30,14 @@
 //!   written; the caller draws the progress ([`import::ImportProgress`]).
 //! - [`rig`]: the rig packetizer, which cuts a producer's sample streams into wire
 //!   blocks with continuous sequence numbers and sample indices (the simulator's
-//!   chunks, handed over as slices: this crate knows no simulator).
+//!   chunks, handed over as slices).
+//! - [`flight`]: a simulated flight (`vibro-sim`) into a log, live, or both, with each
+//!   unit's mean error against the exact model: the one module that knows the
+//!   simulator.
+//! - [`inspect`]: a log's summary and the repair of a damaged log, each refusal with
+//!   its reason and, for a damaged log, the command that recovers it.
+//! - [`samples`]: a recorded vibration-sensor stream as CSV through the estimator
+//!   (`vibro-dsp`) in blocks, and the frequency-response table it divides out.
 //! - [`attachments`]: the names, writing and reading of every attachment and metadata
 //!   record a log carries (passports, scenario, service configurations, effects, CSV
 //!   headers), in one place; [`output`]: writing a file under a temporary name that
@@ -80,11 +87,14 @@
 //! sequence).
 
 pub mod attachments;
+pub mod flight;
 pub mod import;
+pub mod inspect;
 pub mod output;
 mod record;
 mod replay;
 pub mod rig;
+pub mod samples;
 pub mod session;
 mod topics;
 
@@ -105,6 +115,36 @@ pub enum Error {
     Mcap(#[from] vibro_mcap::Error),
     #[error(transparent)]
     Names(#[from] vibro_msgs::Error),
+    /// The simulator refused the scenario or failed while running it.
+    #[error(transparent)]
+    Sim(#[from] vibro_sim::Error),
+    /// The simulator of a flight cannot be built.
+    #[error("simulator")]
+    Simulator(#[source] vibro_sim::Error),
+    /// A passport that cannot be written as TOML into a flight log.
+    #[error("passport as TOML")]
+    PassportToml(#[source] toml::ser::Error),
+    /// A service-name prefix that makes no valid service names.
+    #[error("--prefix {prefix:?}")]
+    Prefix {
+        prefix: String,
+        #[source]
+        source: vibro_msgs::Error,
+    },
+    /// The iceoryx2 node of the live publishers cannot be created.
+    #[error("iceoryx2 node")]
+    Node(#[source] vibro_ipc::Error),
+    /// A flight stopped by a signal; its log, if any, is finished (`log` says so,
+    /// starting with "; ").
+    #[error(
+        "interrupted by {signal} at simulated time {reached_s:.3} s of {duration_s:.3} s{log}"
+    )]
+    Interrupted {
+        signal: &'static str,
+        reached_s: f64,
+        duration_s: f64,
+        log: String,
+    },
     /// A topic that is not one of the system's streams, or not one this operation
     /// can publish.
     #[error("topic {topic:?}: {rule} (known: {known})")]
@@ -212,6 +252,30 @@ pub enum Error {
         cap: usize,
         /// Its first bytes, escaped.
         head: String,
+    },
+    /// A log whose writer stopped before finishing it (no footer); `keep` says what
+    /// `vibrocomp log recover` keeps.
+    #[error("{path} is damaged: unfinished MCAP file (no footer: the writer stopped before finishing it, e.g. killed or out of disk): {keep}")]
+    Unfinished { path: PathBuf, keep: String },
+    /// A log that cannot be read or repaired: `context` names it (and, when damaged,
+    /// the command that recovers it).
+    #[error("{context}")]
+    ReadLog {
+        context: String,
+        source: vibro_mcap::Error,
+    },
+    /// The log given to `recover` is not an MCAP log at all.
+    #[error("the damaged log to recover")]
+    RecoverInput(#[source] Box<Error>),
+    /// A repaired log that cannot be read back.
+    #[error("reading back the recovered log")]
+    ReadBack(#[source] Box<Error>),
+    /// A block of a recorded stream the estimator refused.
+    #[error("{path}: estimating the block from data row {first_row}")]
+    Estimate {
+        path: PathBuf,
+        first_row: u64,
+        source: vibro_dsp::Error,
     },
     /// An input file that cannot be imported as a whole.
     #[error("{path}: {problem}")]

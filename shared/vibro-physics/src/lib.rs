@@ -30,6 +30,7 @@ pub mod exact;
 pub mod fp;
 pub mod montecarlo;
 pub mod passport;
+pub mod report;
 pub mod requirements;
 pub mod triad;
 pub mod ve;

@@ -228,6 +228,70 @@ impl Vibration {
     }
 }
 
+/// The vibration one unit sees, in its own axes (1 = OA, 2 = PA, 3 = IA), as the
+/// values of `vibrocomp model`'s flags give it: one tone, and broadband random
+/// vibration by RMS per axis or by a band PSD table, with the IA covariances.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UnitVibration {
+    /// Tone amplitudes `[aB1, aB2, aB3]`, g; no tone when all are 0.
+    pub amplitude_g: [f64; 3],
+    /// Tone frequency, Hz (0: `lambda = 1`).
+    pub freq_hz: f64,
+    /// Phases of the IA vibration relative to OA and PA, `phi3 - phi1` and
+    /// `phi3 - phi2`, deg (the papers take 0).
+    pub phase31_deg: f64,
+    pub phase32_deg: f64,
+    /// RMS of the random vibration per axis `[OA, PA, IA]`, g (absent: 0); unused
+    /// when a PSD table is given.
+    pub sigma_g: [Option<f64>; 3],
+    /// Covariances `K_31(0)` and `K_32(0)` of the random vibration, g^2.
+    pub cov31_g2: f64,
+    pub cov32_g2: f64,
+    /// Kurtosis of the random vibration along IA (3 = Gaussian).
+    pub kurtosis3: f64,
+}
+
+impl UnitVibration {
+    /// The vibration description, not yet validated ([`Vibration::validate`] checks
+    /// the rules across values, such as a covariance within the sigmas). `psd`, when
+    /// given, replaces the sigmas by the bands' variances.
+    pub fn to_vibration(&self, psd: Option<&[PsdBand]>) -> Result<Vibration> {
+        let mut vib = Vibration::none();
+        if self.amplitude_g.iter().any(|a| *a != 0.0) {
+            vib.push_tone(Tone {
+                freq_hz: self.freq_hz,
+                amplitude_g: self.amplitude_g,
+                // Only the differences phi3 - phi1 and phi3 - phi2 matter: set phi3 = 0.
+                phase_rad: [
+                    -self.phase31_deg.to_radians(),
+                    -self.phase32_deg.to_radians(),
+                    0.0,
+                ],
+            })?;
+        }
+        if let Some(bands) = psd {
+            vib.set_random_from_psd(bands);
+        } else {
+            for (i, s) in self.sigma_g.iter().enumerate() {
+                let s = s.unwrap_or(0.0);
+                if !(s.is_finite() && s >= 0.0) {
+                    return Err(Error::InvalidVibration(format!(
+                        "sigma{} = {s}: must be finite and >= 0",
+                        i + 1
+                    )));
+                }
+                vib.covariance_g2[i][i] = s * s;
+            }
+        }
+        vib.covariance_g2[2][0] = self.cov31_g2;
+        vib.covariance_g2[0][2] = self.cov31_g2;
+        vib.covariance_g2[2][1] = self.cov32_g2;
+        vib.covariance_g2[1][2] = self.cov32_g2;
+        vib.kurtosis[2] = self.kurtosis3;
+        Ok(vib)
+    }
+}
+
 /// The rule of each value of a [`Vibration`] on its own: `None` when the value keeps
 /// it, else the rule it breaks (without the value's name, which the caller knows: a
 /// file's key, a command-line flag). [`Vibration::validate`] applies them, plus the
@@ -336,5 +400,41 @@ mod tests {
             e.contains("cov31 = 5 g^2: |cov| must not exceed sigma1 * sigma3"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_unit_vibration_has_its_tone_sigmas_and_covariances() {
+        let u = UnitVibration {
+            amplitude_g: [0.0, 0.0, 2.0],
+            freq_hz: 30.0,
+            phase31_deg: 90.0,
+            phase32_deg: 0.0,
+            sigma_g: [None, Some(0.5), Some(2.0)],
+            cov31_g2: 0.0,
+            cov32_g2: 0.25,
+            kurtosis3: 4.5,
+        };
+        let v = u.to_vibration(None).unwrap();
+        assert_eq!(v.tones().len(), 1);
+        // phi1 = -(phi3 - phi1) with phi3 = 0: -pi/2.
+        assert_eq!(
+            v.tones()[0].phase_rad,
+            [-std::f64::consts::FRAC_PI_2, 0.0, 0.0]
+        );
+        assert_eq!(v.covariance_g2[0][0], 0.0);
+        assert_eq!(v.covariance_g2[1][1], 0.25);
+        assert_eq!(v.covariance_g2[2][2], 4.0);
+        assert_eq!((v.covariance_g2[2][1], v.covariance_g2[1][2]), (0.25, 0.25));
+        assert_eq!(v.kurtosis[2], 4.5);
+        let still = UnitVibration {
+            amplitude_g: [0.0; 3],
+            sigma_g: [None, Some(-1.0), None],
+            ..u
+        };
+        assert!(still
+            .to_vibration(None)
+            .unwrap_err()
+            .to_string()
+            .contains("sigma2 = -1"));
     }
 }

@@ -67,6 +67,7 @@ pub mod realtime;
 mod runtime;
 mod settings;
 mod shutdown;
+mod stop;
 pub mod supervise;
 #[cfg(feature = "testing")]
 pub mod testing;
@@ -87,6 +88,7 @@ pub use settings::{
     ServiceSettingsRaw,
 };
 pub use shutdown::Shutdown;
+pub use stop::StopSignal;
 
 /// Counts an event and tells whether it is the first of its kind, so the hot loop logs
 /// a problem once and leaves the rest to the periodic summary.

@@ -50,6 +50,31 @@ pub enum Error {
     /// a condition without a tone).
     #[error("{what}: {reason}")]
     Unsupported { what: String, reason: String },
+    /// An `--effect` whose kind is not in the effects library.
+    #[error("--effect {text:?}: unknown kind {kind:?}; known: {known}")]
+    UnknownEffect {
+        text: String,
+        kind: String,
+        known: String,
+    },
+    /// An `--effect` parameter that is not `key=value`.
+    #[error("--effect {text:?}: {item:?} is not key=value")]
+    EffectItem { text: String, item: String },
+    /// An `--effect` parameter whose value is not TOML (boxed: the error is large).
+    #[error("--effect {text:?}: {item:?}: the value must be TOML (a number, a string in quotes, an array)")]
+    EffectValue {
+        text: String,
+        item: String,
+        #[source]
+        source: Box<toml::de::Error>,
+    },
+    /// An `--effect` that does not make an effect table (a bad `enabled` or `units`).
+    #[error("--effect {text:?}")]
+    EffectSpec {
+        text: String,
+        #[source]
+        source: Box<toml::de::Error>,
+    },
 }
 
 impl Error {

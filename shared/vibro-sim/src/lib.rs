@@ -88,8 +88,11 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod campaign;
+pub mod campaign_report;
 mod engine;
 mod error;
+pub mod flight_stats;
+pub mod overrides;
 pub mod random;
 pub mod scenario;
 pub mod sensor;
@@ -100,7 +103,10 @@ pub use campaign::{
     run_campaign, run_condition, run_condition_records, write_positions_csv, write_summary_csv,
     CampaignOptions, ConditionRun, ConditionSummary, EffectShift, MeasuredVibration,
 };
+pub use campaign_report::{CampaignReport, ConditionReport};
 pub use engine::{scenario_effects, SampleCounts, SimChunk, Simulator, Truth, DEFAULT_CHUNK_S};
 pub use error::{Error, Result};
+pub use flight_stats::{FlightStats, UnitReport};
+pub use overrides::{apply_overrides, effect_labels, parse_effect, Overrides};
 pub use scenario::{load_scenario, parse_scenario, resolve_scenario, Scenario, ScenarioKind};
 pub use tones::Sweep;

@@ -1,28 +1,20 @@
 //! `vibrocomp estimate`: vibration estimates (tones, band RMS and PSD, covariance,
 //! kurtosis) per window of a recorded 3-axis vibration-sensor stream. The DSP lives in
-//! `vibro-dsp`; this module reads the CSV file as a stream of blocks, validates it
-//! (each problem with its file, line, column, value and rule) and prints one row per
+//! `vibro-dsp`; reading the CSV file as a stream of blocks and validating it (each
+//! problem with its file, line, column, value and rule) in `vibro_log::samples`; this
+//! module turns the flags into the estimator's configuration and prints one row per
 //! window or, with `--json`, the full estimates. See docs/estimation.md.
 
 use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use serde::Serialize;
 use std::fmt::Write as _;
-use std::fs::File;
-use std::io::{BufRead, BufReader, IsTerminal, Read};
-use std::path::{Path, PathBuf};
-use vibro_dsp::{
-    Counters, Estimate, Estimator, EstimatorConfig, EstimatorConfigRaw, ResponsePoint, SampleBlock,
-};
+use std::path::PathBuf;
+use vibro_dsp::{Counters, Estimate, Estimator, EstimatorConfig, EstimatorConfigRaw};
+use vibro_log::samples;
 
 use crate::output::print_json;
-use vibro_log::import::LineReader;
-
-/// Samples handed to the estimator at a time: the block size of a recorder's stream.
-const BLOCK_SAMPLES: usize = 4096;
-/// At most this many bad cells are listed before reading stops.
-const MAX_PROBLEMS: usize = 10;
 
 /// Units of the file's samples.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
@@ -121,7 +113,17 @@ pub fn run(args: EstimateArgs) -> anyhow::Result<()> {
     // problem named by its flag as well as its key.
     let config = EstimatorConfig::try_from(raw.clone()).map_err(flag_problems)?;
     let mut estimator = Estimator::new(config);
-    let (estimates, columns, rows) = read_and_estimate(&args.file, &mut estimator)?;
+    let mut bar: Option<ProgressBar> = None;
+    let result = samples::estimate_stream_csv(&args.file, &mut estimator, &mut |done, total| {
+        let template = "estimating {bar:40} {bytes}/{total_bytes} ({eta} left)";
+        let bar = bar.get_or_insert_with(|| crate::output::progress_bar(total, template));
+        bar.set_position(done)
+    });
+    if let Some(bar) = bar {
+        bar.finish_and_clear();
+    }
+    let s = result?;
+    let (estimates, columns, rows) = (s.estimates, s.columns, s.rows);
     if args.json {
         return print_json(&Report {
             file: args.file.display().to_string(),
@@ -191,7 +193,7 @@ fn config_from_args(args: &EstimateArgs) -> anyhow::Result<EstimatorConfigRaw> {
         .map(|v| three("full-scale-g", v))
         .transpose()?;
     if let Some(path) = &args.response {
-        raw.response = read_response(path)?;
+        raw.response = samples::read_response_table(path)?;
     }
     Ok(raw)
 }
@@ -268,292 +270,9 @@ fn shorten_numbers(text: &str) -> String {
 }
 
 fn parse_band(text: &str) -> anyhow::Result<[f64; 2]> {
-    let bad = || {
-        anyhow::anyhow!(
-            "--psd-bands-hz: {text:?}: a band is LO-HI in Hz with two numbers, e.g. 20-40"
-        )
-    };
-    let (lo, hi) = text.trim().split_once('-').ok_or_else(bad)?;
-    Ok([
-        lo.trim().parse().map_err(|_| bad())?,
-        hi.trim().parse().map_err(|_| bad())?,
-    ])
-}
-
-/// One data line of a CSV file: its 1-based line number and its cells.
-struct Line {
-    number: u64,
-    text: String,
-}
-
-/// Reads the lines of a numeric CSV file, skipping blank and `#` lines, through
-/// vibro-log's capped line reader: a line over [`vibro_log::import::MAX_LINE_BYTES`]
-/// (`/dev/zero`, a binary file) stops the reading with its number and first bytes.
-struct CsvLines<R> {
-    reader: LineReader<R>,
-    /// The current line's bytes, reused from line to line.
-    bytes: Vec<u8>,
-}
-
-impl<R: BufRead> CsvLines<R> {
-    fn new(reader: R, file: &Path) -> CsvLines<R> {
-        CsvLines {
-            reader: LineReader::new(reader, file),
-            bytes: Vec::new(),
-        }
-    }
-
-    fn next_line(&mut self, file: &Path) -> anyhow::Result<Option<Line>> {
-        loop {
-            if self.reader.read_line(&mut self.bytes)?.is_none() {
-                return Ok(None);
-            }
-            let number = self.reader.line();
-            let text = std::str::from_utf8(&self.bytes).map_err(|_| {
-                // As `BufRead::read_line` said it before this reader.
-                anyhow::Error::new(std::io::Error::new(
-                    std::io::ErrorKind::InvalidData,
-                    "stream did not contain valid UTF-8",
-                ))
-                .context(format!("{}: cannot read line {number}", file.display()))
-            })?;
-            let trimmed = text.trim();
-            if trimmed.is_empty() || trimmed.starts_with('#') {
-                continue;
-            }
-            return Ok(Some(Line {
-                number,
-                text: trimmed.to_string(),
-            }));
-        }
-    }
-}
-
-fn cells(text: &str) -> Vec<&str> {
-    text.split(',')
-        .map(|c| c.trim().trim_matches('"').trim())
-        .collect()
-}
-
-/// Counts bytes read, for the progress bar.
-struct Counted<R> {
-    inner: R,
-    bytes: std::rc::Rc<std::cell::Cell<u64>>,
-}
-
-impl<R: Read> Read for Counted<R> {
-    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        let n = self.inner.read(buf)?;
-        self.bytes.set(self.bytes.get() + n as u64);
-        Ok(n)
-    }
-}
-
-fn progress_bar(total_bytes: u64) -> ProgressBar {
-    // Only on a terminal: redirected stderr (scripts, tests) stays clean.
-    if !std::io::stderr().is_terminal() {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::with_draw_target(Some(total_bytes), crate::output::progress_target());
-    if let Ok(style) =
-        ProgressStyle::with_template("estimating {bar:40} {bytes}/{total_bytes} ({eta} left)")
-    {
-        bar.set_style(style);
-    }
-    bar
-}
-
-/// Streams the CSV file through the estimator in blocks; returns the estimates, the
-/// column names and the number of data rows.
-fn read_and_estimate(
-    file: &Path,
-    estimator: &mut Estimator,
-) -> anyhow::Result<(Vec<Estimate>, [String; 3], u64)> {
-    let name = file.display().to_string();
-    let handle = File::open(file).with_context(|| format!("{name}: cannot open"))?;
-    let total_bytes = handle.metadata().map(|m| m.len()).unwrap_or(0);
-    let bytes = std::rc::Rc::new(std::cell::Cell::new(0));
-    let mut lines = CsvLines::new(
-        BufReader::new(Counted {
-            inner: handle,
-            bytes: bytes.clone(),
-        }),
-        file,
-    );
-    let bar = progress_bar(total_bytes);
-
-    let mut columns = ["x".to_string(), "y".to_string(), "z".to_string()];
-    let mut pending = lines.next_line(file)?;
-    let Some(first) = &pending else {
-        bail!("{name}: no data rows (expected three columns: x, y, z, one sample a row)");
-    };
-    let first_cells = cells(&first.text);
-    if first_cells.iter().any(|c| c.parse::<f64>().is_err()) {
-        // A header row names the columns; it must still have one per axis.
-        if first_cells.len() != 3 {
-            bail!(
-                "{name}: line {}: header has {} columns ({}); expected 3, one per axis (x, y, z)",
-                first.number,
-                first_cells.len(),
-                first_cells.join(", ")
-            );
-        }
-        columns = std::array::from_fn(|i| first_cells[i].to_string());
-        pending = lines.next_line(file)?;
-    }
-
-    let period_ns = 1e9 / estimator.config().sample_rate_hz();
-    let mut problems: Vec<String> = Vec::new();
-    let mut block: Vec<[f64; 3]> = Vec::with_capacity(BLOCK_SAMPLES);
-    let mut estimates = Vec::new();
-    let mut rows: u64 = 0;
-    let mut seq: u64 = 0;
-    let mut block_first_row: u64 = 0;
-    let mut flush = |block: &mut Vec<[f64; 3]>,
-                     seq: &mut u64,
-                     first_row: u64,
-                     estimator: &mut Estimator|
-     -> anyhow::Result<()> {
-        let b = SampleBlock {
-            seq: *seq,
-            t0_ns: (first_row as f64 * period_ns).round() as u64,
-            samples_raw: block,
-        };
-        estimator
-            .push_block(&b, |e| estimates.push(*e))
-            .with_context(|| format!("{name}: estimating the block from data row {first_row}"))?;
-        *seq += 1;
-        block.clear();
-        Ok(())
-    };
-    while let Some(line) = pending {
-        let c = cells(&line.text);
-        if c.len() != 3 {
-            problems.push(format!(
-                "line {}: {} columns; expected 3, one per axis ({})",
-                line.number,
-                c.len(),
-                columns.join(", ")
-            ));
-        } else {
-            let mut sample = [0.0; 3];
-            for (i, cell) in c.iter().enumerate() {
-                match cell.parse::<f64>() {
-                    Ok(v) => sample[i] = v,
-                    Err(_) => problems.push(format!(
-                        "line {}, column {} ({:?}): {:?}: {}",
-                        line.number,
-                        i + 1,
-                        columns[i],
-                        cell,
-                        if cell.is_empty() {
-                            "empty cell; every row needs a number per axis"
-                        } else {
-                            "not a number"
-                        }
-                    )),
-                }
-            }
-            block.push(sample);
-        }
-        if problems.len() >= MAX_PROBLEMS {
-            break;
-        }
-        rows += 1;
-        if block.len() == BLOCK_SAMPLES && problems.is_empty() {
-            flush(&mut block, &mut seq, block_first_row, estimator)?;
-            block_first_row = rows;
-            bar.set_position(bytes.get());
-        }
-        pending = lines.next_line(file)?;
-    }
-    if !problems.is_empty() {
-        bar.finish_and_clear();
-        let more = if problems.len() >= MAX_PROBLEMS {
-            format!(" (stopped after the first {MAX_PROBLEMS})")
-        } else {
-            String::new()
-        };
-        bail!("{name}: bad input{more}:\n  {}", problems.join("\n  "));
-    }
-    if !block.is_empty() {
-        flush(&mut block, &mut seq, block_first_row, estimator)?;
-    }
-    bar.finish_and_clear();
-    if estimates.is_empty() {
-        bail!(
-            "{name}: {rows} rows at {} Hz are shorter than one window ({} samples)",
-            estimator.config().sample_rate_hz(),
-            estimator.config().window_samples()
-        );
-    }
-    Ok((estimates, columns, rows))
-}
-
-/// Reads a response table: frequency_hz, gain_x, gain_y, gain_z, phase_x_deg,
-/// phase_y_deg, phase_z_deg (header required).
-fn read_response(file: &Path) -> anyhow::Result<Vec<ResponsePoint>> {
-    const COLUMNS: [&str; 7] = [
-        "frequency_hz",
-        "gain_x",
-        "gain_y",
-        "gain_z",
-        "phase_x_deg",
-        "phase_y_deg",
-        "phase_z_deg",
-    ];
-    let name = file.display().to_string();
-    let handle = File::open(file).with_context(|| format!("{name}: cannot open"))?;
-    let mut lines = CsvLines::new(BufReader::new(handle), file);
-    let Some(header) = lines.next_line(file)? else {
-        bail!(
-            "{name}: empty response table (header: {})",
-            COLUMNS.join(", ")
-        );
-    };
-    if cells(&header.text) != COLUMNS {
-        bail!(
-            "{name}: line {}: header {:?}; expected {}",
-            header.number,
-            header.text,
-            COLUMNS.join(", ")
-        );
-    }
-    let mut points = Vec::new();
-    let mut problems = Vec::new();
-    while let Some(line) = lines.next_line(file)? {
-        let c = cells(&line.text);
-        if c.len() != COLUMNS.len() {
-            problems.push(format!(
-                "line {}: {} columns; expected {}",
-                line.number,
-                c.len(),
-                COLUMNS.len()
-            ));
-            continue;
-        }
-        let mut v = [0.0; 7];
-        for (i, cell) in c.iter().enumerate() {
-            match cell.parse::<f64>() {
-                Ok(x) => v[i] = x,
-                Err(_) => problems.push(format!(
-                    "line {}, column {} ({}): {cell:?}: not a number",
-                    line.number,
-                    i + 1,
-                    COLUMNS[i]
-                )),
-            }
-        }
-        points.push(ResponsePoint {
-            frequency_hz: v[0],
-            gain: [v[1], v[2], v[3]],
-            phase_rad: [v[4].to_radians(), v[5].to_radians(), v[6].to_radians()],
-        });
-    }
-    if !problems.is_empty() {
-        bail!("{name}: bad response table:\n  {}", problems.join("\n  "));
-    }
-    Ok(points)
+    vibro_dsp::parse_band_hz(text).with_context(|| {
+        format!("--psd-bands-hz: {text:?}: a band is LO-HI in Hz with two numbers, e.g. 20-40")
+    })
 }
 
 fn write_table(
@@ -637,27 +356,11 @@ fn fmt_fixed(v: f64, decimals: usize) -> String {
 }
 
 fn flags_text(e: &Estimate) -> String {
-    let f = &e.flags;
-    let mut out = Vec::new();
-    if f.insufficient_data {
-        out.push("insufficient");
-    }
-    if f.gap {
-        out.push("gap");
-    }
-    if f.non_finite {
-        out.push("bad-samples");
-    }
-    if f.out_of_order {
-        out.push("out-of-order");
-    }
-    if f.saturated.iter().any(|s| *s) {
-        out.push("saturated");
-    }
-    if out.is_empty() {
+    let labels = e.flags.labels();
+    if labels.is_empty() {
         "-".to_string()
     } else {
-        out.join(",")
+        labels.join(",")
     }
 }
 

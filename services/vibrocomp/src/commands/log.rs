@@ -1,9 +1,9 @@
 //! `vibrocomp log`: inspect, repair and import MCAP logs (docs/logs.md).
 //!
-//! - `info` summarises a log with `vibro_mcap::info`: channels, counts, time span,
-//!   sequence losses, metadata and attachments.
+//! - `info` summarises a log with `vibro_log::inspect::read_info`: channels, counts,
+//!   time span, sequence losses, metadata and attachments.
 //! - `recover` rewrites a log left by a crash up to its last complete chunk
-//!   (`vibro_mcap::recover`) and says what was kept and what was lost.
+//!   (`vibro_log::inspect::recover_log`) and says what was kept and what was lost.
 //! - `import` (module [`import`]) turns rig data recorded as CSV into a log with the
 //!   simulator's topics and wire types, so that it replays like a simulated flight
 //!   (`vibro_log::import`).
@@ -12,13 +12,12 @@ mod import;
 
 use std::fmt::Write as _;
 use std::io::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 use clap::{Args, Subcommand};
-use serde::Serialize;
-use vibro_log::output::{check_output, PartFile};
-use vibro_mcap::{LogInfo, RecoverReport};
+use vibro_log::inspect::{read_info, recover_log, RecoverOutput};
+use vibro_mcap::LogInfo;
 
 use crate::output::print_json;
 pub use import::ImportArgs;
@@ -71,70 +70,6 @@ fn print_text(write: impl FnOnce(&mut String) -> std::fmt::Result) -> anyhow::Re
         Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
         other => other.context("writing to stdout"),
     }
-}
-
-/// Reads a log's summary; a damaged one gets the command that repairs it.
-/// Every MCAP file starts with these 8 bytes.
-const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
-
-/// Refuses what is not an MCAP log at all (a missing file, a folder, an empty or
-/// foreign file) with the reason, before the MCAP reader's terser errors.
-fn check_mcap_file(path: &Path) -> anyhow::Result<u64> {
-    use std::io::Read as _;
-    let meta =
-        std::fs::metadata(path).with_context(|| format!("{}: cannot open it", path.display()))?;
-    if meta.is_dir() {
-        bail!("{}: is a directory, not an MCAP log", path.display());
-    }
-    if meta.len() == 0 {
-        bail!("{}: empty file (0 bytes), not an MCAP log", path.display());
-    }
-    let mut head = Vec::with_capacity(MCAP_MAGIC.len());
-    std::fs::File::open(path)
-        .and_then(|f| f.take(MCAP_MAGIC.len() as u64).read_to_end(&mut head))
-        .with_context(|| format!("{}: cannot read it", path.display()))?;
-    if !MCAP_MAGIC.starts_with(&head) {
-        bail!(
-            "{}: not an MCAP log: it does not start with the MCAP magic bytes 89 4D 43 41 50 30 0D 0A",
-            path.display()
-        );
-    }
-    Ok(meta.len())
-}
-
-fn read_info(path: &Path) -> anyhow::Result<LogInfo> {
-    check_mcap_file(path)?;
-    vibro_mcap::info(path).map_err(|e| {
-        // Said once, with the command that recovers it (not as a context over the
-        // library's own text, which names the library function).
-        if let vibro_mcap::Error::Unfinished { chunks, .. } = e {
-            let p = path.display();
-            let keep = if chunks == 0 {
-                format!("no complete chunk: `vibrocomp log recover {p} OUT.mcap` keeps only what precedes the first chunk, if anything")
-            } else {
-                format!("{chunks} complete chunk(s) readable; recover them with: vibrocomp log recover {p} OUT.mcap")
-            };
-            return anyhow::anyhow!(
-                "{p} is damaged: unfinished MCAP file (no footer: the writer stopped before finishing it, e.g. killed or out of disk): {keep}"
-            );
-        }
-        let damaged = matches!(
-            e,
-            vibro_mcap::Error::Truncated { .. }
-                | vibro_mcap::Error::NotFinished { .. }
-                | vibro_mcap::Error::ChunkCrc { .. }
-        );
-        let context = if damaged {
-            format!(
-                "{} is damaged (`vibrocomp log recover {} OUT.mcap` keeps everything up to its last complete chunk)",
-                path.display(),
-                path.display()
-            )
-        } else {
-            format!("cannot read the log {}", path.display())
-        };
-        anyhow::Error::new(e).context(context)
-    })
 }
 
 // ---------------------------------------------------------------------------------
@@ -336,72 +271,8 @@ pub struct RecoverArgs {
     pub json: bool,
 }
 
-/// One channel of the repaired log.
-#[derive(Debug, Serialize)]
-struct KeptChannel {
-    topic: String,
-    messages: u64,
-    first_log_time_ns: Option<u64>,
-    last_log_time_ns: Option<u64>,
-    first_sequence: Option<u32>,
-    last_sequence: Option<u32>,
-    lost: u64,
-}
-
-/// What `log recover --json` prints: the library's report, the bytes lost, and the
-/// channels of the repaired log.
-#[derive(Debug, Serialize)]
-struct RecoverOutput {
-    #[serde(flatten)]
-    report: RecoverReport,
-    /// Bytes of the damaged file after the last record read whole (0 for a complete
-    /// file, whose summary section is rebuilt).
-    lost_bytes: u64,
-    channels: Vec<KeptChannel>,
-}
-
 fn recover(args: &RecoverArgs) -> anyhow::Result<()> {
-    let input_bytes = check_mcap_file(&args.damaged).context("the damaged log to recover")?;
-    check_output(&args.out, &[&args.damaged], args.force)?;
-    let part = PartFile::beside(&args.out);
-    let mut report = match vibro_mcap::recover(&args.damaged, part.path()) {
-        Ok(report) => report,
-        // Without a complete header there is no profile, schema or chunk to keep.
-        Err(vibro_mcap::Error::Truncated { .. }) => bail!(
-            "{}: nothing to recover: it ends before its MCAP header record is complete ({input_bytes} bytes)",
-            args.damaged.display()
-        ),
-        Err(e) => {
-            return Err(anyhow::Error::new(e))
-                .with_context(|| format!("recovering {}", args.damaged.display()))
-        }
-    };
-    part.commit(&args.out)?;
-    report.output = args.out.clone();
-    let kept = read_info(&args.out).context("reading back the recovered log")?;
-    let output = RecoverOutput {
-        // After a complete file's data-end record come its summary and footer, which
-        // the new file has its own of: nothing is lost there.
-        lost_bytes: if report.input_complete {
-            0
-        } else {
-            report.input_bytes.saturating_sub(report.valid_prefix_bytes)
-        },
-        channels: kept
-            .channels
-            .iter()
-            .map(|c| KeptChannel {
-                topic: c.topic.clone(),
-                messages: c.messages,
-                first_log_time_ns: c.first_log_time_ns,
-                last_log_time_ns: c.last_log_time_ns,
-                first_sequence: c.first_sequence,
-                last_sequence: c.last_sequence,
-                lost: c.lost,
-            })
-            .collect(),
-        report,
-    };
+    let output = recover_log(&args.damaged, &args.out, args.force)?;
     if args.json {
         return print_json(&output);
     }

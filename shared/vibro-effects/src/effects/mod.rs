@@ -188,6 +188,39 @@ pub fn catalogue() -> &'static [EffectInfo] {
     EFFECTS
 }
 
+/// One effect of the catalogue as `vibrocomp sim --list-effects --json` prints it:
+/// each parameter as `{name, unit, meaning}` (keys in sorted order).
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct EffectListing {
+    pub kind: &'static str,
+    pub summary: &'static str,
+    pub hooks: &'static str,
+    pub params: Vec<std::collections::BTreeMap<&'static str, &'static str>>,
+}
+
+/// The catalogue as listings, in its order.
+pub fn listing() -> Vec<EffectListing> {
+    catalogue()
+        .iter()
+        .map(|e| EffectListing {
+            kind: e.kind,
+            summary: e.summary,
+            hooks: e.hooks,
+            params: e
+                .params
+                .iter()
+                .map(|p| {
+                    std::collections::BTreeMap::from([
+                        ("name", p.name),
+                        ("unit", p.unit),
+                        ("meaning", p.meaning),
+                    ])
+                })
+                .collect(),
+        })
+        .collect()
+}
+
 /// Builds an effect for the standard triad with no passports (see [`build_for_rig`]).
 pub fn build(spec: &EffectSpec) -> Result<Box<dyn Effect>> {
     build_for_rig(spec, &Rig::standard())

@@ -330,3 +330,23 @@ fn effects_behind_a_resonance_act_on_the_vibration_it_passes() {
         est.se_g
     );
 }
+
+#[test]
+fn the_listing_is_the_catalogue_with_named_parameter_fields() {
+    let list = listing();
+    assert_eq!(list.len(), catalogue().len());
+    for (l, e) in list.iter().zip(catalogue()) {
+        assert_eq!((l.kind, l.summary, l.hooks), (e.kind, e.summary, e.hooks));
+        assert_eq!(l.params.len(), e.params.len());
+        for (lp, p) in l.params.iter().zip(e.params) {
+            assert_eq!(lp["name"], p.name);
+            assert_eq!(lp["unit"], p.unit);
+            assert_eq!(lp["meaning"], p.meaning);
+            // Serialised in key order: meaning, name, unit.
+            assert_eq!(
+                lp.keys().copied().collect::<Vec<_>>(),
+                ["meaning", "name", "unit"]
+            );
+        }
+    }
+}

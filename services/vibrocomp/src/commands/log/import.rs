@@ -3,11 +3,10 @@
 //! command line: the flags, the progress bar and the report.
 
 use std::fmt::Write as _;
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use vibro_log::import::{
     import, ImportOptions, ImportPlan, ImportProgress, ImportReport, DEFAULT_PERIOD_TOLERANCE,
 };
@@ -83,17 +82,10 @@ struct Bar(ProgressBar);
 
 impl ImportProgress for Bar {
     fn start(&mut self, total_bytes: u64) {
-        if total_bytes < PROGRESS_MIN_BYTES || !std::io::stderr().is_terminal() {
-            return;
+        if total_bytes >= PROGRESS_MIN_BYTES {
+            let template = "{msg} {bar:40} {bytes}/{total_bytes} ({eta} left)";
+            self.0 = crate::output::progress_bar(total_bytes, template);
         }
-        let bar =
-            ProgressBar::with_draw_target(Some(total_bytes), crate::output::progress_target());
-        if let Ok(style) =
-            ProgressStyle::with_template("{msg} {bar:40} {bytes}/{total_bytes} ({eta} left)")
-        {
-            bar.set_style(style);
-        }
-        self.0 = bar;
     }
 
     fn pass(&mut self, name: &'static str) {

@@ -1,0 +1,210 @@
+//! Reading a log's summary and repairing a damaged log, with the reasons a person
+//! needs (`vibrocomp log info`, `log recover`; docs/logs.md): what is not an MCAP log
+//! at all is refused by name before the MCAP reader's terser errors, and a damaged
+//! log is named with the command that recovers it.
+
+use std::io::Read as _;
+use std::path::Path;
+
+use serde::Serialize;
+use vibro_mcap::{LogInfo, RecoverReport};
+
+use crate::output::{check_output, PartFile};
+use crate::{Error, Result};
+
+/// Every MCAP file starts with these 8 bytes.
+pub const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+
+fn not_a_log(path: &Path, problem: String) -> Error {
+    Error::Input {
+        path: path.to_path_buf(),
+        problem,
+    }
+}
+
+/// Refuses what is not an MCAP log at all (a missing file, a folder, an empty or
+/// foreign file) with the reason; returns the file's size in bytes.
+pub fn check_mcap_file(path: &Path) -> Result<u64> {
+    let read_error = |action: &str| {
+        let path = path.to_path_buf();
+        let action = action.to_string();
+        move |source| Error::ReadInput {
+            path,
+            action,
+            source,
+        }
+    };
+    let meta = std::fs::metadata(path).map_err(read_error("cannot open it"))?;
+    if meta.is_dir() {
+        return Err(not_a_log(path, "is a directory, not an MCAP log".into()));
+    }
+    if meta.len() == 0 {
+        return Err(not_a_log(
+            path,
+            "empty file (0 bytes), not an MCAP log".into(),
+        ));
+    }
+    let mut head = Vec::with_capacity(MCAP_MAGIC.len());
+    std::fs::File::open(path)
+        .and_then(|f| f.take(MCAP_MAGIC.len() as u64).read_to_end(&mut head))
+        .map_err(read_error("cannot read it"))?;
+    if !MCAP_MAGIC.starts_with(&head) {
+        return Err(not_a_log(
+            path,
+            "not an MCAP log: it does not start with the MCAP magic bytes 89 4D 43 41 50 30 0D 0A"
+                .into(),
+        ));
+    }
+    Ok(meta.len())
+}
+
+/// A log's summary (`vibro_mcap::info`) after [`check_mcap_file`]; a damaged log is
+/// named with the command that recovers it.
+pub fn read_info(path: &Path) -> Result<LogInfo> {
+    check_mcap_file(path)?;
+    vibro_mcap::info(path).map_err(|e| {
+        let p = path.display();
+        if let vibro_mcap::Error::Unfinished { chunks, .. } = e {
+            let keep = if chunks == 0 {
+                format!("no complete chunk: `vibrocomp log recover {p} OUT.mcap` keeps only what precedes the first chunk, if anything")
+            } else {
+                format!("{chunks} complete chunk(s) readable; recover them with: vibrocomp log recover {p} OUT.mcap")
+            };
+            return Error::Unfinished {
+                path: path.to_path_buf(),
+                keep,
+            };
+        }
+        let damaged = matches!(
+            e,
+            vibro_mcap::Error::Truncated { .. }
+                | vibro_mcap::Error::NotFinished { .. }
+                | vibro_mcap::Error::ChunkCrc { .. }
+        );
+        Error::ReadLog {
+            context: if damaged {
+                format!("{p} is damaged (`vibrocomp log recover {p} OUT.mcap` keeps everything up to its last complete chunk)")
+            } else {
+                format!("cannot read the log {p}")
+            },
+            source: e,
+        }
+    })
+}
+
+/// One channel of a repaired log.
+#[derive(Debug, Clone, Serialize)]
+pub struct KeptChannel {
+    pub topic: String,
+    pub messages: u64,
+    pub first_log_time_ns: Option<u64>,
+    pub last_log_time_ns: Option<u64>,
+    pub first_sequence: Option<u32>,
+    pub last_sequence: Option<u32>,
+    pub lost: u64,
+}
+
+/// What a repair kept: the library's report, the bytes lost, and the channels of the
+/// repaired log as read back.
+#[derive(Debug, Clone, Serialize)]
+pub struct RecoverOutput {
+    #[serde(flatten)]
+    pub report: RecoverReport,
+    /// Bytes of the damaged file after the last record read whole (0 for a complete
+    /// file, whose summary section is rebuilt).
+    pub lost_bytes: u64,
+    pub channels: Vec<KeptChannel>,
+}
+
+/// Rewrites the log `damaged` (a crash: no summary, a truncated last chunk) into `out`
+/// up to its last complete chunk (`vibro_mcap::recover`), `out` appearing only when
+/// complete (an existing file only with `force`); reads the result back.
+pub fn recover_log(damaged: &Path, out: &Path, force: bool) -> Result<RecoverOutput> {
+    let input_bytes = check_mcap_file(damaged).map_err(|e| Error::RecoverInput(Box::new(e)))?;
+    check_output(out, &[damaged], force)?;
+    let part = PartFile::beside(out);
+    let mut report = match vibro_mcap::recover(damaged, part.path()) {
+        Ok(report) => report,
+        // Without a complete header there is no profile, schema or chunk to keep.
+        Err(vibro_mcap::Error::Truncated { .. }) => {
+            return Err(not_a_log(
+                damaged,
+                format!("nothing to recover: it ends before its MCAP header record is complete ({input_bytes} bytes)"),
+            ))
+        }
+        Err(source) => {
+            return Err(Error::ReadLog {
+                context: format!("recovering {}", damaged.display()),
+                source,
+            })
+        }
+    };
+    part.commit(out)?;
+    report.output = out.to_path_buf();
+    let kept = read_info(out).map_err(|e| Error::ReadBack(Box::new(e)))?;
+    Ok(RecoverOutput {
+        // After a complete file's data-end record come its summary and footer, which
+        // the new file has its own of: nothing is lost there.
+        lost_bytes: if report.input_complete {
+            0
+        } else {
+            report.input_bytes.saturating_sub(report.valid_prefix_bytes)
+        },
+        channels: kept
+            .channels
+            .iter()
+            .map(|c| KeptChannel {
+                topic: c.topic.clone(),
+                messages: c.messages,
+                first_log_time_ns: c.first_log_time_ns,
+                last_log_time_ns: c.last_log_time_ns,
+                first_sequence: c.first_sequence,
+                last_sequence: c.last_sequence,
+                lost: c.lost,
+            })
+            .collect(),
+        report,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn file(name: &str, bytes: &[u8]) -> std::path::PathBuf {
+        let dir = std::env::temp_dir().join(format!("vibro-log-inspect-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        path
+    }
+
+    #[test]
+    fn what_is_not_a_log_is_named() {
+        let empty = file("empty.mcap", b"");
+        assert_eq!(
+            check_mcap_file(&empty).unwrap_err().to_string(),
+            format!("{}: empty file (0 bytes), not an MCAP log", empty.display())
+        );
+        let text = file("text.mcap", b"hello");
+        assert!(check_mcap_file(&text)
+            .unwrap_err()
+            .to_string()
+            .ends_with("does not start with the MCAP magic bytes 89 4D 43 41 50 30 0D 0A"));
+        let dir = empty.parent().unwrap();
+        assert_eq!(
+            check_mcap_file(dir).unwrap_err().to_string(),
+            format!("{}: is a directory, not an MCAP log", dir.display())
+        );
+        // The first bytes of a log are enough to pass (its size is returned).
+        let head = file("head.mcap", &MCAP_MAGIC[..4]);
+        assert_eq!(check_mcap_file(&head).unwrap(), 4);
+    }
+
+    #[test]
+    fn an_unfinished_log_names_the_command_that_recovers_it() {
+        let head = file("unfinished.mcap", MCAP_MAGIC);
+        let e = read_info(&head).unwrap_err().to_string();
+        assert!(e.contains("vibrocomp log recover"), "{e}");
+    }
+}

@@ -1,0 +1,424 @@
+//! A recorded 3-axis vibration-sensor stream as CSV, through the estimator
+//! (`vibrocomp estimate`, docs/estimation.md): three columns (x, y, z), one sample a
+//! row at the configured rate, an optional header row naming the columns; blank and
+//! `#` lines skipped. The file is read line by line through [`LineReader`]'s cap and
+//! handed to `vibro_dsp::Estimator` in blocks, as a recorder's stream would be.
+//! Also the frequency-response table the estimator divides out.
+//!
+//! Bad cells are listed with their line, column, value and rule, up to
+//! [`MAX_PROBLEMS`], and nothing is estimated.
+
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+
+use vibro_dsp::{Estimate, Estimator, ResponsePoint, SampleBlock};
+
+use crate::import::LineReader;
+use crate::{Error, Result};
+
+/// Samples handed to the estimator at a time: the block size of a recorder's stream.
+pub const BLOCK_SAMPLES: usize = 4096;
+/// At most this many bad cells are listed before reading stops.
+pub const MAX_PROBLEMS: usize = 10;
+
+/// The columns of a response table, in order (header required).
+pub const RESPONSE_COLUMNS: [&str; 7] = [
+    "frequency_hz",
+    "gain_x",
+    "gain_y",
+    "gain_z",
+    "phase_x_deg",
+    "phase_y_deg",
+    "phase_z_deg",
+];
+
+/// What a stream file gave the estimator.
+#[derive(Debug, Clone)]
+pub struct StreamEstimates {
+    pub estimates: Vec<Estimate>,
+    /// The columns' names: the header's, or x, y, z.
+    pub columns: [String; 3],
+    /// Data rows read.
+    pub rows: u64,
+}
+
+/// One data line of a CSV file: its 1-based line number and its text, trimmed.
+struct Line {
+    number: u64,
+    text: String,
+}
+
+/// Reads the lines of a numeric CSV file, skipping blank and `#` lines, through the
+/// capped line reader: a line over [`crate::import::MAX_LINE_BYTES`] (`/dev/zero`, a
+/// binary file) stops the reading with its number and first bytes.
+struct CsvLines<R> {
+    reader: LineReader<R>,
+    /// The current line's bytes, reused from line to line.
+    bytes: Vec<u8>,
+    file: PathBuf,
+}
+
+impl<R: BufRead> CsvLines<R> {
+    fn new(reader: R, file: &Path) -> CsvLines<R> {
+        CsvLines {
+            reader: LineReader::new(reader, file),
+            bytes: Vec::new(),
+            file: file.to_path_buf(),
+        }
+    }
+
+    fn next_line(&mut self) -> Result<Option<Line>> {
+        loop {
+            if self.reader.read_line(&mut self.bytes)?.is_none() {
+                return Ok(None);
+            }
+            let number = self.reader.line();
+            let text = std::str::from_utf8(&self.bytes).map_err(|_| Error::ReadInput {
+                path: self.file.clone(),
+                action: format!("cannot read line {number}"),
+                // As `BufRead::read_line` said it before this reader.
+                source: std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    "stream did not contain valid UTF-8",
+                ),
+            })?;
+            let trimmed = text.trim();
+            if trimmed.is_empty() || trimmed.starts_with('#') {
+                continue;
+            }
+            return Ok(Some(Line {
+                number,
+                text: trimmed.to_string(),
+            }));
+        }
+    }
+}
+
+/// The cells of a CSV line, trimmed and unquoted.
+fn cells(text: &str) -> Vec<&str> {
+    text.split(',')
+        .map(|c| c.trim().trim_matches('"').trim())
+        .collect()
+}
+
+/// Counts bytes read, for the progress.
+struct Counted<R> {
+    inner: R,
+    bytes: std::rc::Rc<std::cell::Cell<u64>>,
+}
+
+impl<R: Read> Read for Counted<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.bytes.set(self.bytes.get() + n as u64);
+        Ok(n)
+    }
+}
+
+fn open(file: &Path) -> Result<File> {
+    File::open(file).map_err(|source| Error::ReadInput {
+        path: file.to_path_buf(),
+        action: "cannot open".into(),
+        source,
+    })
+}
+
+fn input(file: &Path, problem: String) -> Error {
+    Error::Input {
+        path: file.to_path_buf(),
+        problem,
+    }
+}
+
+/// Streams the CSV file `file` through `estimator` in blocks of [`BLOCK_SAMPLES`]
+/// (sample `n` at `n / sample_rate`); `progress(bytes_read, total_bytes)` after each
+/// block. Fails on a file with no data row, a bad header, bad cells (each listed), or
+/// fewer rows than one window.
+pub fn estimate_stream_csv(
+    file: &Path,
+    estimator: &mut Estimator,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<StreamEstimates> {
+    let handle = open(file)?;
+    let total_bytes = handle.metadata().map(|m| m.len()).unwrap_or(0);
+    let bytes = std::rc::Rc::new(std::cell::Cell::new(0));
+    let mut lines = CsvLines::new(
+        BufReader::new(Counted {
+            inner: handle,
+            bytes: bytes.clone(),
+        }),
+        file,
+    );
+
+    let mut columns = ["x".to_string(), "y".to_string(), "z".to_string()];
+    let mut pending = lines.next_line()?;
+    let Some(first) = &pending else {
+        return Err(input(
+            file,
+            "no data rows (expected three columns: x, y, z, one sample a row)".into(),
+        ));
+    };
+    let first_cells = cells(&first.text);
+    if first_cells.iter().any(|c| c.parse::<f64>().is_err()) {
+        // A header row names the columns; it must still have one per axis.
+        if first_cells.len() != 3 {
+            return Err(input(
+                file,
+                format!(
+                    "line {}: header has {} columns ({}); expected 3, one per axis (x, y, z)",
+                    first.number,
+                    first_cells.len(),
+                    first_cells.join(", ")
+                ),
+            ));
+        }
+        columns = std::array::from_fn(|i| first_cells[i].to_string());
+        pending = lines.next_line()?;
+    }
+
+    let period_ns = 1e9 / estimator.config().sample_rate_hz();
+    let mut problems: Vec<String> = Vec::new();
+    let mut block: Vec<[f64; 3]> = Vec::with_capacity(BLOCK_SAMPLES);
+    let mut estimates = Vec::new();
+    let mut rows: u64 = 0;
+    let mut seq: u64 = 0;
+    let mut block_first_row: u64 = 0;
+    let mut flush = |block: &mut Vec<[f64; 3]>,
+                     seq: &mut u64,
+                     first_row: u64,
+                     estimator: &mut Estimator|
+     -> Result<()> {
+        let b = SampleBlock {
+            seq: *seq,
+            t0_ns: (first_row as f64 * period_ns).round() as u64,
+            samples_raw: block,
+        };
+        estimator
+            .push_block(&b, |e| estimates.push(*e))
+            .map_err(|source| Error::Estimate {
+                path: file.to_path_buf(),
+                first_row,
+                source,
+            })?;
+        *seq += 1;
+        block.clear();
+        Ok(())
+    };
+    while let Some(line) = pending {
+        let c = cells(&line.text);
+        if c.len() != 3 {
+            problems.push(format!(
+                "line {}: {} columns; expected 3, one per axis ({})",
+                line.number,
+                c.len(),
+                columns.join(", ")
+            ));
+        } else {
+            let mut sample = [0.0; 3];
+            for (i, cell) in c.iter().enumerate() {
+                match cell.parse::<f64>() {
+                    Ok(v) => sample[i] = v,
+                    Err(_) => problems.push(format!(
+                        "line {}, column {} ({:?}): {:?}: {}",
+                        line.number,
+                        i + 1,
+                        columns[i],
+                        cell,
+                        if cell.is_empty() {
+                            "empty cell; every row needs a number per axis"
+                        } else {
+                            "not a number"
+                        }
+                    )),
+                }
+            }
+            block.push(sample);
+        }
+        if problems.len() >= MAX_PROBLEMS {
+            break;
+        }
+        rows += 1;
+        if block.len() == BLOCK_SAMPLES && problems.is_empty() {
+            flush(&mut block, &mut seq, block_first_row, estimator)?;
+            block_first_row = rows;
+            progress(bytes.get(), total_bytes);
+        }
+        pending = lines.next_line()?;
+    }
+    if !problems.is_empty() {
+        let more = if problems.len() >= MAX_PROBLEMS {
+            format!(" (stopped after the first {MAX_PROBLEMS})")
+        } else {
+            String::new()
+        };
+        return Err(input(
+            file,
+            format!("bad input{more}:\n  {}", problems.join("\n  ")),
+        ));
+    }
+    if !block.is_empty() {
+        flush(&mut block, &mut seq, block_first_row, estimator)?;
+    }
+    if estimates.is_empty() {
+        return Err(input(
+            file,
+            format!(
+                "{rows} rows at {} Hz are shorter than one window ({} samples)",
+                estimator.config().sample_rate_hz(),
+                estimator.config().window_samples()
+            ),
+        ));
+    }
+    Ok(StreamEstimates {
+        estimates,
+        columns,
+        rows,
+    })
+}
+
+/// Reads a frequency-response table (columns [`RESPONSE_COLUMNS`], header required;
+/// gains measured / true, phases in degrees).
+pub fn read_response_table(file: &Path) -> Result<Vec<ResponsePoint>> {
+    const COLUMNS: [&str; 7] = RESPONSE_COLUMNS;
+    let mut lines = CsvLines::new(BufReader::new(open(file)?), file);
+    let Some(header) = lines.next_line()? else {
+        return Err(input(
+            file,
+            format!("empty response table (header: {})", COLUMNS.join(", ")),
+        ));
+    };
+    if cells(&header.text) != COLUMNS {
+        return Err(input(
+            file,
+            format!(
+                "line {}: header {:?}; expected {}",
+                header.number,
+                header.text,
+                COLUMNS.join(", ")
+            ),
+        ));
+    }
+    let mut points = Vec::new();
+    let mut problems = Vec::new();
+    while let Some(line) = lines.next_line()? {
+        let c = cells(&line.text);
+        if c.len() != COLUMNS.len() {
+            problems.push(format!(
+                "line {}: {} columns; expected {}",
+                line.number,
+                c.len(),
+                COLUMNS.len()
+            ));
+            continue;
+        }
+        let mut v = [0.0; 7];
+        for (i, cell) in c.iter().enumerate() {
+            match cell.parse::<f64>() {
+                Ok(x) => v[i] = x,
+                Err(_) => problems.push(format!(
+                    "line {}, column {} ({}): {cell:?}: not a number",
+                    line.number,
+                    i + 1,
+                    COLUMNS[i]
+                )),
+            }
+        }
+        points.push(ResponsePoint {
+            frequency_hz: v[0],
+            gain: [v[1], v[2], v[3]],
+            phase_rad: [v[4].to_radians(), v[5].to_radians(), v[6].to_radians()],
+        });
+    }
+    if !problems.is_empty() {
+        return Err(input(
+            file,
+            format!("bad response table:\n  {}", problems.join("\n  ")),
+        ));
+    }
+    Ok(points)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vibro_dsp::{EstimatorConfig, EstimatorConfigRaw};
+
+    fn file(name: &str, text: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("vibro-log-samples-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+
+    #[test]
+    fn cells_are_trimmed_and_unquoted() {
+        assert_eq!(cells(" 1 , \"x\" ,2"), ["1", "x", "2"]);
+    }
+
+    #[test]
+    fn a_response_table_converts_its_phases_to_radians() {
+        let path = file(
+            "response.csv",
+            &format!(
+                "# measured\n{}\n10,1,1,1,90,0,-180\n",
+                RESPONSE_COLUMNS.join(",")
+            ),
+        );
+        let points = read_response_table(&path).unwrap();
+        assert_eq!(points.len(), 1);
+        assert_eq!(points[0].frequency_hz, 10.0);
+        assert_eq!(points[0].phase_rad[0], std::f64::consts::FRAC_PI_2);
+        assert_eq!(points[0].phase_rad[2], -std::f64::consts::PI);
+        let bad = file(
+            "bad-response.csv",
+            &format!("{}\n1,2\n", RESPONSE_COLUMNS.join(",")),
+        );
+        assert_eq!(
+            read_response_table(&bad).unwrap_err().to_string(),
+            format!(
+                "{}: bad response table:\n  line 2: 2 columns; expected 7",
+                bad.display()
+            )
+        );
+    }
+
+    #[test]
+    fn bad_cells_are_listed_by_line_and_column() {
+        let config = EstimatorConfig::try_from(EstimatorConfigRaw::new(25600.0, [1.0; 3])).unwrap();
+        let mut estimator = Estimator::new(config);
+        let path = file("bad-samples.csv", "a,b,c\n1,2,3\n1,,x\n1,2\n");
+        let e = estimate_stream_csv(&path, &mut estimator, &mut |_, _| {})
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            format!(
+                "{}: bad input:\n  \
+                 line 3, column 2 (\"b\"): \"\": empty cell; every row needs a number per axis\n  \
+                 line 3, column 3 (\"c\"): \"x\": not a number\n  \
+                 line 4: 2 columns; expected 3, one per axis (a, b, c)",
+                path.display()
+            )
+        );
+    }
+
+    #[test]
+    fn a_short_stream_is_shorter_than_a_window() {
+        let config = EstimatorConfig::try_from(EstimatorConfigRaw::new(25600.0, [1.0; 3])).unwrap();
+        let window = config.window_samples();
+        let mut estimator = Estimator::new(config);
+        let path = file("short.csv", "0,0,0\n0,0,0\n");
+        let e = estimate_stream_csv(&path, &mut estimator, &mut |_, _| {})
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            format!(
+                "{}: 2 rows at 25600 Hz are shorter than one window ({window} samples)",
+                path.display()
+            )
+        );
+    }
+}
