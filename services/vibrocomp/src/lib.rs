@@ -173,6 +173,8 @@ pub fn error_location(e: &anyhow::Error) -> Option<vibro_toml::Location> {
         }
         match cause.downcast_ref::<vibro_lab::Error>()? {
             vibro_lab::Error::Effects(x) => x.location(),
+            // A log's attached passport (`vibro_lab::log_table`).
+            vibro_lab::Error::Config(x) => x.location(),
             vibro_lab::Error::Table { path, .. } | vibro_lab::Error::Io { path, .. } => {
                 Some(vibro_toml::Location {
                     file: path.clone(),

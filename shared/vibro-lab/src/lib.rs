@@ -84,15 +84,16 @@ pub enum Error {
     /// effect that cannot be built or evaluated), its message unchanged.
     #[error(transparent)]
     Effects(#[from] vibro_effects::Error),
-    /// An MCAP log the lab reads (`log_table`), its message unchanged.
+    /// An MCAP log the lab reads (`log_table`), its message unchanged (boxed: the
+    /// reader's errors are large, and every `Result` of the lab carries this enum).
     #[error(transparent)]
-    Mcap(#[from] vibro_mcap::Error),
+    Mcap(Box<vibro_mcap::Error>),
     /// A log's attachments (`vibro_log`), its message unchanged.
     #[error(transparent)]
-    Log(#[from] vibro_log::Error),
+    Log(Box<vibro_log::Error>),
     /// A passport or triad (a log's attached passport), its message unchanged.
     #[error(transparent)]
-    Config(#[from] vibro_config::ConfigError),
+    Config(Box<vibro_config::ConfigError>),
     /// Drawing one of the report's plots (`report`), the plotting library's message.
     #[error("{0}")]
     Render(String),
@@ -103,6 +104,24 @@ pub enum Error {
         #[source]
         source: Box<dyn std::error::Error + Send + Sync + 'static>,
     },
+}
+
+impl From<vibro_mcap::Error> for Error {
+    fn from(e: vibro_mcap::Error) -> Self {
+        Error::Mcap(Box::new(e))
+    }
+}
+
+impl From<vibro_log::Error> for Error {
+    fn from(e: vibro_log::Error) -> Self {
+        Error::Log(Box::new(e))
+    }
+}
+
+impl From<vibro_config::ConfigError> for Error {
+    fn from(e: vibro_config::ConfigError) -> Self {
+        Error::Config(Box::new(e))
+    }
 }
 
 impl<E: std::error::Error + Send + Sync> From<plotters::drawing::DrawingAreaErrorKind<E>>
