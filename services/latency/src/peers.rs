@@ -97,8 +97,8 @@ pub fn run_peer(cmd: &PeerCommand) -> anyhow::Result<()> {
 
 /// This executable's `latency-peer` with `args`, its stderr appended to `log`
 /// (`what`: how an error names it).
-pub(crate) fn spawn_peer(
-    args: &[&str],
+pub(crate) fn spawn_peer<S: AsRef<std::ffi::OsStr>>(
+    args: &[S],
     log: &Path,
     what: &str,
 ) -> anyhow::Result<std::process::Child> {

@@ -317,25 +317,13 @@ fn run_uds(
     estimator_config: Option<&Path>,
 ) -> anyhow::Result<PipelineRun> {
     let dir = std::env::temp_dir().join(format!("vibrocomp-uds-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)?;
-    let exe = std::env::current_exe()?;
-    let mut child = std::process::Command::new(exe);
-    child
-        .args(["latency-peer", "uds", "--socket-dir"])
-        .arg(&dir);
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut args: Vec<std::ffi::OsString> =
+        vec!["uds".into(), "--socket-dir".into(), dir.clone().into()];
     if let Some(c) = estimator_config {
-        child.arg("--estimator-config").arg(c);
+        args.extend(["--estimator-config".into(), c.into()]);
     }
-    let mut child = child
-        .stdout(std::process::Stdio::null())
-        .stderr(
-            std::fs::OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(log)?,
-        )
-        .spawn()
-        .context("starting the socket peer")?;
+    let mut child = spawn_peer(&args, log, "the socket peer")?;
     let guard = KillOnDrop(Some(&mut child));
     let mut vib_sock = connect(&dir.join("vib.sock"))?;
     let mut accel_sock = connect(&dir.join("accel.sock"))?;
