@@ -1,0 +1,1463 @@
+#!/usr/bin/env python3
+"""Independent shake-table rig generator: what a real rig records, sample by sample.
+
+Written from the maths of ``shared/spec/MODEL.md`` (the conversion function and the
+vibration-error formulas, with the papers' equation numbers) and ``shared/spec/RIG.md``
+(the rig and its environments) alone, so that vibrocomp can be tested on data it did
+not make (issue 30, "Real rigs, no simulator"). It does not use vibrocomp's simulator.
+
+The rig
+=======
+
+An AL-15 triad (three pendulous accelerometers AK1..AK3; unit i has its input axis IA,
+output axis OA and pendulum axis PA along signed body axes, from the triad file) sits
+on a shaker, through an optional hidden mount resonance. Next to each unit, on the
+shaker base, a piezoelectric vibration sensor VD1..VD3 measures along that unit's IA;
+a triaxial DC-coupled reference accelerometer on the base measures body x, y, z.
+
+Physical steps and their discretisation (all on one *fine grid* ``t_n = n / fs``,
+``fs = sensor_rate * oversample``, ``n = 0..N`` with ``N = T_run * fs``):
+
+1. **Gravity.** Apparent acceleration of a still rig: ``g * d`` in body axes, ``d`` the
+   orientation unit vector (the body direction pointing *up*, so that a unit whose IA
+   is along ``d`` reads ``aL3 = +1 g``, as MODEL.md section 9 and RIG.md's "IA vertical
+   (aL3 = 1 g)" count it). Constant per run.
+2. **Base vibration** along each body axis i (MODEL.md section 3, [P1 (3)-(6)]):
+   ``v_i(t) = env(t) * (A_i sin(2 pi f_i t + phi_i) + x_i(t))``. ``x_i`` is stationary
+   Gaussian random vibration with a stated one-sided PSD ``S_i(f)`` (g^2/Hz), flat over
+   a band (default 20..640 Hz) or piecewise flat from a band table. It is made in the
+   frequency domain on the bins ``k / T_run`` of the band: ``x(t) = sum_k a_k cos(2 pi k
+   t/T_run) + b_k sin(2 pi k t/T_run)`` with ``a_k, b_k ~ N(0, S(f_k) / T_run)`` independent,
+   so ``x`` is exactly Gaussian with variance ``sum_k S(f_k)/T_run = int S df`` (MODEL.md
+   section 3: ``sigma^2 = S * df``) and, since the draws do not depend on the rate, the
+   *same* continuous signal is sampled at any fine rate (this is how the discretisation
+   error is measured). Axes are independent (``K_3j(0) = 0``). ``env`` is 0 while
+   still, 1 while vibrating, with raised-cosine ramps of ``ramp_s``.
+3. **Hidden mount resonance** (optional), per body axis between base and units, a
+   linear second-order system with DC gain exactly 1 (gravity passes unchanged):
+   ``base``  form (default): ``H(s) = (w0^2 + 2 zeta w0 s) / (s^2 + 2 zeta w0 s + w0^2)``,
+   the absolute-acceleration transmissibility of a mass on a spring-damper mount,
+   ``|H(j w0)| = Q sqrt(1 + 1/Q^2)``; ``plain`` form: ``H(s) = w0^2 / (s^2 + 2 zeta w0 s +
+   w0^2)``, ``|H(j w0)| = Q``; ``Q = 1/(2 zeta)``. Applied **exactly** by default
+   (``--filter-method exact``): ``H(j 2 pi f)`` multiplies the run's DFT bins, which is
+   the continuous system's response because every signal it acts on is periodic over
+   the run (a shaker run starts and ends still; the random vibration is periodic by
+   construction; in flight-like runs the tone goes through analytically, in steady
+   state). ``--filter-method bilinear``: a digital filter on the fine grid, bilinear
+   transform prewarped at f0 (exact at 0 and f0, frequency-warped elsewhere: 4 % at
+   640 Hz with a 6.4 kHz grid, 0.3 % at 25.6 kHz; ``selfcheck``). The filter acts on the
+   vibration only; gravity is added unfiltered (identical, DC gain 1). The units see
+   the filtered vibration; the vibration sensors and the reference sit on the base and
+   do not.
+4. **Conversion function** of each unit, MODEL.md (FP) [P1 (1)-(2)], [P2 (1)], applied
+   to the instantaneous acceleration at the unit projected on its axes
+   ``a3 = e_IA . a``, ``a1 = e_OA . a``, ``a2 = e_PA . a``, at every fine sample::
+
+       aF = a0 + k1*lambda*(1 + 0.5*d1A*sign(a3))*a3 + k2 a3^2 + k3 a3^3 + k4 a3^4
+            + k5 a3^5 + m1*a1 + m2*a2 + m31*a3*a1 + m32*a3*a2,        U = K1 * aF
+
+   with ``lambda(w) = 1`` (the unit's own frequency response is not modelled).
+5. **Readings**: each output reading is the mean of ``U`` over its averaging interval
+   ``(t_j - T_a, t_j]``, ``T_a = 1 / accel_rate``, latched (time-stamped) at the end
+   ``t_j = j T_a``, j = 1..J. (FP) is split into its linear part
+   ``a0 + k1 lambda a3 + m1 a1 + m2 a2`` and the rest (asymmetry, k2..k5, m31, m32):
+
+   - the linear part's mean is exact: gravity is constant, and the vibration at the
+     unit is band-limited far below Nyquist and periodic over the run, so its
+     continuous boxcar ``(1 - e^{-j w T_a})/(j w T_a)`` is applied in the frequency
+     domain (flight-like runs: the tone analytically, in its steady state);
+   - the rest (about 1e-4 of the signal, but all of the vibration error) is averaged
+     by the trapezoid rule over the ``M + 1`` fine samples of the interval,
+     ``M = fs / accel_rate`` (weights 1/2 at both ends): the exact mean of the
+     piecewise-linear signal through the samples. Over many readings this is the mean
+     of the fine samples, so the static error has no discretisation error beyond the
+     sampling of the signal itself (``selfcheck`` and the tests measure it).
+
+   White output noise (``unit_noise_g`` RMS per reading, times K1) is added.
+6. **Vibration sensors**: ``V = sens * HP(e_IA . a_base) + noise``, 0.1 V/g by default,
+   ``HP(s) = s / (s + 2 pi f_c)`` (AC coupling, f_c = 2 Hz, first order), applied like
+   the mount (exact, or bilinear prewarped at f_c). The rig has stood still under
+   gravity long before the record, so the response to gravity has decayed: the output
+   carries the vibration only. Sampled at every ``oversample``-th fine sample (the
+   sensor rate); white noise ``vib_noise_g`` RMS (referred to the input) added.
+7. **Reference accelerometer** (base, body x, y, z, DC-coupled, in g): the total base
+   acceleration at the sensor rate plus white noise ``ref_noise_g`` RMS.
+
+Runs are ``still_s`` still / ``vib_s`` vibrating / ``still_s`` still (8/8/8 s by
+default), or vibrating throughout (flight-like; the filters then start in the periodic
+steady state). Every random part derives from the seed (numpy ``SeedSequence``):
+conditions that the seed chooses (tone amplitudes and phases when not given) from
+``spawn_key = (run, 0)``; the random vibration and the three noises from
+``spawn_key = (run, 1, repeat, stream)``, so ``--repeat K`` re-draws only those.
+
+Outputs per run (a folder): ``accel.csv`` (``time_s,u1_v,u2_v,u3_v``), ``vib.csv``
+(``time_s,vd1_v,vd2_v,vd3_v``), ``reference.csv`` (``time_s,ax_g,ay_g,az_g``), in the CSV
+format of ``vibrocomp log import`` (docs/logs.md: ``#`` comments, a header line, one row
+per sample, numbers written with Python's ``repr`` so they read back bit for bit), and
+``truth.json`` (everything used, and the true vibration error: for tests only).
+
+The true VE (``ve_time_domain_g``, MODEL.md section 3) is the mean noise-free reading
+over the steady part of the vibrating segment minus the reading at rest, less the
+first-order response ``grad(FP)(aL) . <v>`` to the window mean ``<v>`` of the vibration
+itself: over a finite window a shaker's acceleration does not average to zero (it is
+the table's velocity change over the window divided by its length: about 3e-4 g over
+7.7 s for 0.002 g^2/Hz in 20..640 Hz), and that is input, not error. Both parts are in
+the truth (``reading_shift_g = ve_time_domain_g + first_order_input_mean_g``); MODEL.md
+section 8's measurement from the recorded outputs is there too.
+
+Usage::
+
+    rig_generator.py run --out DIR [options]           one run (K folders with --repeat K)
+    rig_generator.py campaign --out DIR [options]      orientations x tone frequencies
+    rig_generator.py selfcheck                         discretisation figures
+
+(A negative orientation takes ``=``: ``--orientation=-y``.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import csv
+import dataclasses
+import json
+import math
+import os
+import sys
+import time
+import tomllib
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal, special
+
+# ---------------------------------------------------------------------------------------
+# Passport and triad
+
+
+@dataclass
+class Passport:
+    """Coefficients of the conversion function (FP), MODEL.md section 2, in g units.
+
+    ``k2..k5`` are in 1/g^(n-1), ``m31, m32`` in 1/g, ``d1a``, ``m1``, ``m2`` dimensionless,
+    ``a0_g`` in g, ``K1_v_per_g`` in V/g (``U = K1 * aF``, so ``K0 = K1 * a0``, MODEL.md
+    section 2). ``lam`` is lambda(w), taken constant.
+    """
+
+    id: str = "AL-15"
+    a0_g: float = 3.324e-3
+    k1: float = 1.0
+    K1_v_per_g: float = -1.6698
+    d1a: float = 15e-6
+    k2: float = 105e-6
+    k3: float = 87e-6
+    k4: float = 10e-6
+    k5: float = 0.9e-6
+    m1: float = 1150e-6
+    m2: float = 1150e-6
+    m31: float = 11.6e-6
+    m32: float = 11.6e-6
+    lam: float = 1.0
+
+    # TOML key -> (field, divisor); the project's passport files quote ppm.
+    TOML_KEYS = {
+        "a0_g": ("a0_g", 1.0),
+        "k1": ("k1", 1.0),
+        "K1_v_per_g": ("K1_v_per_g", 1.0),
+        "d1a_ppm": ("d1a", 1e6),
+        "k2_ppm_per_g": ("k2", 1e6),
+        "k3_ppm_per_g2": ("k3", 1e6),
+        "k4_ppm_per_g3": ("k4", 1e6),
+        "k5_ppm_per_g4": ("k5", 1e6),
+        "m1_ppm": ("m1", 1e6),
+        "m2_ppm": ("m2", 1e6),
+        "m31_ppm_per_g": ("m31", 1e6),
+        "m32_ppm_per_g": ("m32", 1e6),
+    }
+
+    @classmethod
+    def from_toml(cls, path):
+        """Read a passport file (``config/accelerometers/*.toml``: keys with units)."""
+        with open(path, "rb") as f:
+            d = tomllib.load(f)
+        p = cls(id=str(d.get("id", os.path.basename(path))))
+        for key, (name, divisor) in cls.TOML_KEYS.items():
+            if key in d:
+                setattr(p, name, float(d[key]) / divisor)
+        return p
+
+    def to_dict(self):
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+    def af(self, a3, a1, a2):
+        """(FP) in acceleration units, MODEL.md section 2 [P1 (1)-(2)], [P2 (1)].
+
+        ``(1 + 0.5 d1A sign(a3)) a3 = a3 + 0.5 d1A |a3|`` is used (the same number).
+        Works on scalars or arrays (element-wise).
+        """
+        a3 = np.asarray(a3, dtype=float)
+        lin = self.k1 * self.lam * (a3 + 0.5 * self.d1a * np.abs(a3))
+        # Horner for k2 a3^2 + ... + k5 a3^5
+        poly = a3 * a3 * (self.k2 + a3 * (self.k3 + a3 * (self.k4 + a3 * self.k5)))
+        return (
+            self.a0_g
+            + lin
+            + poly
+            + self.m1 * a1
+            + self.m2 * a2
+            + self.m31 * a3 * a1
+            + self.m32 * a3 * a2
+        )
+
+
+AXIS_VECTORS = {
+    "+x": (1.0, 0.0, 0.0),
+    "-x": (-1.0, 0.0, 0.0),
+    "+y": (0.0, 1.0, 0.0),
+    "-y": (0.0, -1.0, 0.0),
+    "+z": (0.0, 0.0, 1.0),
+    "-z": (0.0, 0.0, -1.0),
+}
+
+
+def axis_vector(name):
+    """A signed body axis, ``"+x"`` .. ``"-z"`` (``"x"`` means ``"+x"``)."""
+    n = name.strip().lower()
+    if n in ("x", "y", "z"):
+        n = "+" + n
+    if n not in AXIS_VECTORS:
+        raise ValueError(f"not a signed body axis: {name!r} (want +x, -y, ...)")
+    return np.array(AXIS_VECTORS[n])
+
+
+@dataclass
+class Unit:
+    """One accelerometer of the triad: its passport and signed body axes (RIG.md)."""
+
+    name: str
+    passport: Passport
+    ia: str
+    oa: str
+    pa: str
+
+    def __post_init__(self):
+        letters = {s.strip().lower()[-1] for s in (self.ia, self.oa, self.pa)}
+        if len(letters) != 3:
+            raise ValueError(f"unit {self.name}: IA, OA, PA must be three body axes")
+
+    @property
+    def e_ia(self):
+        return axis_vector(self.ia)
+
+    @property
+    def e_oa(self):
+        return axis_vector(self.oa)
+
+    @property
+    def e_pa(self):
+        return axis_vector(self.pa)
+
+    def to_dict(self):
+        return {
+            "name": self.name,
+            "ia": self.ia,
+            "oa": self.oa,
+            "pa": self.pa,
+            "passport": self.passport.to_dict(),
+        }
+
+
+def default_triad(passport=None):
+    """The shipped triad (``config/triads/default.toml``), AL-15 passports."""
+    p = passport or Passport()
+    return [
+        Unit("AK1", p, "+x", "+y", "+z"),
+        Unit("AK2", p, "+y", "+z", "+x"),
+        Unit("AK3", p, "+z", "+x", "+y"),
+    ]
+
+
+def load_triad(path, passport_dir=None, passport=None):
+    """Read a triad file (``[[unit]]`` with ``name, passport, ia, oa, pa``).
+
+    Each unit's passport id is looked up among ``passport_dir/*.toml`` by their ``id``;
+    ``passport`` (if given) overrides all of them; the id ``AL-15`` falls back to the
+    built-in passport.
+    """
+    with open(path, "rb") as f:
+        d = tomllib.load(f)
+    found = {}
+    if passport_dir and os.path.isdir(passport_dir):
+        for fn in sorted(os.listdir(passport_dir)):
+            if fn.endswith(".toml"):
+                p = Passport.from_toml(os.path.join(passport_dir, fn))
+                found[p.id] = p
+    units = []
+    for u in d["unit"]:
+        if passport is not None:
+            p = passport
+        elif u.get("passport") in found:
+            p = found[u["passport"]]
+        elif u.get("passport", "AL-15") == "AL-15":
+            p = Passport()
+        else:
+            raise ValueError(f"passport {u.get('passport')!r} not found in {passport_dir}")
+        units.append(Unit(u["name"], p, u["ia"], u["oa"], u["pa"]))
+    if len(units) != 3:
+        raise ValueError("a triad has three units")
+    return units
+
+
+# ---------------------------------------------------------------------------------------
+# Orientations
+
+_S3 = 1.0 / math.sqrt(3.0)
+ORIENTATIONS = {
+    "+x": (1.0, 0.0, 0.0),
+    "-x": (-1.0, 0.0, 0.0),
+    "+y": (0.0, 1.0, 0.0),
+    "-y": (0.0, -1.0, 0.0),
+    "+z": (0.0, 0.0, 1.0),
+    "-z": (0.0, 0.0, -1.0),
+    # two oblique ones: every unit sees a share of gravity on IA and on OA/PA
+    "oblique1": (_S3, _S3, _S3),
+    "oblique2": (0.5, -0.5, math.sqrt(0.5)),
+}
+
+
+def orientation_vector(spec):
+    """A named orientation (``ORIENTATIONS``) or ``"x,y,z"`` (normalised)."""
+    if isinstance(spec, str) and spec.strip() in ORIENTATIONS:
+        return np.array(ORIENTATIONS[spec.strip()])
+    v = np.array([float(s) for s in spec.split(",")] if isinstance(spec, str) else spec, float)
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) == 0:
+        raise ValueError(f"orientation must be a name or three numbers: {spec!r}")
+    return v / np.linalg.norm(v)
+
+
+# ---------------------------------------------------------------------------------------
+# Run configuration
+
+
+@dataclass
+class Resonance:
+    """The hidden mount resonance (step 3 of the module doc)."""
+
+    f0_hz: float = 150.0
+    q: float = 2.5
+    form: str = "base"  # "base": (w0^2 + 2 zeta w0 s)/(...);  "plain": w0^2/(...)
+
+    @property
+    def zeta(self):
+        return 1.0 / (2.0 * self.q)
+
+    def analog(self):
+        w0 = 2 * math.pi * self.f0_hz
+        z = self.zeta
+        a = [1.0, 2 * z * w0, w0 * w0]
+        if self.form == "base":
+            b = [2 * z * w0, w0 * w0]
+        elif self.form == "plain":
+            b = [w0 * w0]
+        else:
+            raise ValueError(f"resonance form {self.form!r}: base or plain")
+        return b, a
+
+    def h(self, f_hz):
+        """Continuous ``H(j 2 pi f)``."""
+        b, a = self.analog()
+        return signal.freqs(b, a, worN=2 * np.pi * np.atleast_1d(np.asarray(f_hz, float)))[1]
+
+    def digital(self, fs):
+        """Bilinear transform prewarped at f0: ``s = w0/tan(w0/(2 fs)) * (z-1)/(z+1)``."""
+        b, a = self.analog()
+        return bilinear_prewarped(b, a, self.f0_hz, fs)
+
+    def settle_s(self):
+        """Time for the free response to fall by e^-25: 25 / (zeta w0)."""
+        return 25.0 / (self.zeta * 2 * math.pi * self.f0_hz)
+
+
+@dataclass
+class RunConfig:
+    """Everything that defines a run. ``None`` tone amplitudes/phases: drawn from the seed."""
+
+    orientation: tuple = (0.0, 0.0, 1.0)
+    orientation_name: str = "+z"
+    gravity_g: float = 1.0
+    tone_hz: tuple = (60.0, 60.0, 60.0)
+    tone_amp_g: tuple | None = None  # per body axis x, y, z; None: U(0.5, 2) from the seed
+    tone_phase_rad: tuple | None = None  # None: U(0, 2 pi) from the seed
+    # random vibration: list of (f_lo, f_hi, (S_x, S_y, S_z)) in Hz and g^2/Hz
+    random_bands: list = field(default_factory=lambda: [(20.0, 640.0, (0.002, 0.002, 0.002))])
+    resonance: Resonance | None = None
+    filter_method: str = "exact"  # mount and AC coupling: "exact" (frequency domain) or "bilinear"
+    accel_rate_hz: float = 800.0
+    sensor_rate_hz: float = 25600.0
+    oversample: int = 1
+    still_s: float = 8.0
+    vib_s: float = 8.0
+    vibrate_throughout: bool = False
+    duration_s: float = 24.0  # used when vibrating throughout
+    ramp_s: float = 0.1
+    settle_s: float | None = None  # None: max(0.1 s, the resonance's settle time)
+    unit_noise_g: float = 10e-6
+    vib_noise_g: float = 1e-3
+    ref_noise_g: float = 1e-3
+    vib_sens_v_per_g: float = 0.1
+    vib_hp_hz: float = 2.0
+    seed: int = 30
+    run_index: int = 0
+    repeat: int = 0
+
+    # derived --------------------------------------------------------------------------
+    @property
+    def fine_rate_hz(self):
+        return self.sensor_rate_hz * self.oversample
+
+    @property
+    def t_run(self):
+        return self.duration_s if self.vibrate_throughout else 2 * self.still_s + self.vib_s
+
+    @property
+    def t_on(self):
+        return 0.0 if self.vibrate_throughout else self.still_s
+
+    @property
+    def t_off(self):
+        return self.t_run if self.vibrate_throughout else self.still_s + self.vib_s
+
+    @property
+    def settle(self):
+        if self.settle_s is not None:
+            return self.settle_s
+        return max(0.1, self.resonance.settle_s() if self.resonance else 0.0)
+
+    def random_psd_per_axis(self):
+        """Variance per body axis, ``sum S_i * (f_hi - f_lo)`` (MODEL.md section 3)."""
+        return np.array([sum(s[i] * (hi - lo) for lo, hi, s in self.random_bands) for i in range(3)])
+
+    def validate(self):
+        fs = self.fine_rate_hz
+        for what, x in (("fine", fs), ("sensor", self.sensor_rate_hz), ("accel", self.accel_rate_hz)):
+            if not (x > 0 and float(x).is_integer()):
+                raise ValueError(f"{what} rate must be a whole number of Hz: {x}")
+        if fs % self.accel_rate_hz:
+            raise ValueError(f"the fine rate {fs} Hz is not a multiple of the accel rate")
+        for what, t in (("run", self.t_run), ("still", 0 if self.vibrate_throughout else self.still_s)):
+            if abs(t * self.accel_rate_hz - round(t * self.accel_rate_hz)) > 1e-9:
+                raise ValueError(f"{what} time {t} s is not a whole number of accel periods")
+        for lo, hi, s in self.random_bands:
+            if not (0 < lo < hi < fs / 2) or len(s) != 3:
+                raise ValueError(f"bad random band {lo}..{hi} Hz for the fine rate {fs} Hz")
+        if self.resonance and self.resonance.f0_hz >= fs / 2:
+            raise ValueError("resonance above Nyquist of the fine grid")
+        if not self.vibrate_throughout and 2 * self.ramp_s + self.settle >= self.vib_s:
+            raise ValueError("vibrating segment shorter than its ramps and settle time")
+
+
+def _seedseq(cfg, *key):
+    return np.random.SeedSequence(cfg.seed, spawn_key=(cfg.run_index,) + tuple(key))
+
+
+STREAM_RANDOM_VIB, STREAM_UNIT_NOISE, STREAM_VIB_NOISE, STREAM_REF_NOISE = range(4)
+
+
+def resolve_conditions(cfg):
+    """Fill in tone amplitudes/phases the seed chooses (``spawn_key = (run, 0)``).
+
+    Returns a copy; the random parts of ``--repeat`` never touch this stream.
+    """
+    cfg = copy.deepcopy(cfg)
+    rng = np.random.default_rng(_seedseq(cfg, 0))
+    amps = rng.uniform(0.5, 2.0, 3)
+    phases = rng.uniform(0.0, 2 * math.pi, 3)
+    if cfg.tone_amp_g is None:
+        cfg.tone_amp_g = tuple(float(a) for a in amps)
+    if cfg.tone_phase_rad is None:
+        cfg.tone_phase_rad = tuple(float(p) for p in phases)
+    cfg.tone_hz = tuple(float(f) for f in np.broadcast_to(np.asarray(cfg.tone_hz, float), 3))
+    cfg.tone_amp_g = tuple(float(a) for a in np.broadcast_to(np.asarray(cfg.tone_amp_g, float), 3))
+    cfg.tone_phase_rad = tuple(float(p) for p in np.broadcast_to(np.asarray(cfg.tone_phase_rad, float), 3))
+    cfg.orientation = tuple(float(v) for v in orientation_vector(cfg.orientation))
+    return cfg
+
+
+# ---------------------------------------------------------------------------------------
+# Signal generation
+
+
+def envelope(cfg, t):
+    """0 still, 1 vibrating, raised-cosine ramps of ``ramp_s`` inside the vibrating segment."""
+    if cfg.vibrate_throughout:
+        return np.ones_like(t)
+    env = ((t >= cfg.t_on) & (t <= cfg.t_off)).astype(float)
+    if cfg.ramp_s > 0:
+        up = (t >= cfg.t_on) & (t < cfg.t_on + cfg.ramp_s)
+        env[up] = 0.5 * (1 - np.cos(np.pi * (t[up] - cfg.t_on) / cfg.ramp_s))
+        down = (t > cfg.t_off - cfg.ramp_s) & (t <= cfg.t_off)
+        env[down] = 0.5 * (1 - np.cos(np.pi * (cfg.t_off - t[down]) / cfg.ramp_s))
+    return env
+
+
+def random_vibration(cfg, n_fine):
+    """Gaussian band-limited random vibration per body axis, samples n = 0..n_fine.
+
+    Bins ``f_k = k / T_run`` with ``f_lo <= f_k < f_hi`` of each band carry
+    ``a_k cos + b_k sin``, ``a_k, b_k ~ N(0, S / T_run)``: one-sided PSD S, variance
+    ``S (f_hi - f_lo)`` per band (MODEL.md section 3, ``sigma^2 = S df``). The draws
+    depend on T_run and the bands only, not on the sample rate. Periodic in T_run.
+    """
+    t_run = cfg.t_run
+    rng = np.random.default_rng(_seedseq(cfg, 1, cfg.repeat, STREAM_RANDOM_VIB))
+    k_max = 0
+    bands = []
+    for lo, hi, s in cfg.random_bands:
+        k0 = int(math.ceil(lo * t_run - 1e-9))
+        k1 = int(math.ceil(hi * t_run - 1e-9))  # exclusive
+        bands.append((k0, k1, np.asarray(s, float)))
+        k_max = max(k_max, k1)
+    scale = np.zeros((3, k_max))
+    for k0, k1, s in bands:
+        scale[:, k0:k1] = np.sqrt(s / t_run)[:, None]
+    draws = rng.standard_normal((3, 2, k_max))
+    a = draws[:, 0, :] * scale
+    b = draws[:, 1, :] * scale
+    n = n_fine
+    if k_max >= n // 2:
+        raise ValueError("random band above Nyquist")
+    spec = np.zeros((3, n // 2 + 1), complex)
+    # numpy irfft: x[m] = (1/n) (Y0 + 2 sum Re(Y_k e^{j 2 pi k m / n}) + ...):
+    # Y_k = (n/2)(a_k - j b_k) gives a_k cos + b_k sin.
+    spec[:, :k_max] = 0.5 * n * (a - 1j * b)
+    x = np.fft.irfft(spec, n=n, axis=1)
+    return np.concatenate([x, x[:, :1]], axis=1)  # sample n_fine = sample 0 (periodic)
+
+
+def tone(cfg, t):
+    """``A_i sin(2 pi f_i t + phi_i)`` per body axis (MODEL.md section 3, deterministic)."""
+    f = np.asarray(cfg.tone_hz)[:, None]
+    a = np.asarray(cfg.tone_amp_g)[:, None]
+    p = np.asarray(cfg.tone_phase_rad)[:, None]
+    return a * np.sin(2 * np.pi * f * t[None, :] + p)
+
+
+def bilinear_prewarped(b, a, f_warp_hz, fs):
+    """Bilinear transform with ``s = w_p / tan(w_p / (2 fs)) * (z - 1)/(z + 1)``: exact at 0 and f_warp."""
+    wp = 2 * math.pi * f_warp_hz
+    return signal.bilinear(b, a, fs=wp / (2.0 * math.tan(wp / (2.0 * fs))))
+
+
+@dataclass
+class Lti:
+    """A continuous transfer function ``b(s)/a(s)`` applied to the run's signals.
+
+    ``method = "exact"``: in the frequency domain, ``Y(f) = H(j 2 pi f) X(f)`` on the
+    run's DFT bins: exact for signals periodic over the run (the vibration is zero at
+    both ends of a shaker run, and the random vibration is periodic by construction),
+    no discretisation. ``method = "bilinear"``: a digital filter on the fine grid,
+    bilinear transform prewarped at ``f_warp`` (exact gain and phase at 0 and f_warp),
+    run forward in time from the state the past left (see ``apply``).
+    """
+
+    b: list
+    a: list
+    f_warp_hz: float
+    method: str = "exact"
+
+    def h(self, f_hz):
+        w = 2 * np.pi * np.atleast_1d(np.asarray(f_hz, float))
+        return signal.freqs(self.b, self.a, worN=w)[1]
+
+    def h_effective(self, f_hz, fs):
+        """The gain the generator actually applies at f (continuous or digital)."""
+        if self.method == "exact":
+            return self.h(f_hz)
+        bz, az = bilinear_prewarped(self.b, self.a, self.f_warp_hz, fs)
+        return signal.freqz(bz, az, worN=np.atleast_1d(np.asarray(f_hz, float)), fs=fs)[1]
+
+    def apply(self, x, fs, prime=None):
+        """Filter ``x`` (3, N+1), periodic over the run (sample N = sample 0).
+
+        ``prime``: the signal just before t = 0 (bilinear method; None = zero past).
+        """
+        n = x.shape[1] - 1
+        if self.method == "exact":
+            spec = np.fft.rfft(x[:, :n], axis=1)
+            hh = self.h(np.fft.rfftfreq(n, 1.0 / fs))
+            if n % 2 == 0:
+                hh[-1] = hh[-1].real
+            y = np.fft.irfft(spec * hh, n=n, axis=1)
+            return np.concatenate([y, y[:, :1]], axis=1)
+        if self.method != "bilinear":
+            raise ValueError(f"filter method {self.method!r}: exact or bilinear")
+        bz, az = bilinear_prewarped(self.b, self.a, self.f_warp_hz, fs)
+        if prime is not None and prime.shape[-1]:
+            return signal.lfilter(bz, az, np.concatenate([prime, x], axis=1), axis=1)[:, prime.shape[-1]:]
+        return signal.lfilter(bz, az, x, axis=1)
+
+
+def high_pass(cfg):
+    """AC coupling of the vibration sensors ``s / (s + w_c)`` (first order)."""
+    return Lti([1.0, 0.0], [1.0, 2 * math.pi * cfg.vib_hp_hz], cfg.vib_hp_hz, cfg.filter_method)
+
+
+def mount(cfg):
+    """The hidden mount resonance as an ``Lti`` (None: rigid mount)."""
+    if cfg.resonance is None:
+        return None
+    b, a = cfg.resonance.analog()
+    return Lti(b, a, cfg.resonance.f0_hz, cfg.filter_method)
+
+
+def tone_through(cfg, t, lti):
+    """Each axis's tone in its steady state through ``lti`` (None: unchanged), on times ``t``."""
+    out = np.zeros((3, len(t)))
+    for k in range(3):
+        f, a, ph = cfg.tone_hz[k], cfg.tone_amp_g[k], cfg.tone_phase_rad[k]
+        if a == 0:
+            continue
+        g = complex(lti.h_effective(f, cfg.fine_rate_hz)[0]) if lti else 1.0 + 0j
+        out[k] = abs(g) * a * np.sin(2 * np.pi * f * t + ph + math.atan2(g.imag, g.real))
+    return out
+
+
+def boxcar_readings(u, m):
+    """Mean over each interval of M fine samples, exact for the piecewise-linear signal.
+
+    ``u``: (..., J*M + 1) samples at n = 0..J*M. Reading j (1-based) covers
+    ``n = (j-1)M .. jM`` with trapezoid weights (1/2 at both ends) / M.
+    """
+    j = (u.shape[-1] - 1) // m
+    body = u[..., : j * m].reshape(u.shape[:-1] + (j, m)).sum(axis=-1)
+    return (body - 0.5 * u[..., 0 : j * m : m] + 0.5 * u[..., m : j * m + 1 : m]) / m
+
+
+def boxcar_response(f_hz, ta):
+    """Response of a reading (mean over ``(t - ta, t]``, latched at t) to ``e^{j 2 pi f t}``."""
+    w = 2 * np.pi * np.asarray(f_hz, float)
+    return (1 - np.exp(-1j * w * ta)) / (1j * w * ta)
+
+
+# ---------------------------------------------------------------------------------------
+# Closed-form vibration error (MODEL.md sections 5 and 6)
+
+
+def ve_published(p, aL3, aB3, aB1, aB2, sigma3, K31=0.0, K32=0.0):
+    """The papers' VE, MODEL.md section 5: [P1 (13)-(16)], [P2 (3)-(5)].
+
+    Deterministic [P1 (13), (15)-(16)] plus random [P1 (14), (16)], summed (as the
+    compensation algorithm [P2 (19)-(20)] removes them one after the other).
+    Amplitudes are unsigned; the papers take all axes in phase.
+    """
+    ld = p.lam * p.k1 * p.d1a
+    det = (
+        0.637 * ld * aB3 + 0.5 * p.k2 * aB3**2 + 0.375 * p.k4 * aB3**4  # d0(1)
+        + 0.5 * p.m31 * aB3 * aB1  # d0(2)
+        + 0.5 * p.m32 * aB3 * aB2  # d0(3)
+        + (1.5 * p.k3 * aB3**2 + 1.875 * p.k5 * aB3**4) * aL3  # delta(1) aL3
+        + 3 * p.k4 * aB3**2 * aL3**2  # delta(2) aL3^2
+        + 5 * p.k5 * aB3**2 * aL3**3  # delta(3) aL3^3
+    )
+    s2 = sigma3**2
+    rnd = (
+        0.125 * ld * sigma3 + p.k2 * s2 + p.k4 * s2**2  # d0(1)
+        + p.m31 * K31 + p.m32 * K32  # d0(2), d0(3)
+        + (3 * p.k3 * s2 + 5 * p.k5 * s2**2) * aL3  # delta(1)
+        + 6 * p.k4 * s2 * aL3**2  # delta(2)
+        + 10 * p.k5 * s2 * aL3**3  # delta(3)
+    )
+    return float(det + rnd)
+
+
+def mean_abs_tone_gauss(aL, c, sigma, n_theta=65536):
+    """``E|aL + c sin(theta) + x|``, theta uniform, x ~ N(0, sigma^2) (MODEL.md section 6)."""
+    c = abs(c)
+    if sigma <= 0:
+        if c > abs(aL):
+            return (2 / math.pi) * (aL * math.asin(aL / c) + math.sqrt(c * c - aL * aL))
+        return abs(aL)
+    th = 2 * np.pi * np.arange(n_theta) / n_theta
+    mu = aL + c * np.sin(th)
+    # folded normal mean, MODEL.md section 6
+    e = sigma * math.sqrt(2 / math.pi) * np.exp(-(mu**2) / (2 * sigma**2)) + mu * (
+        1 - 2 * special.ndtr(-mu / sigma)
+    )
+    return float(e.mean())
+
+
+def ve_exact(p, aL3, aL1, aL2, c3, sigma3, cross31=0.0, cross32=0.0):
+    """Exact static VE, MODEL.md section 6: E[(FP)] under vibration minus (FP) at rest.
+
+    ``a3 = aL3 + c3 sin(theta) + x``, theta uniform (a tone over whole periods), x ~
+    N(0, sigma3^2). Powers: Gauss-Hermite in x (8 nodes) times a uniform theta grid
+    (64 points), exact for the degree-5 polynomial. ``cross31 = E[v3 v1]`` of the
+    vibration along IA and OA (tones: ``0.5 c3 c1 cos(phi3 - phi1)`` at one frequency,
+    0 otherwise; plus ``K_31(0)``), likewise ``cross32``; ``E[a3 a1] = aL3 aL1 + cross31``.
+    """
+    z, w = np.polynomial.hermite.hermgauss(8)
+    x = math.sqrt(2) * sigma3 * z
+    wx = w / math.sqrt(math.pi)
+    th = 2 * np.pi * np.arange(64) / 64
+    a3 = aL3 + c3 * np.sin(th)[:, None] + x[None, :]
+    wt = np.broadcast_to(wx[None, :] / 64, a3.shape)
+    e = [float(np.sum(wt * a3**n)) for n in range(6)]
+    mean_af = (
+        p.a0_g
+        + p.k1 * p.lam * (e[1] + 0.5 * p.d1a * mean_abs_tone_gauss(aL3, c3, sigma3))
+        + p.k2 * e[2] + p.k3 * e[3] + p.k4 * e[4] + p.k5 * e[5]
+        + p.m1 * aL1 + p.m2 * aL2
+        + p.m31 * (aL3 * aL1 + cross31) + p.m32 * (aL3 * aL2 + cross32)
+    )
+    return float(mean_af - p.af(aL3, aL1, aL2))
+
+
+def sigma2_through(cfg, axis, res):
+    """``int S_axis(f) |H(j 2 pi f)|^2 df`` (``res`` None: ``|H| = 1``)."""
+    total = 0.0
+    for lo, hi, s in cfg.random_bands:
+        if s[axis] == 0:
+            continue
+        if res is None:
+            total += s[axis] * (hi - lo)
+        else:
+            f = np.linspace(lo, hi, 20001)
+            total += s[axis] * np.trapezoid(np.abs(res.h(f)) ** 2, f)
+    return total
+
+
+# ---------------------------------------------------------------------------------------
+# The simulation
+
+
+@dataclass
+class RunResult:
+    cfg: RunConfig
+    triad: list
+    t_accel: np.ndarray  # (J,) latch times
+    accel_v: np.ndarray  # (J, 3) recorded outputs (with noise)
+    accel_clean_g: np.ndarray  # (J, 3) readings without noise, in g (aF)
+    t_vib: np.ndarray  # (Ns,)
+    vib_v: np.ndarray  # (Ns, 3)
+    ref_g: np.ndarray  # (Ns, 3)
+    truth: dict
+    fine: dict  # fine-grid arrays, for tests: t, a_base, a_unit, rand_unit, tone_unit
+
+
+def simulate(cfg: RunConfig, triad=None, keep_fine=False) -> RunResult:
+    """Simulate one run (steps 1-7 of the module doc) and compute its truth."""
+    triad = triad or default_triad()
+    cfg = resolve_conditions(cfg)
+    cfg.validate()
+    fs = cfg.fine_rate_hz
+    n = int(round(cfg.t_run * fs))
+    t = np.arange(n + 1) / fs
+    env = envelope(cfg, t)
+    g_vec = cfg.gravity_g * np.asarray(cfg.orientation)
+    m = int(round(fs / cfg.accel_rate_hz))
+    j = n // m
+    t_accel = np.arange(1, j + 1) / cfg.accel_rate_hz
+
+    # step 2: base vibration (g), per body axis
+    tone_b = tone(cfg, t) * env
+    has_random = any(any(v > 0 for v in s) for _, _, s in cfg.random_bands)
+    rand_b = random_vibration(cfg, n) * env if has_random else np.zeros((3, n + 1))
+    vib_b = tone_b + rand_b
+
+    # step 3: mount resonance (vibration only; gravity passes with DC gain 1).
+    # Flight-like runs are in their steady state from t = 0: the tone goes through
+    # the mount analytically, the periodic random vibration through ``Lti.apply``
+    # (bilinear: primed with the run's periodic tail, and the tone at negative times).
+    mnt = mount(cfg)
+    thr = cfg.vibrate_throughout
+    prime_n = int(round(min(cfg.t_run, max(0.2, 3 * cfg.settle)) * fs)) if thr else 0
+    rand_prime = rand_b[:, n - prime_n : n] if prime_n else None
+    if mnt is None:
+        tone_u, rand_u = tone_b, rand_b
+    elif thr:
+        tone_u = tone_through(cfg, t, mnt)
+        rand_u = mnt.apply(rand_b, fs, rand_prime) if has_random else rand_b
+    else:
+        tone_u = mnt.apply(tone_b, fs)
+        rand_u = mnt.apply(rand_b, fs) if has_random else rand_b
+    vib_u = tone_u + rand_u
+    a_unit = g_vec[:, None] + vib_u
+    a_base = g_vec[:, None] + vib_b
+
+    # step 5, linear part: exact continuous boxcar of the vibration at the unit, per axis
+    box_u = exact_boxcar_readings(cfg, rand_u if thr else vib_u, m, j)
+    if thr:
+        box_u += steady_tone_boxcar(cfg, t_accel, mnt)
+
+    # steps 4-5: conversion function at every fine sample, readings
+    clean = np.empty((j, 3))
+    nonlin_read = np.empty((j, 3))
+    for i, u in enumerate(triad):
+        p = u.passport
+        a3, a1, a2 = u.e_ia @ a_unit, u.e_oa @ a_unit, u.e_pa @ a_unit
+        lin = p.k1 * p.lam * a3 + p.m1 * a1 + p.m2 * a2
+        nl = p.af(a3, a1, a2) - p.a0_g - lin  # (FP) minus its linear part
+        aL3, aL1, aL2 = u.e_ia @ g_vec, u.e_oa @ g_vec, u.e_pa @ g_vec
+        lin_vib = (p.k1 * p.lam * u.e_ia + p.m1 * u.e_oa + p.m2 * u.e_pa) @ box_u
+        nonlin_read[:, i] = boxcar_readings(nl, m)
+        clean[:, i] = (p.a0_g + p.k1 * p.lam * aL3 + p.m1 * aL1 + p.m2 * aL2) + lin_vib + nonlin_read[:, i]
+    k1v = np.array([u.passport.K1_v_per_g for u in triad])
+    rng_u = np.random.default_rng(_seedseq(cfg, 1, cfg.repeat, STREAM_UNIT_NOISE))
+    accel_v = k1v * (clean + cfg.unit_noise_g * rng_u.standard_normal((j, 3)))
+
+    # step 6: vibration sensors on the base, along each unit's IA, AC-coupled. Gravity
+    # is constant and the rig stood still long before the record, so the AC coupling's
+    # response to it has decayed to 0: only the vibration goes through the high-pass.
+    ns = int(round(cfg.t_run * cfg.sensor_rate_hz))
+    r = cfg.oversample
+    e_ia = np.array([u.e_ia for u in triad])
+    hp = high_pass(cfg)
+    if thr and cfg.filter_method == "exact":
+        s_hp = e_ia @ tone_through(cfg, t, hp)
+        if has_random:
+            s_hp = s_hp + hp.apply(e_ia @ rand_b, fs)
+    elif thr:
+        # bilinear: run first over the vibration before t = 0 (tone at negative times,
+        # periodic random tail), long enough for the AC coupling to settle (30 time constants)
+        hp_n = min(n, int(math.ceil(30 / (2 * math.pi * cfg.vib_hp_hz) * fs)))
+        t_prime = -np.arange(hp_n, 0, -1) / fs
+        s_hp = hp.apply(e_ia @ vib_b, fs, e_ia @ (tone(cfg, t_prime) + rand_b[:, n - hp_n : n]))
+    else:
+        s_hp = hp.apply(e_ia @ vib_b, fs)
+    rng_v = np.random.default_rng(_seedseq(cfg, 1, cfg.repeat, STREAM_VIB_NOISE))
+    vib_v = cfg.vib_sens_v_per_g * (
+        s_hp[:, 0 : ns * r : r].T + cfg.vib_noise_g * rng_v.standard_normal((ns, 3))
+    )
+    t_vib = np.arange(ns) / cfg.sensor_rate_hz
+
+    # step 7: reference accelerometer on the base
+    rng_r = np.random.default_rng(_seedseq(cfg, 1, cfg.repeat, STREAM_REF_NOISE))
+    ref_g = a_base[:, 0 : ns * r : r].T + cfg.ref_noise_g * rng_r.standard_normal((ns, 3))
+
+    fine = {"t": t, "a_base": a_base, "a_unit": a_unit, "rand_unit": rand_u, "tone_unit": tone_u,
+            "nonlin_readings_g": nonlin_read, "vib_unit_readings_g": box_u}
+    res = RunResult(cfg, triad, t_accel, accel_v, clean, t_vib, vib_v, ref_g, {}, fine)
+    res.truth = make_truth(res)
+    if not keep_fine:
+        res.fine = {}
+    return res
+
+
+def exact_boxcar_readings(cfg, x, m, j):
+    """Continuous boxcar of band-limited, T_run-periodic signals ``x`` (3, N+1) at ``t = jM/fs``.
+
+    The mean of ``x`` over ``(t - T_a, t]`` is applied in the frequency domain,
+    ``(1 - e^{-j w T_a}) / (j w T_a)`` (the boxcar latched at its end), to the
+    band-limited (sinc) interpolation of the samples: exact for the tone and random
+    vibration, which lie far below Nyquist. The signal must be periodic over the run:
+    it is (zero at both ends while still, or periodic random vibration).
+    """
+    n = x.shape[1] - 1
+    fs = cfg.fine_rate_hz
+    ta = 1.0 / cfg.accel_rate_hz
+    spec = np.fft.rfft(x[:, :n], axis=1)
+    w = 2 * np.pi * np.fft.rfftfreq(n, 1.0 / fs)
+    h = np.ones_like(w, dtype=complex)
+    nz = w > 0
+    h[nz] = (1 - np.exp(-1j * w[nz] * ta)) / (1j * w[nz] * ta)
+    if n % 2 == 0:
+        h[-1] = h[-1].real  # the Nyquist bin of a real signal stays real
+    y = np.fft.irfft(spec * h, n=n, axis=1)
+    idx = (np.arange(1, j + 1) * m) % n
+    return y[:, idx]
+
+
+def steady_tone_boxcar(cfg, t_accel, lti):
+    """Boxcar readings of each axis's tone at the unit in steady state (flight-like runs).
+
+    The tone through the mount is ``|H| A sin(w t + phi + arg H)``; its mean over
+    ``(t - T_a, t]`` is ``|H| A (cos(w (t - T_a) + psi) - cos(w t + psi)) / (w T_a)``.
+    """
+    ta = 1.0 / cfg.accel_rate_hz
+    out = np.zeros((3, len(t_accel)))
+    for k in range(3):
+        f, a, ph = cfg.tone_hz[k], cfg.tone_amp_g[k], cfg.tone_phase_rad[k]
+        if a == 0 or f == 0:
+            continue
+        g = complex(lti.h_effective(f, cfg.fine_rate_hz)[0]) if lti else 1.0 + 0j
+        w = 2 * np.pi * f
+        psi = ph + math.atan2(g.imag, g.real)
+        out[k] = abs(g) * a * (np.cos(w * (t_accel - ta) + psi) - np.cos(w * t_accel + psi)) / (w * ta)
+    return out
+
+
+def windows(cfg):
+    """Time windows [start, end] of the VE measurement and of the still segments."""
+    if cfg.vibrate_throughout:
+        return {"vibrating": [cfg.settle, cfg.t_run], "still_before": None, "still_after": None}
+    return {
+        "vibrating": [cfg.t_on + cfg.ramp_s + cfg.settle, cfg.t_off - cfg.ramp_s],
+        "still_before": [0.0, cfg.t_on],
+        "still_after": [cfg.t_off + cfg.settle, cfg.t_run],
+    }
+
+
+def reading_mask(cfg, t_accel, win):
+    """Readings whose whole interval lies in ``win``."""
+    ta = 1.0 / cfg.accel_rate_hz
+    eps = 1e-9 * ta
+    return (t_accel - ta >= win[0] - eps) & (t_accel <= win[1] + eps)
+
+
+def make_truth(res: RunResult):
+    """The sidecar: conditions, passports, and the true VE per unit (for tests only)."""
+    cfg, triad = res.cfg, res.triad
+    win = windows(cfg)
+    mv = reading_mask(cfg, res.t_accel, win["vibrating"])
+    g_vec = cfg.gravity_g * np.asarray(cfg.orientation)
+    fs = cfg.fine_rate_hz
+    t = res.fine["t"]
+    fm = (t >= win["vibrating"][0]) & (t <= win["vibrating"][1])
+    amps = np.asarray(cfg.tone_amp_g)
+    phases = np.asarray(cfg.tone_phase_rad)
+    freqs = np.asarray(cfg.tone_hz)
+    var_axis = cfg.random_psd_per_axis()
+
+    units = []
+    for i, u in enumerate(triad):
+        p = u.passport
+        aL3, aL1, aL2 = float(u.e_ia @ g_vec), float(u.e_oa @ g_vec), float(u.e_pa @ g_vec)
+        af0 = float(p.af(aL3, aL1, aL2))
+        # MODEL.md section 3: VE = the extra static error under vibration. The window
+        # mean of the vibration itself, <v> (the table's velocity change over the window
+        # divided by its length: zero on average, not in a finite window), moves the
+        # mean reading by grad(FP)(aL) . <v>, to first order: that is input, not error,
+        # and is reported apart: reading_shift = ve_time_domain + first_order_input_mean.
+        nl0 = af0 - p.a0_g - p.k1 * p.lam * aL3 - p.m1 * aL1 - p.m2 * aL2
+        d3 = (0.5 * p.k1 * p.lam * p.d1a * np.sign(aL3) + 2 * p.k2 * aL3 + 3 * p.k3 * aL3**2
+              + 4 * p.k4 * aL3**3 + 5 * p.k5 * aL3**4 + p.m31 * aL1 + p.m32 * aL2)
+        grad_nl = d3 * u.e_ia + p.m31 * aL3 * u.e_oa + p.m32 * aL3 * u.e_pa
+        grad_lin = p.k1 * p.lam * u.e_ia + p.m1 * u.e_oa + p.m2 * u.e_pa
+        v_mean = res.fine["vib_unit_readings_g"][:, mv].mean(axis=1)  # body axes
+        first = float((grad_lin + grad_nl) @ v_mean)
+        ve_td = float(res.fine["nonlin_readings_g"][mv, i].mean() - nl0 - grad_nl @ v_mean)
+        shift = float(res.accel_clean_g[mv, i].mean() - af0)
+        entry = {
+            "name": u.name,
+            "ia": u.ia,
+            "oa": u.oa,
+            "pa": u.pa,
+            "aL3_g": aL3,
+            "aL1_g": aL1,
+            "aL2_g": aL2,
+            "still_reading_g": af0,
+            "still_reading_v": af0 * p.K1_v_per_g,
+            "ve_time_domain_g": ve_td,
+            "reading_shift_g": shift,
+            "first_order_input_mean_g": first,
+        }
+        # section 8 [P2 (16)] from the recorded (noisy) outputs
+        if not cfg.vibrate_throughout:
+            m1 = reading_mask(cfg, res.t_accel, win["still_before"])
+            m3 = reading_mask(cfg, res.t_accel, win["still_after"])
+            u1, u2, u3 = (res.accel_v[mk, i].mean() for mk in (m1, mv, m3))
+            entry["ve_section8_measured_g"] = float((u2 - 0.5 * (u1 + u3)) / p.K1_v_per_g)
+            entry["section8_still_drift_g"] = float(abs(u1 - u3) / abs(p.K1_v_per_g))
+
+        # closed forms: vibration at the unit (through the resonance) and at the base
+        def axis_of(e):
+            k = int(np.argmax(np.abs(e)))
+            return k, float(np.sign(e[k]))
+
+        (x3, s3), (x1, s1), (x2, s2) = axis_of(u.e_ia), axis_of(u.e_oa), axis_of(u.e_pa)
+        for side in ("unit", "sensor"):
+            rz = cfg.resonance if side == "unit" else None
+
+            def tone_at(k, sgn):
+                h = complex(rz.h(freqs[k])[0]) if rz else 1.0 + 0j
+                return sgn * amps[k] * abs(h), phases[k] + math.atan2(h.imag, h.real)
+
+            c3, p3 = tone_at(x3, s3)
+            c1, p1 = tone_at(x1, s1)
+            c2, p2 = tone_at(x2, s2)
+            cr31 = 0.5 * c3 * c1 * math.cos(p3 - p1) if freqs[x3] == freqs[x1] else 0.0
+            cr32 = 0.5 * c3 * c2 * math.cos(p3 - p2) if freqs[x3] == freqs[x2] else 0.0
+            sig3 = math.sqrt(sigma2_through(cfg, x3, rz))
+            entry[f"closed_form_{side}_side"] = {
+                "aB3_g": abs(c3),
+                "aB1_g": abs(c1),
+                "aB2_g": abs(c2),
+                "sigma3_g": sig3,
+                "K31_g2": 0.0,
+                "K32_g2": 0.0,
+                "tone_cross31_g2": cr31,
+                "tone_cross32_g2": cr32,
+                "ve_published_g": ve_published(p, aL3, abs(c3), abs(c1), abs(c2), sig3),
+                "ve_exact_g": ve_exact(p, aL3, aL1, aL2, c3, sig3, cr31, cr32),
+            }
+        # realised random vibration at the unit over the VE window
+        r3 = s3 * res.fine["rand_unit"][x3, fm]
+        r1 = s1 * res.fine["rand_unit"][x1, fm]
+        r2 = s2 * res.fine["rand_unit"][x2, fm]
+        sig_r = float(np.sqrt(np.mean(r3 * r3)))
+        k31, k32 = float(np.mean(r3 * r1)), float(np.mean(r3 * r2))
+        cu = entry["closed_form_unit_side"]
+        c3u = math.copysign(cu["aB3_g"], s3)
+        entry["realised_unit_side"] = {
+            "sigma3_g": sig_r,
+            "K31_g2": k31,
+            "K32_g2": k32,
+            "ve_exact_g": ve_exact(
+                p, aL3, aL1, aL2, c3u, sig_r, cu["tone_cross31_g2"] + k31, cu["tone_cross32_g2"] + k32
+            ),
+        }
+        units.append(entry)
+
+    base_sig = np.sqrt(var_axis)
+    truth = {
+        "generator": "tests/python/rig_generator.py (independent of vibrocomp's simulator)",
+        "note": "truth for tests only; never an input of vibrocomp",
+        "orientation_name": cfg.orientation_name,
+        "orientation": list(cfg.orientation),
+        "gravity_g": cfg.gravity_g,
+        "gravity_convention": "apparent acceleration of the still rig = gravity_g * orientation "
+        "(the body direction pointing up); a unit with IA along it reads aL3 = +gravity_g",
+        "triad": [u.to_dict() for u in triad],
+        "lambda": "1 (the unit's frequency response is not modelled)",
+        "tone": {
+            "freq_hz": list(cfg.tone_hz),
+            "amp_g": list(cfg.tone_amp_g),
+            "phase_rad": list(cfg.tone_phase_rad),
+            "model": "A_i sin(2 pi f_i t + phi_i) per body axis x, y, z, at the base",
+        },
+        "random": {
+            "bands": [{"f_lo_hz": lo, "f_hi_hz": hi, "psd_g2_per_hz": list(s)} for lo, hi, s in cfg.random_bands],
+            "rms_g": list(map(float, base_sig)),
+            "model": "Gaussian, independent per axis, bins k/T_run in [f_lo, f_hi), a_k cos + b_k sin, "
+            "a_k, b_k ~ N(0, S/T_run); at the base",
+        },
+        "resonance": None
+        if cfg.resonance is None
+        else {
+            "f0_hz": cfg.resonance.f0_hz,
+            "q": cfg.resonance.q,
+            "zeta": cfg.resonance.zeta,
+            "form": cfg.resonance.form,
+            "transfer": "(w0^2 + 2 zeta w0 s)/(s^2 + 2 zeta w0 s + w0^2)"
+            if cfg.resonance.form == "base"
+            else "w0^2/(s^2 + 2 zeta w0 s + w0^2)",
+            "gain_at_f0": float(abs(cfg.resonance.h(cfg.resonance.f0_hz)[0])),
+            "discretisation": "exact: H(j w) applied on the run's DFT bins (periodic signals)"
+            if cfg.filter_method == "exact"
+            else "bilinear transform prewarped at f0, on the fine grid",
+            "where": "between the shaker base and the units, per body axis; "
+            "vibration sensors and reference on the base",
+        },
+        "rates": {
+            "accel_hz": cfg.accel_rate_hz,
+            "sensor_hz": cfg.sensor_rate_hz,
+            "oversample": cfg.oversample,
+            "fine_hz": fs,
+            "fine_samples_per_reading": int(round(fs / cfg.accel_rate_hz)),
+            "reading": "mean of U over (t - 1/accel_hz, t], latched at t: linear part of (FP) by the exact "
+            "continuous boxcar of the band-limited vibration (FFT), the rest by the trapezoid rule "
+            "over the fine samples",
+        },
+        "segments": {
+            "vibrate_throughout": cfg.vibrate_throughout,
+            "t_run_s": cfg.t_run,
+            "vibration_on_s": cfg.t_on,
+            "vibration_off_s": cfg.t_off,
+            "ramp_s": 0.0 if cfg.vibrate_throughout else cfg.ramp_s,
+            "settle_s": cfg.settle,
+            "windows_s": win,
+            "readings_in_ve_window": int(mv.sum()),
+        },
+        "vibration_sensor": {
+            "sensitivity_v_per_g": cfg.vib_sens_v_per_g,
+            "ac_coupling": f"first-order high-pass s/(s + 2 pi {cfg.vib_hp_hz}), "
+            + ("exact (frequency domain)" if cfg.filter_method == "exact" else "bilinear prewarped at the corner")
+            + ", in steady state for gravity (no DC output)",
+            "hp_hz": cfg.vib_hp_hz,
+            "axis": "each unit's IA (signed body axis), on the base",
+            "noise_g_rms": cfg.vib_noise_g,
+        },
+        "reference": {"axes": "body x, y, z on the base, DC-coupled, g", "noise_g_rms": cfg.ref_noise_g},
+        "unit_noise_g_rms": cfg.unit_noise_g,
+        "seeds": {
+            "seed": cfg.seed,
+            "run_index": cfg.run_index,
+            "repeat": cfg.repeat,
+            "conditions_spawn_key": [cfg.run_index, 0],
+            "random_spawn_keys": {
+                "random_vibration": [cfg.run_index, 1, cfg.repeat, STREAM_RANDOM_VIB],
+                "unit_noise": [cfg.run_index, 1, cfg.repeat, STREAM_UNIT_NOISE],
+                "vib_noise": [cfg.run_index, 1, cfg.repeat, STREAM_VIB_NOISE],
+                "ref_noise": [cfg.run_index, 1, cfg.repeat, STREAM_REF_NOISE],
+            },
+        },
+        "ve_definitions": {
+            "ve_time_domain_g": "MODEL.md section 3: mean noise-free reading (g) over the VE window minus "
+            "the reading without vibration at the same gravity ((FP) of gravity), minus "
+            "first_order_input_mean_g; computed from the nonlinear part of (FP) (all but a0 + k1 lambda a3 "
+            "+ m1 a1 + m2 a2) averaged as the readings average it",
+            "reading_shift_g": "mean noise-free reading (g) over the VE window minus (FP) of gravity "
+            "= ve_time_domain_g + first_order_input_mean_g",
+            "first_order_input_mean_g": "grad (FP)(aL) . <v>: the response to the window mean <v> of the "
+            "vibration at the unit (the table's velocity change over the window / its length; zero on "
+            "average, nonzero in a finite window; the DC-coupled reference measures it at the base)",
+            "ve_section8_measured_g": "MODEL.md section 8 [P2 (16)] from the recorded noisy outputs",
+            "closed_form_*_side.ve_published_g": "MODEL.md section 5 (deterministic + random)",
+            "closed_form_*_side.ve_exact_g": "MODEL.md section 6, exact mean over tone phase and Gaussian noise",
+            "unit_side": "with the vibration the unit sees (through the resonance)",
+            "sensor_side": "with the base vibration the sensors see",
+            "realised_unit_side": "section 6 exact with the random vibration's realised sigma3/K31/K32 "
+            "at the unit over the VE window",
+        },
+        "units": units,
+    }
+    return truth
+
+
+# ---------------------------------------------------------------------------------------
+# Writing
+
+
+def _fmt_cols(cols, digits=None):
+    if digits:
+        f = ("{:.%dg}" % digits).format
+        return [list(map(f, c)) for c in cols]
+    return [list(map(repr, c)) for c in cols]
+
+
+def write_csv(path, header_comment, names, t, data, digits=None):
+    """``#`` comment lines, a header, one row per sample (docs/logs.md, ``log import``)."""
+    cols = _fmt_cols([t.tolist()], None) + _fmt_cols(data.T.tolist(), digits)
+    with open(path, "w", newline="\n") as f:
+        for line in header_comment:
+            f.write("# " + line + "\n")
+        f.write(",".join(names) + "\n")
+        f.write("\n".join(map(",".join, zip(*cols))))
+        f.write("\n")
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))
+
+
+def write_run(res: RunResult, folder, digits=None):
+    """Write accel.csv, vib.csv, reference.csv and truth.json into ``folder``."""
+    os.makedirs(folder, exist_ok=True)
+    cfg = res.cfg
+    desc = (
+        f"rig_generator: {len(res.triad)} x {res.triad[0].passport.id} on a shaker, orientation "
+        f"{cfg.orientation_name} ({', '.join('%.6g' % v for v in cfg.orientation)}), seed {cfg.seed} "
+        f"run {cfg.run_index} repeat {cfg.repeat}"
+    )
+    write_csv(
+        os.path.join(folder, "accel.csv"),
+        [desc, f"unit outputs U in V, mean over 1/{cfg.accel_rate_hz:g} s, time = end of the interval"],
+        ["time_s", "u1_v", "u2_v", "u3_v"],
+        res.t_accel,
+        res.accel_v,
+    )
+    write_csv(
+        os.path.join(folder, "vib.csv"),
+        [desc, f"vibration sensors VD1..VD3 along each unit's IA, {cfg.vib_sens_v_per_g:g} V/g, "
+         f"AC-coupled {cfg.vib_hp_hz:g} Hz, {cfg.sensor_rate_hz:g} Hz"],
+        ["time_s", "vd1_v", "vd2_v", "vd3_v"],
+        res.t_vib,
+        res.vib_v,
+        digits,
+    )
+    write_csv(
+        os.path.join(folder, "reference.csv"),
+        [desc, f"reference accelerometer on the base, body x y z, DC-coupled, g, {cfg.sensor_rate_hz:g} Hz"],
+        ["time_s", "ax_g", "ay_g", "az_g"],
+        res.t_vib,
+        res.ref_g,
+        digits,
+    )
+    with open(os.path.join(folder, "truth.json"), "w") as f:
+        json.dump(res.truth, f, indent=1, default=_json_default)
+        f.write("\n")
+
+
+def run_repeats(cfg, triad, out, repeats=1, digits=None):
+    """One condition, ``repeats`` draws of the random parts: ``out`` or ``out/repKK``."""
+    results = []
+    for k in range(repeats):
+        c = copy.deepcopy(cfg)
+        c.repeat = k
+        res = simulate(c, triad)
+        folder = out if repeats == 1 else os.path.join(out, f"rep{k:02d}")
+        write_run(res, folder, digits)
+        results.append((folder, res))
+    return results
+
+
+RUNS_CSV_COLUMNS = [
+    "run_id", "repeat", "folder", "orientation", "gx", "gy", "gz", "tone_hz",
+    "amp_x_g", "amp_y_g", "amp_z_g", "phase_x_rad", "phase_y_rad", "phase_z_rad",
+    "random_rms_x_g", "random_rms_y_g", "random_rms_z_g", "resonance_f0_hz", "resonance_q",
+]
+
+
+def run_campaign(base_cfg, triad, out, orientations, tone_freqs, repeats=1, digits=None, log=None):
+    """Orientations x tone frequencies, one subfolder per run, and ``runs.csv``.
+
+    Run ids count orientation-major. Each run's tone amplitudes/phases, when not given,
+    are drawn from ``(seed, run_id)`` and kept across repeats.
+    """
+    os.makedirs(out, exist_ok=True)
+    rows = []
+    rid = 0
+    for oname in orientations:
+        for f in tone_freqs:
+            cfg = copy.deepcopy(base_cfg)
+            cfg.orientation = tuple(orientation_vector(oname))
+            cfg.orientation_name = oname
+            cfg.tone_hz = (float(f),) * 3
+            cfg.run_index = rid
+            folder = os.path.join(out, f"run{rid:03d}")
+            for folder_k, res in run_repeats(cfg, triad, folder, repeats, digits):
+                c = res.cfg
+                rows.append(
+                    [rid, c.repeat, os.path.relpath(folder_k, out), oname, *c.orientation, f,
+                     *c.tone_amp_g, *c.tone_phase_rad, *res.truth["random"]["rms_g"],
+                     c.resonance.f0_hz if c.resonance else "", c.resonance.q if c.resonance else ""]
+                )
+                if log:
+                    log(f"run {rid:3d} rep {c.repeat}: {oname:8s} {f:6g} Hz -> {folder_k}")
+            rid += 1
+    with open(os.path.join(out, "runs.csv"), "w", newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(RUNS_CSV_COLUMNS)
+        for r in rows:
+            w.writerow([repr(v) if isinstance(v, float) else v for v in r])
+    return rows
+
+
+# ---------------------------------------------------------------------------------------
+# Self-check of the discretisation
+
+
+def selfcheck(log=print):
+    """Print the discretisation figures (the tests check the same with tolerances)."""
+    p_k2 = Passport(id="k2-only", a0_g=0, d1a=0, k2=105e-6, k3=0, k4=0, k5=0, m1=0, m2=0, m31=0, m32=0)
+    base = dict(still_s=2.0, vib_s=4.0, unit_noise_g=0, vib_noise_g=0, ref_noise_g=0,
+                sensor_rate_hz=6400.0, random_bands=[(20.0, 640.0, (0.0, 0.0, 0.0))])
+    log("1. k2 only, pure tone 2 g along IA (AK3, +z up): VE vs k2 A^2/2 (MODEL.md section 5/6)")
+    for f in (30.0, 47.3, 120.0):
+        cfg = RunConfig(tone_hz=(f,) * 3, tone_amp_g=(0, 0, 2.0), tone_phase_rad=(0, 0, 0.3), **base)
+        r = simulate(cfg, default_triad(p_k2))
+        ve = r.truth["units"][2]["ve_time_domain_g"]
+        cf = 105e-6 * 2.0**2 / 2
+        log(f"   f = {f:6.1f} Hz: time domain {ve:.12e} g, closed form {cf:.12e} g, rel err {ve / cf - 1:+.2e}")
+    log("2. asymmetry only (d1A = 15 ppm), tone 2 g along IA, aL3 = 1 g: VE vs section 6 exact")
+    p_d = Passport(id="d1a-only", a0_g=0, d1a=15e-6, k2=0, k3=0, k4=0, k5=0, m1=0, m2=0, m31=0, m32=0)
+    for f in (30.0, 47.3, 120.0):
+        cfg = RunConfig(tone_hz=(f,) * 3, tone_amp_g=(0, 0, 2.0), tone_phase_rad=(0, 0, 0.3), **base)
+        r = simulate(cfg, default_triad(p_d))
+        u = r.truth["units"][2]
+        ve, ex = u["ve_time_domain_g"], u["closed_form_unit_side"]["ve_exact_g"]
+        log(f"   f = {f:6.1f} Hz: time domain {ve:.6e} g, exact {ex:.6e} g, rel err {ve / ex - 1:+.2e}")
+    log("3. discretisation: fine rate 6.4 kHz / 25.6 kHz vs 102.4 kHz, same continuous signal")
+    log("   (tone 120 Hz, 2 g per axis + random 20..640 Hz at 0.002 g^2/Hz; readings and VE)")
+    for reso in (None, Resonance()):
+        for method in (("exact", "bilinear") if reso else ("exact",)):
+            runs = {}
+            for ov in (1, 4, 16):
+                cfg = RunConfig(still_s=1.0, vib_s=2.0, sensor_rate_hz=6400.0, oversample=ov,
+                                tone_hz=(120.0,) * 3, tone_amp_g=(2.0, 2.0, 2.0), unit_noise_g=0,
+                                resonance=reso, filter_method=method)
+                runs[ov] = simulate(cfg)
+            for ov in (1, 4):
+                d = runs[ov].accel_clean_g - runs[16].accel_clean_g
+                dve = max(abs(a["ve_time_domain_g"] - b["ve_time_domain_g"])
+                          for a, b in zip(runs[ov].truth["units"], runs[16].truth["units"]))
+                ve = max(abs(b["ve_time_domain_g"]) for b in runs[16].truth["units"])
+                log(f"   mount {'150 Hz Q 2.5 ' + method if reso else 'none':22s} fs {6400 * ov:6d} Hz: "
+                    f"reading error RMS {np.sqrt(np.mean(d**2)):.2e} g, max {np.abs(d).max():.2e} g; "
+                    f"VE error {dve:.2e} g (VE up to {ve:.2e} g)")
+    log("4. mount resonance with --filter-method bilinear (prewarped at f0; 150 Hz, Q 2.5, base form)")
+    log("   vs H(j w) over 20..640 Hz (the exact method applies H(j w) itself)")
+    res = Resonance()
+    f = np.linspace(20, 640, 621)
+    for fs in (6400.0, 25600.0):
+        bz, az = res.digital(fs)
+        hd = signal.freqz(bz, az, worN=f, fs=fs)[1]
+        hc = res.h(f)
+        err = np.abs(hd / hc - 1)
+        log(f"   fs {fs:7.0f} Hz: max |Hd/H - 1| = {err.max():.2e} (at {f[err.argmax()]:.0f} Hz); "
+            f"at f0 {abs(hd[np.argmin(abs(f - 150))] / hc[np.argmin(abs(f - 150))] - 1):.1e}")
+
+
+# ---------------------------------------------------------------------------------------
+# CLI
+
+
+def _floats(s, n=None):
+    v = [float(x) for x in s.split(",")]
+    if n and len(v) == 1:
+        v = v * n
+    if n and len(v) != n:
+        raise argparse.ArgumentTypeError(f"want 1 or {n} comma-separated numbers: {s!r}")
+    return tuple(v)
+
+
+def _read_band_table(path):
+    """A PSD band table: ``f_lo_hz,f_hi_hz,psd3_g2_per_hz`` (``#`` comments), all axes."""
+    bands = []
+    with open(path) as f:
+        lines = [ln for ln in f if ln.strip() and not ln.lstrip().startswith("#")]
+    for row in csv.DictReader(lines):
+        s = float(row["psd3_g2_per_hz"])
+        bands.append((float(row["f_lo_hz"]), float(row["f_hi_hz"]), (s, s, s)))
+    return bands
+
+
+def build_parser():
+    ap = argparse.ArgumentParser(
+        description="Independent shake-table rig generator (AL-15 triad, MODEL.md / RIG.md): "
+        "writes accel.csv, vib.csv, reference.csv (vibrocomp log import format) and truth.json.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    def common(p):
+        g = p.add_argument_group("rig and run")
+        g.add_argument("--out", required=True, help="output folder")
+        g.add_argument("--seed", type=int, default=30, help="seed of every random part")
+        g.add_argument("--repeat", type=int, default=1, metavar="K",
+                       help="K draws of the random parts (noise, random vibration) with the same conditions; "
+                       "K > 1 writes repKK subfolders")
+        g.add_argument("--tone-amp-g", type=lambda s: _floats(s, 3), default=None,
+                       help="tone amplitude per body axis x,y,z (1 or 3 values); default drawn U(0.5, 2) from the seed")
+        g.add_argument("--tone-phase-deg", type=lambda s: _floats(s, 3), default=None,
+                       help="tone phase per axis; default drawn U(0, 360) from the seed")
+        g.add_argument("--no-tone", action="store_true", help="no deterministic vibration")
+        g.add_argument("--random-psd", type=lambda s: _floats(s, 3), default="0.002",
+                       help="flat PSD of the random vibration, g^2/Hz, per axis (1 or 3 values); 0 = none")
+        g.add_argument("--random-band-hz", type=lambda s: _floats(s, 2), default="20,640")
+        g.add_argument("--random-psd-csv", default=None,
+                       help="band table f_lo_hz,f_hi_hz,psd3_g2_per_hz (config/vibration/*.csv), all axes; "
+                       "replaces --random-psd/--random-band-hz")
+        g.add_argument("--resonance-f0-hz", type=float, default=None, help="hidden mount resonance (none by default)")
+        g.add_argument("--resonance-q", type=float, default=2.5)
+        g.add_argument("--resonance-form", choices=["base", "plain"], default="base",
+                       help="base: (w0^2 + 2 zeta w0 s)/(..); plain: w0^2/(..)")
+        g.add_argument("--filter-method", choices=["exact", "bilinear"], default="exact",
+                       help="mount and AC coupling: exact frequency response on the run's DFT bins, or a "
+                       "bilinear digital filter (prewarped at f0 / the AC corner) on the fine grid")
+        g.add_argument("--accel-rate-hz", type=float, default=800.0)
+        g.add_argument("--sensor-rate-hz", type=float, default=25600.0, help="vibration sensors and reference")
+        g.add_argument("--oversample", type=int, default=1, help="fine rate = sensor rate x this")
+        g.add_argument("--still-s", type=float, default=8.0)
+        g.add_argument("--vib-s", type=float, default=8.0)
+        g.add_argument("--vibrate-throughout", action="store_true", help="flight-like: vibration from start to end")
+        g.add_argument("--duration-s", type=float, default=24.0, help="run length with --vibrate-throughout")
+        g.add_argument("--ramp-s", type=float, default=0.1)
+        g.add_argument("--settle-s", type=float, default=None, help="default max(0.1, 25/(zeta w0))")
+        g.add_argument("--unit-noise-ug", type=float, default=10.0, help="white noise per reading, ug RMS")
+        g.add_argument("--vib-noise-mg", type=float, default=1.0, help="vibration-sensor noise, mg RMS per sample")
+        g.add_argument("--ref-noise-mg", type=float, default=1.0, help="reference noise, mg RMS per sample")
+        g.add_argument("--vib-sens-v-per-g", type=float, default=0.1)
+        g.add_argument("--vib-hp-hz", type=float, default=2.0)
+        g.add_argument("--passport", default=None, help="passport TOML for all units (default built-in AL-15)")
+        g.add_argument("--triad", default=None, help="triad TOML (default: AK1 +x/+y/+z, AK2 +y/+z/+x, AK3 +z/+x/+y)")
+        g.add_argument("--passport-dir", default=None, help="where the triad's passport ids are looked up")
+        g.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                       help="override a passport field (g units, e.g. k3=0, d1a=15e-6), any number")
+        g.add_argument("--digits", type=int, default=None,
+                       help="significant digits of vib/reference values (default: repr, exact)")
+
+    p_run = sub.add_parser("run", help="one run", formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    common(p_run)
+    p_run.add_argument("--orientation", default="+z",
+                       help="up direction in body axes: " + ", ".join(ORIENTATIONS) + " or x,y,z")
+    p_run.add_argument("--tone-hz", type=lambda s: _floats(s, 3), default="60",
+                       help="tone frequency (1 value, or 3 per axis)")
+
+    p_c = sub.add_parser("campaign", help="orientations x tone frequencies, runs.csv index",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    common(p_c)
+    p_c.add_argument("--orientations", default=",".join(ORIENTATIONS), help="names, comma-separated")
+    p_c.add_argument("--tone-freqs-hz", type=_floats, default="30,60,120")
+
+    sub.add_parser("selfcheck", help="print the discretisation figures")
+    return ap
+
+
+def config_from_args(a):
+    bands = (
+        _read_band_table(a.random_psd_csv)
+        if a.random_psd_csv
+        else [(a.random_band_hz[0], a.random_band_hz[1], a.random_psd)]
+    )
+    passport = Passport.from_toml(a.passport) if a.passport else None
+    if a.triad:
+        triad = load_triad(a.triad, a.passport_dir, passport)
+    else:
+        triad = default_triad(passport)
+    if a.set:
+        for u in triad:
+            u.passport = copy.deepcopy(u.passport)
+        for item in a.set:
+            name, _, value = item.partition("=")
+            if name not in {f.name for f in dataclasses.fields(Passport)} or name == "id":
+                raise SystemExit(f"--set: unknown passport field {name!r}")
+            for u in triad:
+                setattr(u.passport, name, float(value))
+    cfg = RunConfig(
+        tone_amp_g=(0.0, 0.0, 0.0) if a.no_tone else a.tone_amp_g,
+        tone_phase_rad=None if a.tone_phase_deg is None else tuple(math.radians(x) for x in a.tone_phase_deg),
+        random_bands=bands,
+        resonance=Resonance(a.resonance_f0_hz, a.resonance_q, a.resonance_form) if a.resonance_f0_hz else None,
+        filter_method=a.filter_method,
+        accel_rate_hz=a.accel_rate_hz,
+        sensor_rate_hz=a.sensor_rate_hz,
+        oversample=a.oversample,
+        still_s=a.still_s,
+        vib_s=a.vib_s,
+        vibrate_throughout=a.vibrate_throughout,
+        duration_s=a.duration_s,
+        ramp_s=a.ramp_s,
+        settle_s=a.settle_s,
+        unit_noise_g=a.unit_noise_ug * 1e-6,
+        vib_noise_g=a.vib_noise_mg * 1e-3,
+        ref_noise_g=a.ref_noise_mg * 1e-3,
+        vib_sens_v_per_g=a.vib_sens_v_per_g,
+        vib_hp_hz=a.vib_hp_hz,
+        seed=a.seed,
+    )
+    return cfg, triad
+
+
+def main(argv=None):
+    a = build_parser().parse_args(argv)
+    if a.cmd == "selfcheck":
+        selfcheck()
+        return 0
+    cfg, triad = config_from_args(a)
+    t0 = time.perf_counter()
+    if a.cmd == "run":
+        cfg.orientation = tuple(orientation_vector(a.orientation))
+        cfg.orientation_name = a.orientation
+        cfg.tone_hz = a.tone_hz
+        results = run_repeats(cfg, triad, a.out, a.repeat, a.digits)
+        for folder, res in results:
+            ves = ", ".join(f"{u['name']} {u['ve_time_domain_g'] * 1e6:.2f} ug" for u in res.truth["units"])
+            print(f"{folder}: VE {ves}")
+    else:
+        orients = [s.strip() for s in a.orientations.split(",") if s.strip()]
+        for o in orients:
+            orientation_vector(o)
+        rows = run_campaign(cfg, triad, a.out, orients, a.tone_freqs_hz, a.repeat, a.digits,
+                            log=lambda s: print(s, flush=True))
+        print(f"{len(rows)} runs in {a.out} (index {os.path.join(a.out, 'runs.csv')})")
+    print(f"done in {time.perf_counter() - t0:.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

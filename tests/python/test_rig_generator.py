@@ -1,0 +1,433 @@
+"""Checks of the independent rig generator (tests/python/rig_generator.py).
+
+Run: ``python3 -m pytest tests/python/test_rig_generator.py -q``.
+
+Every expected value here is computed in this file from MODEL.md's formulas (the
+conversion function and the closed-form vibration errors), not taken from the
+generator's truth, except where a test checks the truth itself.
+"""
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy import signal
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(HERE))
+sys.path.insert(0, HERE)
+
+import rig_generator as rg  # noqa: E402
+
+FAST = dict(sensor_rate_hz=6400.0, still_s=1.0, vib_s=3.0)
+QUIET = dict(unit_noise_g=0.0, vib_noise_g=0.0, ref_noise_g=0.0)
+NO_RANDOM = [(20.0, 640.0, (0.0, 0.0, 0.0))]
+
+
+def only(**coeffs):
+    """A passport with every coefficient 0 but K1 = -1.6698, k1 = 1 and ``coeffs``."""
+    base = dict(a0_g=0.0, d1a=0.0, k2=0.0, k3=0.0, k4=0.0, k5=0.0, m1=0.0, m2=0.0, m31=0.0, m32=0.0)
+    base.update(coeffs)
+    return rg.Passport(id="test", **base)
+
+
+def fp_independent(p, a3, a1, a2):
+    """(FP) of MODEL.md section 2 written out again, term by term, for scalars."""
+    s = 1.0 if a3 > 0 else (-1.0 if a3 < 0 else 0.0)
+    return (
+        p.a0_g
+        + p.k1 * p.lam * (1 + 0.5 * p.d1a * s) * a3
+        + p.k2 * a3**2 + p.k3 * a3**3 + p.k4 * a3**4 + p.k5 * a3**5
+        + p.m1 * a1 + p.m2 * a2 + p.m31 * a3 * a1 + p.m32 * a3 * a2
+    )
+
+
+def ve_of(res, unit):
+    return res.truth["units"][unit]["ve_time_domain_g"]
+
+
+# --------------------------------------------------------------------------------------
+# passports and triad are the shipped ones
+
+
+def same_passport(a, b):
+    """Equal values; ppm / 1e6 and the literal may differ in the last bit."""
+    a, b = a.to_dict(), b.to_dict()
+    return a.keys() == b.keys() and all(
+        a[k] == b[k] if isinstance(a[k], str) else math.isclose(a[k], b[k], rel_tol=1e-15) for k in a)
+
+
+def test_builtin_passport_and_triad_match_config():
+    shipped = rg.Passport.from_toml(os.path.join(ROOT, "config", "accelerometers", "al-15.toml"))
+    assert same_passport(shipped, rg.Passport())
+    triad = rg.load_triad(os.path.join(ROOT, "config", "triads", "default.toml"),
+                          os.path.join(ROOT, "config", "accelerometers"))
+    for u, v in zip(triad, rg.default_triad(), strict=True):
+        assert (u.name, u.ia, u.oa, u.pa) == (v.name, v.ia, v.oa, v.pa)
+        assert same_passport(u.passport, v.passport)
+
+
+# --------------------------------------------------------------------------------------
+# without vibration: (FP) of gravity, to 1e-12 relative
+
+
+@pytest.mark.parametrize("orientation", list(rg.ORIENTATIONS))
+def test_still_readings_are_fp_of_gravity(orientation):
+    cfg = rg.RunConfig(orientation=orientation, orientation_name=orientation, tone_amp_g=(0, 0, 0),
+                       random_bands=NO_RANDOM, resonance=rg.Resonance(), **FAST, **QUIET)
+    res = rg.simulate(cfg)
+    g = rg.orientation_vector(orientation)
+    for i, u in enumerate(res.triad):
+        expect = u.passport.K1_v_per_g * fp_independent(u.passport, u.e_ia @ g, u.e_oa @ g, u.e_pa @ g)
+        got = res.accel_v[:, i]
+        assert np.max(np.abs(got / expect - 1)) < 1e-12
+        assert abs(got.mean() / expect - 1) < 1e-12
+
+
+def test_still_segments_of_a_vibrating_run():
+    """Before and after the vibration the readings are (FP) of gravity (1e-9 g: the exact
+    boxcar's band-limited interpolation leaks at most ~1e-10 g next to the ramp)."""
+    cfg = rg.RunConfig(orientation="oblique2", resonance=rg.Resonance(), **FAST, **QUIET)
+    res = rg.simulate(cfg)
+    win = rg.windows(res.cfg)
+    for key in ("still_before", "still_after"):
+        m = rg.reading_mask(res.cfg, res.t_accel, win[key])
+        for i, u in enumerate(res.truth["units"]):
+            assert np.max(np.abs(res.accel_clean_g[m, i] - u["still_reading_g"])) < 1e-9
+
+
+# --------------------------------------------------------------------------------------
+# pure tone: closed forms of MODEL.md sections 5-6
+
+
+@pytest.mark.parametrize("freq,tol", [(30.0, 1e-10), (120.0, 1e-10), (47.3, 1 / (2 * math.pi * 47.3 * 2.7))])
+def test_k2_tone_ve_is_k2_a2_over_2(freq, tol):
+    """d0(1) = 0.5 k2 aB3^2 [P1 (15)]; whole tone periods in the window (2.7 s) give it to
+    rounding; 47.3 Hz leaves a fraction of a period: |<cos 2 theta>| <= 1/(2 pi f T)."""
+    k2, amp = 105e-6, 2.0
+    cfg = rg.RunConfig(tone_hz=(freq,) * 3, tone_amp_g=(0.0, 0.0, amp), tone_phase_rad=(0, 0, 0.7),
+                       random_bands=NO_RANDOM, **FAST, **QUIET)
+    res = rg.simulate(cfg, rg.default_triad(only(k2=k2)))
+    assert abs(ve_of(res, 2) / (0.5 * k2 * amp**2) - 1) < tol
+    assert abs(ve_of(res, 0)) < 1e-18 and abs(ve_of(res, 1)) < 1e-18  # no tone on their IA
+
+
+def test_k2_tone_through_the_resonance():
+    """The unit sees |H(j w)| A: VE = 0.5 k2 (|H| A)^2, the sensors' A would say 0.5 k2 A^2."""
+    k2, amp, f = 105e-6, 1.0, 120.0
+    reso = rg.Resonance(150.0, 2.5, "base")
+    cfg = rg.RunConfig(tone_hz=(f,) * 3, tone_amp_g=(0.0, 0.0, amp), tone_phase_rad=(0, 0, 0.2),
+                       random_bands=NO_RANDOM, resonance=reso, settle_s=0.1, **FAST, **QUIET)
+    res = rg.simulate(cfg, rg.default_triad(only(k2=k2)))  # settle 0.1 s: 19 time constants, whole periods
+    w0, zeta, w = 2 * math.pi * 150.0, 0.2, 2 * math.pi * f
+    h = abs((w0**2 + 2j * zeta * w0 * w) / (-(w**2) + 2j * zeta * w0 * w + w0**2))
+    assert abs(ve_of(res, 2) / (0.5 * k2 * (h * amp) ** 2) - 1) < 1e-9
+    u = res.truth["units"][2]
+    assert abs(u["closed_form_unit_side"]["ve_exact_g"] / ve_of(res, 2) - 1) < 1e-9
+    assert abs(u["closed_form_sensor_side"]["ve_exact_g"] / (0.5 * k2 * amp**2) - 1) < 1e-10  # 1 g - 1 g cancels
+
+
+def test_k3_tone_ve_is_delta1_times_aL3():
+    """delta(1) aL3 = 1.5 k3 aB3^2 aL3 [P1 (16)], exact for one sinusoid (MODEL.md 6)."""
+    k3, amp = 87e-6, 1.5
+    cfg = rg.RunConfig(orientation="oblique2", tone_hz=(60.0,) * 3, tone_amp_g=(amp, amp, amp),
+                       tone_phase_rad=(0.1, 0.2, 0.3), random_bands=NO_RANDOM, **FAST, **QUIET)
+    res = rg.simulate(cfg, rg.default_triad(only(k3=k3)))
+    g = rg.ORIENTATIONS["oblique2"]
+    for i in range(3):  # unit i has IA along body axis i
+        assert abs(ve_of(res, i) / (1.5 * k3 * amp**2 * g[i]) - 1) < 1e-9
+
+
+def test_m31_m32_tone_ve_with_phase():
+    """d0(2) + d0(3) = 0.5 m31 aB3 aB1 cos(phi3 - phi1) + 0.5 m32 aB3 aB2 cos(phi3 - phi2)
+    (MODEL.md section 6; the papers' [P1 (15)] is the case cos = 1)."""
+    m31, m32 = 11.6e-6, 20e-6
+    amps, ph = (1.0, 1.5, 2.0), (0.0, 0.9, 2.0)
+    cfg = rg.RunConfig(orientation="oblique1", tone_hz=(50.0,) * 3, tone_amp_g=amps, tone_phase_rad=ph,
+                       random_bands=NO_RANDOM, **FAST, **QUIET)
+    res = rg.simulate(cfg, rg.default_triad(only(m31=m31, m32=m32)))
+    for i, u in enumerate(res.triad):
+        x3, x1, x2 = (int(np.argmax(np.abs(e))) for e in (u.e_ia, u.e_oa, u.e_pa))
+        expect = 0.5 * m31 * amps[x3] * amps[x1] * math.cos(ph[x3] - ph[x1]) + 0.5 * m32 * amps[x3] * amps[
+            x2] * math.cos(ph[x3] - ph[x2])
+        assert abs(ve_of(res, i) / expect - 1) < 1e-9
+    # same frequency, in phase: the papers' published form
+    cfg.tone_phase_rad = (0.4, 0.4, 0.4)
+    res = rg.simulate(cfg, rg.default_triad(only(m31=m31, m32=0.0)))
+    u = res.truth["units"][0]
+    assert abs(ve_of(res, 0) / u["closed_form_unit_side"]["ve_published_g"] - 1) < 1e-9
+
+
+def test_asymmetry_under_a_tone_matches_the_exact_mean():
+    """0.5 k1 d1A E|aL + aB sin| (MODEL.md 6): 2 g tone, aL3 = 1 g; |.| is not band-limited,
+    so the sampled mean carries a small aliasing error (stated: 2e-4 relative at 6.4 kHz)."""
+    d1a, amp, aL = 15e-6, 2.0, 1.0
+    cfg = rg.RunConfig(tone_hz=(30.0,) * 3, tone_amp_g=(0, 0, amp), tone_phase_rad=(0, 0, 0.3),
+                       random_bands=NO_RANDOM, **FAST, **QUIET)
+    res = rg.simulate(cfg, rg.default_triad(only(d1a=d1a)))
+    e_abs = (2 / math.pi) * (aL * math.asin(aL / amp) + math.sqrt(amp**2 - aL**2))
+    assert abs(ve_of(res, 2) / (0.5 * d1a * (e_abs - aL)) - 1) < 2e-4
+    # a tone smaller than aL3: the exact asymmetry term vanishes (0.637 of the papers does not)
+    cfg.tone_amp_g = (0, 0, 0.5)
+    res = rg.simulate(cfg, rg.default_triad(only(d1a=d1a)))
+    assert abs(ve_of(res, 2)) < 1e-15
+
+
+def test_full_passport_tone_matches_section6_exact():
+    """All of (FP) at once, three tones: to 1e-5 (the asymmetry's sampled |.| aliases)."""
+    cfg = rg.RunConfig(orientation="oblique1", tone_hz=(40.0,) * 3, tone_amp_g=(1.2, 0.8, 2.0),
+                       tone_phase_rad=(0.0, 1.0, 2.5), random_bands=NO_RANDOM, **FAST, **QUIET)
+    res = rg.simulate(cfg)
+    for i, u in enumerate(res.truth["units"]):
+        assert abs(ve_of(res, i) / u["closed_form_unit_side"]["ve_exact_g"] - 1) < 1e-5
+
+
+def test_flight_like_run_tone():
+    """Vibrating throughout (steady state from t = 0), through a resonance: the same VE."""
+    k2, amp, f = 105e-6, 1.0, 47.0
+    for method in ("exact", "bilinear"):
+        cfg = rg.RunConfig(vibrate_throughout=True, duration_s=3.0, tone_hz=(f,) * 3, tone_amp_g=(0, 0, amp),
+                           tone_phase_rad=(0, 0, 0.4), random_bands=NO_RANDOM, resonance=rg.Resonance(),
+                           filter_method=method, sensor_rate_hz=6400.0, **QUIET)
+        res = rg.simulate(cfg, rg.default_triad(only(k2=k2)))
+        h = abs(complex(rg.mount(res.cfg).h_effective(f, 6400.0)[0]))
+        t_w = 3.0 - res.cfg.settle  # 47 Hz: not a whole number of periods
+        assert abs(ve_of(res, 2) / (0.5 * k2 * (h * amp) ** 2) - 1) < 1 / (2 * math.pi * f * t_w)
+
+
+# --------------------------------------------------------------------------------------
+# random vibration
+
+
+def band_variance_welch(x, fs, lo=20.0, hi=640.0):
+    f, p = signal.welch(x, fs=fs, nperseg=int(fs), axis=0)  # Hann, 1 Hz bins
+    df = f[1] - f[0]
+    # integrate a little wider than the band: Hann leaks about 2 bins; the noise floor is tiny
+    m = (f >= lo - 3) & (f <= hi + 3)
+    return p[m].sum(axis=0) * df
+
+
+def test_random_rms_matches_the_requested_psd():
+    """Band RMS^2 from Welch on the reference (base) equals S (f_hi - f_lo) within its
+    statistical uncertainty 1/sqrt(B T) (relative, of a variance over a window T)."""
+    s = (0.002, 0.004, 0.001)
+    cfg = rg.RunConfig(tone_amp_g=(0, 0, 0), random_bands=[(20.0, 640.0, s)], sensor_rate_hz=6400.0,
+                       still_s=1.0, vib_s=8.0)
+    res = rg.simulate(cfg)
+    win = rg.windows(res.cfg)["vibrating"]
+    m = (res.t_vib >= win[0]) & (res.t_vib <= win[1])
+    var = band_variance_welch(res.ref_g[m], 6400.0)
+    t_w = win[1] - win[0]
+    rel_sd = 1 / math.sqrt(620.0 * t_w)
+    expect = np.array(s) * 620.0
+    assert np.all(np.abs(var / expect - 1) < 4 * rel_sd), (var / expect - 1, rel_sd)
+    # the PSD is flat at S inside the band
+    f, p = signal.welch(res.ref_g[m], fs=6400.0, nperseg=1600, axis=0)
+    inband = (f >= 40) & (f <= 600)
+    assert np.all(np.abs(p[inband].mean(axis=0) / np.array(s) - 1) < 0.05)
+    assert np.all(p[(f > 700) & (f < 3000)].mean(axis=0) < 1e-3 * np.array(s))
+
+
+def test_random_rms_over_repeats_and_its_scatter():
+    """Over K repeats the mean variance converges and the scatter is 1/sqrt(B T)."""
+    k, s = 12, 0.002
+    vars_ = []
+    for rep in range(k):
+        cfg = rg.RunConfig(tone_amp_g=(0, 0, 0), random_bands=[(20.0, 640.0, (s, s, s))], sensor_rate_hz=6400.0,
+                           still_s=1.0, vib_s=4.0, repeat=rep, ref_noise_g=0.0)
+        res = rg.simulate(cfg)
+        win = rg.windows(res.cfg)["vibrating"]
+        m = (res.t_vib >= win[0]) & (res.t_vib <= win[1])
+        v = res.ref_g[m] - res.ref_g[m].mean(axis=0)
+        vars_.append(np.mean(v**2, axis=0) / (s * 620.0))
+    vars_ = np.concatenate(vars_)  # 3 axes x K repeats, independent
+    rel_sd = 1 / math.sqrt(620.0 * (win[1] - win[0]))
+    assert abs(vars_.mean() - 1) < 4 * rel_sd / math.sqrt(len(vars_))
+    assert 0.5 * rel_sd < vars_.std(ddof=1) < 1.6 * rel_sd
+
+
+def test_k2_random_ve_is_k2_sigma2():
+    """d0(1) = k2 sigma3^2 [P1 (14)]: to the realised sigma at the unit, and to the
+    requested sigma within the statistical uncertainty of the variance."""
+    k2, s = 105e-6, 0.002
+    cfg = rg.RunConfig(tone_amp_g=(0, 0, 0), random_bands=[(20.0, 640.0, (s, s, s))], **FAST, **QUIET)
+    res = rg.simulate(cfg, rg.default_triad(only(k2=k2)))
+    rel_sd = 1 / math.sqrt(620.0 * 2.8)
+    for i, u in enumerate(res.truth["units"]):
+        real = u["realised_unit_side"]["sigma3_g"] ** 2
+        assert abs(ve_of(res, i) / (k2 * real) - 1) < 2e-3
+        assert abs(ve_of(res, i) / (k2 * s * 620.0) - 1) < 4 * rel_sd
+
+
+# --------------------------------------------------------------------------------------
+# the hidden resonance, from a swept tone
+
+
+def tone_gain_from_readings(res, unit, f, amp):
+    """Least-squares amplitude of the tone in the readings over the VE window, divided by
+    the boxcar's response and the tone amplitude (the unit's passport is linear)."""
+    cfg = res.cfg
+    m = rg.reading_mask(cfg, res.t_accel, rg.windows(cfg)["vibrating"])
+    t = res.t_accel[m]
+    y = res.accel_clean_g[m, unit]
+    a = np.column_stack([np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t), np.ones_like(t)])
+    c = np.linalg.lstsq(a, y, rcond=None)[0]
+    return math.hypot(c[0], c[1]) / abs(rg.boxcar_response(f, 1 / cfg.accel_rate_hz)) / amp
+
+
+@pytest.mark.parametrize("form,method", [("plain", "exact"), ("base", "exact"), ("plain", "bilinear"),
+                                         ("base", "bilinear")])
+def test_resonance_gain_at_f0(form, method):
+    f0, q = 150.0, 2.5
+    reso = rg.Resonance(f0, q, form)
+    expect_f0 = q if form == "plain" else q * math.sqrt(1 + 1 / q**2)
+    gains = {}
+    for f in (120.0, 135.0, 145.0, 150.0, 155.0, 165.0, 180.0):
+        cfg = rg.RunConfig(tone_hz=(f,) * 3, tone_amp_g=(1.0, 0, 0), tone_phase_rad=(0.3, 0, 0),
+                           random_bands=NO_RANDOM, resonance=reso, filter_method=method, **FAST, **QUIET)
+        res = rg.simulate(cfg, rg.default_triad(only()))
+        gains[f] = tone_gain_from_readings(res, 0, f, 1.0)
+        expect = abs(complex(rg.mount(res.cfg).h_effective(f, 6400.0)[0]))
+        assert abs(gains[f] / expect - 1) < 1e-6
+    assert abs(gains[150.0] / expect_f0 - 1) < 1e-6
+    # the sweep peaks near f0 (plain form: at f0 sqrt(1 - 2 zeta^2) = 145.4 Hz)
+    assert max(gains, key=gains.get) in (145.0, 150.0)
+
+
+# --------------------------------------------------------------------------------------
+# vibration sensors
+
+
+def test_vibration_sensor_ac_coupled_0p1_v_per_g():
+    amp, f = 1.5, 30.0
+    cfg = rg.RunConfig(orientation="oblique1", tone_hz=(f,) * 3, tone_amp_g=(amp, 0.5 * amp, 0.0),
+                       tone_phase_rad=(0.2, 1.0, 0.0), random_bands=NO_RANDOM, **FAST)
+    for method in ("exact", "bilinear"):
+        cfg.filter_method = method
+        res = rg.simulate(cfg)
+        n_sd = 0.1 * cfg.vib_noise_g
+        still = res.t_vib < res.cfg.t_on
+        # gravity (0.577 g on every IA) does not reach the output: mean ~ 0 within the noise
+        assert np.all(np.abs(res.vib_v[still].mean(axis=0)) < 5 * n_sd / math.sqrt(still.sum()))
+        win = rg.windows(res.cfg)["vibrating"]
+        m = (res.t_vib >= win[0]) & (res.t_vib <= win[1])
+        assert np.all(np.abs(res.vib_v[m].mean(axis=0)) < 1e-4)
+        t = res.t_vib[m]
+        hp = abs(1j * f / (1j * f + cfg.vib_hp_hz))  # first-order AC coupling at 2 Hz
+        for unit, a in ((0, amp), (1, 0.5 * amp), (2, 0.0)):
+            x = np.column_stack([np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t), np.ones_like(t)])
+            c = np.linalg.lstsq(x, res.vib_v[m, unit], rcond=None)[0]
+            got = math.hypot(c[0], c[1])
+            assert abs(got - 0.1 * a * hp) < 5 * n_sd * math.sqrt(2 / m.sum()) + 1e-9
+            assert abs(got - 0.1 * a) <= 0.1 * a * 0.003 + 1e-5  # 0.22 % below 0.1 V/g at 30 Hz
+
+
+def test_vibration_sensor_sign_follows_ia():
+    """A sensor along -x sees the x tone with the opposite sign."""
+    triad = [rg.Unit("AK1", rg.Passport(), "-x", "+y", "-z"), rg.Unit("AK2", rg.Passport(), "+y", "+z", "+x"),
+             rg.Unit("AK3", rg.Passport(), "+z", "+x", "+y")]
+    cfg = rg.RunConfig(tone_hz=(60.0,) * 3, tone_amp_g=(1.0, 0, 0), tone_phase_rad=(0, 0, 0),
+                       random_bands=NO_RANDOM, **FAST, **QUIET)
+    res = rg.simulate(cfg, triad)
+    ref_hp = rg.simulate(cfg).vib_v[:, 0]
+    assert np.allclose(res.vib_v[:, 0], -ref_hp, atol=1e-15)
+    assert res.truth["units"][0]["aL3_g"] == -0.0 or res.truth["units"][0]["aL3_g"] == 0.0
+
+
+# --------------------------------------------------------------------------------------
+# CLI: files, --repeat, campaign, determinism
+
+CLI_FAST = ["--sensor-rate-hz", "6400", "--still-s", "1", "--vib-s", "2"]
+
+
+def run_cli(*args):
+    subprocess.run([sys.executable, os.path.join(HERE, "rig_generator.py"), *args], check=True,
+                   capture_output=True, text=True)
+
+
+def read_rows(path):
+    with open(path) as f:
+        lines = [ln.rstrip("\n") for ln in f if ln.strip() and not ln.startswith("#")]
+    return lines[0].split(","), [[float(c) for c in ln.split(",")] for ln in lines[1:]], lines[1:]
+
+
+def test_cli_files_follow_the_log_import_format(tmp_path):
+    out = tmp_path / "run"
+    run_cli("run", "--out", str(out), "--orientation=-y", "--resonance-f0-hz", "150", *CLI_FAST)
+    for name, cols, rate in (("accel.csv", ["time_s", "u1_v", "u2_v", "u3_v"], 800.0),
+                             ("vib.csv", ["time_s", "vd1_v", "vd2_v", "vd3_v"], 6400.0),
+                             ("reference.csv", ["time_s", "ax_g", "ay_g", "az_g"], 6400.0)):
+        header, rows, raw = read_rows(out / name)
+        assert header == cols
+        a = np.array(rows)
+        assert a.shape == (int(4 * rate), 4) and np.all(np.isfinite(a))
+        n0 = 1 if name == "accel.csv" else 0  # readings are latched at the end of their interval
+        assert np.all(np.abs(a[:, 0] - (np.arange(len(a)) + n0) / rate) < 1e-12)
+        assert np.all(np.diff(a[:, 0]) > 0)
+        # written with repr: the text is the shortest repr of the parsed value
+        assert all(repr(float(c)) == c for c in raw[100].split(","))
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["orientation"] == [0.0, -1.0, 0.0]
+    assert truth["resonance"]["f0_hz"] == 150.0
+    _, rows, _ = read_rows(out / "accel.csv")
+    u2 = np.array(rows)[:100, 2]  # AK2, IA +y, still: aL3 = -1 g
+    assert abs(u2.mean() / truth["units"][1]["still_reading_v"] - 1) < 1e-4
+
+
+def test_repeat_redraws_only_the_random_parts(tmp_path):
+    out = tmp_path / "rep"
+    run_cli("run", "--out", str(out), "--repeat", "2", "--seed", "7", *CLI_FAST)
+    t0 = json.loads((out / "rep00" / "truth.json").read_text())
+    t1 = json.loads((out / "rep01" / "truth.json").read_text())
+    for key in ("orientation", "tone", "random", "resonance", "rates", "segments", "triad"):
+        assert t0[key] == t1[key], key
+    for u0, u1 in zip(t0["units"], t1["units"]):
+        assert u0["closed_form_unit_side"] == u1["closed_form_unit_side"]
+        assert u0["still_reading_g"] == u1["still_reading_g"]
+        assert u0["ve_time_domain_g"] != u1["ve_time_domain_g"]
+    assert t0["seeds"]["repeat"] == 0 and t1["seeds"]["repeat"] == 1
+    for name in ("accel.csv", "vib.csv", "reference.csv"):
+        a0 = np.array(read_rows(out / "rep00" / name)[1])
+        a1 = np.array(read_rows(out / "rep01" / name)[1])
+        assert np.array_equal(a0[:, 0], a1[:, 0])
+        assert not np.array_equal(a0[:, 1:], a1[:, 1:])
+    # same seed, same repeat: identical files
+    again = tmp_path / "again"
+    run_cli("run", "--out", str(again), "--repeat", "2", "--seed", "7", *CLI_FAST)
+    for name in ("accel.csv", "vib.csv", "reference.csv", "truth.json"):
+        assert (again / "rep01" / name).read_bytes() == (out / "rep01" / name).read_bytes()
+    # another seed: other conditions (tone amplitudes drawn from it)
+    other = tmp_path / "other"
+    run_cli("run", "--out", str(other), "--seed", "8", *CLI_FAST)
+    assert json.loads((other / "truth.json").read_text())["tone"] != t0["tone"]
+
+
+def test_repeat_keeps_the_tone_part_of_the_data():
+    """Without noise and random vibration, two repeats are the same data."""
+    cfg = rg.RunConfig(random_bands=NO_RANDOM, **FAST, **QUIET)
+    a = rg.simulate(cfg)
+    cfg.repeat = 3
+    b = rg.simulate(cfg)
+    assert np.array_equal(a.accel_v, b.accel_v) and np.array_equal(a.vib_v, b.vib_v)
+
+
+def test_campaign_index(tmp_path):
+    out = tmp_path / "camp"
+    run_cli("campaign", "--out", str(out), "--orientations", "+z,oblique1", "--tone-freqs-hz", "30,120",
+            *CLI_FAST)
+    with open(out / "runs.csv") as f:
+        lines = f.read().splitlines()
+    assert lines[0].split(",") == rg.RUNS_CSV_COLUMNS
+    rows = [ln.split(",") for ln in lines[1:]]
+    assert len(rows) == 4
+    for r in rows:
+        truth = json.loads((out / r[2] / "truth.json").read_text())
+        assert truth["orientation_name"] == r[3]
+        assert truth["tone"]["freq_hz"] == [float(r[7])] * 3
+        assert truth["tone"]["amp_g"] == [float(x) for x in r[8:11]]
+        assert all(0.5 <= float(x) <= 2.0 for x in r[8:11])
+        assert abs(float(r[14]) - math.sqrt(0.002 * 620)) < 1e-12
