@@ -23,6 +23,7 @@ mod model;
 mod processes;
 mod python_client;
 mod replay;
+mod rig_generator;
 mod shared_prefix;
 mod sim;
 mod soak;
