@@ -1,7 +1,10 @@
 //! A recorded 3-axis vibration-sensor stream as CSV, through the estimator
 //! (`vibrocomp estimate`, docs/estimation.md): three columns (x, y, z), one sample a
 //! row at the configured rate, an optional header row naming the columns; blank and
-//! `#` lines skipped. The file is read line by line through [`LineReader`]'s cap and
+//! `#` lines skipped. A header that opens with `time_s` (the rig's format, as `log
+//! import` reads it: the time each sample was taken, s) adds a time column: the rows
+//! must then be one sample period apart (within [`TIME_STEP_TOLERANCE`] of it), and the
+//! estimates are stamped on the file's own time base. The file is read line by line through [`LineReader`]'s cap and
 //! handed to `vibro_dsp::Estimator` in blocks, as a recorder's stream would be.
 //! Also the frequency-response table the estimator divides out.
 //!
@@ -19,6 +22,8 @@ use crate::{Error, Result};
 
 /// Samples handed to the estimator at a time: the block size of a recorder's stream.
 pub const BLOCK_SAMPLES: usize = 4096;
+/// How far a row's `time_s` step may be from one sample period, as a fraction of it.
+pub const TIME_STEP_TOLERANCE: f64 = 0.01;
 /// At most this many bad cells are listed before reading stops.
 pub const MAX_PROBLEMS: usize = 10;
 
@@ -37,8 +42,10 @@ pub const RESPONSE_COLUMNS: [&str; 7] = [
 #[derive(Debug, Clone)]
 pub struct StreamEstimates {
     pub estimates: Vec<Estimate>,
-    /// The columns' names: the header's, or x, y, z.
+    /// The axes' columns' names: the header's, or x, y, z.
     pub columns: [String; 3],
+    /// The file has a `time_s` column (its first).
+    pub time_column: bool,
     /// Data rows read.
     pub rows: u64,
 }
@@ -160,38 +167,52 @@ pub fn estimate_stream_csv(
         ));
     };
     let first_cells = cells(&first.text);
+    let mut time_column = false;
     if first_cells.iter().any(|c| c.parse::<f64>().is_err()) {
-        // A header row names the columns; it must still have one per axis.
-        if first_cells.len() != 3 {
+        // A header row names the columns; it must still have one per axis, after a
+        // `time_s` column if it opens with one.
+        time_column = first_cells.first() == Some(&"time_s");
+        let axes_cells = &first_cells[usize::from(time_column)..];
+        if axes_cells.len() != 3 {
             return Err(input(
                 file,
                 format!(
-                    "line {}: header has {} columns ({}); expected 3, one per axis (x, y, z)",
+                    "line {}: header has {} columns ({}); expected 3, one per axis (x, y, z){}",
                     first.number,
                     first_cells.len(),
-                    first_cells.join(", ")
+                    first_cells.join(", "),
+                    if time_column { ", after time_s" } else { "" }
                 ),
             ));
         }
-        columns = std::array::from_fn(|i| first_cells[i].to_string());
+        columns = std::array::from_fn(|i| axes_cells[i].to_string());
         pending = lines.next_line()?;
     }
 
     let period_ns = 1e9 / estimator.config().sample_rate_hz();
+    let period_s = 1.0 / estimator.config().sample_rate_hz();
     let mut problems: Vec<String> = Vec::new();
     let mut block: Vec<[f64; 3]> = Vec::with_capacity(BLOCK_SAMPLES);
     let mut estimates = Vec::new();
     let mut rows: u64 = 0;
     let mut seq: u64 = 0;
     let mut block_first_row: u64 = 0;
+    // With a time column: the time of the block's first row, and of the previous row.
+    let mut block_t0_s: Option<f64> = None;
+    let mut last_time: Option<(u64, f64)> = None;
     let mut flush = |block: &mut Vec<[f64; 3]>,
                      seq: &mut u64,
                      first_row: u64,
+                     t0_s: Option<f64>,
                      estimator: &mut Estimator|
      -> Result<()> {
+        let t0_ns = match t0_s {
+            Some(t) => (t * 1e9).round() as u64,
+            None => (first_row as f64 * period_ns).round() as u64,
+        };
         let b = SampleBlock {
             seq: *seq,
-            t0_ns: (first_row as f64 * period_ns).round() as u64,
+            t0_ns,
             samples_raw: block,
         };
         estimator
@@ -206,15 +227,29 @@ pub fn estimate_stream_csv(
         Ok(())
     };
     while let Some(line) = pending {
-        let c = cells(&line.text);
-        if c.len() != 3 {
+        let all = cells(&line.text);
+        let width = 3 + usize::from(time_column);
+        if all.len() != width {
             problems.push(format!(
-                "line {}: {} columns; expected 3, one per axis ({})",
+                "line {}: {} columns; expected {width}, {}one per axis ({})",
                 line.number,
-                c.len(),
+                all.len(),
+                if time_column { "time_s then " } else { "" },
                 columns.join(", ")
             ));
         } else {
+            if time_column {
+                match check_time(all[0], line.number, last_time, period_s) {
+                    Ok(t) => {
+                        if block.is_empty() {
+                            block_t0_s = Some(t);
+                        }
+                        last_time = Some((line.number, t));
+                    }
+                    Err(p) => problems.push(p),
+                }
+            }
+            let c = &all[usize::from(time_column)..];
             let mut sample = [0.0; 3];
             for (i, cell) in c.iter().enumerate() {
                 match cell.parse::<f64>() {
@@ -222,7 +257,7 @@ pub fn estimate_stream_csv(
                     Err(_) => problems.push(format!(
                         "line {}, column {} ({:?}): {:?}: {}",
                         line.number,
-                        i + 1,
+                        i + 1 + usize::from(time_column),
                         columns[i],
                         cell,
                         if cell.is_empty() {
@@ -240,7 +275,7 @@ pub fn estimate_stream_csv(
         }
         rows += 1;
         if block.len() == BLOCK_SAMPLES && problems.is_empty() {
-            flush(&mut block, &mut seq, block_first_row, estimator)?;
+            flush(&mut block, &mut seq, block_first_row, block_t0_s, estimator)?;
             block_first_row = rows;
             progress(bytes.get(), total_bytes);
         }
@@ -258,7 +293,7 @@ pub fn estimate_stream_csv(
         ));
     }
     if !block.is_empty() {
-        flush(&mut block, &mut seq, block_first_row, estimator)?;
+        flush(&mut block, &mut seq, block_first_row, block_t0_s, estimator)?;
     }
     if estimates.is_empty() {
         return Err(input(
@@ -273,8 +308,40 @@ pub fn estimate_stream_csv(
     Ok(StreamEstimates {
         estimates,
         columns,
+        time_column,
         rows,
     })
+}
+
+/// A row's `time_s` cell: a finite time `0 <= t < 1.8e10` s (the wire's range, as `log
+/// import` takes it), one sample period `period_s` after the previous row's within
+/// [`TIME_STEP_TOLERANCE`] of it. A problem names the line, the value and the rule.
+fn check_time(
+    cell: &str,
+    line: u64,
+    previous: Option<(u64, f64)>,
+    period_s: f64,
+) -> std::result::Result<f64, String> {
+    let t = match cell.parse::<f64>() {
+        Ok(t) if t.is_finite() && (0.0..1.8e10).contains(&t) => t,
+        _ => {
+            return Err(format!(
+                "line {line}, column 1 (\"time_s\"): {cell:?}: must be a time 0 <= t < 1.8e10 s"
+            ))
+        }
+    };
+    if let Some((prev_line, prev)) = previous {
+        let step = t - prev;
+        if (step - period_s).abs() > TIME_STEP_TOLERANCE * period_s {
+            return Err(format!(
+                "line {line}, column 1 (\"time_s\"): {cell:?}: {step} s after line {prev_line}'s \
+                 {prev}: rows must be one sample period ({period_s} s at the configured rate) \
+                 apart, within {} %",
+                100.0 * TIME_STEP_TOLERANCE
+            ));
+        }
+    }
+    Ok(t)
 }
 
 /// Reads a frequency-response table (columns [`RESPONSE_COLUMNS`], header required;
@@ -419,6 +486,76 @@ mod tests {
                 "{}: 2 rows at 25600 Hz are shorter than one window ({window} samples)",
                 path.display()
             )
+        );
+    }
+
+    /// The rig's format: a `time_s` column first. The same samples give the same
+    /// estimates as without it, stamped on the file's time base (here 100 s on).
+    #[test]
+    fn a_time_column_stamps_the_estimates_on_the_files_time() {
+        let rate_hz = 1024.0;
+        let config = || {
+            let mut raw = EstimatorConfigRaw::new(rate_hz, [1.0; 3]);
+            raw.broadband_band_hz = [20.0, 400.0];
+            raw.psd_bands_hz = vec![[20.0, 100.0], [100.0, 400.0]];
+            EstimatorConfig::try_from(raw).unwrap()
+        };
+        let n = 3 * 1024;
+        let (mut plain, mut timed) = (String::from("x,y,z\n"), String::from("time_s,x,y,z\n"));
+        for k in 0..n {
+            let t = k as f64 / rate_hz;
+            let v = [
+                (std::f64::consts::TAU * 97.0 * t).sin(),
+                0.5 * (std::f64::consts::TAU * 211.0 * t).cos(),
+                0.25 * (std::f64::consts::TAU * 53.0 * t).sin(),
+            ];
+            plain.push_str(&format!("{},{},{}\n", v[0], v[1], v[2]));
+            timed.push_str(&format!("{},{},{},{}\n", 100.0 + t, v[0], v[1], v[2]));
+        }
+        let run = |text: &str, name: &str| {
+            let mut estimator = Estimator::new(config());
+            estimate_stream_csv(&file(name, text), &mut estimator, &mut |_, _| {}).unwrap()
+        };
+        let (a, b) = (run(&plain, "plain.csv"), run(&timed, "timed.csv"));
+        assert!(!a.time_column && b.time_column);
+        assert_eq!(b.columns, ["x", "y", "z"]);
+        assert_eq!(a.estimates.len(), b.estimates.len());
+        assert!(!a.estimates.is_empty());
+        for (x, y) in a.estimates.iter().zip(&b.estimates) {
+            assert_eq!(y.start_ns - x.start_ns, 100_000_000_000);
+            assert_eq!(x.tones.len(), y.tones.len());
+            for (tx, ty) in x.tones.iter().zip(y.tones.iter()) {
+                assert_eq!(tx.frequency_hz, ty.frequency_hz);
+                assert_eq!(tx.amplitude_g, ty.amplitude_g);
+            }
+            assert_eq!(x.broadband.rms_g, y.broadband.rms_g);
+        }
+    }
+
+    /// Rows not one sample period apart, or a time that is no time, are refused with
+    /// their line, value and rule.
+    #[test]
+    fn a_time_column_must_step_by_one_sample_period() {
+        let config = EstimatorConfig::try_from(EstimatorConfigRaw::new(4096.0, [1.0; 3])).unwrap();
+        let mut estimator = Estimator::new(config);
+        let path = file(
+            "bad-times.csv",
+            "time_s,a,b,c\n0,1,2,3\n0.000244140625,1,2,3\n0.001,1,2,3\nx,1,2,3\n",
+        );
+        let e = estimate_stream_csv(&path, &mut estimator, &mut |_, _| {})
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("line 4, column 1 (\"time_s\"): \"0.001\": 0.000755")
+                && e.contains(
+                    "s after line 3's 0.000244140625: rows must be one sample period \
+                     (0.000244140625 s at the configured rate) apart, within 1 %"
+                ),
+            "{e}"
+        );
+        assert!(
+            e.contains("line 5, column 1 (\"time_s\"): \"x\": must be a time 0 <= t < 1.8e10 s"),
+            "{e}"
         );
     }
 }

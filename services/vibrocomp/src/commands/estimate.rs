@@ -34,7 +34,9 @@ const DEFAULT_BAND_HZ: &str = "20,2000";
 #[derive(Debug, Args)]
 pub struct EstimateArgs {
     /// CSV file: three columns (axes x, y, z), one sample a row, at `--rate-hz`. A
-    /// first row of column names is allowed; blank lines and `#` comment lines are
+    /// first row of column names is allowed, and one opening with `time_s` (the rig's
+    /// format, as `log import` reads it) adds a time column whose rows must be one
+    /// sample period apart; blank lines and `#` comment lines are
     /// skipped. `nan`/`inf` cells are taken as bad samples, flagged and left out.
     pub file: PathBuf,
     /// Sample rate of the file.
