@@ -313,12 +313,7 @@ def load_triad(path, passport_dir=None, passport=None):
 
 _S3 = 1.0 / math.sqrt(3.0)
 ORIENTATIONS = {
-    "+x": (1.0, 0.0, 0.0),
-    "-x": (-1.0, 0.0, 0.0),
-    "+y": (0.0, 1.0, 0.0),
-    "-y": (0.0, -1.0, 0.0),
-    "+z": (0.0, 0.0, 1.0),
-    "-z": (0.0, 0.0, -1.0),
+    **AXIS_VECTORS,
     # two oblique ones: every unit sees a share of gravity on IA and on OA/PA
     "oblique1": (_S3, _S3, _S3),
     "oblique2": (0.5, -0.5, math.sqrt(0.5)),
