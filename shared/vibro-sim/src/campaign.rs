@@ -687,17 +687,8 @@ pub fn write_summary_csv<W: Write>(w: W, summaries: &[ConditionSummary]) -> Resu
 }
 
 /// Columns of [`write_positions_csv`]: exactly those `vibrocomp identify positions`
-/// reads (it rejects unknown columns).
-pub const POSITION_COLUMNS: [&str; 8] = [
-    "tp",
-    "angle_deg",
-    "aB3_g",
-    "aB1_g",
-    "aB2_g",
-    "u_still_v",
-    "u_vib_v",
-    "u_sigma_v",
-];
+/// reads (one list, the reader's).
+pub use vibro_ident::table::POSITION_COLUMNS;
 
 /// Writes the conditions as test positions for `vibrocomp identify positions`
 /// (docs/identification.md): `u_still_v = 0.5 (<U1> + <U3>)`, `u_vib_v = <U2>`,
