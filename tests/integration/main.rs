@@ -2,6 +2,7 @@
 
 mod bad_input;
 mod bridge;
+mod campaign;
 mod cli_flags;
 mod closed_pipe;
 mod common;

@@ -64,6 +64,7 @@ mod components;
 mod linalg;
 pub mod measure;
 mod positions;
+pub mod reference;
 pub mod report;
 pub mod table;
 mod wls;
@@ -76,14 +77,15 @@ pub use components::{
     Components, ComponentsEstimate, Method, UncertaintyBasis, VePrediction, COMPONENT_NAMES,
 };
 pub use measure::{
-    measure_ve, measure_ve_from_samples, MeasureOptions, Phase, RecordMean, VeMeasurement,
+    measure_ve, measure_ve_from_samples, measure_ve_timed, MeasureOptions, Phase, RecordMean,
+    Segments, TimedMeasurement, VeMeasurement,
 };
 pub use positions::{cos_deg, standard_ten_positions, Amplitudes, TestPosition};
 pub use report::{
     identify_positions, measure_file, passport_terms, CoefficientReport, MeasureReport,
     MethodChoice, MethodReport, PositionsReport, PositionsRequest, Skipped,
 };
-pub use table::{read_positions, read_records, POSITION_COLUMNS};
+pub use table::{read_positions, read_records, read_timed, Timed, POSITION_COLUMNS};
 pub use wls::{
     wls_coefficients, wls_components, CoefficientEstimate, PassportTerms, WlsOptions, TERM_NAMES,
 };
@@ -217,6 +219,9 @@ pub enum Error {
     /// No requested method applies to the positions: each one's reason.
     #[error("no method applies:\n  {}", reasons.join("\n  "))]
     NoMethod { reasons: Vec<String> },
+    /// A run's segments break a rule (`key = value: rule`).
+    #[error("segments: {problem}")]
+    Segments { problem: String },
     /// The section-8 measurement of a file of records failed.
     #[error("{file}: VE measurement (MODEL.md section 8)")]
     Measurement { file: String, source: Box<Error> },

@@ -227,3 +227,121 @@ pub fn measure_ve_from_samples(
         options.tilt_limit_rad,
     )
 }
+
+/// The three windows of a run on a rig's time axis, s: each `[from, to]`. A reading
+/// belongs to a window when its whole interval `(t - T, t]` lies inside it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Segments {
+    pub still_before_s: [f64; 2],
+    pub vibrating_s: [f64; 2],
+    pub still_after_s: [f64; 2],
+}
+
+impl Segments {
+    /// Every broken rule, each as `key = value: rule` (empty when valid): finite times,
+    /// each window from < to, the three in order without overlap.
+    pub fn problems(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        let windows = [
+            ("still_before_s", self.still_before_s),
+            ("vibrating_s", self.vibrating_s),
+            ("still_after_s", self.still_after_s),
+        ];
+        for (name, [a, b]) in windows {
+            if !(a.is_finite() && b.is_finite() && a < b) {
+                out.push(format!(
+                    "{name} = [{a}, {b}]: must be two finite times, the first before the second"
+                ));
+            }
+        }
+        for pair in windows.windows(2) {
+            let ((n1, w1), (n2, w2)) = (pair[0], pair[1]);
+            if w1[1] > w2[0] {
+                out.push(format!(
+                    "{n2} = [{}, {}]: must start at or after {n1}'s end ({}): still, \
+                     vibrating, still, in that order",
+                    w2[0], w2[1], w1[1]
+                ));
+            }
+        }
+        out
+    }
+
+    /// The window of each phase, in the order still1, vib, still2.
+    pub fn windows(&self) -> [(Phase, [f64; 2]); 3] {
+        [
+            (Phase::Still1, self.still_before_s),
+            (Phase::Vib, self.vibrating_s),
+            (Phase::Still2, self.still_after_s),
+        ]
+    }
+}
+
+/// A VE measured from a rig's time-stamped readings ([`measure_ve_timed`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TimedMeasurement {
+    /// With the linear response removed when one was given, else the raw records.
+    pub measurement: VeMeasurement,
+    /// The raw records' measurement (the linear response left in), for comparison;
+    /// `None` when no linear response was given (it is `measurement`).
+    pub raw: Option<VeMeasurement>,
+    /// Whether `measurement` has the linear response removed.
+    pub linear_response_removed: bool,
+}
+
+/// [P2 (16)] from a rig's readings: `times_s` the latch times (s), each reading the
+/// mean over `(t - interval_s, t]`, `u_v` the outputs (V), and optionally `linear_v`,
+/// the unit's linear response to the table's motion over each reading's interval (V;
+/// NaN where not known: [`crate::reference`]), which is removed before the batch means.
+/// A reading belongs to a segment when its interval lies inside it (and, with
+/// `linear_v`, its linear response is known).
+pub fn measure_ve_timed(
+    times_s: &[f64],
+    interval_s: f64,
+    u_v: &[f64],
+    linear_v: Option<&[f64]>,
+    segments: &Segments,
+    k1_v_per_g: f64,
+    options: &MeasureOptions,
+) -> Result<TimedMeasurement> {
+    if let Some(p) = segments.problems().into_iter().next() {
+        return Err(Error::Segments { problem: p });
+    }
+    let n = times_s.len().min(u_v.len());
+    let records = |with_linear: bool| -> Result<[RecordMean; 3]> {
+        let mut out = Vec::with_capacity(3);
+        for (phase, [lo, hi]) in segments.windows() {
+            let samples: Vec<f64> = (0..n)
+                .filter(|&i| times_s[i] - interval_s >= lo - 1e-9 && times_s[i] <= hi + 1e-9)
+                .filter_map(|i| match (with_linear, linear_v) {
+                    (true, Some(lin)) => {
+                        let l = *lin.get(i)?;
+                        l.is_finite().then(|| u_v[i] - l)
+                    }
+                    _ => Some(u_v[i]),
+                })
+                .collect();
+            out.push(RecordMean::from_samples(
+                phase,
+                &samples,
+                options.n_batches,
+            )?);
+        }
+        Ok([out[0], out[1], out[2]])
+    };
+    let measure =
+        |r: [RecordMean; 3]| measure_ve(&r[0], &r[1], &r[2], k1_v_per_g, options.tilt_limit_rad);
+    match linear_v {
+        Some(_) => Ok(TimedMeasurement {
+            measurement: measure(records(true)?)?,
+            raw: Some(measure(records(false)?)?),
+            linear_response_removed: true,
+        }),
+        None => Ok(TimedMeasurement {
+            measurement: measure(records(false)?)?,
+            raw: None,
+            linear_response_removed: false,
+        }),
+    }
+}

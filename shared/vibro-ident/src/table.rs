@@ -299,6 +299,113 @@ pub fn read_records(file: &Path) -> Result<[Vec<f64>; 3]> {
     Ok(records)
 }
 
+/// Largest relative departure of a row's time step from the file's first step: a rig's
+/// file has its rows one sample period apart ([`read_timed`]).
+pub const TIME_STEP_TOLERANCE: f64 = 0.01;
+
+/// Most problems one timed file reports (a broken file of a million rows would
+/// otherwise list a million).
+pub const MAX_TIMED_PROBLEMS: usize = 10;
+
+/// A rig's time-stamped record (`time_s` and named columns), as [`read_timed`] reads it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Timed {
+    /// The rows' times, s, strictly increasing.
+    pub time_s: Vec<f64>,
+    /// The sample period: the mean time step, s.
+    pub step_s: f64,
+    /// The columns asked for, in the order asked.
+    pub columns: Vec<Vec<f64>>,
+}
+
+impl Timed {
+    /// The sample rate, Hz.
+    pub fn rate_hz(&self) -> f64 {
+        1.0 / self.step_s
+    }
+}
+
+/// Reads a rig's CSV file: a header whose first column is `time_s`, then the columns
+/// `wanted` (others are ignored: a rig's file may carry more channels). Every cell of
+/// those columns must be a finite number and the rows one sample period apart: each
+/// step within [`TIME_STEP_TOLERANCE`] of the first. Problems are reported together,
+/// at most [`MAX_TIMED_PROBLEMS`], each with its line, column, value and rule.
+pub fn read_timed(file: &Path, wanted: &[&str]) -> Result<Timed> {
+    let mut problems = Problems::new(file);
+    let table = read_table(file, &mut problems)?;
+    if table.header.first().map(String::as_str) != Some("time_s") {
+        problems.push(format!(
+            "header (line {}): the first column is {:?}: must be time_s (the rig's time, s)",
+            table.header_line,
+            table.header.first().map(String::as_str).unwrap_or("")
+        ));
+    }
+    let index: Vec<Option<usize>> = wanted
+        .iter()
+        .map(|w| table.header.iter().position(|h| h == w))
+        .collect();
+    for (w, i) in wanted.iter().zip(&index) {
+        if i.is_none() {
+            problems.push(format!(
+                "header (line {}): missing column {w:?} (the file has: {})",
+                table.header_line,
+                table.header.join(", ")
+            ));
+        }
+    }
+    if table.rows.len() < 2 && problems.list.is_empty() {
+        problems.push(format!(
+            "{} data rows: a record needs at least 2",
+            table.rows.len()
+        ));
+    }
+    if !problems.list.is_empty() {
+        return Err(Error::Table {
+            file: problems.file,
+            problems: problems.list,
+        });
+    }
+    let n = table.rows.len();
+    let mut time_s = Vec::with_capacity(n);
+    let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(n); wanted.len()];
+    let mut first_step_s: Option<f64> = None;
+    for (line, record) in &table.rows {
+        if problems.list.len() >= MAX_TIMED_PROBLEMS {
+            break;
+        }
+        let Some(t) = number(record, *line, "time_s", 0, FINITE, &mut problems) else {
+            continue;
+        };
+        if let Some(&prev) = time_s.last() {
+            let step: f64 = t - prev;
+            let first = *first_step_s.get_or_insert(step);
+            if !(step > 0.0 && first > 0.0 && (step - first).abs() <= TIME_STEP_TOLERANCE * first) {
+                problems.push(format!(
+                    "line {line}, column time_s: {t}: must follow the previous row ({prev}) \
+                     by one sample period ({first} s) within {} % (a gap, a repeat or rows \
+                     out of order)",
+                    TIME_STEP_TOLERANCE * 100.0
+                ));
+            }
+        }
+        time_s.push(t);
+        for (k, i) in index.iter().enumerate() {
+            if let Some(i) = *i {
+                if let Some(v) = number(record, *line, wanted[k], i, FINITE, &mut problems) {
+                    columns[k].push(v);
+                }
+            }
+        }
+    }
+    problems.finish()?;
+    let step_s = (time_s[n - 1] - time_s[0]) / (n - 1) as f64;
+    Ok(Timed {
+        time_s,
+        step_s,
+        columns,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -378,5 +485,40 @@ mod tests {
             read_records(&path).unwrap_err().to_string(),
             format!("{}: empty file: a header row is required", path.display())
         );
+    }
+
+    #[test]
+    fn timed_records_read_with_their_rate_and_every_problem_named() {
+        let good = file(
+            "timed.csv",
+            "# rig\ntime_s,u1_v,other\n0.00125,1,9\n0.0025,2,9\n0.00375,3,9\n",
+        );
+        let t = read_timed(&good, &["u1_v"]).unwrap();
+        assert_eq!(t.columns, vec![vec![1.0, 2.0, 3.0]]);
+        assert!((t.rate_hz() - 800.0).abs() < 1e-9, "{}", t.rate_hz());
+        let bad = file(
+            "timed-bad.csv",
+            "time_s,u1_v\n0.0,1\n0.1,x\n0.25,3\n0.25,4\n",
+        );
+        let p = bad.display();
+        assert_eq!(
+            read_timed(&bad, &["u1_v", "u2_v"]).unwrap_err().to_string(),
+            format!("{p}: header (line 1): missing column \"u2_v\" (the file has: time_s, u1_v)")
+        );
+        assert_eq!(
+            read_timed(&bad, &["u1_v"]).unwrap_err().to_string(),
+            format!(
+                "{p}: 3 problems:\n  line 3, column u1_v: \"x\": must be a finite number\n  \
+                 line 4, column time_s: 0.25: must follow the previous row (0.1) by one sample \
+                 period (0.1 s) within 1 % (a gap, a repeat or rows out of order)\n  \
+                 line 5, column time_s: 0.25: must follow the previous row (0.25) by one \
+                 sample period (0.1 s) within 1 % (a gap, a repeat or rows out of order)"
+            )
+        );
+        let no_time = file("timed-notime.csv", "t,u1_v\n0,1\n1,2\n");
+        assert!(read_timed(&no_time, &["u1_v"])
+            .unwrap_err()
+            .to_string()
+            .contains("the first column is \"t\": must be time_s"));
     }
 }

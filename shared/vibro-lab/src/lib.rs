@@ -30,6 +30,7 @@
 // Per-axis and per-row index loops mirror the formulas' subscripts.
 #![allow(clippy::needless_range_loop)]
 
+pub mod campaign;
 pub mod diagnose;
 pub mod empirical;
 pub mod fit;

@@ -22,6 +22,30 @@ pub enum IdentifyCommand {
     Positions(PositionsArgs),
     /// The VE measured from still / vibrating / still records (MODEL.md section 8, [P2 (16)]).
     Measure(MeasureArgs),
+    /// A shake-table campaign from a rig's raw runs (a manifest, docs/identification.md):
+    /// each unit's VE by [P2 (16)] with its linear response removed through the reference
+    /// accelerometer, the vibration each unit saw from the estimator on the reference,
+    /// and the lab's table (`--table-out`).
+    Campaign(CampaignArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct CampaignArgs {
+    /// The campaign manifest (TOML, docs/identification.md "Campaigns from raw records").
+    pub manifest: PathBuf,
+    /// Write the lab's table (CSV, docs/lab.md) of the campaign here.
+    #[arg(long)]
+    pub table_out: Option<PathBuf>,
+    #[arg(long, help = crate::files::FORCE_HELP)]
+    pub force: bool,
+    /// The estimator's configuration for the reference (default: the shipped
+    /// `config/services/estimator.toml`; its rate, sensitivity and coupling are the
+    /// reference file's: g, DC-coupled).
+    #[arg(long)]
+    pub estimator_config: Option<PathBuf>,
+    /// Print the results as JSON.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Identification method(s).
@@ -92,6 +116,7 @@ pub fn run(cmd: IdentifyCommand) -> anyhow::Result<()> {
     match cmd {
         IdentifyCommand::Positions(args) => run_positions(args),
         IdentifyCommand::Measure(args) => run_measure(args),
+        IdentifyCommand::Campaign(args) => run_campaign(args),
     }
 }
 
@@ -326,5 +351,88 @@ fn run_measure(args: MeasureArgs) -> anyhow::Result<()> {
         m.tilt_limit_rad,
         m.tilt_limit_rad
     )?;
+    Ok(())
+}
+
+fn run_campaign(args: CampaignArgs) -> anyhow::Result<()> {
+    if let Some(out) = &args.table_out {
+        crate::files::check(out, &[&args.manifest], args.force)?;
+    }
+    let log_args = super::lab_log::LogArgs {
+        triad: "default".into(),
+        estimator_config: args.estimator_config.clone(),
+        batches: 8,
+        max_al_span_g: 1.0,
+        pool_windows: 0,
+    };
+    let result = super::lab_log::table_from_manifest(&args.manifest, &log_args.estimator()?)?;
+    if let Some(out) = &args.table_out {
+        let mut bytes = Vec::new();
+        result.table.write_csv(&mut bytes)?;
+        crate::files::write_bytes(out, args.force, &bytes)?;
+    }
+    if args.json {
+        return print_json(&serde_json::json!({
+            "manifest": args.manifest.display().to_string(),
+            "table_out": args.table_out.as_ref().map(|p| p.display().to_string()),
+            "runs": result.runs,
+            "units": result.units,
+        }));
+    }
+    outln!(
+        "Campaign {}: {} runs, {} unit-runs; VE by [P2 (16)] with the linear response \
+         removed through the reference (raw records beside it)",
+        args.manifest.display(),
+        result.runs.len(),
+        result.units.len()
+    )?;
+    outln!()?;
+    outln!(
+        "{:<16} {:<5} {:>7} {:>24} {:>24} {:>8} {:>8} {:>8}",
+        "run",
+        "unit",
+        "aL3 g",
+        "VE (reference removed)",
+        "VE (raw records)",
+        "f Hz",
+        "aB3 g",
+        "sig3 g"
+    )?;
+    for u in &result.units {
+        let m = &u.measurement.measurement;
+        let raw = u
+            .measurement
+            .raw
+            .map(|r| value_pm(fmt_g(r.ve_g), Some(fmt_g(r.ve_sigma_g))))
+            .unwrap_or_default();
+        let c = &u.condition;
+        let (f, ab3) = c
+            .tone
+            .map(|t| (format!("{:.2}", t.freq_hz), format!("{:.4}", t.a_b_g[2])))
+            .unwrap_or_default();
+        let sig3 = c
+            .random
+            .map(|r| format!("{:.4}", r.sigma_g[2]))
+            .unwrap_or_default();
+        outln!(
+            "{:<16} {:<5} {:>7.3} {:>24} {:>24} {:>8} {:>8} {:>8}",
+            u.run_id,
+            u.unit,
+            u.a_l_g[2],
+            value_pm(fmt_g(m.ve_g), Some(fmt_g(m.ve_sigma_g))),
+            raw,
+            f,
+            ab3,
+            sig3
+        )?;
+    }
+    if let Some(out) = &args.table_out {
+        outln!()?;
+        outln!(
+            "table written: {} (vibrocomp lab diagnose {})",
+            out.display(),
+            out.display()
+        )?;
+    }
     Ok(())
 }

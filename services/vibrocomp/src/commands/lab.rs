@@ -49,8 +49,10 @@ pub struct ReportArgs {
 #[derive(Debug, Args)]
 pub struct Input {
     /// Campaign tables (CSV, docs/lab.md), e.g. from `vibrocomp sim CAMPAIGN
-    /// --lab-csv`, and MCAP logs with a reference (`.mcap`: a flight cut into the
-    /// estimator's windows, docs/lab.md "Logs as input"); several are fitted jointly.
+    /// --lab-csv`, MCAP logs with a reference (`.mcap`: a flight cut into the
+    /// estimator's windows, docs/lab.md "Logs as input"), and shake-table campaign
+    /// manifests (`.toml`: a rig's raw runs, docs/lab.md "Shake-table campaigns from raw
+    /// records"); several are fitted jointly.
     #[arg(required = true, num_args = 1..)]
     pub input: Vec<PathBuf>,
     /// The model to compare: an extended model file (`lab add --out`); default the
@@ -175,10 +177,16 @@ fn load(
         let is_mcap = input
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
+        let is_manifest = input
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
         if is_mcap {
             let (table, summary) = table_from_log(input, &model, log_args)?;
             tables.push(table);
             logs.push(summary);
+        } else if is_manifest {
+            let result = super::lab_log::table_from_manifest(input, &log_args.estimator()?)?;
+            tables.push(result.table);
         } else {
             tables.push(CampaignTable::load(input, &model)?);
         }

@@ -1,5 +1,6 @@
 //! The lab's options for an MCAP log input (`--triad`, `--estimator-config`, ...):
-//! flags resolved into `vibro_lab::log_table::LogOptions`, the log read by the lab.
+//! flags resolved into `vibro_lab::log_table::LogOptions`, the log read by the lab; and
+//! a shake-table campaign's manifest measured into the lab's table.
 
 use anyhow::Context;
 use clap::Args;
@@ -38,15 +39,20 @@ pub struct LogArgs {
 }
 
 impl LogArgs {
+    /// The estimator's configuration `--estimator-config` names (default the shipped one).
+    pub fn estimator(&self) -> anyhow::Result<vibro_dsp::EstimatorConfig> {
+        Ok(match &self.estimator_config {
+            Some(p) => vibro_estimator::Config::load(p)?,
+            None => vibro_estimator::Config::shipped()?,
+        }
+        .estimator)
+    }
+
     /// The triad and the estimator's configuration the flags name, resolved.
     fn options(&self) -> anyhow::Result<LogOptions> {
         let triad = vibro_config::resolve_triad(&self.triad)
             .with_context(|| format!("--triad {}", self.triad))?;
-        let estimator = match &self.estimator_config {
-            Some(p) => vibro_estimator::Config::load(p)?,
-            None => vibro_estimator::Config::shipped()?,
-        }
-        .estimator;
+        let estimator = self.estimator()?;
         Ok(LogOptions {
             triad,
             estimator,
@@ -68,4 +74,22 @@ pub fn table_from_log(
         model,
         &args.options()?,
     )?)
+}
+
+/// Measures the shake-table campaign a manifest lists into the lab's table
+/// (`vibro_lab::campaign`), with a progress bar over its runs on a terminal.
+pub fn table_from_manifest(
+    path: &Path,
+    estimator: &vibro_dsp::EstimatorConfig,
+) -> anyhow::Result<vibro_lab::campaign::CampaignResult> {
+    let manifest = vibro_lab::campaign::Manifest::load(path)?;
+    let bar = crate::output::progress_bar(
+        manifest.runs.len() as u64,
+        "measuring runs {bar:30} {pos}/{len} (reference, VE, estimator)",
+    );
+    let result = vibro_lab::campaign::measure_campaign(&manifest, estimator, &mut |done, _| {
+        bar.set_position(done as u64)
+    });
+    bar.finish_and_clear();
+    Ok(result?)
 }
