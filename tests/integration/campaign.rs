@@ -6,34 +6,10 @@
 //! readings as exact interval means). The manifests are written here as a rig engineer
 //! writes them, from the generator's run list; its truth is only read to compare.
 
-use crate::common::{bin, repo_path, run_json};
+use crate::common::{bin, repo_path, run_json, TempDir};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-
-/// A directory of its own per test, removed when the test ends.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(test: &str) -> Self {
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos())
-            .unwrap_or(0);
-        let dir = std::env::temp_dir().join(format!(
-            "vibrocomp-campaign-{test}-{}-{nanos}",
-            std::process::id()
-        ));
-        std::fs::create_dir_all(&dir).expect("temp dir");
-        Self(dir)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 /// Runs the generator's `campaign` at 6.4 kHz with `args`; returns the runs.csv rows as
 /// maps of column to cell.
@@ -100,7 +76,7 @@ fn manifest(
 /// (verdict "noise").
 #[test]
 fn a_campaigns_uncertainty_matches_its_scatter_and_nothing_hidden_is_noise() {
-    let dir = TempDir::new("repeats");
+    let dir = TempDir::new("campaign", "repeats");
     let runs = generate(&dir.0, &["--repeat", "4", "--tone-freqs-hz", "40"]);
     let mut by_unit: std::collections::BTreeMap<(String, String), Vec<[f64; 4]>> =
         Default::default();
@@ -189,7 +165,7 @@ fn a_campaigns_uncertainty_matches_its_scatter_and_nothing_hidden_is_noise() {
 /// Q 2.496 +- 0.017).
 #[test]
 fn a_campaign_from_raw_runs_finds_a_hidden_mount_resonance() {
-    let dir = TempDir::new("resonance");
+    let dir = TempDir::new("campaign", "resonance");
     let runs = generate(
         &dir.0,
         &[
@@ -241,7 +217,7 @@ fn a_campaign_from_raw_runs_finds_a_hidden_mount_resonance() {
 /// before any file is read, and no table is written.
 #[test]
 fn a_bad_manifest_is_refused_with_every_problem_and_nothing_written() {
-    let dir = TempDir::new("bad");
+    let dir = TempDir::new("campaign", "bad");
     std::fs::write(dir.0.join("accel.csv"), "time_s,u1_v,u2_v,u3_v\n0,1,1,1\n").unwrap();
     let m = dir.0.join("bad.toml");
     std::fs::write(
