@@ -67,6 +67,17 @@ fn manifest(
     path
 }
 
+/// `vibrocomp identify campaign MANIFEST --table-out TABLE`.
+fn identify_with_table(manifest: &Path, table: &Path) -> std::process::Output {
+    bin()
+        .args(["identify", "campaign"])
+        .arg(manifest)
+        .arg("--table-out")
+        .arg(table)
+        .output()
+        .expect("vibrocomp runs")
+}
+
 /// `identify campaign` states the VE's uncertainty as it scatters: over 4 repeats of
 /// 24 unit-runs (8 orientations, a 40 Hz tone, other random draws) the pooled stated
 /// uncertainty is within 1.5 of the pooled scatter with the linear response removed
@@ -179,13 +190,7 @@ fn a_campaign_from_raw_runs_finds_a_hidden_mount_resonance() {
     );
     let m = manifest(&dir.0, &runs, "0");
     let table = dir.0.join("table.csv");
-    let out = bin()
-        .args(["identify", "campaign"])
-        .arg(&m)
-        .arg("--table-out")
-        .arg(&table)
-        .output()
-        .expect("vibrocomp runs");
+    let out = identify_with_table(&m, &table);
     assert!(
         out.status.success(),
         "{}",
@@ -229,13 +234,7 @@ fn a_bad_manifest_is_refused_with_every_problem_and_nothing_written() {
     )
     .unwrap();
     let table = dir.0.join("table.csv");
-    let out = bin()
-        .args(["identify", "campaign"])
-        .arg(&m)
-        .arg("--table-out")
-        .arg(&table)
-        .output()
-        .expect("vibrocomp runs");
+    let out = identify_with_table(&m, &table);
     assert!(!out.status.success());
     let e = String::from_utf8_lossy(&out.stderr);
     for needle in [

@@ -30,13 +30,16 @@
 //! states 1.58 times the scatter at 3.2 kHz (docs/identification.md).
 
 use realfft::num_complex::Complex;
-use realfft::RealFftPlanner;
+use realfft::{ComplexToReal, RealFftPlanner};
 use std::f64::consts::PI;
+use std::sync::Arc;
 
 /// A record prepared for interval means: its straight line (module docs) and the
 /// spectrum of the rest, and where the readings fall on its sample grid.
 pub struct IntervalMeans {
     spectrum: Vec<Complex<f64>>,
+    /// The inverse transform, planned once for every filter applied.
+    inverse: Arc<dyn ComplexToReal<f64>>,
     n: usize,
     t0_s: f64,
     rate_hz: f64,
@@ -108,6 +111,7 @@ impl IntervalMeans {
         }
         Some(Self {
             spectrum,
+            inverse: planner.plan_fft_inverse(n),
             n,
             t0_s,
             rate_hz,
@@ -140,10 +144,8 @@ impl IntervalMeans {
             }
         }
         spectrum[0].im = 0.0;
-        let mut planner = RealFftPlanner::<f64>::new();
-        let inverse = planner.plan_fft_inverse(n);
-        let mut buf = inverse.make_output_vec();
-        if inverse.process(&mut spectrum, &mut buf).is_err() {
+        let mut buf = self.inverse.make_output_vec();
+        if self.inverse.process(&mut spectrum, &mut buf).is_err() {
             return vec![None; times_s.len()];
         }
         let dt = 1.0 / rate_hz;

@@ -531,10 +531,8 @@ fn measure_run(
         seg.vibrating_s,
         &response_knots_hz(f_top_hz),
     );
-    let means: Vec<Vec<Option<f64>>> = inputs
-        .iter()
-        .map(|m| m.filtered(|_| Complex::new(1.0, 0.0), true, &accel.time_s))
-        .collect();
+    // The reference's own interval means, for a unit whose fit fails (computed once).
+    let means: std::cell::OnceCell<Vec<Vec<Option<f64>>>> = std::cell::OnceCell::new();
     let triad = &manifest.triad;
     let (windows, vibs) = estimate_run(run, &reference, triad, base)?;
     let windows_used = vibs.len();
@@ -564,17 +562,25 @@ fn measure_run(
                 Some(fit),
             ),
             // Too short a window for the fit: the passport's response everywhere.
-            None => (
-                (0..accel.time_s.len())
-                    .map(|i| match (means[0][i], means[1][i], means[2][i]) {
-                        (Some(x), Some(y), Some(z)) => {
-                            weights[0] * x + weights[1] * y + weights[2] * z
-                        }
-                        _ => f64::NAN,
-                    })
-                    .collect(),
-                None,
-            ),
+            None => {
+                let means = means.get_or_init(|| {
+                    inputs
+                        .iter()
+                        .map(|m| m.filtered(|_| Complex::new(1.0, 0.0), true, &accel.time_s))
+                        .collect()
+                });
+                (
+                    (0..accel.time_s.len())
+                        .map(|i| match (means[0][i], means[1][i], means[2][i]) {
+                            (Some(x), Some(y), Some(z)) => {
+                                weights[0] * x + weights[1] * y + weights[2] * z
+                            }
+                            _ => f64::NAN,
+                        })
+                        .collect(),
+                    None,
+                )
+            }
         };
         let measurement = measure_ve_timed(
             &accel.time_s,

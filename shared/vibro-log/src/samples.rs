@@ -22,8 +22,9 @@ use crate::{Error, Result};
 
 /// Samples handed to the estimator at a time: the block size of a recorder's stream.
 pub const BLOCK_SAMPLES: usize = 4096;
-/// How far a row's `time_s` step may be from one sample period, as a fraction of it.
-pub const TIME_STEP_TOLERANCE: f64 = 0.01;
+/// How far a row's `time_s` step may be from one sample period, as a fraction of it:
+/// one rule for every rig file (`identify`'s reader has it).
+pub use vibro_ident::table::TIME_STEP_TOLERANCE;
 /// At most this many bad cells are listed before reading stops.
 pub const MAX_PROBLEMS: usize = 10;
 
