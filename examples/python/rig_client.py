@@ -54,7 +54,7 @@ except ImportError as e:  # pragma: no cover - depends on the environment
 # --- The message contracts (docs/messages.md) -----------------------------------------
 
 #: Every type name ends in ``::v{SCHEMA_VERSION}`` (``vibro_msgs::SCHEMA_VERSION``).
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 UNITS = 3
 ACCEL_BLOCK_MAX = 32
 VIB_BLOCK_MAX = 512
@@ -150,7 +150,7 @@ class VibEstimate(C.Structure):
         ("tone_count", U32),
         ("band_count", U32),
         ("flags", U32),
-        ("_pad", U8 * 4),
+        ("welch_segment_samples", U32),
     ]
 
 

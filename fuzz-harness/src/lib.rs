@@ -428,7 +428,6 @@ impl Normalise for VibEstimate {
         m.band_psd_g2_per_hz[b..].fill([0.0; 3]);
         m.band_psd_u_g2_per_hz[b..].fill([0.0; 3]);
         m.band_rms_g[b..].fill([0.0; 3]);
-        m._pad = [0; 4];
         m
     }
 }

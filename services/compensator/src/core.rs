@@ -4,9 +4,10 @@
 //! ([`InProcess`]).
 
 use crate::config::{Config, Model};
-use crate::interval::within_output_interval;
-use crate::mapping::{unit_vibrations, UnitVibrations};
+use crate::interval::{within_output_interval, within_spectrum};
+use crate::mapping::{sensor_map, unit_vibrations, UnitVibrations};
 use crate::reload::ModelUpdate;
+use crate::spectrum::{sensor_spectrum, unit_bands, SpectrumSolver};
 use tracing::{info, warn};
 use vibro_ipc::StreamPublisher;
 use vibro_msgs::compensation_flags as cf;
@@ -306,6 +307,9 @@ pub(crate) struct Compensation {
     effect_grids: Option<[EffectGrid; 3]>,
     /// The first reading (U/K1) of the block the grids were wanted for, g.
     effect_center_g: [f64; 3],
+    /// The spectrum behind the estimates' band powers, for the effects' mean formulas
+    /// (the lab's reading of an estimate, `vibro_effects::spectrum`).
+    spectrum: SpectrumSolver,
     latest: Option<Latest>,
     /// `generation` of the estimate whose vibration the compensator holds; `None`: no
     /// vibration.
@@ -334,6 +338,7 @@ impl Compensation {
             k1_v_per_g: model.k1_v_per_g(),
             effect_grids: None,
             effect_center_g: [0.0; 3],
+            spectrum: SpectrumSolver::from_estimates(),
             model,
             prepared: compensator.clone(),
             prepared_for: None,
@@ -495,6 +500,7 @@ impl Compensation {
     /// never per sample: `set_vibration` rebuilds the exact model's tables (~1 ms).
     fn apply(&mut self, want: Option<u64>) -> bool {
         self.s.vibration_updates += 1;
+        let interval_s = self.interval_s();
         self.effect_grids = None;
         let ok = match (want, &self.latest) {
             (Some(g), Some(_)) if self.model.effects.is_none() && self.prepared_for == Some(g) => {
@@ -510,12 +516,17 @@ impl Compensation {
                 }),
                 Some((_, lab)) => {
                     let units = l.vibrations.units;
-                    let band_hz = [l.estimate.broadband_f_lo_hz, l.estimate.broadband_f_hi_hz];
+                    let spectra = unit_spectra(
+                        &l.estimate,
+                        &mut self.spectrum,
+                        &self.model.triad.axes,
+                        interval_s,
+                    );
                     match effect_grids(
                         lab,
                         &self.model.triad.passports,
                         &units,
-                        band_hz,
+                        &spectra,
                         self.effect_center_g,
                     ) {
                         Ok((grids, true_vibrations)) => {
@@ -553,16 +564,22 @@ impl Compensation {
     /// The extended model's grids again, around `effect_center_g`, for the vibration
     /// the compensator holds; without grids (base model) when they cannot be built.
     fn retabulate(&mut self) {
+        let interval_s = self.interval_s();
         let (Some((_, lab)), Some(l)) = (&self.model.effects, &self.latest) else {
             return;
         };
-        let band_hz = [l.estimate.broadband_f_lo_hz, l.estimate.broadband_f_hi_hz];
+        let spectra = unit_spectra(
+            &l.estimate,
+            &mut self.spectrum,
+            &self.model.triad.axes,
+            interval_s,
+        );
         let passports = &self.model.triad.passports;
         match effect_grids(
             lab,
             passports,
             &l.vibrations.units,
-            band_hz,
+            &spectra,
             self.effect_center_g,
         ) {
             Ok((grids, _)) => self.effect_grids = Some(grids),
@@ -804,15 +821,34 @@ impl Compensation {
     }
 }
 
+/// Per unit, the random part's spectrum in its axes as the effects' mean formulas
+/// read it: the spectrum behind the estimate's band powers (`vibro_effects::spectrum`,
+/// the lab's reading of the same estimate), and, when the compensator works within
+/// output intervals of `interval_s`, its part inside one interval
+/// (`vibro_effects::interval::within_spectrum`), as the base model's vibration is
+/// reduced (`within_output_interval`). Empty without bands.
+fn unit_spectra(
+    est: &VibEstimate,
+    solver: &mut SpectrumSolver,
+    axes: &vibro_physics::triad::TriadAxes,
+    interval_s: f64,
+) -> [Vec<PsdBand>; 3] {
+    let sensors = within_spectrum(&sensor_spectrum(est, solver), interval_s);
+    let map = sensor_map(axes);
+    std::array::from_fn(|i| unit_bands(&sensors, &map[i]))
+}
+
 /// Per unit: the vibration it really sees (the sensor effects' RMS factor removed from
 /// the measured IA vibration, vibro_effects::predict) and the grid of its effects' VE
 /// change around `center_g[i]` (MODEL.md section 11, docs/lab.md), for a steady
 /// vibration (`duration = inf`), with the cross-axis flight acceleration taken as 0.
+/// `spectra[i]`: the random part's spectrum in unit `i`'s axes ([`unit_spectra`]),
+/// which the filtering effects (a mount resonance) weigh by their response.
 fn effect_grids(
     lab: &vibro_effects::LabModel,
     passports: &[vibro_physics::passport::Passport; 3],
     measured: &[Vibration; 3],
-    band_hz: [f64; 2],
+    spectra: &[Vec<PsdBand>; 3],
     center_g: [f64; 3],
 ) -> vibro_effects::Result<([EffectGrid; 3], [Vibration; 3])> {
     let mut grids = [EffectGrid {
@@ -823,29 +859,15 @@ fn effect_grids(
     for i in 0..3 {
         let flat = vibro_effects::predict::flat_passport(&passports[i])?;
         let effects = lab.build_effects(&flat)?;
-        true_vib[i] = vibro_effects::predict::true_vibration(
+        let truth = vibro_effects::predict::true_vibration(
             &effects,
             &flat,
             [0.0, 0.0, center_g[i]],
             &measured[i],
-            &[],
-        )?
-        .vibration;
-        // The random part as a flat spectrum over the estimate's broadband band (the
-        // filtering effects need a spectrum; the estimate carries band RMS, not a PSD
-        // in the unit frame).
-        let c = &true_vib[i].covariance_g2;
-        let psd: Vec<PsdBand> =
-            if band_hz[1] > band_hz[0] && band_hz[0] >= 0.0 && (0..3).any(|a| c[a][a] > 0.0) {
-                let width = band_hz[1] - band_hz[0];
-                vec![PsdBand {
-                    f_lo_hz: band_hz[0],
-                    f_hi_hz: band_hz[1],
-                    psd_g2_per_hz: [0, 1, 2].map(|a| c[a][a] / width),
-                }]
-            } else {
-                Vec::new()
-            };
+            &spectra[i],
+        )?;
+        true_vib[i] = truth.vibration;
+        let psd = truth.psd;
         grids[i] = EffectGrid::build(center_g[i], |a_g| {
             Ok(vibro_effects::predict::effect_shifts_g(
                 &effects,

@@ -53,4 +53,4 @@ pub use config::{wire_mode, Config, EstimateMappingRaw, Model, RawConfig, DEFAUL
 pub use mapping::{unit_vibrations, EstimateMapping, KurtosisUse, MappingError, UnitVibrations};
 pub use service::{run, run_async};
 /// From an estimate to each unit's vibration, shared with the lab (`vibro_effects`).
-pub use vibro_effects::{interval, mapping};
+pub use vibro_effects::{interval, mapping, spectrum};

@@ -475,6 +475,7 @@ impl Work {
         ];
         let segments = self.welch.run(r, n, &self.invalid_prefix)?;
         est.broadband.welch_segments = segments;
+        est.broadband.welch_segment_samples = config.segment_samples();
         if segments == 0 {
             est.flags.insufficient_data = true;
             return Ok(());
@@ -588,6 +589,7 @@ fn fill_not_estimated(est: &mut Estimate, broadband_hz: [f64; 2], bands_hz: &[[f
         kurtosis: nan3,
         kurtosis_u: nan3,
         welch_segments: 0,
+        welch_segment_samples: 0,
     };
     est.bands.clear();
     for b in bands_hz {

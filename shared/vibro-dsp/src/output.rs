@@ -116,6 +116,10 @@ pub struct Broadband {
     pub kurtosis_u: [f64; 3],
     /// Welch segments averaged.
     pub welch_segments: usize,
+    /// Samples per Welch segment (the bins are the sample rate over it wide): with the
+    /// rate, what the window's leakage between bands follows from
+    /// (`crate::BandLeakage::with_segment`).
+    pub welch_segment_samples: usize,
 }
 
 /// Why an estimate may be incomplete or should be used with care.

@@ -101,6 +101,11 @@ fn nan_and_infinite_samples_are_flagged_and_kept_out() {
     }
     // The Welch segments holding a bad sample were skipped.
     assert!(out[0].broadband.welch_segments < 7 && out[3].broadband.welch_segments == 7);
+    // 7 half-overlapping segments fill the 8192-sample window: 2048 samples each, what a
+    // consumer needs to undo the leakage between bands.
+    assert!(out
+        .iter()
+        .all(|e| e.broadband.welch_segment_samples == 2048));
     assert_eq!(est.counters().non_finite_samples, 14);
 }
 

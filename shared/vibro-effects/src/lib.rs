@@ -70,6 +70,7 @@ pub mod mapping;
 pub mod model;
 pub mod predict;
 pub mod report;
+pub mod spectrum;
 
 pub use effect::{BlockCtx, Effect, MeanContext};
 pub use effects::{

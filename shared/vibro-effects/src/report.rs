@@ -7,7 +7,7 @@ use std::path::Path;
 use serde::Serialize;
 use vibro_physics::compensation::{Mode, Stages, UnitCompensator};
 use vibro_physics::passport::Passport;
-use vibro_physics::vibration::Vibration;
+use vibro_physics::vibration::{PsdBand, Vibration};
 
 use crate::{predict, BaseMode, LabModel, Result};
 
@@ -40,11 +40,12 @@ pub fn extended_ve(
     p: &Passport,
     a_l: [f64; 3],
     vib: &Vibration,
+    psd: &[PsdBand],
 ) -> Result<ExtendedVeReport> {
     let model = LabModel::load(path)?;
     let flat = predict::flat_passport(p)?;
     let effects = model.build_effects(&flat)?;
-    let pred = crate::predict_ve(model.mode, &effects, &flat, a_l, vib, &[], f64::INFINITY)?;
+    let pred = crate::predict_ve(model.mode, &effects, &flat, a_l, vib, psd, f64::INFINITY)?;
     Ok(ExtendedVeReport {
         passport: p.id().to_string(),
         model: path.display().to_string(),
@@ -96,7 +97,7 @@ pub fn compensation_mode(mode: BaseMode) -> Mode {
 pub fn extended_compensate(
     path: &Path,
     p: Passport,
-    vib: &Vibration,
+    (vib, psd): (&Vibration, &[PsdBand]),
     reading_g: f64,
     cross_g: [f64; 2],
 ) -> Result<ExtendedCompensateReport> {
@@ -106,7 +107,7 @@ pub fn extended_compensate(
     let effects = lab.build_effects(&flat)?;
     let cross = cross_g;
     let truth =
-        predict::true_vibration(&effects, &flat, [cross[0], cross[1], reading_g], vib, &[])?;
+        predict::true_vibration(&effects, &flat, [cross[0], cross[1], reading_g], vib, psd)?;
     let (factor, vib_true) = (truth.sensor_rms_factor, truth.vibration);
     let mut unit = UnitCompensator::new(p, mode);
     unit.set_vibration(&vib_true)?;
@@ -116,7 +117,7 @@ pub fn extended_compensate(
         &flat,
         [cross[0], cross[1], stages.a1_g],
         &vib_true,
-        &[],
+        &truth.psd,
         f64::INFINITY,
     )?;
     let total: f64 = parts.iter().map(|(_, v)| v).sum();

@@ -125,6 +125,7 @@ pub fn mirror_estimate(e: &Estimate, m: &mut VibEstimate) {
     m.broadband_kurtosis = b.kurtosis;
     m.broadband_kurtosis_u = b.kurtosis_u;
     m.broadband_welch_segments = saturating_u32(b.welch_segments);
+    m.welch_segment_samples = saturating_u32(b.welch_segment_samples);
     // Both lists hold at most vibro_dsp::MAX_TONES / MAX_BANDS = the wire capacities
     // (checked by vibro-msgs' tests); `zip` bounds the copy anyway.
     let mut tones = 0;

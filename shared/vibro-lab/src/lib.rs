@@ -38,7 +38,9 @@ pub mod flight;
 pub mod library;
 pub mod log_table;
 pub mod report;
-pub mod spectrum;
+/// The spectrum behind an estimate's band powers (moved to `vibro_effects`, shared with the
+/// compensator).
+pub use vibro_effects::spectrum;
 pub mod table;
 pub mod text;
 

@@ -384,6 +384,7 @@ impl TryFrom<&VibEstimate> for proto::VibEstimate {
                 kurtosis: m.broadband_kurtosis.to_vec(),
                 kurtosis_u: m.broadband_kurtosis_u.to_vec(),
                 welch_segments: m.broadband_welch_segments,
+                welch_segment_samples: m.welch_segment_samples,
             }),
             tones,
             bands,
@@ -430,6 +431,7 @@ impl TryFrom<&proto::VibEstimate> for VibEstimate {
         m.broadband_kurtosis = axes(K, "broadband.kurtosis", &b.kurtosis)?;
         m.broadband_kurtosis_u = axes(K, "broadband.kurtosis_u", &b.kurtosis_u)?;
         m.broadband_welch_segments = b.welch_segments;
+        m.welch_segment_samples = b.welch_segment_samples;
         if p.tones.len() > MAX_TONES {
             return Err(Error::FieldLength {
                 message: K,
@@ -732,6 +734,7 @@ mod tests {
         e.broadband_kurtosis = [3.0, -0.0, f64::NAN];
         e.broadband_kurtosis_u = [0.1, 0.2, 0.3];
         e.broadband_welch_segments = 7;
+        e.welch_segment_samples = 6400;
         for k in 0..5 {
             e.tone_frequency_hz[k] = v(30 + k);
             e.tone_frequency_u_hz[k] = v(33 + k);

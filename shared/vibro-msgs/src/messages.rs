@@ -126,7 +126,7 @@ wire_struct! {
     /// output interval `T = sample_period_ns`. Sample `i` is the mean over
     /// `(t0_ns + (i - 1) T, t0_ns + i T]`: `t0_ns` is the END of sample 0's interval, the
     /// time the reading is latched (RIG.md: "read as means over navigation intervals").
-    type_name = "vibrocomp::AccelBlock::v3";
+    type_name = "vibrocomp::AccelBlock::v4";
     pub struct AccelBlock {
         /// Producer's block counter: +1 per published block, from 0.
         pub seq: u64,
@@ -156,7 +156,7 @@ wire_struct! {
     /// index), in the sensor's raw output (volts: sensitivity, AC coupling and response
     /// are the estimator's job). Sample `i` was taken at `t0_ns + i T`. `f64` keeps
     /// simulated samples bit-exact through the system.
-    type_name = "vibrocomp::VibBlock::v3";
+    type_name = "vibrocomp::VibBlock::v4";
     pub struct VibBlock {
         /// Producer's block counter: +1 per published block, from 0.
         pub seq: u64,
@@ -187,7 +187,7 @@ wire_struct! {
     /// [`estimate_flags`] bits) plus stream bookkeeping. Values that could not be estimated
     /// are NaN. Per-axis arrays are in sensor-axis order; tone and band slots at or beyond
     /// `tone_count`/`band_count` are not part of the message.
-    type_name = "vibrocomp::VibEstimate::v3";
+    type_name = "vibrocomp::VibEstimate::v4";
     pub struct VibEstimate {
         /// Estimator service's publish counter: +1 per published estimate, from 0.
         pub seq: u64,
@@ -257,8 +257,11 @@ wire_struct! {
         pub band_count: u32,
         /// [`estimate_flags`] bits.
         pub flags: u32,
-        /// Zero.
-        pub _pad: [u8; 4],
+        /// Samples per Welch segment of the band PSDs (their bin width is the sample
+        /// rate over it): what a consumer needs to undo the window's leakage between
+        /// bands (`vibro_effects::spectrum`). 0: not stated (an estimator before this
+        /// field, which was zero padding in the same place).
+        pub welch_segment_samples: u32,
     }
 }
 
@@ -267,7 +270,7 @@ wire_struct! {
     /// acceleration units along each unit's IA: the stages of MODEL.md section 7,
     /// `a(1)` (17) to `a(4)` (20), and the corrections removed between them
     /// (`a2 = a1 - main`, `a3 = a2 - det`, `a4 = a3 - rand`). Sample timing is the input's.
-    type_name = "vibrocomp::CompensatedBlock::v3";
+    type_name = "vibrocomp::CompensatedBlock::v4";
     pub struct CompensatedBlock {
         /// Compensator's publish counter: +1 per published block, from 0.
         pub seq: u64,
@@ -320,7 +323,7 @@ wire_struct! {
 wire_struct! {
     /// The simulator's truth for each accelerometer output sample, aligned with the
     /// [`AccelBlock`] of the same `seq` (same `first_sample_index`, `t0_ns`, `count`).
-    type_name = "vibrocomp::TruthBlock::v3";
+    type_name = "vibrocomp::TruthBlock::v4";
     pub struct TruthBlock {
         /// `seq` of the matching [`AccelBlock`].
         pub seq: u64,
@@ -357,7 +360,7 @@ wire_struct! {
 wire_struct! {
     /// A service's periodic health report, published on `{prefix}heartbeat/{service}`.
     /// Counters are cumulative since the service started.
-    type_name = "vibrocomp::Heartbeat::v3";
+    type_name = "vibrocomp::Heartbeat::v4";
     pub struct Heartbeat {
         /// Heartbeat counter: +1 per heartbeat, from 0.
         pub seq: u64,
@@ -398,7 +401,7 @@ wire_struct! {
     /// One log line of a service, published on `{prefix}log/{service}` beside what it
     /// writes to stderr: for viewers (`foxglove.Log` in the view) and recordings. Never
     /// published per sample (the services log a summary per period).
-    type_name = "vibrocomp::LogLine::v3";
+    type_name = "vibrocomp::LogLine::v4";
     pub struct LogLine {
         /// Line counter: +1 per line, from 0.
         pub seq: u64,
@@ -510,7 +513,7 @@ impl MessageKind {
         }
     }
 
-    /// The iceoryx2 payload type name, e.g. `vibrocomp::AccelBlock::v3`.
+    /// The iceoryx2 payload type name, e.g. `vibrocomp::AccelBlock::v4`.
     pub const fn type_name(self) -> &'static str {
         match self {
             MessageKind::AccelBlock => AccelBlock::TYPE_NAME,

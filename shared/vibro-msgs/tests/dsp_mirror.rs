@@ -25,6 +25,7 @@ fn mirror(e: &Estimate, seq: u64) -> VibEstimate {
     m.broadband_kurtosis = b.kurtosis;
     m.broadband_kurtosis_u = b.kurtosis_u;
     m.broadband_welch_segments = b.welch_segments as u32;
+    m.welch_segment_samples = b.welch_segment_samples as u32;
     for (k, t) in e.tones.iter().enumerate() {
         m.tone_frequency_hz[k] = t.frequency_hz;
         m.tone_frequency_u_hz[k] = t.frequency_u_hz;
@@ -103,6 +104,7 @@ fn a_full_estimate_fits_field_by_field() {
     e.broadband.rms_g = [1.4, 1.3, 1.2];
     e.broadband.covariance_g2[2][0] = 0.25;
     e.broadband.welch_segments = 15;
+    e.broadband.welch_segment_samples = 6_400;
     e.flags.gap = true;
     e.flags.saturated = [true, false, true];
 
@@ -115,6 +117,7 @@ fn a_full_estimate_fits_field_by_field() {
     assert!(m.band_rms_g[0][2].is_nan());
     assert_eq!(m.broadband_covariance_g2[2][0], 0.25);
     assert_eq!(m.broadband_welch_segments, 15);
+    assert_eq!(m.welch_segment_samples, 6_400);
     assert_eq!(m.saturated_samples, [1, 0, 3]);
     assert_eq!(
         m.flags,

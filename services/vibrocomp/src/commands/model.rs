@@ -9,12 +9,13 @@ use flags::check_accels;
 pub use flags::{FlightArgs, VibrationArgs};
 
 use crate::output::{fmt_g, fmt_num, print_json};
+use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
 use vibro_physics::compensation::Mode;
 use vibro_physics::passport::Passport;
 use vibro_physics::report;
 use vibro_physics::ve::VeComponents;
-use vibro_physics::vibration::Vibration;
+use vibro_physics::vibration::{PsdBand, Vibration};
 
 #[derive(Debug, Subcommand)]
 pub enum ModelCommand {
@@ -127,10 +128,11 @@ fn extended_ve(
     path: &std::path::Path,
     p: &Passport,
     a_l: [f64; 3],
-    vib: &Vibration,
+    (vib, psd): (&Vibration, &[PsdBand]),
     json: bool,
 ) -> anyhow::Result<()> {
-    let report = vibro_effects::report::extended_ve(path, p, a_l, vib)?;
+    let report = vibro_effects::report::extended_ve(path, p, a_l, vib, psd)
+        .with_context(|| spectrum_hint(vib, psd))?;
     if json {
         return print_json(&report);
     }
@@ -155,12 +157,25 @@ fn extended_ve(
     Ok(())
 }
 
+/// What the extended model was evaluated with, for its errors: a random part given as
+/// RMS only has no spectrum for the effects that filter the vibration to weigh.
+fn spectrum_hint(vib: &Vibration, psd: &[PsdBand]) -> String {
+    let random = (0..3).any(|i| vib.covariance_g2[i][i] > 0.0);
+    if random && psd.is_empty() {
+        "the extended model under random vibration given as RMS (--sigma*-g): an effect \
+         that filters the vibration needs its spectrum; give it as a band PSD with --psd FILE"
+            .into()
+    } else {
+        "the extended model".into()
+    }
+}
+
 fn ve(args: VeArgs) -> anyhow::Result<()> {
     args.flight.check_with(&args.vibration)?;
-    let (p, vib) = args.vibration.resolve()?;
+    let (p, vib, psd) = args.vibration.resolve_with_psd()?;
     let a_l = args.flight.a_l_g()?;
     if let Some(path) = &args.model {
-        return extended_ve(path, &p, a_l, &vib, args.json);
+        return extended_ve(path, &p, a_l, (&vib, &psd), args.json);
     }
     let report = report::ve_report(&p, a_l, &vib, Mode::from(args.mode))?;
     if args.json {
@@ -208,9 +223,11 @@ fn print_components(columns: &[(&str, VeComponents)], a_l3_g: f64) -> anyhow::Re
 }
 
 fn compensate_extended(args: &CompensateArgs, path: &std::path::Path) -> anyhow::Result<()> {
-    let (p, vib) = args.vibration.resolve()?;
+    let (p, vib, psd) = args.vibration.resolve_with_psd()?;
     let cross = [args.reading1_g, args.reading2_g];
-    let report = vibro_effects::report::extended_compensate(path, p, &vib, args.reading_g, cross)?;
+    let report =
+        vibro_effects::report::extended_compensate(path, p, (&vib, &psd), args.reading_g, cross)
+            .with_context(|| spectrum_hint(&vib, &psd))?;
     if args.json {
         return print_json(&report);
     }

@@ -86,6 +86,7 @@ pub fn estimate(seq: u64) -> VibEstimate {
     m.broadband_kurtosis = [3.0, 3.1, 2.9];
     m.broadband_kurtosis_u = [0.05; 3];
     m.broadband_welch_segments = 15;
+    m.welch_segment_samples = 2048;
     m.tone_count = 2;
     m.tone_frequency_hz[..2].copy_from_slice(&[12.004, 24.5]);
     m.tone_frequency_u_hz[..2].copy_from_slice(&[0.001, 0.01]);

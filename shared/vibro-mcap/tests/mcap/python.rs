@@ -166,6 +166,10 @@ fn the_python_reference_reader_decodes_every_type_to_the_written_values() {
     );
     assert_eq!(m["broadband"]["welch_segments"], e.broadband_welch_segments);
     assert_eq!(
+        m["broadband"]["welch_segment_samples"],
+        e.welch_segment_samples
+    );
+    assert_eq!(
         seen_bit(c, "broadband.f_lo_hz"),
         e.broadband_f_lo_hz.to_bits()
     );

@@ -7,7 +7,7 @@ use anyhow::Context;
 use clap::Args;
 use std::path::PathBuf;
 use vibro_physics::passport::Passport;
-use vibro_physics::vibration::{rules, UnitVibration, Vibration};
+use vibro_physics::vibration::{rules, PsdBand, UnitVibration, Vibration};
 
 use crate::flags::FlagProblems;
 
@@ -109,6 +109,12 @@ impl VibrationArgs {
 
     /// Validates the flags into a passport and a vibration description.
     pub(super) fn resolve(&self) -> anyhow::Result<(Passport, Vibration)> {
+        self.resolve_with_psd().map(|(p, v, _)| (p, v))
+    }
+
+    /// [`Self::resolve`] and the random part's band PSD in the unit's axes (empty
+    /// without `--psd`): what the extended model's filtering effects weigh.
+    pub(super) fn resolve_with_psd(&self) -> anyhow::Result<(Passport, Vibration, Vec<PsdBand>)> {
         self.check_flags()?;
         let passport = vibro_config::resolve_passport(&self.passport)?;
         let psd = match &self.psd {
@@ -127,7 +133,7 @@ impl VibrationArgs {
         };
         let vib = unit.to_vibration(psd.as_deref())?;
         vib.validate().context("the vibration flags")?;
-        Ok((passport, vib))
+        Ok((passport, vib, psd.unwrap_or_default()))
     }
 }
 

@@ -2,14 +2,16 @@
 //! estimate (the estimator's wire `VibEstimate`, sensor axes) as a piecewise-flat PSD
 //! per sensor axis, solved through the Welch window's leakage
 //! (`vibro_dsp::BandLeakage`), with its levels' standard uncertainties, and mapped to a
-//! unit's axes. The lab reads a log's windows through it (`crate::log_table`): the
+//! unit's axes. The lab reads a log's windows through it (`vibro_lab::log_table`) and
+//! the compensator its live estimates (the effects' mean formulas under random
+//! vibration need the spectrum, and both must see the same one): the
 //! reported band PSDs lend 3 % to 6 % of a band across its edges at the 4 Hz bins of
 //! 1 s estimates, which made a fitted mount resonance's effect 7 % short (docs/lab.md,
 //! "Logs as input").
 //!
 //! ```
 //! use vibro_dsp::{BandLeakage, EstimatorConfig, EstimatorConfigRaw};
-//! use vibro_lab::spectrum::{sensor_spectrum, SpectrumSolver};
+//! use vibro_effects::spectrum::{sensor_spectrum, SpectrumSolver};
 //! use vibro_msgs::VibEstimate;
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let config = EstimatorConfig::try_from(EstimatorConfigRaw::new(25600.0, [0.1; 3]))?;
@@ -38,6 +40,7 @@ pub fn sensor_spectrum(est: &VibEstimate, solver: &mut SpectrumSolver) -> Vec<Ps
     if n == 0 {
         return Vec::new();
     }
+    solver.adapt(est);
     let mut bands: Vec<PsdBand> = (0..n)
         .map(|b| PsdBand {
             f_lo_hz: est.band_f_lo_hz[b],
@@ -175,33 +178,92 @@ type Lu = nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>;
 /// factored once and kept while the windows' bands stay the same (they do through a
 /// log: the estimator's configured bands).
 pub struct SpectrumSolver {
-    leakage: BandLeakage,
+    /// `None`: the leakage is not known (the reported levels are used as they are).
+    leakage: Option<BandLeakage>,
+    /// Take the leakage from each estimate ([`SpectrumSolver::from_estimates`]): the
+    /// sample rate and Welch segment it was made with, and the key they give.
+    from_estimates: bool,
+    key: Option<(u64, u32)>,
     /// The pieces the factorization is for (`None`: none made yet).
     pieces: Option<Vec<Vec<[f64; 2]>>>,
     /// Their leakage matrix's factorization (`None`: singular or not finite).
     lu: Option<Lu>,
 }
 
+/// Most samples per Welch segment an estimate may state for [`SpectrumSolver::from_estimates`]
+/// to build its leakage (a table the segment long): 2^18, 10 s at 25.6 kHz. A larger
+/// (forged or corrupted) value leaves the leakage unknown rather than allocating what
+/// the value asks.
+pub const MAX_WELCH_SEGMENT_SAMPLES: u32 = 1 << 18;
+
+/// The sample rate (the window's samples over its span, Hz) and Welch segment an
+/// estimate states, when both are usable: the segment at least 2 samples, at most the
+/// window and [`MAX_WELCH_SEGMENT_SAMPLES`].
+pub fn estimate_welch(est: &VibEstimate) -> Option<(f64, usize)> {
+    let seg = est.welch_segment_samples;
+    let span_s = est.end_ns.checked_sub(est.start_ns)? as f64 * 1e-9;
+    let rate_hz = f64::from(est.samples) / span_s;
+    (seg >= 2
+        && seg <= est.samples
+        && seg <= MAX_WELCH_SEGMENT_SAMPLES
+        && rate_hz.is_finite()
+        && rate_hz > 0.0)
+        .then_some((rate_hz, seg as usize))
+}
+
 impl SpectrumSolver {
     /// A solver over `leakage` (the estimator configuration's Welch window and bins).
     pub fn new(leakage: BandLeakage) -> Self {
         Self {
-            leakage,
+            leakage: Some(leakage),
+            from_estimates: false,
+            key: None,
             pieces: None,
             lu: None,
         }
     }
 
+    /// A solver that takes the leakage from the estimates themselves
+    /// ([`estimate_welch`]: the rate and Welch segment each states), for a consumer that
+    /// does not hold the estimator's configuration (the compensator). An estimate that
+    /// states none (an older estimator) is read with its reported levels as they are.
+    pub fn from_estimates() -> Self {
+        Self {
+            leakage: None,
+            from_estimates: true,
+            key: None,
+            pieces: None,
+            lu: None,
+        }
+    }
+
+    /// With [`Self::from_estimates`]: the leakage of `est`'s estimator, rebuilt when it
+    /// changes (rate to 1 ppm).
+    fn adapt(&mut self, est: &VibEstimate) {
+        if !self.from_estimates {
+            return;
+        }
+        let welch = estimate_welch(est);
+        let key = welch.map(|(rate, seg)| ((rate * 1e6).round() as u64, seg as u32));
+        if key != self.key {
+            self.key = key;
+            self.leakage = welch.map(|(rate, seg)| BandLeakage::with_segment(rate, seg));
+            self.pieces = None;
+            self.lu = None;
+        }
+    }
+
     /// The LU factorization of the leakage matrix of `pieces`; `None` when it is
-    /// singular or not finite.
+    /// singular or not finite, or the leakage is not known.
     fn factor(&mut self, pieces: &[Vec<[f64; 2]>]) -> Option<&Lu> {
+        let leakage = self.leakage.as_ref()?;
         if self.pieces.as_deref() != Some(pieces) {
             let n = pieces.len();
             let m = nalgebra::DMatrix::from_fn(n, n, |r, c| {
                 let mut sum = 0.0;
                 for reported in &pieces[r] {
                     for source in &pieces[c] {
-                        sum += self.leakage.band_power_g2(*reported, *source);
+                        sum += leakage.band_power_g2(*reported, *source);
                     }
                 }
                 sum
@@ -272,6 +334,8 @@ mod tests {
         est.broadband_f_lo_hz = 20.0;
         est.broadband_f_hi_hz = 2000.0;
         est.band_count = 5;
+        // (A spectrum solved once: the cases below change only what the estimate
+        // states about its Welch segment.)
         let reported = |band: [f64; 2], j: usize| -> f64 {
             (0..5)
                 .map(|c| truth(c, j) * leakage.band_power_g2(band, [edges[c], edges[c + 1]]))
@@ -294,6 +358,33 @@ mod tests {
         let spectrum = sensor_spectrum(&est, &mut solver);
         // The next window's bands are the same: the factorization is reused.
         assert_eq!(sensor_spectrum(&est, &mut solver), spectrum);
+        // A consumer without the estimator's configuration (the compensator) reads the
+        // same spectrum from what the estimate states: its window (1 s of 25 600
+        // samples) and Welch segment.
+        let config = shipped_estimator();
+        est.samples = 25_600;
+        est.start_ns = 7_000_000_000;
+        est.end_ns = 8_000_000_000;
+        est.welch_segment_samples = config.segment_samples() as u32;
+        let stated = sensor_spectrum(&est, &mut SpectrumSolver::from_estimates());
+        for (a, b) in stated.iter().zip(&spectrum) {
+            for j in 0..3 {
+                let d = (a.psd_g2_per_hz[j] - b.psd_g2_per_hz[j]).abs();
+                assert!(
+                    d <= 1e-12 * b.psd_g2_per_hz[j].abs().max(1e-12),
+                    "{a:?} {b:?}"
+                );
+            }
+        }
+        // An estimate that states no segment (an older estimator) is read with its
+        // reported levels, scaled to the broadband variance.
+        est.welch_segment_samples = 0;
+        let unsolved = sensor_spectrum(&est, &mut SpectrumSolver::from_estimates());
+        let ratio = unsolved[2].psd_g2_per_hz[0] / est.band_psd_g2_per_hz[2][0];
+        assert!(
+            (ratio / unsolved[0].psd_g2_per_hz[0] * est.band_psd_g2_per_hz[0][0] - 1.0).abs()
+                < 1e-12
+        );
         assert_eq!(spectrum.len(), 6, "{spectrum:?}");
         // Scaled to the reported broadband variance, which lost the power lent below
         // 20 Hz (0.8 %): the shape is the truth's.
@@ -350,5 +441,32 @@ mod tests {
                 "{rel}"
             );
         }
+    }
+
+    /// A forged or corrupted segment length never makes the consumer build a table of
+    /// its size: beyond the window or [`MAX_WELCH_SEGMENT_SAMPLES`], or over a window
+    /// of no span, the leakage is left unknown.
+    #[test]
+    fn a_stated_segment_is_used_only_within_bounds() {
+        let mut est = VibEstimate::ZEROED;
+        est.samples = 25_600;
+        est.start_ns = 1_000_000_000;
+        est.end_ns = 2_000_000_000;
+        est.welch_segment_samples = 6_400;
+        let (rate, seg) = estimate_welch(&est).unwrap();
+        assert_eq!(seg, 6_400);
+        assert!((rate - 25_600.0).abs() < 1e-9);
+        for bad in [0, 1, 25_601, u32::MAX] {
+            est.welch_segment_samples = bad;
+            assert_eq!(estimate_welch(&est), None, "{bad}");
+        }
+        est.samples = u32::MAX;
+        est.welch_segment_samples = MAX_WELCH_SEGMENT_SAMPLES + 1;
+        assert_eq!(estimate_welch(&est), None);
+        est.welch_segment_samples = 6_400;
+        est.end_ns = est.start_ns;
+        assert_eq!(estimate_welch(&est), None);
+        est.end_ns = 0;
+        assert_eq!(estimate_welch(&est), None);
     }
 }
