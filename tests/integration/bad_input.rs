@@ -324,7 +324,7 @@ fn services_finding_a_stream_of_another_version_refuse_naming_both_payloads() {
         &[
             &format!("subscribing to {p}accel"),
             &format!("\"{p}accel\" carries vibrocomp::AccelBlock::v1 (816 bytes, alignment 8), but this process uses vibrocomp::AccelBlock::v4 (824 bytes, alignment 8)"),
-            "incompatible version of the message contracts (this build's is version 3",
+            "incompatible version of the message contracts (this build's is version 4",
         ],
     );
 

@@ -6,39 +6,16 @@
 //! readings as exact interval means). The manifests are written here as a rig engineer
 //! writes them, from the generator's run list; its truth is only read to compare.
 
-use crate::common::{bin, repo_path, run_json, TempDir};
+use crate::common::{bin, rig_campaign, run_json, TempDir};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 /// Runs the generator's `campaign` at 6.4 kHz with `args`; returns the runs.csv rows as
 /// maps of column to cell.
 fn generate(dir: &Path, args: &[&str]) -> Vec<std::collections::BTreeMap<String, String>> {
-    let out = Command::new("python3")
-        .arg(repo_path("tests/python/rig_generator.py"))
-        .args(["campaign", "--sensor-rate-hz", "6400", "--out"])
-        .arg(dir)
-        .args(args)
-        .env("PYTHONDONTWRITEBYTECODE", "1")
-        .output()
-        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
-    assert!(
-        out.status.success(),
-        "the rig generator failed:\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let text = std::fs::read_to_string(dir.join("runs.csv")).expect("runs.csv");
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
-    lines
-        .map(|l| {
-            header
-                .iter()
-                .zip(l.split(','))
-                .map(|(h, c)| (h.to_string(), c.to_string()))
-                .collect()
-        })
-        .collect()
+    let mut all = vec!["--sensor-rate-hz", "6400"];
+    all.extend_from_slice(args);
+    rig_campaign(dir, &all)
 }
 
 /// The manifest of the runs of one repeat, as a rig engineer writes it: the files, the

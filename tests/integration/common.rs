@@ -1,6 +1,7 @@
 //! Helpers shared by the integration tests: running the real `vibrocomp` binary.
 
-use std::path::PathBuf;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// The `vibrocomp` binary built for these tests.
@@ -69,4 +70,35 @@ impl Drop for TempDir {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0);
     }
+}
+
+/// Runs the independent rig generator's `campaign` (`tests/python/rig_generator.py`,
+/// written from MODEL.md, not from vibrocomp) into `dir` with `args`; returns the rows of
+/// its `runs.csv` as maps of column to cell.
+pub fn rig_campaign(dir: &Path, args: &[&str]) -> Vec<BTreeMap<String, String>> {
+    let out = Command::new("python3")
+        .arg(repo_path("tests/python/rig_generator.py"))
+        .args(["campaign", "--out"])
+        .arg(dir)
+        .args(args)
+        .env("PYTHONDONTWRITEBYTECODE", "1")
+        .output()
+        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
+    assert!(
+        out.status.success(),
+        "the rig generator failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(dir.join("runs.csv")).expect("runs.csv");
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    lines
+        .map(|l| {
+            header
+                .iter()
+                .zip(l.split(','))
+                .map(|(h, c)| (h.to_string(), c.to_string()))
+                .collect()
+        })
+        .collect()
 }

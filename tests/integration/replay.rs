@@ -469,8 +469,13 @@ fn the_demo_cuts_the_error_tenfold_and_loses_nothing() {
         f(&e["compensated_windows"]) >= 0.9 * f(&e["windows"]),
         "{v}"
     );
+    // `log errors` on the demo's recording: the same figures, bit for bit (one
+    // computation, docs/logs.md "log errors").
+    let session = dir.path("demo/session.mcap");
+    let measured = crate::common::run_json(&["log", "errors", "--json", session.to_str().unwrap()]);
+    assert_eq!(measured["errors"], *e, "{measured}");
     // Everything recorded reads back in Python.
-    python_check(&dir.path("demo/session.mcap"));
+    python_check(&session);
     // The services' log is a file: plain text, no terminal colour codes.
     let services_log = std::fs::read(dir.path("demo/services.log")).unwrap();
     assert!(!services_log.is_empty());

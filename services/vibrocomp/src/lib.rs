@@ -50,7 +50,7 @@ pub enum Command {
     Estimate(commands::estimate::EstimateArgs),
     /// Simulate a rig: flights to MCAP or live over iceoryx2, shake-table campaigns to CSV.
     Sim(commands::sim::SimArgs),
-    /// Inspect, repair and import MCAP logs.
+    /// Inspect, repair, import and measure MCAP logs (`log errors`: the demo's error table).
     #[command(subcommand)]
     Log(commands::log::LogCommand),
     /// Start the estimator and compensator (and a recorder), restart them on a crash,
@@ -168,6 +168,16 @@ pub fn error_location(e: &anyhow::Error) -> Option<vibro_toml::Location> {
         {
             return Some(vibro_toml::Location {
                 file: file.clone(),
+                ..Default::default()
+            });
+        }
+        // A file of `identify` (a table, a rig's record, a reference not covering it).
+        if let Some(file) = cause
+            .downcast_ref::<vibro_ident::Error>()
+            .and_then(|x| x.file())
+        {
+            return Some(vibro_toml::Location {
+                file: file.to_string(),
                 ..Default::default()
             });
         }

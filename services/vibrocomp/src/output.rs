@@ -147,28 +147,6 @@ pub fn fmt_fixed(x: f64, decimals: usize) -> String {
     }
 }
 
-/// Formats an acceleration in g with an engineering prefix chosen for readability
-/// (g, mg, ug), keeping four significant digits.
-pub fn fmt_g(value_g: f64) -> String {
-    let abs = value_g.abs();
-    if abs == 0.0 {
-        "0 g".to_string()
-    } else if abs >= 0.1 {
-        format!("{value_g:.4} g")
-    } else if abs >= 1e-4 {
-        format!("{:.4} mg", value_g * 1e3)
-    } else if abs >= 1e-8 {
-        format!("{:.4} ug", value_g * 1e6)
-    } else {
-        format!("{value_g:.1e} g")
-    }
-}
-
-/// Formats a ratio such as an error reduction: `34.5x`, or `>1e6x` beyond a million.
-pub fn fmt_ratio(ratio: f64) -> String {
-    if ratio > 1e6 {
-        ">1e6x".to_string()
-    } else {
-        format!("{ratio:.1}x")
-    }
-}
+/// Accelerations and ratios as every report prints them (the library's, so that the
+/// tables rendered by `vibro_log` and by the commands read alike).
+pub use vibro_log::text::{fmt_g, fmt_ratio};

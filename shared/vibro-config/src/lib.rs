@@ -17,10 +17,12 @@
 
 mod passport;
 mod psd;
+pub mod rig;
 mod triad;
 
 pub use passport::{load_passport, parse_passport, resolve_passport, EMBEDDED_PASSPORTS};
 pub use psd::{load_psd_table, parse_psd_table};
+pub use rig::{load_rig, parse_rig, RigConfig};
 pub use triad::{default_triad, load_triad, parse_triad, resolve_triad, TriadConfig};
 
 /// Errors of configuration loading. Each carries the file (or embedded name) it is about.

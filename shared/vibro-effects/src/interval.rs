@@ -48,14 +48,7 @@ pub fn band_within_fraction(f_lo_hz: f64, f_hi_hz: f64, interval_s: f64) -> f64 
     if f_hi_hz.partial_cmp(&f_lo_hz) != Some(std::cmp::Ordering::Greater) {
         return within_fraction(f_lo_hz.max(0.0), interval_s);
     }
-    const N: usize = 128;
-    let h = (f_hi_hz - f_lo_hz) / N as f64;
-    let mut sum = within_fraction(f_lo_hz, interval_s) + within_fraction(f_hi_hz, interval_s);
-    for k in 1..N {
-        let w = if k % 2 == 1 { 4.0 } else { 2.0 };
-        sum += w * within_fraction(f_lo_hz + k as f64 * h, interval_s);
-    }
-    sum * h / 3.0 / (f_hi_hz - f_lo_hz)
+    simpson_within(f_lo_hz, f_hi_hz, interval_s, 128)
 }
 
 /// Most pieces [`within_spectrum`] cuts one piece of a spectrum into.
@@ -88,7 +81,7 @@ pub fn within_spectrum(
         for k in 0..n {
             let lo = b.f_lo_hz + k as f64 * h;
             let hi = if k + 1 == n { b.f_hi_hz } else { lo + h };
-            let r = simpson_within(lo, hi, interval_s);
+            let r = simpson_within(lo, hi, interval_s, 8);
             out.push(vibro_physics::vibration::PsdBand {
                 f_lo_hz: lo,
                 f_hi_hz: hi,
@@ -99,16 +92,16 @@ pub fn within_spectrum(
     out
 }
 
-/// The mean of [`within_fraction`] over `[lo, hi]` by Simpson's rule on 8 panels.
-fn simpson_within(lo: f64, hi: f64, interval_s: f64) -> f64 {
-    const N: usize = 8;
-    let h = (hi - lo) / N as f64;
+/// The mean of [`within_fraction`] over `[lo, hi]` (`hi > lo`) by Simpson's rule on
+/// `panels` (even) panels.
+fn simpson_within(lo: f64, hi: f64, interval_s: f64, panels: usize) -> f64 {
+    let h = (hi - lo) / panels as f64;
     let mut sum = within_fraction(lo, interval_s) + within_fraction(hi, interval_s);
-    for k in 1..N {
+    for k in 1..panels {
         let w = if k % 2 == 1 { 4.0 } else { 2.0 };
         sum += w * within_fraction(lo + k as f64 * h, interval_s);
     }
-    sum / (3.0 * N as f64)
+    sum / (3.0 * panels as f64)
 }
 
 /// Per sensor axis, the fraction of the broadband variance left inside an interval.

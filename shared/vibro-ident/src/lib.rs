@@ -16,6 +16,9 @@
 //!   unknowns are the passport terms of section 5, from which
 //!   [`CoefficientEstimate::components_at`] gives the components at any amplitude.
 //! - [`ComponentsEstimate::predict`]: the VE at a flight acceleration (23).
+//! - [`rig`]: the VE of one unit from a rig's own time-stamped records, with its linear
+//!   response to the table's motion removed through a reference accelerometer
+//!   ([`reference`]), so that the stated uncertainty is the VE's own.
 //!
 //! ```
 //! use vibro_ident::{closed_form, standard_ten_positions, wls_components, Components};
@@ -66,6 +69,7 @@ pub mod measure;
 mod positions;
 pub mod reference;
 pub mod report;
+pub mod rig;
 pub mod table;
 mod wls;
 
@@ -225,6 +229,29 @@ pub enum Error {
     /// The section-8 measurement of a file of records failed.
     #[error("{file}: VE measurement (MODEL.md section 8)")]
     Measurement { file: String, source: Box<Error> },
+    /// A rig's records that do not fit their segments or each other (a reference that
+    /// does not cover the readings, a still reading the stated axes do not explain).
+    #[error("{file}: {problem}")]
+    Coverage { file: String, problem: String },
+    /// Every broken rule of a request (`key = value: rule`), before any file is read.
+    #[error("{}", problems_text(problems))]
+    Request { problems: Vec<String> },
+}
+
+impl Error {
+    /// The file the error is about, when it is about one.
+    pub fn file(&self) -> Option<&str> {
+        match self {
+            Error::ReadFile { file, .. }
+            | Error::Csv { file, .. }
+            | Error::EmptyTable { file }
+            | Error::Table { file, .. }
+            | Error::Method { file, .. }
+            | Error::Measurement { file, .. }
+            | Error::Coverage { file, .. } => Some(file),
+            _ => None,
+        }
+    }
 }
 
 /// The cause of a file error (an I/O or CSV error), shared so that [`Error`] stays

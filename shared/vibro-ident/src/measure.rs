@@ -135,6 +135,27 @@ pub struct MeasureOptions {
     pub tilt_limit_rad: f64,
 }
 
+impl MeasureOptions {
+    /// Every broken rule as `key = value: rule` (`batches`, `tilt_limit_rad`): at least
+    /// 2 batches, a finite tilt limit > 0.
+    pub fn problems(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.n_batches < 2 {
+            out.push(format!(
+                "batches = {}: must be at least 2 (batch means)",
+                self.n_batches
+            ));
+        }
+        let tilt = self.tilt_limit_rad;
+        if !(tilt.is_finite() && tilt > 0.0) {
+            out.push(format!(
+                "tilt_limit_rad = {tilt}: must be a finite angle > 0 rad"
+            ));
+        }
+        out
+    }
+}
+
 impl Default for MeasureOptions {
     fn default() -> Self {
         Self {

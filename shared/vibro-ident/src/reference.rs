@@ -61,6 +61,22 @@ impl IntervalMeans {
         interval_s: f64,
         times_s: &[f64],
     ) -> Option<Self> {
+        Self::with_line_span(x, t0_s, rate_hz, interval_s, times_s, interval_s)
+    }
+
+    /// [`Self::new`] with the straight line drawn through the means of the record's
+    /// first and last `line_span_s` (at least one reading's interval) instead of one
+    /// reading's interval: for a record that vibrates at its ends (a stretch of a
+    /// vibration sensor's stream), whose one-interval means are the vibration's
+    /// instantaneous values, a line through them is not the record's slow part.
+    pub fn with_line_span(
+        x: &[f64],
+        t0_s: f64,
+        rate_hz: f64,
+        interval_s: f64,
+        times_s: &[f64],
+        line_span_s: f64,
+    ) -> Option<Self> {
         let n = x.len();
         if n < 4 || !(rate_hz > 0.0 && interval_s > 0.0) {
             return None;
@@ -79,7 +95,7 @@ impl IntervalMeans {
         // The straight line through the means of the record's first and last reading
         // intervals, removed and added back: a rig's record starts and ends still, so the
         // rest joins its end to its start without a jump (the FFT sees a periodic signal).
-        let m = ((interval_s * rate_hz).round() as usize).clamp(1, n / 2);
+        let m = ((line_span_s.max(interval_s) * rate_hz).round() as usize).clamp(1, n / 2);
         let head = x[..m].iter().sum::<f64>() / m as f64;
         let tail = x[n - m..].iter().sum::<f64>() / m as f64;
         let (c0, c1) = ((m - 1) as f64 / 2.0, (n - 1) as f64 - (m - 1) as f64 / 2.0);
@@ -221,6 +237,29 @@ fn hat(knots: &[f64], k: usize, f_hz: f64) -> f64 {
     }
 }
 
+/// What the inputs of a [`ResponseBasis`] are.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BasisInputs {
+    /// The inputs passed a first-order AC coupling at this corner (Hz), undone in the
+    /// fit's columns: `1 - j fc / f` above `fc / 4`, tapered linearly to 0 at 0 Hz
+    /// below (the inverse's gain, at most 4.1, does not lift the slowest drifts).
+    pub ac_corner_hz: Option<f64>,
+}
+
+impl BasisInputs {
+    fn undo_coupling(&self, f_hz: f64) -> Complex<f64> {
+        let Some(fc) = self.ac_corner_hz.filter(|fc| *fc > 0.0) else {
+            return Complex::new(1.0, 0.0);
+        };
+        let floor = 0.25 * fc;
+        if f_hz >= floor {
+            Complex::new(1.0, -fc / f_hz)
+        } else {
+            Complex::new(1.0, -fc / floor) * (f_hz / floor)
+        }
+    }
+}
+
 /// A unit's linear response fitted to its vibrating readings ([`ResponseBasis::fit`]).
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct LinearFit {
@@ -254,6 +293,18 @@ impl ResponseBasis {
         window_s: [f64; 2],
         knots_hz: &[f64],
     ) -> Option<Self> {
+        Self::with_inputs(inputs, times_s, window_s, knots_hz, &BasisInputs::default())
+    }
+
+    /// [`Self::new`] for inputs of another kind ([`BasisInputs`]): AC-coupled vibration
+    /// sensors instead of a DC-coupled reference.
+    pub fn with_inputs(
+        inputs: &[IntervalMeans; 3],
+        times_s: &[f64],
+        window_s: [f64; 2],
+        knots_hz: &[f64],
+        kind: &BasisInputs,
+    ) -> Option<Self> {
         let interval_s = inputs[0].interval_s;
         let rows: Vec<usize> = (0..times_s.len())
             .filter(|&i| {
@@ -265,7 +316,11 @@ impl ResponseBasis {
         for (axis, input) in inputs.iter().enumerate() {
             for k in 0..knots_hz.len() {
                 for part in [Complex::new(1.0, 0.0), Complex::new(0.0, 1.0)] {
-                    let y = input.filtered(|f| part * hat(knots_hz, k, f), false, &times);
+                    let y = input.filtered(
+                        |f| part * hat(knots_hz, k, f) * kind.undo_coupling(f),
+                        false,
+                        &times,
+                    );
                     columns[axis].push(y.into_iter().collect::<Option<Vec<f64>>>()?);
                 }
             }

@@ -2,7 +2,8 @@
 //! each with its unit-output record (still / vibrating / still, one CSV for the triad)
 //! and the reference accelerometer's record on the table, and the table's orientation;
 //! this module measures each unit's VE by [P2 (16)] with the unit's linear response to
-//! the table's motion removed through the reference (`vibro_ident::reference`), and
+//! the table's motion removed through the reference (`vibro_ident::rig`, which
+//! `vibrocomp identify measure` shares for one unit's files), and
 //! estimates the vibration each unit saw from the reference's vibrating record with the
 //! estimator (tones with per-axis amplitudes and phases, random RMS, covariances,
 //! kurtosis, band PSDs), mapped to each unit's axes through the triad. The result is the
@@ -34,7 +35,6 @@
 use crate::flight::{self, WindowInput, WindowVe};
 use crate::spectrum::{sensor_spectrum, unit_bands, SpectrumSolver};
 use crate::{CampaignTable, Condition, Error, Result};
-use realfft::num_complex::Complex;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -42,8 +42,9 @@ use vibro_config::TriadConfig;
 use vibro_dsp::{BandLeakage, Estimator, EstimatorConfig, EstimatorConfigRaw, SampleBlock};
 use vibro_effects::mapping::{sensor_map, unit_vibrations, EstimateMapping};
 use vibro_effects::predict::flat_passport;
-use vibro_ident::reference::{response_knots_hz, IntervalMeans, LinearFit, ResponseBasis};
-use vibro_ident::{measure_ve_timed, MeasureOptions, Segments, TimedMeasurement};
+use vibro_ident::reference::LinearFit;
+use vibro_ident::rig::{check_segments, BodyAxes, RunReference};
+use vibro_ident::{MeasureOptions, Segments, TimedMeasurement};
 use vibro_msgs::{estimate_flags, VibEstimate};
 use vibro_physics::passport::Passport;
 use vibro_physics::triad::SignedAxis;
@@ -52,8 +53,9 @@ use vibro_physics::vibration::{PsdBand, Vibration};
 /// The manifest's `format`.
 pub const FORMAT: &str = "vibrocomp-campaign/1";
 
-/// An orientation stated as `|up| = 1` within this.
-pub const UNIT_VECTOR_TOLERANCE: f64 = 1e-3;
+/// An orientation stated as `|up| = 1` within this (the rule of every body direction,
+/// `vibro_ident::rig`).
+pub const UNIT_VECTOR_TOLERANCE: f64 = vibro_ident::rig::UNIT_VECTOR_TOLERANCE;
 
 /// The reference's still mean may differ from `gravity_g * up` by this much, g, before
 /// the run is refused (a wrong orientation is 1 g or more off; a reference's bias and a
@@ -205,18 +207,11 @@ impl Manifest {
             };
         let unit_columns = columns("unit_columns", &raw.unit_columns, &mut problems);
         let reference_columns = columns("reference_columns", &raw.reference_columns, &mut problems);
-        if raw.batches < 2 {
-            problems.push(format!(
-                "batches = {}: must be at least 2 (batch means)",
-                raw.batches
-            ));
-        }
-        if !(raw.tilt_limit_rad.is_finite() && raw.tilt_limit_rad > 0.0) {
-            problems.push(format!(
-                "tilt_limit_rad = {}: must be a finite angle > 0 rad",
-                raw.tilt_limit_rad
-            ));
-        }
+        let measure = MeasureOptions {
+            n_batches: raw.batches,
+            tilt_limit_rad: raw.tilt_limit_rad,
+        };
+        problems.extend(measure.problems());
         if let Some(s) = &raw.segments {
             problems.extend(s.problems().into_iter().map(|p| format!("segments.{p}")));
         }
@@ -267,20 +262,19 @@ impl Manifest {
                     }
                 },
                 Up::Vector(v) => {
-                    let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
                     if v.len() != 3 || v.iter().any(|x| !x.is_finite()) {
                         problems.push(format!(
                             "{key}.up = {v:?}: must be three finite numbers [x, y, z]"
                         ));
                         None
-                    } else if (norm - 1.0).abs() > UNIT_VECTOR_TOLERANCE {
-                        problems.push(format!(
-                            "{key}.up = {v:?}: must be a unit vector (its norm is {norm:.6}, \
-                             allowed 1 +- {UNIT_VECTOR_TOLERANCE})"
-                        ));
-                        None
                     } else {
-                        Some([v[0] / norm, v[1] / norm, v[2] / norm])
+                        match vibro_ident::rig::unit_vector(v) {
+                            Ok(up) => Some(up),
+                            Err(rule) => {
+                                problems.push(format!("{key}.up = {v:?}: {rule}"));
+                                None
+                            }
+                        }
                     }
                 }
             };
@@ -319,10 +313,7 @@ impl Manifest {
                     gravity_g: raw.gravity_g,
                     unit_columns,
                     reference_columns,
-                    measure: MeasureOptions {
-                        n_batches: raw.batches,
-                        tilt_limit_rad: raw.tilt_limit_rad,
-                    },
+                    measure,
                     runs,
                 })
             }
@@ -448,28 +439,14 @@ fn measure_run(
         vibro_ident::read_timed(&run.accel, &cols(&manifest.unit_columns)).map_err(ident)?;
     let reference = vibro_ident::read_timed(&run.reference, &cols(&manifest.reference_columns))
         .map_err(ident)?;
-    let interval_s = accel.step_s;
-    let (t0_ref, t1_ref) = (
-        reference.time_s[0],
-        reference.time_s[reference.time_s.len() - 1],
-    );
-    let (t0_acc, t1_acc) = (accel.time_s[0], accel.time_s[accel.time_s.len() - 1]);
     let seg = run.segments;
-    let (lo, hi) = (seg.still_before_s[0], seg.still_after_s[1]);
-    if lo < t0_acc - interval_s || hi > t1_acc + interval_s * 0.5 {
-        return Err(Error::Invalid(format!(
-            "the segments span {lo}..{hi} s, the readings ({}) {t0_acc}..{t1_acc} s: the \
-             segments must lie within the record",
-            run.accel.display()
-        )));
-    }
-    if lo < t0_ref - interval_s || hi > t1_ref + interval_s * 0.5 {
-        return Err(Error::Invalid(format!(
-            "the segments span {lo}..{hi} s, the reference ({}) {t0_ref}..{t1_ref} s: the \
-             reference must cover every segment",
-            run.reference.display()
-        )));
-    }
+    check_segments(&accel, &run.accel, &seg).map_err(ident)?;
+    // The reference's body axes prepared for each reading's interval mean, and the
+    // basis of the units' fitted response, once for the run's three units.
+    let f_top_hz = base.raw().broadband_band_hz[1]
+        .min(vibro_ident::rig::RESPONSE_TOP_FRACTION_OF_RATE * reference.rate_hz());
+    let prepared =
+        RunReference::new(&accel, &reference, &run.reference, &seg, f_top_hz).map_err(ident)?;
     // The reference's still mean against the stated orientation.
     let still_mean = |axis: usize| {
         let (mut sum, mut n) = (0.0, 0usize);
@@ -506,92 +483,24 @@ fn measure_run(
             stated[2]
         )));
     }
-    // The reference's body axes, prepared for each reading's interval mean.
-    let prepared: Vec<IntervalMeans> = (0..3)
-        .filter_map(|axis| {
-            IntervalMeans::new(
-                &reference.columns[axis],
-                t0_ref,
-                reference.rate_hz(),
-                interval_s,
-                &accel.time_s,
-            )
-        })
-        .collect();
-    let Ok(inputs) = <[IntervalMeans; 3]>::try_from(prepared) else {
-        return Err(Error::Invalid(format!(
-            "the reference ({}) has too few samples",
-            run.reference.display()
-        )));
-    };
-    let f_top_hz = base.raw().broadband_band_hz[1].min(0.45 * reference.rate_hz());
-    let basis = ResponseBasis::new(
-        &inputs,
-        &accel.time_s,
-        seg.vibrating_s,
-        &response_knots_hz(f_top_hz),
-    );
-    // The reference's own interval means, for a unit whose fit fails (computed once).
-    let means: std::cell::OnceCell<Vec<Vec<Option<f64>>>> = std::cell::OnceCell::new();
     let triad = &manifest.triad;
     let (windows, vibs) = estimate_run(run, &reference, triad, base)?;
     let windows_used = vibs.len();
     let mut out = Vec::new();
     for (u, passport) in passports.iter().enumerate() {
         let axes = &triad.axes.units[u];
-        let k1v = passport.k1_v_per_g;
-        // The passport's linear response [P1 (1)] per body axis: K1 (k1 a3 + m1 a1 + m2 a2).
-        let mut weights = [0.0; 3];
-        for (axis, w) in [
-            (axes.ia, passport.k1),
-            (axes.oa, passport.m1),
-            (axes.pa, passport.m2),
-        ] {
-            weights[axis.body_index] += k1v * w * f64::from(axis.sign);
-        }
-        let fitted = basis
-            .as_ref()
-            .and_then(|b| b.fit(weights, &accel.columns[u]));
-        let (linear_v, fit) = match fitted {
-            // The fitted response over the vibrating window, nothing elsewhere (the
-            // table is still: the still records are the unit's own).
-            Some((v, fit)) => (
-                v.into_iter()
-                    .map(|x| if x.is_nan() { 0.0 } else { x })
-                    .collect::<Vec<f64>>(),
-                Some(fit),
-            ),
-            // Too short a window for the fit: the passport's response everywhere.
-            None => {
-                let means = means.get_or_init(|| {
-                    inputs
-                        .iter()
-                        .map(|m| m.filtered(|_| Complex::new(1.0, 0.0), true, &accel.time_s))
-                        .collect()
-                });
-                (
-                    (0..accel.time_s.len())
-                        .map(|i| match (means[0][i], means[1][i], means[2][i]) {
-                            (Some(x), Some(y), Some(z)) => {
-                                weights[0] * x + weights[1] * y + weights[2] * z
-                            }
-                            _ => f64::NAN,
-                        })
-                        .collect(),
-                    None,
-                )
-            }
-        };
-        let measurement = measure_ve_timed(
-            &accel.time_s,
-            interval_s,
-            &accel.columns[u],
-            Some(&linear_v),
-            &seg,
-            k1v,
-            &manifest.measure,
-        )
-        .map_err(|e| Error::Invalid(format!("unit {}: {e}", triad.names[u])))?;
+        // The passport's linear response [P1 (1)] per body axis: K1 (k1 a3 + m1 a1 + m2 a2),
+        // the fitted response's starting point.
+        let weights = BodyAxes::from(axes).weights_v_per_g(passport);
+        let unit = prepared
+            .measure_unit(
+                &accel.columns[u],
+                weights,
+                passport.k1_v_per_g,
+                &manifest.measure,
+            )
+            .map_err(|e| Error::Invalid(format!("unit {}: {e}", triad.names[u])))?;
+        let (measurement, fit) = (unit.measurement, unit.linear_response);
         let a_l_g = axes.to_unit(&run.up).map(|x| x * manifest.gravity_g);
         let condition = unit_condition(run, u, passport, a_l_g, &measurement, &vibs, triad)?;
         out.push(UnitResult {

@@ -51,15 +51,21 @@ pub struct ReferenceSample {
     /// Whole acceleration the unit sensed (flight plus the vibration's own motion),
     /// mean over the sample's interval, g.
     pub a_sensed_unit_g: [f64; 3],
+    /// The unit's linear response to the vibration over the sample's interval, g, when
+    /// it was fitted (a rig's log: the readings regressed on the vibration sensors,
+    /// `crate::log_table`); it then replaces `J(aL) (a_sensed - aL)`.
+    pub linear_g: Option<f64>,
 }
 
 /// The rectified part of one sample's reading (module doc), g.
 pub fn sample_ve_g(p: &Passport, s: &ReferenceSample) -> f64 {
     let [l1, l2, l3] = s.a_l_unit_g;
-    let grad = vibro_physics::fp::gradient_g(p, l1, l2, l3);
-    let linear: f64 = (0..3)
-        .map(|i| grad[i] * (s.a_sensed_unit_g[i] - s.a_l_unit_g[i]))
-        .sum();
+    let linear = s.linear_g.unwrap_or_else(|| {
+        let grad = vibro_physics::fp::gradient_g(p, l1, l2, l3);
+        (0..3)
+            .map(|i| grad[i] * (s.a_sensed_unit_g[i] - s.a_l_unit_g[i]))
+            .sum()
+    });
     s.reading_g - vibro_physics::fp::output_g(p, l1, l2, l3) - linear
 }
 
@@ -670,6 +676,7 @@ mod tests {
                     reading_g: reading,
                     a_l_unit_g: a_l,
                     a_sensed_unit_g: sensed,
+                    linear_g: None,
                 }
             })
             .collect()
@@ -751,6 +758,7 @@ mod tests {
                     reading_g: output_g(&p, 0.0, 0.0, 1.0) + s * 12f64.sqrt() * (next() - 0.5),
                     a_l_unit_g: [0.0, 0.0, 1.0],
                     a_sensed_unit_g: [0.0, 0.0, 1.0],
+                    linear_g: None,
                 })
                 .collect();
             let w = window_ve(&p, &samples, 10).unwrap();

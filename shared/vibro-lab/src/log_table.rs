@@ -44,9 +44,10 @@ use vibro_config::TriadConfig;
 use vibro_dsp::{BandLeakage, EstimatorConfig};
 use vibro_effects::mapping::{sensor_map, unit_vibrations, EstimateMapping, UnitVibrations};
 use vibro_effects::predict::flat_passport;
+use vibro_log::linear::{RigReading, SensorChain};
 use vibro_log::topic;
 use vibro_mcap::{Message, Reader};
-use vibro_msgs::{estimate_flags, Stream, VibEstimate};
+use vibro_msgs::{estimate_flags, truth_flags, Stream, VibEstimate};
 use vibro_physics::passport::Passport;
 use vibro_physics::vibration::PsdBand;
 
@@ -99,6 +100,13 @@ pub struct LogTableSummary {
     /// Sensor settings taken from the log's metadata, by key.
     pub sensor_from_log: BTreeMap<String, f64>,
     pub accel_samples: u64,
+    /// Readings whose sensed acceleration came from the vibration sensors (a rig's
+    /// reference, [`sensed_from_sensors`]); 0 for a simulated log (its truth states it).
+    pub sensed_from_sensors: u64,
+    /// Chunks of a rig's readings whose units' linear response was fitted through the
+    /// vibration sensors, and the readings they hold ([`sensed_from_sensors`]).
+    pub linear_response_fits: u64,
+    pub linear_response_readings: u64,
     pub estimates: u64,
     /// Estimates whose windows do not overlap the previous one kept.
     pub windows: u64,
@@ -120,6 +128,12 @@ struct Row {
     output_v: Option<[f64; 3]>,
     a_l_ia_g: Option<[f64; 3]>,
     a_sensed_ia_g: Option<[f64; 3]>,
+    /// A rig's reference (`truth_flags::SENSED_UNKNOWN`): the sensed acceleration comes
+    /// from the vibration sensors ([`sensed_from_sensors`]).
+    sensed_unknown: bool,
+    /// Per unit, its linear response to the vibration over the reading's interval, g,
+    /// fitted through the sensors (`vibro_log::linear`); `None` where not fitted.
+    linear_g: Option<[f64; 3]>,
 }
 
 /// A row with its reading and its reference.
@@ -129,6 +143,7 @@ struct Complete {
     output_v: [f64; 3],
     a_l_ia_g: [f64; 3],
     a_sensed_ia_g: [f64; 3],
+    linear_g: [f64; 3],
 }
 
 /// Windows on each side whose batch-means variance a window's measured VE pools
@@ -177,13 +192,33 @@ fn estimator_config(
 ) -> Result<EstimatorConfig> {
     let mut raw = base.raw().clone();
     let meta = reader.metadata()?;
-    if let Some((_, m)) = meta.iter().find(|(name, _)| name == "scenario") {
+    // A simulated log's `scenario`, or a rig's (`log import --rig`).
+    if let Some((_, m)) = meta
+        .iter()
+        .find(|(name, _)| name == "scenario" || name == vibro_log::attachments::RIG_METADATA)
+    {
         let num = |key: &str| m.get(key).and_then(|v| v.parse::<f64>().ok());
+        let per_sensor: Option<Vec<f64>> = (1..=3)
+            .map(|u| num(&format!("sensor{u}_sensitivity_v_per_g")))
+            .collect();
+        if let Some(s) = per_sensor {
+            raw.sensitivity_raw_per_g = [s[0], s[1], s[2]];
+            for (u, v) in s.iter().enumerate() {
+                summary
+                    .sensor_from_log
+                    .insert(format!("sensor{}_sensitivity_v_per_g", u + 1), *v);
+            }
+        }
         if let Some(hz) = num("sensor_hz") {
             raw.sample_rate_hz = hz;
             summary.sensor_from_log.insert("sensor_hz".into(), hz);
         }
-        if let Some(s) = num("sensor_sensitivity_v_per_g") {
+        if let (Some(s), false) = (
+            num("sensor_sensitivity_v_per_g"),
+            summary
+                .sensor_from_log
+                .contains_key("sensor1_sensitivity_v_per_g"),
+        ) {
             raw.sensitivity_raw_per_g = [s; 3];
             summary
                 .sensor_from_log
@@ -235,7 +270,10 @@ pub fn table_from_log(
             what: "the estimator".into(),
             source: e.into(),
         })?;
-    let streams = read_streams(path, reader, &mut estimator, &mut summary)?;
+    let mut streams = read_streams(path, reader, &mut estimator, &mut summary)?;
+    if streams.sensed_unknown {
+        sensed_from_sensors(path, &mut streams, &config, &units, &mut summary)?;
+    }
     let mut solver = SpectrumSolver::new(BandLeakage::new(&config));
     let conditions = window_conditions(&streams, &units, &mut solver, model, args, &mut summary)?;
     summary.conditions = conditions.len();
@@ -319,6 +357,8 @@ struct LogStreams {
     period_ns: u64,
     /// The estimates of the `/vib` stream, in order.
     estimates: Vec<VibEstimate>,
+    /// Some reference rows are a rig's ([`Row::sensed_unknown`]).
+    sensed_unknown: bool,
 }
 
 /// Reads the log: `/vib` through the estimator (its windows' estimates), `/accel` and
@@ -338,6 +378,7 @@ fn read_streams(
     let mut period_ns = 0u64;
     let mut estimates: Vec<VibEstimate> = Vec::new();
     let (mut have_vib, mut have_truth) = (false, false);
+    let mut sensed_unknown = false;
     for record in reader {
         let record = record?;
         let t = &*record.topic;
@@ -363,10 +404,14 @@ fn read_streams(
             }
             Message::TruthBlock(b) if t == truth_topic => {
                 have_truth = true;
+                let rig = b.flags & truth_flags::SENSED_UNKNOWN != 0;
+                sensed_unknown |= rig;
                 for k in 0..(b.count as usize).min(b.a_l_ia_g.len()) {
                     let r = row_at(&mut rows, b.first_sample_index + k as u64)?;
-                    r.a_l_ia_g = Some(b.a_l_ia_g[k]);
-                    r.a_sensed_ia_g = Some(b.a_sensed_ia_g[k]);
+                    let a_l = b.a_l_ia_g[k];
+                    r.a_l_ia_g = a_l.iter().all(|x| x.is_finite()).then_some(a_l);
+                    r.sensed_unknown = rig;
+                    r.a_sensed_ia_g = (!rig).then_some(b.a_sensed_ia_g[k]);
                 }
             }
             _ => {}
@@ -391,8 +436,11 @@ fn read_streams(
     }
     if !have_truth {
         return Err(Error::Invalid(format!(
-            "{}: no reference ({truth_topic}): a flight's VE is measured against the \
-             reference's flight and sensed accelerations (docs/lab.md, \"Logs as input\")",
+            "{}: no reference ({truth_topic}): a window's VE is measured against what each \
+             unit should read without vibration; import a rig's log with its rig file \
+             (vibrocomp log import --rig RIG.toml [--reference CSV], docs/logs.md), which \
+             writes the rig's reference (orientations, a centrifuge or a reference stream) \
+             (docs/lab.md, \"Logs as input\")",
             path.display()
         )));
     }
@@ -401,7 +449,70 @@ fn read_streams(
         rows,
         period_ns,
         estimates,
+        sensed_unknown,
     })
+}
+
+/// A rig's reference rows (`truth_flags::SENSED_UNKNOWN`): the acceleration each unit
+/// sensed is not known, only what it should read without vibration. The vibration
+/// sensors give it (`vibro_log::linear`, which reads the log a second time): per
+/// reading, its sensor's mean over the reading's interval over the sensor's stated
+/// sensitivity, added to the reference; and per unit, its linear response to the
+/// vibration fitted to its readings, which replaces `J(aL) (a_sensed - aL)`: a unit
+/// behind a mount (a resonance between the sensors' base and the unit) does not respond
+/// to the base's motion as its passport says, and the unremoved part of that response
+/// fills the batch means (the shake-table campaign's finding, docs/identification.md).
+/// A reading of a fitted stretch that the fit leaves out (within a second of the
+/// sensors' record's ends) is not used.
+fn sensed_from_sensors(
+    path: &Path,
+    streams: &mut LogStreams,
+    config: &EstimatorConfig,
+    units: &Units,
+    summary: &mut LogTableSummary,
+) -> Result<()> {
+    let readings: BTreeMap<u64, RigReading> = streams
+        .rows
+        .iter()
+        .filter(|(_, r)| r.sensed_unknown)
+        .filter_map(|(&i, r)| {
+            Some((
+                i,
+                RigReading {
+                    latch_ns: r.latch_ns,
+                    output_v: r.output_v?,
+                    a_l_ia_g: r.a_l_ia_g?,
+                },
+            ))
+        })
+        .collect();
+    let passports: [Passport; 3] = [units.flat[0], units.flat[1], units.flat[2]];
+    let sensors = SensorChain {
+        sensitivity_v_per_g: config.raw().sensitivity_raw_per_g,
+        ac_corner_hz: config.raw().ac_corner_hz,
+    };
+    let fitted = vibro_log::linear::fit_linear_responses(
+        path,
+        &readings,
+        streams.period_ns,
+        &units.triad.axes,
+        &passports,
+        &sensors,
+    )?;
+    summary.linear_response_fits = fitted.fits;
+    summary.linear_response_readings = fitted.fitted_readings;
+    for (i, r) in streams.rows.iter_mut() {
+        let Some(f) = fitted.readings.get(i) else {
+            continue;
+        };
+        r.linear_g = f.linear_g;
+        let unfitted = f.linear_g.is_some_and(|l| l.iter().any(|x| !x.is_finite()));
+        if let (Some(a_l), Some(v), false) = (r.a_l_ia_g, f.sensor_mean_g, unfitted) {
+            r.a_sensed_ia_g = Some(std::array::from_fn(|u| a_l[u] + v[u]));
+            summary.sensed_from_sensors += 1;
+        }
+    }
+    Ok(())
 }
 
 /// The rows with everything, in time order (sample index order).
@@ -413,6 +524,7 @@ fn complete_rows(rows: &BTreeMap<u64, Row>) -> Vec<Complete> {
                 output_v,
                 a_l_ia_g,
                 a_sensed_ia_g,
+                linear_g: r.linear_g.unwrap_or([f64::NAN; 3]),
             }),
             _ => None,
         })
@@ -613,6 +725,7 @@ fn unit_samples(rows: &[Complete], u: usize, units: &Units) -> Vec<ReferenceSamp
             reading_g: r.output_v[u] / k1,
             a_l_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_l_ia_g)),
             a_sensed_unit_g: axes.to_unit(&triad.axes.body_from_ia(&r.a_sensed_ia_g)),
+            linear_g: r.linear_g[u].is_finite().then_some(r.linear_g[u]),
         })
         .collect()
 }

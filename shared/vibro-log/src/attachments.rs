@@ -54,6 +54,9 @@ pub const RECORDING_METADATA: &str = "recording";
 pub const RECORDER_METADATA: &str = "recorder";
 /// Metadata record: a CSV import.
 pub const IMPORT_METADATA: &str = "import";
+/// Metadata record of a log imported with a rig file (`log import --rig`): the rig, its
+/// reference and its sensor chain.
+pub const RIG_METADATA: &str = "rig";
 /// Metadata record: where each attachment that came from a file came from.
 pub const SOURCES_METADATA: &str = "attachments";
 

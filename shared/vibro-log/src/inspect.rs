@@ -62,34 +62,38 @@ pub fn check_mcap_file(path: &Path) -> Result<u64> {
 /// named with the command that recovers it.
 pub fn read_info(path: &Path) -> Result<LogInfo> {
     check_mcap_file(path)?;
-    vibro_mcap::info(path).map_err(|e| {
-        let p = path.display();
-        if let vibro_mcap::Error::Unfinished { chunks, .. } = e {
-            let keep = if chunks == 0 {
-                format!("no complete chunk: `vibrocomp log recover {p} OUT.mcap` keeps only what precedes the first chunk, if anything")
-            } else {
-                format!("{chunks} complete chunk(s) readable; recover them with: vibrocomp log recover {p} OUT.mcap")
-            };
-            return Error::Unfinished {
-                path: path.to_path_buf(),
-                keep,
-            };
-        }
-        let damaged = matches!(
-            e,
-            vibro_mcap::Error::Truncated { .. }
-                | vibro_mcap::Error::NotFinished { .. }
-                | vibro_mcap::Error::ChunkCrc { .. }
-        );
-        Error::ReadLog {
-            context: if damaged {
-                format!("{p} is damaged (`vibrocomp log recover {p} OUT.mcap` keeps everything up to its last complete chunk)")
-            } else {
-                format!("cannot read the log {p}")
-            },
-            source: e,
-        }
-    })
+    vibro_mcap::info(path).map_err(|e| read_error(path, e))
+}
+
+/// An error of reading the log `path` with the reason a person needs: a damaged log
+/// (unfinished, truncated, a bad chunk) is named with the command that recovers it.
+pub(crate) fn read_error(path: &Path, e: vibro_mcap::Error) -> Error {
+    let p = path.display();
+    if let vibro_mcap::Error::Unfinished { chunks, .. } = e {
+        let keep = if chunks == 0 {
+            format!("no complete chunk: `vibrocomp log recover {p} OUT.mcap` keeps only what precedes the first chunk, if anything")
+        } else {
+            format!("{chunks} complete chunk(s) readable; recover them with: vibrocomp log recover {p} OUT.mcap")
+        };
+        return Error::Unfinished {
+            path: path.to_path_buf(),
+            keep,
+        };
+    }
+    let damaged = matches!(
+        e,
+        vibro_mcap::Error::Truncated { .. }
+            | vibro_mcap::Error::NotFinished { .. }
+            | vibro_mcap::Error::ChunkCrc { .. }
+    );
+    Error::ReadLog {
+        context: if damaged {
+            format!("{p} is damaged (`vibrocomp log recover {p} OUT.mcap` keeps everything up to its last complete chunk)")
+        } else {
+            format!("cannot read the log {p}")
+        },
+        source: e,
+    }
 }
 
 /// One channel of a repaired log.

@@ -4,7 +4,7 @@
 //! (`vibro-mcap`) whose topics are the system's streams without the prefix, written
 //! from the live streams (`vibro-ipc`), from the simulator or from CSV, and played
 //! back into them. The library under `vibrocomp record`, `replay`, `sim --out`,
-//! `log import` and `lab` on a log:
+//! `log import`, `log errors` and `lab` on a log:
 //!
 //! - [`record()`]: subscribes to the chosen streams under a prefix and writes every
 //!   message into an MCAP file with `log_time` = when it was received, `publish_time`
@@ -55,8 +55,10 @@
 //! ([`Error::ImportOptions`]) and every bad row, by file, line, column, value and rule
 //! ([`Error::CsvInput`]).
 //!
-//! A recorded session is measured against its reference by [`session::session_errors`]
-//! (each compensation stage's error against the sensed acceleration).
+//! A recorded session is measured against its reference by [`session::log_errors`]
+//! (each compensation stage's error against what each unit should read: the
+//! simulator's truth), the table `vibrocomp demo` and `vibrocomp log errors` print
+//! ([`session::SessionErrors::write_table`]; numbers as people read them: [`text`]).
 //!
 //! Topics in a log are the stream names without the prefix (`/accel`, `/vib`,
 //! `/estimate`, `/compensated`, `/truth`, `/heartbeat/estimator`, ...), so a log
@@ -81,7 +83,7 @@
 //! # }
 //! ```
 //!
-//! References: docs/logs.md (log info, recover, import, attachments and metadata),
+//! References: docs/logs.md (log info, recover, import, errors, attachments and metadata),
 //! docs/services.md (streams, loss accounting), docs/messages.md (wire types, progress
 //! messages, MCAP conventions), the MCAP specification (log time, publish time,
 //! sequence).
@@ -90,12 +92,14 @@ pub mod attachments;
 pub mod flight;
 pub mod import;
 pub mod inspect;
+pub mod linear;
 pub mod output;
 mod record;
 mod replay;
 pub mod rig;
 pub mod samples;
 pub mod session;
+pub mod text;
 mod topics;
 
 pub use record::{record, RecordOptions, RecordSummary, TopicCounts};
@@ -121,6 +125,10 @@ pub enum Error {
     /// The simulator of a flight cannot be built.
     #[error("simulator")]
     Simulator(#[source] vibro_sim::Error),
+    /// A passport a log carries that does not read (`session`): the message names
+    /// the log and the attachment.
+    #[error(transparent)]
+    Passport(#[from] vibro_config::ConfigError),
     /// A passport that cannot be written as TOML into a flight log.
     #[error("passport as TOML")]
     PassportToml(#[source] toml::ser::Error),
@@ -232,6 +240,10 @@ pub enum Error {
     /// and rule. Nothing was written.
     #[error("{} problem(s) in the CSV input, nothing written:\n  {}", .problems.len(), .problems.join("\n  "))]
     CsvInput { problems: Vec<String> },
+    /// Problems with a rig's reference in an import (the stream's file, a reference
+    /// that does not cover the readings), every one at once.
+    #[error("the rig's reference, nothing written:\n  {}", .problems.join("\n  "))]
+    Reference { problems: Vec<String> },
     /// Problems in a CSV file read by [`import::read_csv_blocks`].
     #[error("problem(s) in the CSV input:\n  {}", .problems.join("\n  "))]
     CsvBlocks { problems: Vec<String> },

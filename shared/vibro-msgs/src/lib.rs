@@ -277,6 +277,6 @@ mod tests {
         assert_eq!(estimate_flags::ALL.count_ones(), 9);
         assert_eq!(accel_flags::ALL, 0b11);
         assert_eq!(vib_flags::ALL, 0b11);
-        assert_eq!(truth_flags::ALL, 0b11);
+        assert_eq!(truth_flags::ALL, 0b111);
     }
 }

@@ -117,8 +117,12 @@ pub mod truth_flags {
     pub const GAP_BEFORE: u32 = 1 << 0;
     /// `vib_error_ia_g` holds the true mean vibration error; without this bit it is NaN.
     pub const VIB_ERROR_KNOWN: u32 = 1 << 1;
+    /// A rig's reference (`log import --rig`, docs/logs.md): `a_l_ia_g` is the rig's
+    /// reference (NaN for a reading it does not cover), `a_sensed_ia_g` is not known
+    /// (NaN): the vibration each unit sensed comes from the vibration sensors.
+    pub const SENSED_UNKNOWN: u32 = 1 << 2;
     /// Every defined bit.
-    pub const ALL: u32 = GAP_BEFORE | VIB_ERROR_KNOWN;
+    pub const ALL: u32 = GAP_BEFORE | VIB_ERROR_KNOWN | SENSED_UNKNOWN;
 }
 
 wire_struct! {

@@ -14,14 +14,16 @@
 //!    averaged over windows (default 0.5 s): uncompensated `U/K1`, main error removed
 //!    `a(2)`, vibration error removed `a(4)` (MODEL.md section 7, [P2 (17)-(20)]).
 //!
-//! The error measure is `vibro_log::session::session_errors`.
+//! The error measure and its table are `vibro_log::session::log_errors` and
+//! `SessionErrors::write_table`, which `vibrocomp log errors` prints too: the demo's
+//! table and `log errors` on its `session.mcap` are one computation.
 
 use anyhow::{bail, Context};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
-use vibro_log::session::{session_errors, SessionErrors, StageErrors};
+use vibro_log::session::{log_errors, SessionErrors, DEFAULT_WINDOW_S};
 use vibro_log::{Pace, ReplayOptions, ReplaySummary};
 use vibro_msgs::{ServiceId, ServiceNames};
 use vibro_service::ServiceConfig;
@@ -31,7 +33,7 @@ use vibro_system::{Role, SystemSpec};
 
 use crate::commands::replay::replay_with_bar;
 use crate::commands::sim::simulate_flight;
-use crate::output::{fmt_g, fmt_ratio, print_json};
+use crate::output::print_json;
 use vibro_service::supervise::{private_prefix, wait_for_heartbeats};
 
 #[derive(Debug, clap::Args)]
@@ -47,7 +49,7 @@ pub struct DemoArgs {
     #[arg(long)]
     pub force: bool,
     /// Averaging window of the error measure, s.
-    #[arg(long = "window-s", default_value_t = 0.5)]
+    #[arg(long = "window-s", default_value_t = DEFAULT_WINDOW_S)]
     pub window_s: f64,
     /// 2: the services on a second "host" (its own iceoryx2 root), reached only
     /// through two Zenoh bridges over loopback TCP; the replay and the recorder stay on
@@ -150,10 +152,6 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         json: true,
         ..SystemSpec::default()
     };
-    let k1_v_per_g = {
-        let c = vibro_compensator::Config::load_default()?;
-        c.model.triad.passports.map(|p| p.k1_v_per_g)
-    };
     // With --hosts 2: host B runs the services and the bridge that listens; host A
     // (this process: the replay) the recorder and the bridge that connects.
     let (spec_a, spec_b, hosts) = if args.hosts == 2 {
@@ -238,7 +236,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             .map(|b| b.summary.get("lost").and_then(|x| x.as_u64()).unwrap_or(0))
             .sum::<u64>()
         + replay.undelivered;
-    let errors = session_errors(&session_log, k1_v_per_g, args.window_s)?;
+    // K1 from the passports the recorder attached: the compensator's.
+    let errors = log_errors(&session_log, args.window_s, &vibro_config::default_triad()?)?.errors;
     let report = DemoReport {
         scenario: format!("{} ({})", scenario.name, scenario.file),
         flight_log: flight_log.display().to_string(),
@@ -315,32 +314,10 @@ fn print_report(r: &DemoReport) -> anyhow::Result<()> {
         r.session_log,
         r.lost_messages
     )?;
-    outln!(
-        "Error against the sensed acceleration, mean over {} s windows ({} of {} windows compensated with a vibration estimate; the first {} blocks came before the first estimate):",
-        e.window_s, e.compensated_windows, e.windows, e.main_only_blocks
-    )?;
-    outln!(
-        "  {:<10}{:>16}{:>16}{:>20}{:>12}",
-        "unit",
-        "uncompensated",
-        "main removed",
-        "vibration removed",
-        "reduction"
-    )?;
-    let line = |name: &str, s: &StageErrors| {
-        outln!(
-            "  {:<10}{:>16}{:>16}{:>20}{:>12}",
-            name,
-            fmt_g(s.uncompensated_rms_g),
-            fmt_g(s.main_removed_rms_g),
-            fmt_g(s.vibration_removed_rms_g),
-            fmt_ratio(s.reduction)
-        )
-    };
-    for u in &e.units {
-        line(&format!("AK{}", u.unit), &u.errors)?;
-    }
-    line("all", &e.all_units)?;
+    let mut table = String::new();
+    e.write_table(&mut table)
+        .context("formatting the error table")?;
+    out!("{table}")?;
     outln!(
         "Logs: {}, {}, {}",
         r.flight_log,

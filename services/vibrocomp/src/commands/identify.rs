@@ -1,6 +1,6 @@
 //! `vibrocomp identify`: shake-table identification of the VE components from test
 //! positions (MODEL.md section 9) and measurement of the VE from still / vibrating /
-//! still records (section 8). The maths, and the reading and validation of the CSV
+//! still records (section 8, `identify_measure`). The maths, and the reading and validation of the CSV
 //! files (every problem at once, each with its line, column, value and rule), live in
 //! `vibro-ident` (`table`, `report`); this module turns the flags into a request and
 //! prints a table or `--json`. See docs/identification.md.
@@ -9,18 +9,20 @@ use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
 use std::path::PathBuf;
 use vibro_ident::{
-    MeasureOptions, MethodChoice, MethodReport, Phase, PositionsReport, PositionsRequest,
-    UncertaintyBasis,
+    MethodChoice, MethodReport, PositionsReport, PositionsRequest, UncertaintyBasis,
 };
 use vibro_physics::passport::Passport;
 
+pub use super::identify_measure::MeasureArgs;
 use crate::output::{fmt_g, print_json};
 
 #[derive(Debug, Subcommand)]
 pub enum IdentifyCommand {
     /// VE components from a CSV of test positions (MODEL.md section 9, [P1 (21)-(23)]).
     Positions(PositionsArgs),
-    /// The VE measured from still / vibrating / still records (MODEL.md section 8, [P2 (16)]).
+    /// The VE measured from still / vibrating / still records (MODEL.md section 8, [P2 (16)]):
+    /// records by phase, or a rig's time-stamped readings with the unit's linear response
+    /// removed through a reference accelerometer (`--reference`).
     Measure(MeasureArgs),
     /// A shake-table campaign from a rig's raw runs (a manifest, docs/identification.md):
     /// each unit's VE by [P2 (16)] with its linear response removed through the reference
@@ -92,35 +94,15 @@ pub struct PositionsArgs {
     pub json: bool,
 }
 
-#[derive(Debug, Args)]
-pub struct MeasureArgs {
-    /// CSV of output samples: columns `phase` (still1 | vib | still2) and `u_v`, one
-    /// sample a row; or three columns `still1_v, vib_v, still2_v` (empty cells allowed
-    /// where a record is shorter). `#` starts a comment line.
-    pub file: PathBuf,
-    /// Passport file, or the id of a shipped one; gives K1.
-    #[arg(long)]
-    pub passport: String,
-    /// Batches per record for the batch-means standard error.
-    #[arg(long, default_value_t = 20)]
-    pub batches: usize,
-    /// Largest accepted tilt of the input axis during the run, rad ([P2]: 1e-4).
-    #[arg(long, default_value_t = 1e-4)]
-    pub tilt_limit_rad: f64,
-    /// Print the result as JSON.
-    #[arg(long)]
-    pub json: bool,
-}
-
 pub fn run(cmd: IdentifyCommand) -> anyhow::Result<()> {
     match cmd {
         IdentifyCommand::Positions(args) => run_positions(args),
-        IdentifyCommand::Measure(args) => run_measure(args),
+        IdentifyCommand::Measure(args) => super::identify_measure::run(args),
         IdentifyCommand::Campaign(args) => run_campaign(args),
     }
 }
 
-fn load_passport(arg: &str) -> anyhow::Result<Passport> {
+pub(super) fn load_passport(arg: &str) -> anyhow::Result<Passport> {
     vibro_config::resolve_passport(arg).with_context(|| format!("loading passport {arg:?}"))
 }
 
@@ -174,7 +156,7 @@ const COMPONENT_LABELS: [&str; 6] = [
     "d0(1)", "d0(2)", "d0(3)", "delta(1)", "delta(2)", "delta(3)",
 ];
 
-fn value_pm(value: String, sigma: Option<String>) -> String {
+pub(super) fn value_pm(value: String, sigma: Option<String>) -> String {
     match sigma {
         Some(s) => format!("{value} ± {s}"),
         None => format!("{value} ± unknown"),
@@ -299,58 +281,6 @@ fn print_positions(r: &PositionsReport) -> anyhow::Result<()> {
         outln!()?;
         outln!("{} skipped: {}", s.method, s.reason)?;
     }
-    Ok(())
-}
-
-fn run_measure(args: MeasureArgs) -> anyhow::Result<()> {
-    let passport = load_passport(&args.passport)?;
-    let options = MeasureOptions {
-        n_batches: args.batches,
-        tilt_limit_rad: args.tilt_limit_rad,
-    };
-    let report = vibro_ident::measure_file(&args.file, &passport, &options)?;
-    if args.json {
-        return print_json(&report);
-    }
-    let m = &report.measurement;
-    outln!(
-        "VE measured from {} by [P2 (16)], passport {} (K1 = {} V/g)",
-        report.file,
-        report.passport,
-        m.k1_v_per_g
-    )?;
-    outln!()?;
-    outln!(
-        "{:<8} {:>8}  {:>18}  {:>23}",
-        "record",
-        "samples",
-        "mean",
-        "std error (batch means)"
-    )?;
-    for (phase, r) in [
-        (Phase::Still1, &m.still1),
-        (Phase::Vib, &m.vib),
-        (Phase::Still2, &m.still2),
-    ] {
-        outln!(
-            "{:<8} {:>8}  {:>16.9} V  {:>20.3} uV",
-            phase.to_string(),
-            r.n_samples,
-            r.mean_v,
-            r.std_error_v * 1e6
-        )?;
-    }
-    outln!()?;
-    outln!(
-        "dV = {}",
-        value_pm(fmt_g(m.ve_g), Some(fmt_g(m.ve_sigma_g)))
-    )?;
-    outln!(
-        "tilt check: |<U1> - <U3>|/|K1| = {} (limit {:e} g = {:e} rad): accepted",
-        value_pm(fmt_g(m.drift_g), Some(fmt_g(m.drift_sigma_g))),
-        m.tilt_limit_rad,
-        m.tilt_limit_rad
-    )?;
     Ok(())
 }
 

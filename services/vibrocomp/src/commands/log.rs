@@ -1,4 +1,4 @@
-//! `vibrocomp log`: inspect, repair and import MCAP logs (docs/logs.md).
+//! `vibrocomp log`: inspect, repair, import and measure MCAP logs (docs/logs.md).
 //!
 //! - `info` summarises a log with `vibro_log::inspect::read_info`: channels, counts,
 //!   time span, sequence losses, metadata and attachments.
@@ -7,7 +7,10 @@
 //! - `import` (module [`import`]) turns rig data recorded as CSV into a log with the
 //!   simulator's topics and wire types, so that it replays like a simulated flight
 //!   (`vibro_log::import`).
+//! - `errors` (module [`errors`]) measures a recorded session against its reference:
+//!   the stage-error table of `vibrocomp demo` (`vibro_log::session`).
 
+mod errors;
 mod import;
 
 use std::fmt::Write as _;
@@ -20,9 +23,10 @@ use vibro_log::inspect::{read_info, recover_log, RecoverOutput};
 use vibro_mcap::LogInfo;
 
 use crate::output::print_json;
+pub use errors::ErrorsArgs;
 pub use import::ImportArgs;
 
-/// Inspect, repair and import MCAP logs.
+/// Inspect, repair, import and measure MCAP logs.
 #[derive(Debug, Subcommand)]
 pub enum LogCommand {
     /// Channels, message counts, time span, sequence losses, metadata and attachments.
@@ -31,6 +35,9 @@ pub enum LogCommand {
     Recover(RecoverArgs),
     /// Turn rig data recorded as CSV into a log with the simulator's topics and types.
     Import(ImportArgs),
+    /// Each compensation stage's error in a recorded session against its reference
+    /// (the simulator's truth), mean over windows: the table `demo` prints.
+    Errors(ErrorsArgs),
 }
 
 pub fn run(cmd: LogCommand) -> anyhow::Result<()> {
@@ -38,6 +45,7 @@ pub fn run(cmd: LogCommand) -> anyhow::Result<()> {
         LogCommand::Info(args) => info(&args),
         LogCommand::Recover(args) => recover(&args),
         LogCommand::Import(args) => import::run(&args),
+        LogCommand::Errors(args) => errors::run(&args),
     }
 }
 

@@ -4,6 +4,7 @@ pub mod bridge;
 pub mod demo;
 pub mod estimate;
 pub mod identify;
+pub mod identify_measure;
 pub mod lab;
 pub mod lab_log;
 pub mod latency;

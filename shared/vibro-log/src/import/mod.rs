@@ -31,6 +31,7 @@ mod csv;
 mod lines;
 mod plan;
 mod progress;
+mod reference;
 mod scan;
 mod timeline;
 mod write;
@@ -42,7 +43,7 @@ use vibro_msgs::{ACCEL_BLOCK_MAX, VIB_BLOCK_MAX};
 pub use lines::{LineReader, MAX_LINE_BYTES};
 pub use plan::{ImportOptions, ImportPlan};
 pub use progress::ImportProgress;
-pub use write::{import, read_csv_blocks, ImportReport, StreamReport};
+pub use write::{import, read_csv_blocks, ImportReport, ReferenceReport, StreamReport};
 
 /// At most this many problems are listed per CSV file before reading stops.
 pub const MAX_PROBLEMS: usize = 20;

@@ -37,6 +37,11 @@ pub struct ImportOptions {
     /// Who writes the log, for its `import` metadata (`tool`), e.g.
     /// `vibrocomp 0.1.0 log import`.
     pub tool: String,
+    /// The rig file (`--rig`, `vibro_config::rig`): its reference becomes the log's
+    /// reference channel, its triad's passports and sensor chain the log's.
+    pub rig: Option<PathBuf>,
+    /// The reference stream's CSV (`--reference`), for a rig whose reference is a stream.
+    pub reference: Option<PathBuf>,
 }
 
 impl ImportOptions {
@@ -55,6 +60,8 @@ impl ImportOptions {
             period_tolerance: DEFAULT_PERIOD_TOLERANCE,
             force: false,
             tool: format!("vibro-log {}", env!("CARGO_PKG_VERSION")),
+            rig: None,
+            reference: None,
         }
     }
 }
@@ -78,6 +85,9 @@ pub struct ImportPlan {
     pub(super) source_id: u32,
     pub(super) tolerance: f64,
     pub(super) tool: String,
+    /// The rig, validated, and the reference stream's file.
+    pub(super) rig: Option<vibro_config::RigConfig>,
+    pub(super) reference: Option<PathBuf>,
 }
 
 impl ImportPlan {
@@ -164,10 +174,35 @@ impl TryFrom<&ImportOptions> for ImportPlan {
                 ));
             }
         }
+        let rig = match &args.rig {
+            Some(path) => match vibro_config::load_rig(path) {
+                Ok(rig) => Some(rig),
+                Err(e) => {
+                    problems.push(format!("--rig {}: {e}", path.display()));
+                    None
+                }
+            },
+            None => None,
+        };
+        if args.rig.is_some() && args.accel.is_none() {
+            problems.push(
+                "--rig given without --accel CSV: the reference is written beside the readings"
+                    .to_string(),
+            );
+        }
+        if let (Some(r), None) = (&args.reference, &args.rig) {
+            problems.push(format!(
+                "--reference {} given without --rig FILE: the rig file says what the \
+                 reference is (reference.kind = \"stream\", its columns) and how the triad sits",
+                r.display()
+            ));
+        }
         if !problems.is_empty() {
             return Err(Error::ImportOptions { problems });
         }
-        let inputs: Vec<&Path> = streams.iter().map(|s| s.file.as_path()).collect();
+        let mut inputs: Vec<&Path> = streams.iter().map(|s| s.file.as_path()).collect();
+        inputs.extend(args.rig.as_deref());
+        inputs.extend(args.reference.as_deref());
         check_output(&args.out, &inputs, args.force)?;
         Ok(ImportPlan {
             streams,
@@ -175,6 +210,8 @@ impl TryFrom<&ImportOptions> for ImportPlan {
             source_id: args.source_id,
             tolerance,
             tool: args.tool.clone(),
+            rig,
+            reference: args.reference.clone(),
         })
     }
 }

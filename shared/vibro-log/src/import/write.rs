@@ -9,13 +9,15 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 use vibro_mcap::{Recorder, RecorderOptions};
+use vibro_msgs::{Stream, TruthBlock};
 
 use super::blocks::BlockMaker;
 use super::plan::{ImportPlan, StreamSpec};
 use super::progress::{ImportProgress, Tracker};
+use super::reference::Reference;
 use super::scan::scan;
 use super::ImportKind;
-use crate::attachments::{LogExtras, IMPORT_METADATA};
+use crate::attachments::{LogExtras, IMPORT_METADATA, RIG_METADATA};
 use crate::output::PartFile;
 use crate::rig::RigMessage;
 use crate::{Error, Result};
@@ -59,6 +61,24 @@ pub struct ImportReport {
     pub elapsed_s: f64,
     pub rows_per_s: f64,
     pub streams: Vec<StreamReport>,
+    /// The rig's reference channel (`--rig`).
+    pub reference: Option<ReferenceReport>,
+}
+
+/// The reference channel an import with a rig file wrote.
+#[derive(Debug, Clone, Serialize)]
+pub struct ReferenceReport {
+    pub topic: String,
+    /// The rig file.
+    pub rig: String,
+    /// `static`, `centrifuge` or `stream`.
+    pub kind: String,
+    /// The stream's CSV (`--reference`).
+    pub file: Option<String>,
+    /// Readings given a reference block.
+    pub readings: u64,
+    /// Readings whose interval has no reference (between static orientations): NaN.
+    pub readings_without_reference: u64,
 }
 
 /// Runs the import `plan`: validates every file (pass 1; problems in the input are
@@ -94,6 +114,40 @@ pub fn import(plan: &ImportPlan, progress: &mut dyn ImportProgress) -> Result<Im
         progress.sink.finish();
         return Err(Error::CsvInput { problems });
     }
+    // The rig's reference, covering every reading, before anything is written.
+    let reference = match &plan.rig {
+        Some(rig) => {
+            let r = Reference::load(rig, plan.reference.as_deref());
+            let covered = r.as_ref().ok().and_then(|r| {
+                let (spec, scan) = plan
+                    .streams
+                    .iter()
+                    .zip(&scans)
+                    .find(|(s, _)| s.kind == ImportKind::Accel)?;
+                r.check_covers(
+                    &spec.file,
+                    scan.first_time_s,
+                    scan.last_time_s,
+                    scan.period_s,
+                )
+                .err()
+            });
+            match (r, covered) {
+                (Ok(r), None) => Some((rig, r)),
+                (Ok(_), Some(problem)) => {
+                    progress.sink.finish();
+                    return Err(Error::Reference {
+                        problems: vec![problem],
+                    });
+                }
+                (Err(problems), _) => {
+                    progress.sink.finish();
+                    return Err(Error::Reference { problems });
+                }
+            }
+        }
+        None => None,
+    };
 
     // Pass 2: blocks, in time order over the streams, into a temporary file.
     progress.sink.pass("importing");
@@ -105,6 +159,16 @@ pub fn import(plan: &ImportPlan, progress: &mut dyn ImportProgress) -> Result<Im
         }
     })?;
     let mut extras = LogExtras::generated();
+    let truth_topic = crate::topic(Stream::Truth);
+    if let Some((rig, _)) = &reference {
+        rec.add_channel(&truth_topic, Stream::Truth.kind())?;
+        for (i, p) in rig.triad.passports.iter().enumerate() {
+            let text = toml::to_string(&p.to_spec()).map_err(Error::PassportToml)?;
+            extras.passport(i, p.id(), text);
+        }
+    }
+    let mut truth = TruthBlock::ZEROED;
+    let mut readings_without_reference = 0u64;
     let mut makers = Vec::new();
     for (spec, scan) in plan.streams.iter().zip(&scans) {
         rec.add_channel(&crate::topic(spec.kind.stream()), spec.kind.stream().kind())?;
@@ -132,7 +196,12 @@ pub fn import(plan: &ImportPlan, progress: &mut dyn ImportProgress) -> Result<Im
         // every such row.
         writing &= makers.iter().all(|m| m.problems.is_empty());
         if writing {
-            write_block(&rec, &makers[i].topic, makers[i].block.message())?;
+            let msg = makers[i].block.message();
+            write_block(&rec, &makers[i].topic, msg)?;
+            if let (Some((rig, r)), RigMessage::Accel(b)) = (&reference, msg) {
+                readings_without_reference += r.truth_block(&rig.triad.axes, b, &mut truth);
+                write_block(&rec, &truth_topic, RigMessage::Truth(&truth))?;
+            }
         }
         ready[i] = makers[i].fill()?;
         blocks_since_progress += 1;
@@ -206,6 +275,12 @@ pub fn import(plan: &ImportPlan, progress: &mut dyn ImportProgress) -> Result<Im
             source_id: plan.source_id,
         });
     }
+    if let Some((rig, _)) = &reference {
+        extras.metadata(
+            RIG_METADATA,
+            rig_metadata(plan, rig, &scans, readings_without_reference),
+        );
+    }
     extras.metadata(IMPORT_METADATA, meta);
     extras.write_to(&rec)?;
     let summary = rec.finish().map_err(Error::FinishLog)?;
@@ -219,8 +294,69 @@ pub fn import(plan: &ImportPlan, progress: &mut dyn ImportProgress) -> Result<Im
         bytes: summary.bytes,
         elapsed_s,
         rows_per_s: rows as f64 / elapsed_s.max(1e-9),
+        reference: reference.as_ref().map(|(rig, _)| ReferenceReport {
+            topic: truth_topic.clone(),
+            rig: rig.file.clone(),
+            kind: rig.reference.kind().to_string(),
+            file: plan.reference.as_ref().map(|p| p.display().to_string()),
+            readings: streams
+                .iter()
+                .filter(|s| s.stream == ImportKind::Accel)
+                .map(|s| s.rows)
+                .sum(),
+            readings_without_reference,
+        }),
         streams,
     })
+}
+
+/// The log's `rig` metadata: the rig file, its reference, and the sensor settings the
+/// lab's estimator takes from a log (`sensor_hz`, `sensor_sensitivity_v_per_g` per
+/// sensor, `sensor_ac_corner_hz`; the keys of a simulated log's `scenario`).
+fn rig_metadata(
+    plan: &ImportPlan,
+    rig: &vibro_config::RigConfig,
+    scans: &[super::scan::Scan],
+    readings_without_reference: u64,
+) -> BTreeMap<String, String> {
+    let mut m = BTreeMap::from([
+        ("file".to_string(), rig.file.clone()),
+        ("triad".to_string(), rig.triad.id.clone()),
+        (
+            "reference_kind".to_string(),
+            rig.reference.kind().to_string(),
+        ),
+        (
+            "readings_without_reference".to_string(),
+            readings_without_reference.to_string(),
+        ),
+        (
+            "sensor_ac_corner_hz".to_string(),
+            rig.sensors.ac_corner_hz.unwrap_or(0.0).to_string(),
+        ),
+    ]);
+    if let Some(r) = &plan.reference {
+        m.insert("reference_file".into(), r.display().to_string());
+    }
+    let s = rig.sensors.sensitivity_v_per_g;
+    for (u, v) in s.iter().enumerate() {
+        m.insert(
+            format!("sensor{}_sensitivity_v_per_g", u + 1),
+            v.to_string(),
+        );
+    }
+    if s.iter().all(|v| *v == s[0]) {
+        m.insert("sensor_sensitivity_v_per_g".into(), s[0].to_string());
+    }
+    if let Some((_, scan)) = plan
+        .streams
+        .iter()
+        .zip(scans)
+        .find(|(spec, _)| spec.kind == ImportKind::Vib)
+    {
+        m.insert("sensor_hz".into(), (1.0 / scan.period_s).to_string());
+    }
+    m
 }
 
 /// Writes one block, waiting for room in the recorder's queue (an import must lose

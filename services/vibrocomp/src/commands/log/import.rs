@@ -50,6 +50,17 @@ pub struct ImportArgs {
     /// sample period (0 < tolerance < 0.5).
     #[arg(long, default_value_t = DEFAULT_PERIOD_TOLERANCE)]
     pub period_tolerance: f64,
+    /// A rig file (docs/logs.md, "A rig's own data"): the triad, the vibration
+    /// sensors' chain and the reference (static orientations, a centrifuge or a
+    /// stream). Writes the reference channel (`/truth`, flagged SENSED_UNKNOWN), the
+    /// triad's passports and the sensor chain into the log, so that the lab and `log
+    /// errors` take it as it is. Needs --accel.
+    #[arg(long, value_name = "RIG.toml")]
+    pub rig: Option<PathBuf>,
+    /// The reference stream's CSV (time_s and one column per body axis, in g) of a
+    /// rig whose reference is a stream (`[reference] kind = "stream"`).
+    #[arg(long, value_name = "CSV", requires = "rig")]
+    pub reference: Option<PathBuf>,
     /// Overwrite OUT if it exists.
     #[arg(long)]
     pub force: bool,
@@ -72,6 +83,8 @@ impl From<&ImportArgs> for ImportOptions {
             period_tolerance: args.period_tolerance,
             force: args.force,
             tool: format!("vibrocomp {} log import", env!("CARGO_PKG_VERSION")),
+            rig: args.rig.clone(),
+            reference: args.reference.clone(),
         }
     }
 }
@@ -122,6 +135,18 @@ fn write_import(out: &mut String, r: &ImportReport) -> std::fmt::Result {
         r.elapsed_s,
         r.rows_per_s
     )?;
+    if let Some(x) = &r.reference {
+        writeln!(
+            out,
+            "  {:<7} the {} reference of {}{}: {} readings, {} without a reference (between orientations)",
+            x.topic,
+            x.kind,
+            x.rig,
+            x.file.as_deref().map(|f| format!(" ({f})")).unwrap_or_default(),
+            x.readings,
+            x.readings_without_reference
+        )?;
+    }
     for s in &r.streams {
         writeln!(
             out,
