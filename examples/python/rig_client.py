@@ -3,8 +3,12 @@
 
 Plays the rig bridge: publishes a deterministic synthetic rig stream on
 ``{prefix}vib`` (vibration sensors, ``VibBlock``) and ``{prefix}accel`` (accelerometer
-triad, ``AccelBlock``), reads back every ``CompensatedBlock`` from
-``{prefix}compensated``, and writes them to a JSON file. Run the two services first
+triad, ``AccelBlock``) with its reference beside the readings on ``{prefix}truth``
+(``TruthBlock`` flagged ``SENSED_UNKNOWN``: what each unit should read without
+vibration, as ``vibrocomp log import --rig`` writes a rig's reference, so that a
+recording of the session can be measured with ``vibrocomp log errors``), reads back
+every ``CompensatedBlock`` from ``{prefix}compensated``, and writes them to a JSON
+file. Run the two services first
 (``vibrocomp service estimator --prefix P`` and ``vibrocomp service compensator
 --prefix P``), then ``python3 rig_client.py --prefix P --out results.json``.
 
@@ -95,6 +99,31 @@ class AccelBlock(C.Structure):
         ("flags", U32),
         ("_pad", U8 * 4),
     ]
+
+
+@wire(2360)
+class TruthBlock(C.Structure):
+    """The reference channel (`{prefix}truth`): a rig states what each unit should
+    read without vibration (`a_l_ia_g`), flagged SENSED_UNKNOWN, the other two NaN."""
+
+    _fields_ = [
+        ("seq", U64),
+        ("first_sample_index", U64),
+        ("t0_ns", U64),
+        ("sample_period_ns", U64),
+        ("publish_ns", U64),
+        ("a_l_ia_g", (F64 * UNITS) * ACCEL_BLOCK_MAX),
+        ("a_sensed_ia_g", (F64 * UNITS) * ACCEL_BLOCK_MAX),
+        ("vib_error_ia_g", (F64 * UNITS) * ACCEL_BLOCK_MAX),
+        ("count", U32),
+        ("source_id", U32),
+        ("flags", U32),
+        ("_pad", U8 * 4),
+    ]
+
+
+#: `truth_flags::SENSED_UNKNOWN` (docs/messages.md): a rig's reference.
+TRUTH_SENSED_UNKNOWN = 1 << 2
 
 
 @wire(12344)
@@ -202,7 +231,7 @@ class Heartbeat(C.Structure):
     ]
 
 
-WIRE_TYPES = (AccelBlock, VibBlock, VibEstimate, CompensatedBlock, Heartbeat)
+WIRE_TYPES = (AccelBlock, VibBlock, VibEstimate, CompensatedBlock, Heartbeat, TruthBlock)
 
 # --- Quality of service (shared/vibro-ipc StreamConfig::default) ------------------------
 
@@ -397,12 +426,20 @@ class Client:
         p = args.prefix
         self.vib = Outbound(self.node, p + "vib", VibBlock)
         self.accel = Outbound(self.node, p + "accel", AccelBlock)
+        # The rig's reference beside the readings (what the lab and `log errors` measure
+        # against); nobody needs to subscribe.
+        self.truth = Outbound(self.node, p + "truth", TruthBlock)
         self.compensated = Inbound(self.node, p + "compensated", CompensatedBlock)
         self.estimate = Inbound(self.node, p + "estimate", VibEstimate, ESTIMATE_HISTORY)
         self.progress = Inbound(self.node, p + "progress/estimator", Heartbeat)
         self.vib_block = VibBlock(source_id=SOURCE_ID, sample_period_ns=period_ns(VIB_RATE_HZ))
         self.accel_block = AccelBlock(
             source_id=SOURCE_ID, sample_period_ns=period_ns(ACCEL_RATE_HZ)
+        )
+        self.truth_block = TruthBlock(
+            source_id=SOURCE_ID,
+            sample_period_ns=period_ns(ACCEL_RATE_HZ),
+            flags=TRUTH_SENSED_UNKNOWN,
         )
         self.vib_total = round(args.duration_s * VIB_RATE_HZ)
         self.accel_total = round(args.duration_s * ACCEL_RATE_HZ)
@@ -417,7 +454,14 @@ class Client:
         self.blocks = []
 
     def close(self) -> None:
-        for port in (self.progress, self.estimate, self.compensated, self.accel, self.vib):
+        for port in (
+            self.progress,
+            self.estimate,
+            self.compensated,
+            self.truth,
+            self.accel,
+            self.vib,
+        ):
             port.close()
 
     def wait_for(self, what, done, inbound: Inbound | None) -> None:
@@ -512,7 +556,28 @@ class Client:
         self.expected_estimate[b.seq] = self.estimates[-1]["seq"] if self.estimates else None
         b.publish_ns = time.monotonic_ns()
         self.accel.send(b)
+        self.send_reference(b)
         self.accel_next += n
+
+    def send_reference(self, accel: AccelBlock) -> None:
+        """The block's reference: the acceleration each unit's IA sees (`accel_g`),
+        which this rig knows; the sensed acceleration and VE are not known (NaN)."""
+        t = self.truth_block
+        n0, n = accel.first_sample_index, accel.count
+        known = [0.0] * (3 * ACCEL_BLOCK_MAX)
+        for k in range(n):
+            for u in range(UNITS):
+                known[3 * k + u] = accel_g(n0 + k, u)
+        unknown = [math.nan] * (3 * ACCEL_BLOCK_MAX)
+        struct.pack_into(f"={3 * ACCEL_BLOCK_MAX}d", t, TruthBlock.a_l_ia_g.offset, *known)
+        for field in (TruthBlock.a_sensed_ia_g, TruthBlock.vib_error_ia_g):
+            struct.pack_into(f"={3 * ACCEL_BLOCK_MAX}d", t, field.offset, *unknown)
+        t.seq = accel.seq
+        t.first_sample_index = n0
+        t.t0_ns = accel.t0_ns
+        t.count = n
+        t.publish_ns = accel.publish_ns
+        self.truth.send(t)
 
     def take_compensated(self) -> None:
         for m in self.compensated.drain():
@@ -614,6 +679,7 @@ class Client:
                 "vib_samples": self.vib_next,
                 "accel_blocks": self.accel.sent,
                 "accel_samples": self.accel_next,
+                "reference_blocks": self.truth.sent,
             },
             "estimator_received": self.estimator_received,
             "received_blocks": len(self.blocks),

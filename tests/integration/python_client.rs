@@ -22,7 +22,7 @@ use vibro_ipc::{create_node, StreamConfig, StreamSubscriber};
 use vibro_msgs::compensation_flags as cf;
 use vibro_msgs::{
     AccelBlock, CompensatedBlock, FieldLayout, Heartbeat, ServiceId, ServiceNames, Stream,
-    VibBlock, VibEstimate,
+    TruthBlock, VibBlock, VibEstimate,
 };
 use vibro_physics::compensation::{Mode, TriadCompensator};
 
@@ -179,7 +179,7 @@ fn check_layouts() {
         String::from_utf8_lossy(&out.stderr)
     );
     let layouts: Value = serde_json::from_slice(&out.stdout).expect("layout JSON");
-    let rust: [(&str, &str, usize, usize, &[FieldLayout]); 5] = [
+    let rust: [(&str, &str, usize, usize, &[FieldLayout]); 6] = [
         (
             "AccelBlock",
             AccelBlock::TYPE_NAME,
@@ -214,6 +214,13 @@ fn check_layouts() {
             size_of::<Heartbeat>(),
             align_of::<Heartbeat>(),
             Heartbeat::FIELDS,
+        ),
+        (
+            "TruthBlock",
+            TruthBlock::TYPE_NAME,
+            size_of::<TruthBlock>(),
+            align_of::<TruthBlock>(),
+            TruthBlock::FIELDS,
         ),
     ];
     for (name, type_name, size, align, fields) in rust {
@@ -312,6 +319,10 @@ fn stop(mut p: Proc) -> Value {
         .unwrap_or_else(|e| panic!("{}: summary is not JSON ({e}): {stdout}", p.name))
 }
 
+/// A reference block as the probe saw it: first sample index, count, flags, `a_l_ia_g`
+/// rows, and whether the sensed and VE fields were all NaN.
+type ReferenceSeen = (u64, u32, u32, Vec<[f64; 3]>, bool);
+
 /// The client's accelerometer formula (rig_client.py `accel_g`), operation for
 /// operation, so the readings are the same doubles.
 fn accel_g(n: u64, unit: u64) -> f64 {
@@ -379,6 +390,50 @@ fn python_rig_client_round_trips_through_both_services() {
     );
     wait_for_heartbeats(&prefix, &mut [&mut estimator, &mut compensator]);
 
+    // The client's reference channel (`{prefix}truth`), drained as it comes: a rig's
+    // reference, flagged SENSED_UNKNOWN, each unit's `a_l_ia_g` the client's formula.
+    let stop_probe = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let reference = {
+        let (prefix, stop) = (prefix.clone(), stop_probe.clone());
+        let (opened, is_open) = std::sync::mpsc::channel();
+        let probe = std::thread::spawn(move || -> Vec<ReferenceSeen> {
+            let node = create_node(&format!("vct-py-ref-{}", next_id())).expect("probe node");
+            let names = ServiceNames::new(&prefix).expect("names");
+            let sub = StreamSubscriber::<TruthBlock>::open(&node, &names, Stream::Truth)
+                .expect("the reference stream");
+            let _ = opened.send(());
+            let mut got = Vec::new();
+            loop {
+                let stopping = stop.load(Ordering::SeqCst);
+                while let Ok(Some(m)) = sub.receive() {
+                    let b: &TruthBlock = &m;
+                    let n = (b.count as usize).min(b.a_l_ia_g.len());
+                    let unknown = b.a_sensed_ia_g[..n]
+                        .iter()
+                        .chain(&b.vib_error_ia_g[..n])
+                        .flatten()
+                        .all(|x| x.is_nan());
+                    got.push((
+                        b.first_sample_index,
+                        b.count,
+                        b.flags,
+                        b.a_l_ia_g[..n].to_vec(),
+                        unknown,
+                    ));
+                }
+                if stopping {
+                    return got;
+                }
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        });
+        // Subscribed before the client publishes its first block.
+        is_open
+            .recv_timeout(Duration::from_secs(30))
+            .expect("the reference probe subscribed");
+        probe
+    };
+
     let results_path = dir.path("results.json");
     let started = Instant::now();
     let mut client = Proc::spawn(
@@ -432,8 +487,34 @@ fn python_rig_client_round_trips_through_both_services() {
         estimator.stderr(),
         compensator.stderr()
     );
+    stop_probe.store(true, Ordering::SeqCst);
+    let reference = reference.join().expect("the reference probe");
     let estimator_summary = stop(estimator);
     let compensator_summary = stop(compensator);
+    // Every reference block arrived, with the client's accelerations.
+    let mut samples = 0u64;
+    for (first, count, flags, a_l, unknown) in &reference {
+        assert_eq!(
+            *flags,
+            vibro_msgs::truth_flags::SENSED_UNKNOWN,
+            "block at {first}"
+        );
+        assert!(*unknown, "block at {first}: sensed or VE not NaN");
+        assert_eq!(a_l.len(), *count as usize);
+        for (k, row) in a_l.iter().enumerate() {
+            for u in 0..3u64 {
+                assert_eq!(
+                    row[u as usize].to_bits(),
+                    accel_g(first + k as u64, u).to_bits(),
+                    "reference of sample {} unit {u}",
+                    first + k as u64
+                );
+            }
+        }
+        samples += u64::from(*count);
+    }
+    let accel_samples = (DURATION_S * ACCEL_RATE_HZ as f64).round() as u64;
+    assert_eq!(samples, accel_samples, "reference samples received");
     let results: Value = serde_json::from_str(
         &std::fs::read_to_string(&results_path).expect("results.json written"),
     )
