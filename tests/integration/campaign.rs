@@ -193,6 +193,35 @@ fn a_campaign_from_raw_runs_finds_a_hidden_mount_resonance() {
             );
         }
     }
+    // The lab writes the table a manifest makes (`--table-out`): byte for byte the one
+    // `identify campaign` wrote; an existing file is not overwritten.
+    let lab_table = dir.0.join("lab-table.csv");
+    let args = |out: &Path| {
+        [
+            "lab".to_string(),
+            "compare".into(),
+            m.display().to_string(),
+            "--table-out".into(),
+            out.display().to_string(),
+        ]
+    };
+    let out = bin().args(args(&lab_table)).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(
+        std::fs::read(&lab_table).unwrap(),
+        std::fs::read(&table).unwrap()
+    );
+    let out = bin().args(args(&lab_table)).output().unwrap();
+    assert!(!out.status.success());
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        e.contains("--table-out") && e.contains("lab-table.csv"),
+        "{e}"
+    );
 }
 
 /// A manifest with problems is refused with every problem named (key, value, rule),

@@ -135,6 +135,22 @@ fn a_rig_import_writes_the_rigs_reference_beside_the_readings() {
         }
     }
     assert_eq!((blocks, samples), (200, 6400));
+    // A log's windows (a spectrum of bands each) do not fit the CSV table: refused, by
+    // condition, and nothing written.
+    let csv = dir.0.join("o1.csv");
+    let out = run_failing(&[
+        "lab",
+        "compare",
+        log.to_str().unwrap(),
+        "--table-out",
+        csv.to_str().unwrap(),
+    ]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        e.contains("--table-out") && e.contains("a CSV row holds one tone, one flat band"),
+        "{e}"
+    );
+    assert!(!csv.exists());
 }
 
 fn diagnose(logs: &[PathBuf]) -> serde_json::Value {

@@ -294,6 +294,7 @@ fn run_campaign(args: CampaignArgs) -> anyhow::Result<()> {
         batches: 8,
         max_al_span_g: 1.0,
         pool_windows: 0,
+        table_out: None,
     };
     let result = super::lab_log::table_from_manifest(&args.manifest, &log_args.estimator()?)?;
     if let Some(out) = &args.table_out {

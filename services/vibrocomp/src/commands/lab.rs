@@ -167,6 +167,10 @@ fn load(
     mode: BaseMode,
     log_args: &LogArgs,
 ) -> anyhow::Result<Loaded> {
+    if let Some(out) = &log_args.table_out {
+        let inputs: Vec<&Path> = inputs.iter().map(PathBuf::as_path).collect();
+        crate::files::check(out, &inputs, false).context("--table-out")?;
+    }
     let model = match model {
         Some(p) => LabModel::load(p)?,
         None => LabModel::base(mode),
@@ -192,6 +196,11 @@ fn load(
         }
     }
     let table = CampaignTable::joined(tables)?;
+    if let Some(out) = &log_args.table_out {
+        let mut bytes = Vec::new();
+        table.write_csv(&mut bytes).context("--table-out")?;
+        crate::files::write_bytes(out, false, &bytes)?;
+    }
     Ok(Loaded {
         model,
         table,

@@ -36,6 +36,12 @@ pub struct LogArgs {
     /// `--max-al-span-g`.
     #[arg(long, default_value_t = 0)]
     pub pool_windows: usize,
+    /// Write the table the inputs make (a shake-table manifest measured, tables joined)
+    /// as the lab's CSV (docs/lab.md), to read back or edit; refused for a table a CSV
+    /// row cannot hold (a log's windows: several tones, a spectrum of bands) and for an
+    /// existing file. Nothing is written when the command fails before the table exists.
+    #[arg(long, value_name = "CSV")]
+    pub table_out: Option<PathBuf>,
 }
 
 impl LogArgs {
