@@ -26,6 +26,19 @@ fn rig_log(
     tone_hz: &str,
     resonance: bool,
 ) -> PathBuf {
+    rig_log_with(dir, name, seed, orientation, tone_hz, resonance, &[])
+}
+
+/// [`rig_log`] with more generator arguments.
+fn rig_log_with(
+    dir: &Path,
+    name: &str,
+    seed: u32,
+    orientation: &str,
+    tone_hz: &str,
+    resonance: bool,
+    extra: &[&str],
+) -> PathBuf {
     let run = dir.join(name);
     let mut gen = Command::new("python3");
     gen.arg(repo_path("tests/python/rig_generator.py"))
@@ -44,6 +57,7 @@ fn rig_log(
     if resonance {
         gen.args(["--resonance-f0-hz", "150", "--resonance-q", "2.5"]);
     }
+    gen.args(extra);
     let out = gen.output().expect("python3 runs");
     assert!(
         out.status.success(),
@@ -347,4 +361,106 @@ fn bad_rig_input_is_refused_before_anything_is_written() {
         }
     }
     assert_eq!(n, 100);
+}
+
+/// One session: the shipped services with the rig's estimator configuration (6.4 kHz,
+/// AC coupling at 2 Hz) and `compensator` (a compensator configuration), the rig's
+/// log replayed into them and recorded, measured by `log errors --json`; returns the
+/// vibration-removed RMS over the three units, g.
+fn session_error_g(log: &Path, dir: &Path, name: &str, compensator: &Path) -> f64 {
+    use crate::processes::{prefix, Kid};
+    use vibro_msgs::{ServiceId, ServiceNames};
+    let estimator = dir.join("rig-estimator.toml");
+    if !estimator.exists() {
+        let shipped = std::fs::read_to_string(repo_path("config/services/estimator.toml")).unwrap();
+        let text = shipped
+            .replace("sample_rate_hz = 25600.0", "sample_rate_hz = 6400.0")
+            .replace("ac_corner_hz = 0.5 ", "ac_corner_hz = 2.0 ");
+        assert_ne!(text, shipped);
+        std::fs::write(&estimator, text).unwrap();
+    }
+    let session = dir.join(format!("{name}.mcap"));
+    let p = prefix("rs");
+    let mut cmd = bin();
+    cmd.args(["up", "--json", "--prefix", &p, "--record"])
+        .arg(&session)
+        .arg("--estimator-config")
+        .arg(&estimator)
+        .arg("--compensator-config")
+        .arg(compensator);
+    let mut up = Kid::spawn(cmd, "up");
+    let names = ServiceNames::new(&p).unwrap();
+    let services = [
+        ServiceId::Estimator,
+        ServiceId::Compensator,
+        ServiceId::Recorder,
+    ];
+    if let Err(e) = vibro_service::supervise::wait_for_heartbeats(
+        &names,
+        &services,
+        std::time::Duration::from_secs(30),
+        || up.check_alive(),
+    ) {
+        panic!("{e:#}\nup stderr:\n{}", up.stderr());
+    }
+    let replay = bin()
+        .arg("replay")
+        .arg(log)
+        .args(["--prefix", &p, "--json"])
+        .output()
+        .unwrap();
+    assert!(
+        replay.status.success(),
+        "replay: {}",
+        String::from_utf8_lossy(&replay.stderr)
+    );
+    let (status, _, stderr) = up.stop(libc::SIGINT, std::time::Duration::from_secs(30));
+    assert!(status.success(), "up: {status}\n{stderr}");
+    let v = run_json(&["log", "errors", session.to_str().unwrap(), "--json"]);
+    assert_eq!(v["errors"]["reference"], "rig", "{v}");
+    v["errors"]["all_units"]["vibration_removed_rms_g"]
+        .as_f64()
+        .unwrap()
+}
+
+/// The loop on a tone through the generator's mount (150 Hz tone, 150 Hz Q 2.5 mount,
+/// no random part), replayed through the services with the base model and with the
+/// mount as an extended model (its true parameters): the compensator takes the tone's
+/// part inside each output interval at each sample's phase (through the mount) over a
+/// grid that covers the readings' swing, and the error falls several times (measured:
+/// 305 -> 44 ug). Before, the tone's part was taken at its mean over the phase on a
+/// +-2 g grid, and the model made the error worse (446 ug).
+#[test]
+fn the_mount_model_removes_a_tones_error_through_the_mount() {
+    let dir = TempDir::new("riglog", "loop");
+    let log = rig_log_with(&dir.0, "t", 103, "+x", "150", true, &["--random-psd", "0"]);
+    let model = dir.0.join("mount.toml");
+    std::fs::write(
+        &model,
+        "mode = \"exact\"\n[[effect]]\nkind = \"mount_resonance\"\nfreq_hz = 150.0\nq = 2.5\n",
+    )
+    .unwrap();
+    let shipped = std::fs::read_to_string(repo_path("config/services/compensator.toml")).unwrap();
+    let base = dir.0.join("base.toml");
+    std::fs::write(&base, &shipped).unwrap();
+    let with = dir.0.join("with-model.toml");
+    std::fs::write(
+        &with,
+        shipped.replace(
+            "triad = \"default\"",
+            &format!(
+                "model = {:?}\ntriad = \"default\"",
+                model.display().to_string()
+            ),
+        ),
+    )
+    .unwrap();
+    let before = session_error_g(&log, &dir.0, "base", &base);
+    let after = session_error_g(&log, &dir.0, "model", &with);
+    println!(
+        "FIGURES tone through the mount: vibration removed {:.1} ug (base) -> {:.1} ug (model)",
+        before * 1e6,
+        after * 1e6
+    );
+    assert!(after < 0.3 * before, "{after} vs {before}");
 }

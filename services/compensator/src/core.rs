@@ -240,8 +240,10 @@ impl AccelTiming {
     }
 }
 
-/// Nodes of an [`EffectGrid`]: 17 nodes 0.25 g apart cover +-2 g around the reading
-/// the grid was built at.
+/// Nodes of an [`EffectGrid`]: 17 nodes, at least 0.25 g apart (+-2 g around the
+/// reading the grid was built at), wider when a block's readings swing further (a tone
+/// the samples resolve, amplified by a mount): the grid spans 1.25 times the block's
+/// swing, so that no reading is clamped to the grid's end.
 const EFFECT_GRID_NODES: usize = 17;
 const EFFECT_GRID_STEP_G: f64 = 0.25;
 
@@ -253,33 +255,110 @@ const EFFECT_GRID_STEP_G: f64 = 0.25;
 #[derive(Debug, Clone, Copy)]
 struct EffectGrid {
     a0_g: f64,
+    step_g: f64,
     ve_g: [f64; EFFECT_GRID_NODES],
 }
 
+/// The span a grid is built for: its centre and the half-width its readings need, g.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct GridSpan {
+    center_g: f64,
+    half_width_g: f64,
+}
+
+impl GridSpan {
+    /// The node spacing: 0.25 g, or wider so that the inner nodes span 1.25 times the
+    /// half-width.
+    fn step_g(&self) -> f64 {
+        let inner = (EFFECT_GRID_NODES / 2 - 1) as f64;
+        EFFECT_GRID_STEP_G.max(1.25 * self.half_width_g / inner)
+    }
+}
+
+/// A single tone's part of a unit's effects, taken at each sample's phase: inside one
+/// output interval a tone deviates from its mean by a variance that depends on where in
+/// its cycle the interval falls (least at the tone's peaks, where the reading `a(1)`
+/// carries most of it), so the effects' tone part, tabulated at the mean variance, is
+/// scaled per sample by [`tone_within_factor`]. Without it a quartic term's cross part
+/// `6 k4 E[s^2 w^2]` (`s` the resolved tone in `a(1)`, `w` its deviation inside the
+/// interval) is taken as `6 k4 E[s^2] E[w^2]`, twice the truth for a slow tone; a
+/// mount that triples a tone makes that hundreds of ug (docs/services.md).
+#[derive(Debug, Clone, Copy)]
+struct ToneSplit {
+    /// The effects with the tone removed (the random part alone).
+    without: EffectGrid,
+    freq_hz: f64,
+    /// The tone's phase on the unit's IA after the effects on the vibration path (a
+    /// mount turns it), at the estimate's `center_ns`.
+    phase_rad: f64,
+    center_ns: u64,
+}
+
+/// One unit's extended-model correction: the effects' grid, and for a single tone its
+/// split ([`ToneSplit`]).
+#[derive(Debug, Clone, Copy)]
+struct UnitEffects {
+    full: EffectGrid,
+    tone: Option<ToneSplit>,
+}
+
+impl UnitEffects {
+    /// The correction of a sample read at `a_g` whose interval of `interval_s` has its
+    /// middle at `mid_ns`.
+    fn at(&self, a_g: f64, mid_ns: u64, interval_s: f64) -> f64 {
+        let full = self.full.at(a_g);
+        let Some(t) = &self.tone else {
+            return full;
+        };
+        let without = t.without.at(a_g);
+        let dt_s = (i128::from(mid_ns) - i128::from(t.center_ns)) as f64 * 1e-9;
+        let theta = 2.0 * std::f64::consts::PI * t.freq_hz * dt_s + t.phase_rad;
+        let omega_t = 2.0 * std::f64::consts::PI * t.freq_hz * interval_s;
+        without + tone_within_factor(theta, omega_t) * (full - without)
+    }
+}
+
+/// For a tone `sin(theta + w tau)` over an interval `tau` in `[-T/2, T/2]` (`theta` its
+/// phase at the middle, `omega_t = w T`): the variance of its deviation from the
+/// interval's mean, `1/2 - 1/2 cos(2 theta) sinc(w T) - sin^2(theta) sinc^2(w T / 2)`,
+/// over its mean over `theta`, `1/2 (1 - sinc^2(w T / 2))` (crate::interval's
+/// `within_fraction`). 1 where the mean vanishes.
+fn tone_within_factor(theta: f64, omega_t: f64) -> f64 {
+    let sinc = |x: f64| if x.abs() < 1e-9 { 1.0 } else { x.sin() / x };
+    let half = sinc(0.5 * omega_t);
+    let mean = 0.5 * (1.0 - half * half);
+    if mean.is_nan() || mean <= 1e-12 {
+        return 1.0;
+    }
+    let v = 0.5 - 0.5 * (2.0 * theta).cos() * sinc(omega_t) - theta.sin().powi(2) * half * half;
+    (v / mean).max(0.0)
+}
+
 impl EffectGrid {
-    /// The grid centred on `center_g`, from the VE change at each node.
+    /// The grid over `span`, from the VE change at each node.
     fn build(
-        center_g: f64,
+        span: GridSpan,
         mut ve_at: impl FnMut(f64) -> vibro_effects::Result<f64>,
     ) -> vibro_effects::Result<Self> {
-        let a0_g = center_g - EFFECT_GRID_STEP_G * (EFFECT_GRID_NODES / 2) as f64;
+        let step_g = span.step_g();
+        let a0_g = span.center_g - step_g * (EFFECT_GRID_NODES / 2) as f64;
         let mut ve_g = [0.0; EFFECT_GRID_NODES];
         for (j, v) in ve_g.iter_mut().enumerate() {
-            *v = ve_at(a0_g + EFFECT_GRID_STEP_G * j as f64)?;
+            *v = ve_at(a0_g + step_g * j as f64)?;
         }
-        Ok(Self { a0_g, ve_g })
+        Ok(Self { a0_g, step_g, ve_g })
     }
 
     fn covers(&self, a_g: f64) -> bool {
-        let x = (a_g - self.a0_g) / EFFECT_GRID_STEP_G;
+        let x = (a_g - self.a0_g) / self.step_g;
         x >= 1.0 && x <= (EFFECT_GRID_NODES - 2) as f64
     }
 
     /// Cubic (4-point Lagrange) interpolation at `a_g`, clamped to the grid: exact for
-    /// cubics; for a smooth `E`, error at most `|E''''| h^4 9/384` (h = 0.25 g).
+    /// cubics; for a smooth `E`, error at most `|E''''| h^4 9/384` (h the spacing).
     fn at(&self, a_g: f64) -> f64 {
         let last = (EFFECT_GRID_NODES - 1) as f64;
-        let x = ((a_g - self.a0_g) / EFFECT_GRID_STEP_G).clamp(0.0, last);
+        let x = ((a_g - self.a0_g) / self.step_g).clamp(0.0, last);
         // Nodes j-1, j, j+1, j+2 around x, kept inside the grid.
         let j = (x.floor() as usize).clamp(1, EFFECT_GRID_NODES - 3);
         let t = x - j as f64;
@@ -304,9 +383,9 @@ pub(crate) struct Compensation {
     k1_v_per_g: [f64; 3],
     /// The extended model's correction per unit, for the vibration the compensator
     /// holds; `None` without `model = ...` or without vibration.
-    effect_grids: Option<[EffectGrid; 3]>,
-    /// The first reading (U/K1) of the block the grids were wanted for, g.
-    effect_center_g: [f64; 3],
+    effect_grids: Option<[UnitEffects; 3]>,
+    /// The readings' span (U/K1) of the block the grids were wanted for, per unit.
+    effect_span: [GridSpan; 3],
     /// The spectrum behind the estimates' band powers, for the effects' mean formulas
     /// (the lab's reading of an estimate, `vibro_effects::spectrum`).
     spectrum: SpectrumSolver,
@@ -337,7 +416,7 @@ impl Compensation {
         Ok(Compensation {
             k1_v_per_g: model.k1_v_per_g(),
             effect_grids: None,
-            effect_center_g: [0.0; 3],
+            effect_span: [GridSpan::default(); 3],
             spectrum: SpectrumSolver::from_estimates(),
             model,
             prepared: compensator.clone(),
@@ -527,7 +606,9 @@ impl Compensation {
                         &self.model.triad.passports,
                         &units,
                         &spectra,
-                        self.effect_center_g,
+                        self.effect_span,
+                        l.estimate.center_ns,
+                        interval_s > 0.0,
                     ) {
                         Ok((grids, true_vibrations)) => {
                             self.effect_grids = Some(grids);
@@ -561,7 +642,7 @@ impl Compensation {
         ok
     }
 
-    /// The extended model's grids again, around `effect_center_g`, for the vibration
+    /// The extended model's grids again, over `effect_span`, for the vibration
     /// the compensator holds; without grids (base model) when they cannot be built.
     fn retabulate(&mut self) {
         let interval_s = self.interval_s();
@@ -580,7 +661,9 @@ impl Compensation {
             passports,
             &l.vibrations.units,
             &spectra,
-            self.effect_center_g,
+            self.effect_span,
+            l.estimate.center_ns,
+            interval_s > 0.0,
         ) {
             Ok((grids, _)) => self.effect_grids = Some(grids),
             Err(e) => {
@@ -699,13 +782,28 @@ impl Compensation {
             }
         }
         if self.model.effects.is_some() && block.count > 0 {
-            let u_v = block.samples_v()[0];
-            let first_g = [0, 1, 2].map(|i| u_v[i] / self.k1_v_per_g[i]);
-            let outside = self
-                .effect_grids
-                .is_some_and(|g| (0..3).any(|i| !g[i].covers(first_g[i])));
-            if want != self.applied || outside {
-                self.effect_center_g = first_g;
+            // The block's readings (U/K1) per unit: their span (finite ones only).
+            let mut lo = [f64::INFINITY; 3];
+            let mut hi = [f64::NEG_INFINITY; 3];
+            for u_v in block.samples_v() {
+                for i in 0..3 {
+                    let g = u_v[i] / self.k1_v_per_g[i];
+                    if g.is_finite() && g.abs() <= MAX_ABS_READING_G {
+                        lo[i] = lo[i].min(g);
+                        hi[i] = hi[i].max(g);
+                    }
+                }
+            }
+            let known = (0..3).all(|i| lo[i] <= hi[i]);
+            let outside = known
+                && self.effect_grids.is_some_and(|g| {
+                    (0..3).any(|i| !(g[i].full.covers(lo[i]) && g[i].full.covers(hi[i])))
+                });
+            if known && (want != self.applied || outside) {
+                self.effect_span = std::array::from_fn(|i| GridSpan {
+                    center_g: 0.5 * (lo[i] + hi[i]),
+                    half_width_g: 0.5 * (hi[i] - lo[i]),
+                });
             }
             if outside && want == self.applied {
                 // The flight acceleration left the grid: tabulate again around it (the
@@ -734,6 +832,12 @@ impl Compensation {
             flags |= cf::MODEL_EFFECTS;
         }
         let compensator = &mut self.compensator;
+        let interval_s = block.sample_period_ns as f64 * 1e-9;
+        let mid_ns = |b: &AccelBlock, k: usize| {
+            b.t0_ns
+                .saturating_add((k as u64).saturating_mul(b.sample_period_ns))
+                .saturating_sub(b.sample_period_ns / 2)
+        };
         let mut non_finite = 0u64;
         let mut publish_ns = 0u64;
         let result = out.publish_with(|m| {
@@ -774,7 +878,9 @@ impl Compensation {
                         // The extended model's effects at a(1), removed after (20)
                         // and carried in `rand` so that a4 = a3 - rand (first order:
                         // the effects' VE changes slowly with the acceleration).
-                        let effects_g = grids.map_or(0.0, |g| g[i].at(s.a1_g));
+                        let effects_g = grids
+                            .as_ref()
+                            .map_or(0.0, |g| g[i].at(s.a1_g, mid_ns(block, k), interval_s));
                         m.a3_g[k][i] = s.a3_g;
                         m.a4_g[k][i] = s.a4_g - effects_g;
                         m.det_g[k][i] = s.det_g;
@@ -840,21 +946,23 @@ fn unit_spectra(
 
 /// Per unit: the vibration it really sees (the sensor effects' RMS factor removed from
 /// the measured IA vibration, vibro_effects::predict) and the grid of its effects' VE
-/// change around `center_g[i]` (MODEL.md section 11, docs/lab.md), for a steady
-/// vibration (`duration = inf`), with the cross-axis flight acceleration taken as 0.
-/// `spectra[i]`: the random part's spectrum in unit `i`'s axes ([`unit_spectra`]),
-/// which the filtering effects (a mount resonance) weigh by their response.
+/// change over `spans[i]` (MODEL.md section 11, docs/lab.md), for a steady vibration
+/// (`duration = inf`), with the cross-axis flight acceleration taken as 0; for a single
+/// tone, when the compensator works within output intervals (`within_interval`), also
+/// the grid without it and the tone's phase on the unit's IA at `center_ns`
+/// ([`ToneSplit`]). `spectra[i]`: the random part's spectrum in unit `i`'s axes
+/// ([`unit_spectra`]), which the filtering effects (a mount resonance) weigh by their
+/// response.
 fn effect_grids(
     lab: &vibro_effects::LabModel,
     passports: &[vibro_physics::passport::Passport; 3],
     measured: &[Vibration; 3],
     spectra: &[Vec<PsdBand>; 3],
-    center_g: [f64; 3],
-) -> vibro_effects::Result<([EffectGrid; 3], [Vibration; 3])> {
-    let mut grids = [EffectGrid {
-        a0_g: 0.0,
-        ve_g: [0.0; EFFECT_GRID_NODES],
-    }; 3];
+    spans: [GridSpan; 3],
+    center_ns: u64,
+    within_interval: bool,
+) -> vibro_effects::Result<([UnitEffects; 3], [Vibration; 3])> {
+    let mut out: Vec<UnitEffects> = Vec::with_capacity(3);
     let mut true_vib = *measured;
     for i in 0..3 {
         let flat = vibro_effects::predict::flat_passport(&passports[i])?;
@@ -862,25 +970,132 @@ fn effect_grids(
         let truth = vibro_effects::predict::true_vibration(
             &effects,
             &flat,
-            [0.0, 0.0, center_g[i]],
+            [0.0, 0.0, spans[i].center_g],
             &measured[i],
             &spectra[i],
         )?;
         true_vib[i] = truth.vibration;
         let psd = truth.psd;
-        grids[i] = EffectGrid::build(center_g[i], |a_g| {
-            Ok(vibro_effects::predict::effect_shifts_g(
-                &effects,
-                &flat,
-                [0.0, 0.0, a_g],
-                &true_vib[i],
-                &psd,
-                f64::INFINITY,
-            )?
-            .iter()
-            .map(|(_, v)| v)
-            .sum())
-        })?;
+        let grid = |vib: &Vibration| {
+            EffectGrid::build(spans[i], |a_g| {
+                Ok(vibro_effects::predict::effect_shifts_g(
+                    &effects,
+                    &flat,
+                    [0.0, 0.0, a_g],
+                    vib,
+                    &psd,
+                    f64::INFINITY,
+                )?
+                .iter()
+                .map(|(_, v)| v)
+                .sum())
+            })
+        };
+        let full = grid(&true_vib[i])?;
+        let tone = match true_vib[i].tones() {
+            // The whole vibration (intervals long against every period): no per-sample
+            // phase.
+            [_] if within_interval => {
+                let mut random = true_vib[i];
+                random.clear_tones();
+                let (through, _) = vibro_effects::predict::unit_vibration(
+                    &effects,
+                    &flat,
+                    [0.0, 0.0, spans[i].center_g],
+                    &true_vib[i],
+                    &psd,
+                )?;
+                match through.tones().first() {
+                    Some(t) => Some(ToneSplit {
+                        without: grid(&random)?,
+                        freq_hz: t.freq_hz,
+                        phase_rad: t.phase_rad[2],
+                        center_ns,
+                    }),
+                    None => None,
+                }
+            }
+            _ => None,
+        };
+        out.push(UnitEffects { full, tone });
     }
+    let grids = <[UnitEffects; 3]>::try_from(out).map_err(|v| vibro_effects::Error::Predict {
+        what: "the units' effect grids".into(),
+        reason: format!("{} built, three needed", v.len()),
+    })?;
     Ok((grids, true_vib))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The variance of a tone's deviation inside an interval, from the samples of
+    /// `sin(theta + w tau)` on a fine grid of the interval (midpoint rule): independent
+    /// of the closed form.
+    fn sampled_within_variance(theta: f64, omega_t: f64) -> f64 {
+        let n = 20_000;
+        let x: Vec<f64> = (0..n)
+            .map(|j| {
+                let tau = ((j as f64 + 0.5) / n as f64 - 0.5) * omega_t;
+                (theta + tau).sin()
+            })
+            .collect();
+        let mean = x.iter().sum::<f64>() / n as f64;
+        x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n as f64
+    }
+
+    /// `tone_within_factor` against the sampled variance over the sampled mean over the
+    /// phase, for a slow tone (150 Hz in 1.25 ms intervals: least inside the interval
+    /// at the peaks), a fast one (a whole period inside) and one in between; and its
+    /// mean over the phase is 1.
+    #[test]
+    fn a_tones_within_interval_variance_follows_its_phase() {
+        for f_t in [0.1875, 0.6, 1.0, 2.3] {
+            let omega_t = 2.0 * std::f64::consts::PI * f_t;
+            let phases: Vec<f64> = (0..64)
+                .map(|k| 2.0 * std::f64::consts::PI * (k as f64 + 0.5) / 64.0)
+                .collect();
+            let mean = phases
+                .iter()
+                .map(|&t| sampled_within_variance(t, omega_t))
+                .sum::<f64>()
+                / 64.0;
+            let mut avg = 0.0;
+            for &theta in &phases {
+                let want = sampled_within_variance(theta, omega_t) / mean;
+                let got = tone_within_factor(theta, omega_t);
+                assert!(
+                    (got - want).abs() < 1e-6,
+                    "fT {f_t}, theta {theta}: {got} vs {want}"
+                );
+                avg += got / 64.0;
+            }
+            assert!((avg - 1.0).abs() < 1e-9, "fT {f_t}: mean {avg}");
+        }
+        // At a slow tone's peak the interval holds a fraction of the mean variance.
+        let slow = 2.0 * std::f64::consts::PI * 0.1875;
+        assert!(tone_within_factor(std::f64::consts::FRAC_PI_2, slow) < 0.05);
+        assert!((tone_within_factor(0.0, slow) - 2.0).abs() < 0.05);
+    }
+
+    /// A grid spans 1.25 times its readings' half-width: no reading is clamped.
+    #[test]
+    fn a_grid_widens_to_the_readings_swing() {
+        let narrow = GridSpan {
+            center_g: 1.0,
+            half_width_g: 0.1,
+        };
+        assert_eq!(narrow.step_g(), EFFECT_GRID_STEP_G);
+        let wide = GridSpan {
+            center_g: 0.0,
+            half_width_g: 4.4,
+        };
+        let g = EffectGrid::build(wide, |a| Ok(a * a * a - 2.0 * a)).unwrap();
+        for a in [-4.4, -2.0, 0.3, 4.4] {
+            assert!(g.covers(a), "{a}");
+            // A cubic is interpolated exactly.
+            assert!((g.at(a) - (a * a * a - 2.0 * a)).abs() < 1e-9, "{a}");
+        }
+    }
 }
