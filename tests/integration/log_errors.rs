@@ -12,14 +12,12 @@
 //! in `replay::the_demo_cuts_the_error_tenfold_and_loses_nothing`.
 
 use crate::common::{bin, repo_path, run_failing, run_json};
-use crate::processes::{flight_log, prefix, Dir, Kid};
+use crate::processes::{flight_log, recorded_replay, Dir};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::time::Duration;
 use vibro_mcap::{Recorder, RecorderOptions};
-use vibro_msgs::{AccelBlock, CompensatedBlock, MessageKind, ServiceId, ServiceNames, TruthBlock};
-use vibro_service::supervise::wait_for_heartbeats;
+use vibro_msgs::{AccelBlock, CompensatedBlock, MessageKind, TruthBlock};
 
 /// A session: `sim` flies `seconds` of the demo's scenario, `up --record` runs the
 /// shipped services and a recorder, `replay` feeds them the flight (as fast as
@@ -27,39 +25,13 @@ use vibro_service::supervise::wait_for_heartbeats;
 fn recorded_session(dir: &Dir, seconds: &str) -> PathBuf {
     let flight = flight_log(dir, seconds);
     let session = dir.path("session.mcap");
-    let p = prefix("le");
-    let mut cmd = bin();
-    cmd.args(["up", "--json", "--prefix", &p, "--record"])
-        .arg(&session)
-        .arg("--estimator-config")
-        .arg(repo_path("config/services/estimator.toml"))
-        .arg("--compensator-config")
-        .arg(repo_path("config/services/compensator.toml"));
-    let mut up = Kid::spawn(cmd, "up");
-    let names = ServiceNames::new(&p).unwrap();
-    let services = [
-        ServiceId::Estimator,
-        ServiceId::Compensator,
-        ServiceId::Recorder,
-    ];
-    if let Err(e) = wait_for_heartbeats(&names, &services, Duration::from_secs(30), || {
-        up.check_alive()
-    }) {
-        panic!("{e:#}\nup stderr:\n{}", up.stderr());
-    }
-    let replay = bin()
-        .arg("replay")
-        .arg(&flight)
-        .args(["--prefix", &p, "--json"])
-        .output()
-        .unwrap();
-    assert!(
-        replay.status.success(),
-        "replay: {}",
-        String::from_utf8_lossy(&replay.stderr)
+    recorded_replay(
+        &flight,
+        &session,
+        "le",
+        &repo_path("config/services/estimator.toml"),
+        &repo_path("config/services/compensator.toml"),
     );
-    let (status, _, stderr) = up.stop(libc::SIGINT, Duration::from_secs(30));
-    assert!(status.success(), "up: {status}\n{stderr}");
     session
 }
 

@@ -1,6 +1,7 @@
 //! Helpers of the tests that run the system as processes (`replay`, `faults`,
 //! `counts`, `shared_prefix`): unique service prefixes, scratch folders, simulated
-//! flight logs, a process's children, a child process stopped when dropped.
+//! flight logs, a process's children, a child process stopped when dropped, and a
+//! recorded session of a log replayed through the services.
 
 use crate::common::bin;
 use std::path::{Path, PathBuf};
@@ -263,4 +264,53 @@ impl Drop for Kid {
             let _ = c.wait();
         }
     }
+}
+
+/// A session: `vibrocomp up --record session` with the services' configurations
+/// `estimator` and `compensator`, the log replayed into them (as fast as possible,
+/// lock-stepped), and Ctrl-C to `up` to finish the recording.
+pub fn recorded_replay(
+    log: &Path,
+    session: &Path,
+    tag: &str,
+    estimator: &Path,
+    compensator: &Path,
+) {
+    use vibro_msgs::{ServiceId, ServiceNames};
+    let p = prefix(tag);
+    let mut cmd = bin();
+    cmd.args(["up", "--json", "--prefix", &p, "--record"])
+        .arg(session)
+        .arg("--estimator-config")
+        .arg(estimator)
+        .arg("--compensator-config")
+        .arg(compensator);
+    let mut up = Kid::spawn(cmd, "up");
+    let names = ServiceNames::new(&p).unwrap();
+    let services = [
+        ServiceId::Estimator,
+        ServiceId::Compensator,
+        ServiceId::Recorder,
+    ];
+    if let Err(e) = vibro_service::supervise::wait_for_heartbeats(
+        &names,
+        &services,
+        Duration::from_secs(30),
+        || up.check_alive(),
+    ) {
+        panic!("{e:#}\nup stderr:\n{}", up.stderr());
+    }
+    let replay = bin()
+        .arg("replay")
+        .arg(log)
+        .args(["--prefix", &p, "--json"])
+        .output()
+        .unwrap();
+    assert!(
+        replay.status.success(),
+        "replay: {}",
+        String::from_utf8_lossy(&replay.stderr)
+    );
+    let (status, _, stderr) = up.stop(libc::SIGINT, Duration::from_secs(30));
+    assert!(status.success(), "up: {status}\n{stderr}");
 }

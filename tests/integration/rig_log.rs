@@ -368,8 +368,6 @@ fn bad_rig_input_is_refused_before_anything_is_written() {
 /// log replayed into them and recorded, measured by `log errors --json`; returns the
 /// vibration-removed RMS over the three units, g.
 fn session_error_g(log: &Path, dir: &Path, name: &str, compensator: &Path) -> f64 {
-    use crate::processes::{prefix, Kid};
-    use vibro_msgs::{ServiceId, ServiceNames};
     let estimator = dir.join("rig-estimator.toml");
     if !estimator.exists() {
         let shipped = std::fs::read_to_string(repo_path("config/services/estimator.toml")).unwrap();
@@ -380,42 +378,7 @@ fn session_error_g(log: &Path, dir: &Path, name: &str, compensator: &Path) -> f6
         std::fs::write(&estimator, text).unwrap();
     }
     let session = dir.join(format!("{name}.mcap"));
-    let p = prefix("rs");
-    let mut cmd = bin();
-    cmd.args(["up", "--json", "--prefix", &p, "--record"])
-        .arg(&session)
-        .arg("--estimator-config")
-        .arg(&estimator)
-        .arg("--compensator-config")
-        .arg(compensator);
-    let mut up = Kid::spawn(cmd, "up");
-    let names = ServiceNames::new(&p).unwrap();
-    let services = [
-        ServiceId::Estimator,
-        ServiceId::Compensator,
-        ServiceId::Recorder,
-    ];
-    if let Err(e) = vibro_service::supervise::wait_for_heartbeats(
-        &names,
-        &services,
-        std::time::Duration::from_secs(30),
-        || up.check_alive(),
-    ) {
-        panic!("{e:#}\nup stderr:\n{}", up.stderr());
-    }
-    let replay = bin()
-        .arg("replay")
-        .arg(log)
-        .args(["--prefix", &p, "--json"])
-        .output()
-        .unwrap();
-    assert!(
-        replay.status.success(),
-        "replay: {}",
-        String::from_utf8_lossy(&replay.stderr)
-    );
-    let (status, _, stderr) = up.stop(libc::SIGINT, std::time::Duration::from_secs(30));
-    assert!(status.success(), "up: {status}\n{stderr}");
+    crate::processes::recorded_replay(log, &session, "rs", &estimator, compensator);
     let v = run_json(&["log", "errors", session.to_str().unwrap(), "--json"]);
     assert_eq!(v["errors"]["reference"], "rig", "{v}");
     v["errors"]["all_units"]["vibration_removed_rms_g"]
