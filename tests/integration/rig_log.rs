@@ -262,7 +262,7 @@ fn bad_rig_input_is_refused_before_anything_is_written() {
     for want in [
         "rig.toml",
         "sensors.sensitivity_v_per_g = Three([0.1, 0.0, 0.1])",
-        "reference.segment[0].up = [0.0, 0.6, 0.6]: |v| = 0.848528: must be a unit vector",
+        "reference.segment[0].up = [0.0, 0.6, 0.6]: must be a unit vector (its norm is 0.848528",
     ] {
         assert!(e.contains(want), "{want:?} not in {e}");
     }

@@ -45,9 +45,6 @@ pub const RIG_FORMAT: &str = "vibrocomp-rig/1";
 /// Standard gravity, m/s^2: a centrifuge's `rate^2 radius` in g.
 pub const G0_M_PER_S2: f64 = 9.806_65;
 
-/// A body direction is a unit vector within this (`|v| = 1 +- 1e-3`).
-pub const UNIT_VECTOR_TOLERANCE: f64 = 1e-3;
-
 /// The vibration sensors' chain: what turns a sensor's volts into g.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SensorChain {
@@ -230,13 +227,7 @@ fn direction(d: &Direction) -> std::result::Result<[f64; 3], String> {
             if ![x, y, z].iter().all(|c| c.is_finite()) {
                 return Err("must be three finite numbers [x, y, z]".into());
             }
-            let norm = (x * x + y * y + z * z).sqrt();
-            if (norm - 1.0).abs() > UNIT_VECTOR_TOLERANCE {
-                return Err(format!(
-                    "|v| = {norm:.6}: must be a unit vector (|v| = 1 within {UNIT_VECTOR_TOLERANCE})"
-                ));
-            }
-            Ok([x / norm, y / norm, z / norm])
+            vibro_physics::triad::unit_vector(&[x, y, z])
         }
     }
 }
@@ -543,7 +534,7 @@ mod tests {
             "sensors.sensitivity_v_per_g",
             "sensors.ac_corner_hz = -1: must be finite and > 0",
             "reference.gravity_g = 0: must be finite, > 0",
-            "reference.segment[0].up = [0.0, 0.5, 0.5]: |v| = 0.707107: must be a unit vector",
+            "reference.segment[0].up = [0.0, 0.5, 0.5]: must be a unit vector (its norm is 0.707107",
             "reference.segment[1]: from_s = 6, to_s = 4: must be finite with to_s > from_s",
             "reference.segment[1].up = \"+w\": must be a signed body axis",
         ] {

@@ -42,8 +42,9 @@ use crate::{
     measure_ve_timed, Error, MeasureOptions, Result, Segments, TimedMeasurement, VeMeasurement,
 };
 
-/// A direction stated as a unit vector within this: `|v| = 1 +- tolerance`.
-pub const UNIT_VECTOR_TOLERANCE: f64 = 1e-3;
+/// The body directions' rules live with the triad's axes (`vibro_physics::triad`), one
+/// home for rig files, manifests and these flags.
+pub use vibro_physics::triad::{parse_body_direction, unit_vector, UNIT_VECTOR_TOLERANCE};
 
 /// Axes stated as perpendicular within this: `|a . b| <= tolerance`.
 pub const PERPENDICULAR_TOLERANCE: f64 = 1e-3;
@@ -57,38 +58,6 @@ pub const STILL_CHECK_G: f64 = 0.05;
 /// The fitted response stops at this fraction of the reference's rate at most (as the
 /// campaign's: the estimator's broadband band must stay below Nyquist).
 pub const RESPONSE_TOP_FRACTION_OF_RATE: f64 = 0.45;
-
-/// A body direction: a signed body axis (`x`, `+y`, `-z`) or three components `x,y,z`
-/// of a unit vector (within [`UNIT_VECTOR_TOLERANCE`]; returned normalised). The error
-/// is the rule broken, for the caller to prefix with the flag or key and the value.
-pub fn parse_body_direction(text: &str) -> std::result::Result<[f64; 3], String> {
-    if let Some(axis) = vibro_physics::triad::SignedAxis::parse(text) {
-        let mut v = [0.0; 3];
-        v[axis.body_index] = f64::from(axis.sign);
-        return Ok(v);
-    }
-    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
-    let numbers: Vec<f64> = parts.iter().filter_map(|p| p.parse().ok()).collect();
-    if parts.len() != 3 || numbers.len() != 3 || numbers.iter().any(|x| !x.is_finite()) {
-        return Err(
-            "must be a signed body axis (x, +y, -z) or a unit vector of three finite \
-             numbers x,y,z"
-                .into(),
-        );
-    }
-    unit_vector(&numbers)
-}
-
-/// `v` normalised when its norm is 1 within [`UNIT_VECTOR_TOLERANCE`].
-pub fn unit_vector(v: &[f64]) -> std::result::Result<[f64; 3], String> {
-    let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-    if v.len() != 3 || (norm - 1.0).abs() > UNIT_VECTOR_TOLERANCE {
-        return Err(format!(
-            "must be a unit vector (its norm is {norm:.6}, allowed 1 +- {UNIT_VECTOR_TOLERANCE})"
-        ));
-    }
-    Ok([v[0] / norm, v[1] / norm, v[2] / norm])
-}
 
 /// A unit's axes in the body frame, unit vectors: the input axis, and the output and
 /// pendulum axes when known (both or neither).

@@ -128,6 +128,44 @@ impl TriadAxes {
     }
 }
 
+/// A body direction stated as a unit vector within this: `|v| = 1 +- tolerance` (rig
+/// files, campaign manifests, `identify measure --ia`).
+pub const UNIT_VECTOR_TOLERANCE: f64 = 1e-3;
+
+/// `v` normalised when it has three components and its norm is 1 within
+/// [`UNIT_VECTOR_TOLERANCE`]; otherwise the rule broken, for the caller to prefix with
+/// the key or flag and the value.
+pub fn unit_vector(v: &[f64]) -> std::result::Result<[f64; 3], String> {
+    let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    if v.len() != 3 || (norm - 1.0).abs() > UNIT_VECTOR_TOLERANCE {
+        return Err(format!(
+            "must be a unit vector (its norm is {norm:.6}, allowed 1 +- {UNIT_VECTOR_TOLERANCE})"
+        ));
+    }
+    Ok([v[0] / norm, v[1] / norm, v[2] / norm])
+}
+
+/// A body direction: a signed body axis (`x`, `+y`, `-z`) or three components `x,y,z`
+/// of a unit vector ([`unit_vector`]; returned normalised). The error is the rule
+/// broken.
+pub fn parse_body_direction(text: &str) -> std::result::Result<[f64; 3], String> {
+    if let Some(axis) = SignedAxis::parse(text) {
+        let mut v = [0.0; 3];
+        v[axis.body_index] = f64::from(axis.sign);
+        return Ok(v);
+    }
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let numbers: Vec<f64> = parts.iter().filter_map(|p| p.parse().ok()).collect();
+    if parts.len() != 3 || numbers.len() != 3 || numbers.iter().any(|x| !x.is_finite()) {
+        return Err(
+            "must be a signed body axis (x, +y, -z) or a unit vector of three finite \
+             numbers x,y,z"
+                .into(),
+        );
+    }
+    unit_vector(&numbers)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
