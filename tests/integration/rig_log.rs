@@ -78,7 +78,7 @@ fn rig_log_with(
         format!(
             "format = \"vibrocomp-rig/1\"\ntriad = \"default\"\n[sensors]\n\
              sensitivity_v_per_g = 0.1\nac_corner_hz = 2.0\n[reference]\nkind = \"static\"\n\
-             [[reference.segment]]\nfrom_s = 0.0\nto_s = 8.0\nup = [{:?}, {:?}, {:?}]\n",
+             [[reference.segment]]\nfrom_s = 0.0\nto_s = 3600.0\nup = [{:?}, {:?}, {:?}]\n",
             up[0], up[1], up[2]
         ),
     )
@@ -368,31 +368,61 @@ fn bad_rig_input_is_refused_before_anything_is_written() {
 /// log replayed into them and recorded, measured by `log errors --json`; returns the
 /// vibration-removed RMS over the three units, g.
 fn session_error_g(log: &Path, dir: &Path, name: &str, compensator: &Path) -> f64 {
-    let estimator = dir.join("rig-estimator.toml");
+    session_errors(log, dir, name, compensator, "20.0, 2000.0", 0.5)["errors"]["all_units"]
+        ["vibration_removed_rms_g"]
+        .as_f64()
+        .unwrap()
+}
+
+/// [`session_error_g`]'s session with the estimator's broadband band `band` (its TOML
+/// value) and `log errors --window-s window_s`: the JSON report.
+fn session_errors(
+    log: &Path,
+    dir: &Path,
+    name: &str,
+    compensator: &Path,
+    band: &str,
+    window_s: f64,
+) -> serde_json::Value {
+    let estimator = dir.join(format!(
+        "rig-estimator-{}.toml",
+        band.replace([',', ' ', '.'], "")
+    ));
     if !estimator.exists() {
         let shipped = std::fs::read_to_string(repo_path("config/services/estimator.toml")).unwrap();
         let text = shipped
             .replace("sample_rate_hz = 25600.0", "sample_rate_hz = 6400.0")
-            .replace("ac_corner_hz = 0.5 ", "ac_corner_hz = 2.0 ");
-        assert_ne!(text, shipped);
+            .replace("ac_corner_hz = 0.5 ", "ac_corner_hz = 2.0 ")
+            .replace(
+                "broadband_band_hz = [20.0, 2000.0]",
+                &format!("broadband_band_hz = [{band}]"),
+            );
+        assert!(text.contains("sample_rate_hz = 6400.0") && text.contains("ac_corner_hz = 2.0 "));
         std::fs::write(&estimator, text).unwrap();
     }
     let session = dir.join(format!("{name}.mcap"));
     crate::processes::recorded_replay(log, &session, "rs", &estimator, compensator);
-    let v = run_json(&["log", "errors", session.to_str().unwrap(), "--json"]);
+    let w = window_s.to_string();
+    let v = run_json(&[
+        "log",
+        "errors",
+        session.to_str().unwrap(),
+        "--window-s",
+        &w,
+        "--json",
+    ]);
     assert_eq!(v["errors"]["reference"], "rig", "{v}");
-    v["errors"]["all_units"]["vibration_removed_rms_g"]
-        .as_f64()
-        .unwrap()
+    v
 }
 
 /// The loop on a tone through the generator's mount (150 Hz tone, 150 Hz Q 2.5 mount,
 /// no random part), replayed through the services with the base model and with the
 /// mount as an extended model (its true parameters): the compensator takes the tone's
 /// part inside each output interval at each sample's phase (through the mount) over a
-/// grid that covers the readings' swing, and the error falls several times (measured:
-/// 305 -> 44 ug). Before, the tone's part was taken at its mean over the phase on a
-/// +-2 g grid, and the model made the error worse (446 ug).
+/// grid that covers the readings' swing, in its effects and in the base model's stage
+/// (19), and the error falls several times (measured: 282 -> 15 ug; with the phase in
+/// the effects only, 305 -> 47 ug). Before, the tone's part was taken at its mean over
+/// the phase on a +-2 g grid, and the model made the error worse (305 -> 450 ug).
 #[test]
 fn the_mount_model_removes_a_tones_error_through_the_mount() {
     let dir = TempDir::new("riglog", "loop");
@@ -426,4 +456,89 @@ fn the_mount_model_removes_a_tones_error_through_the_mount() {
         after * 1e6
     );
     assert!(after < 0.3 * before, "{after} vs {before}");
+}
+
+/// The loop on a tone and random vibration through the mount (the generator's run: +x
+/// up, 150 Hz tone, 20..640 Hz random, 10 s), against the same rig without the mount,
+/// over 2 s windows (shorter ones through the mount mostly measure the linear fit's
+/// residual, docs/logs.md): with the mount as an extended model the error falls to
+/// within 2.5 times the rig's floor without it (measured: 2.1 with the generator's
+/// mount, 1.96 with the lab's fitted one), on every unit no worse than the base model
+/// beyond the RMS's uncertainty over its 5 windows, and the same with the estimator
+/// over 20..640 Hz and 20..2000 Hz.
+#[test]
+fn through_the_mount_the_model_brings_the_error_near_the_rigs_floor_whatever_the_band() {
+    let dir = TempDir::new("riglog", "floor");
+    let extra = ["--duration-s", "10"];
+    let with_mount = rig_log_with(&dir.0, "m", 103, "+x", "150", true, &extra);
+    let without = rig_log_with(&dir.0, "n", 103, "+x", "150", false, &extra);
+    let model = dir.0.join("mount.toml");
+    std::fs::write(
+        &model,
+        "mode = \"exact\"\n[[effect]]\nkind = \"mount_resonance\"\nfreq_hz = 150.0\nq = 2.5\n",
+    )
+    .unwrap();
+    let shipped = std::fs::read_to_string(repo_path("config/services/compensator.toml")).unwrap();
+    let base = dir.0.join("base.toml");
+    std::fs::write(&base, &shipped).unwrap();
+    let with = dir.0.join("with-model.toml");
+    std::fs::write(
+        &with,
+        shipped.replace(
+            "triad = \"default\"",
+            &format!(
+                "model = {:?}\ntriad = \"default\"",
+                model.display().to_string()
+            ),
+        ),
+    )
+    .unwrap();
+    let units = |v: &serde_json::Value| -> Vec<f64> {
+        v["errors"]["units"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|u| u["vibration_removed_rms_g"].as_f64().unwrap())
+            .collect()
+    };
+    let all = |v: &serde_json::Value| {
+        v["errors"]["all_units"]["vibration_removed_rms_g"]
+            .as_f64()
+            .unwrap()
+    };
+    let floor = session_errors(&without, &dir.0, "floor", &base, "20.0, 640.0", 2.0);
+    let before = session_errors(&with_mount, &dir.0, "before", &base, "20.0, 640.0", 2.0);
+    let mut after_all = Vec::new();
+    for (k, band) in ["20.0, 640.0", "20.0, 2000.0"].into_iter().enumerate() {
+        let after = session_errors(&with_mount, &dir.0, &format!("after{k}"), &with, band, 2.0);
+        println!(
+            "FIGURES band [{band}]: floor {:.1} ug, base {:.1} ug {:?}, model {:.1} ug {:?}",
+            all(&floor) * 1e6,
+            all(&before) * 1e6,
+            units(&before),
+            all(&after) * 1e6,
+            units(&after),
+        );
+        assert!(
+            all(&after) < 2.5 * all(&floor),
+            "{} vs floor {}",
+            all(&after),
+            all(&floor)
+        );
+        // No unit worse than the base model beyond the RMS's own relative standard
+        // uncertainty over its windows, 1/sqrt(2 n).
+        let n = before["errors"]["compensated_windows"].as_f64().unwrap();
+        let allowed = 1.0 + 1.0 / (2.0 * n).sqrt();
+        for (a, b) in units(&after).iter().zip(units(&before)) {
+            assert!(
+                *a < allowed * b,
+                "a unit got worse: {a} vs {b} (x {allowed:.3})"
+            );
+        }
+        after_all.push(all(&after));
+    }
+    assert!(
+        (after_all[0] / after_all[1] - 1.0).abs() < 0.05,
+        "{after_all:?}"
+    );
 }

@@ -831,6 +831,23 @@ impl Compensation {
         if grids.is_some() {
             flags |= cf::MODEL_EFFECTS;
         }
+        // Stage (19) of a single tone inside the output intervals, at each sample's
+        // phase: the tone's phase on each unit's IA (through the extended model's path
+        // effects when it has them, `ToneSplit`) and its estimate's centre.
+        let within = !main_only && self.interval_s() > 0.0;
+        let det_tone: [Option<(f64, f64, u64)>; 3] = std::array::from_fn(|i| {
+            if !within {
+                return None;
+            }
+            if let Some(t) = grids.as_ref().and_then(|g| g[i].tone) {
+                return Some((t.freq_hz, t.phase_rad, t.center_ns));
+            }
+            let l = self.latest.as_ref()?;
+            match l.vibrations.units[i].tones() {
+                [t] => Some((t.freq_hz, t.phase_rad[2], l.estimate.center_ns)),
+                _ => None,
+            }
+        });
         let compensator = &mut self.compensator;
         let interval_s = block.sample_period_ns as f64 * 1e-9;
         let mid_ns = |b: &AccelBlock, k: usize| {
@@ -881,9 +898,21 @@ impl Compensation {
                         let effects_g = grids
                             .as_ref()
                             .map_or(0.0, |g| g[i].at(s.a1_g, mid_ns(block, k), interval_s));
-                        m.a3_g[k][i] = s.a3_g;
-                        m.a4_g[k][i] = s.a4_g - effects_g;
-                        m.det_g[k][i] = s.det_g;
+                        // A single tone's stage (19) at the sample's phase
+                        // (`tone_within_factor`, as its effects' part).
+                        let det = match det_tone[i] {
+                            Some((f_hz, phase_rad, center_ns)) => {
+                                let dt_s = (i128::from(mid_ns(block, k)) - i128::from(center_ns))
+                                    as f64
+                                    * 1e-9;
+                                let w = 2.0 * std::f64::consts::PI * f_hz;
+                                s.det_g * tone_within_factor(w * dt_s + phase_rad, w * interval_s)
+                            }
+                            None => s.det_g,
+                        };
+                        m.a3_g[k][i] = s.a2_g - det;
+                        m.a4_g[k][i] = s.a2_g - det - s.rand_g - effects_g;
+                        m.det_g[k][i] = det;
                         m.rand_g[k][i] = s.rand_g + effects_g;
                     }
                 }
