@@ -427,27 +427,7 @@ fn session_errors(
 fn the_mount_model_removes_a_tones_error_through_the_mount() {
     let dir = TempDir::new("riglog", "loop");
     let log = rig_log_with(&dir.0, "t", 103, "+x", "150", true, &["--random-psd", "0"]);
-    let model = dir.0.join("mount.toml");
-    std::fs::write(
-        &model,
-        "mode = \"exact\"\n[[effect]]\nkind = \"mount_resonance\"\nfreq_hz = 150.0\nq = 2.5\n",
-    )
-    .unwrap();
-    let shipped = std::fs::read_to_string(repo_path("config/services/compensator.toml")).unwrap();
-    let base = dir.0.join("base.toml");
-    std::fs::write(&base, &shipped).unwrap();
-    let with = dir.0.join("with-model.toml");
-    std::fs::write(
-        &with,
-        shipped.replace(
-            "triad = \"default\"",
-            &format!(
-                "model = {:?}\ntriad = \"default\"",
-                model.display().to_string()
-            ),
-        ),
-    )
-    .unwrap();
+    let (base, with) = mount_configs(&dir.0);
     let before = session_error_g(&log, &dir.0, "base", &base);
     let after = session_error_g(&log, &dir.0, "model", &with);
     println!(
@@ -472,27 +452,7 @@ fn through_the_mount_the_model_brings_the_error_near_the_rigs_floor_whatever_the
     let extra = ["--duration-s", "10"];
     let with_mount = rig_log_with(&dir.0, "m", 103, "+x", "150", true, &extra);
     let without = rig_log_with(&dir.0, "n", 103, "+x", "150", false, &extra);
-    let model = dir.0.join("mount.toml");
-    std::fs::write(
-        &model,
-        "mode = \"exact\"\n[[effect]]\nkind = \"mount_resonance\"\nfreq_hz = 150.0\nq = 2.5\n",
-    )
-    .unwrap();
-    let shipped = std::fs::read_to_string(repo_path("config/services/compensator.toml")).unwrap();
-    let base = dir.0.join("base.toml");
-    std::fs::write(&base, &shipped).unwrap();
-    let with = dir.0.join("with-model.toml");
-    std::fs::write(
-        &with,
-        shipped.replace(
-            "triad = \"default\"",
-            &format!(
-                "model = {:?}\ntriad = \"default\"",
-                model.display().to_string()
-            ),
-        ),
-    )
-    .unwrap();
+    let (base, with) = mount_configs(&dir.0);
     let units = |v: &serde_json::Value| -> Vec<f64> {
         v["errors"]["units"]
             .as_array()
@@ -541,4 +501,31 @@ fn through_the_mount_the_model_brings_the_error_near_the_rigs_floor_whatever_the
         (after_all[0] / after_all[1] - 1.0).abs() < 0.05,
         "{after_all:?}"
     );
+}
+
+/// The shipped compensator configuration (`base.toml`) and the same with the
+/// generator's mount (150 Hz, Q 2.5) as an extended model (`with-model.toml`), in `dir`.
+fn mount_configs(dir: &Path) -> (PathBuf, PathBuf) {
+    let model = dir.join("mount.toml");
+    std::fs::write(
+        &model,
+        "mode = \"exact\"\n[[effect]]\nkind = \"mount_resonance\"\nfreq_hz = 150.0\nq = 2.5\n",
+    )
+    .unwrap();
+    let shipped = std::fs::read_to_string(repo_path("config/services/compensator.toml")).unwrap();
+    let base = dir.join("base.toml");
+    std::fs::write(&base, &shipped).unwrap();
+    let with = dir.join("with-model.toml");
+    std::fs::write(
+        &with,
+        shipped.replace(
+            "triad = \"default\"",
+            &format!(
+                "model = {:?}\ntriad = \"default\"",
+                model.display().to_string()
+            ),
+        ),
+    )
+    .unwrap();
+    (base, with)
 }

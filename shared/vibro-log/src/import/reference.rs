@@ -82,7 +82,11 @@ impl Reference {
                     .fold(f64::NEG_INFINITY, f64::max),
             ]),
             Reference::Spec(ReferenceSpec::Stream { .. }) => Some([0.0, 0.0]),
-            Reference::Stream { time_s, .. } => Some([time_s[0], time_s[time_s.len() - 1]]),
+            // An empty stream covers nothing (read_timed refuses one anyway).
+            Reference::Stream { time_s, .. } => match (time_s.first(), time_s.last()) {
+                (Some(a), Some(b)) => Some([*a, *b]),
+                _ => Some([f64::INFINITY, f64::NEG_INFINITY]),
+            },
         }
     }
 
