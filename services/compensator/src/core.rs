@@ -303,18 +303,18 @@ struct UnitEffects {
 }
 
 impl UnitEffects {
-    /// The correction of a sample read at `a_g` whose interval of `interval_s` has its
-    /// middle at `mid_ns`.
-    fn at(&self, a_g: f64, mid_ns: u64, interval_s: f64) -> f64 {
+    /// The correction of a sample read at `a_g`, its tone's part times `tone_factor`
+    /// ([`tone_within_factor`] at the sample's phase; the same factor stage (19) takes,
+    /// computed once per sample).
+    fn at(&self, a_g: f64, tone_factor: f64) -> f64 {
         let full = self.full.at(a_g);
-        let Some(t) = &self.tone else {
-            return full;
-        };
-        let without = t.without.at(a_g);
-        let dt_s = (i128::from(mid_ns) - i128::from(t.center_ns)) as f64 * 1e-9;
-        let theta = 2.0 * std::f64::consts::PI * t.freq_hz * dt_s + t.phase_rad;
-        let omega_t = 2.0 * std::f64::consts::PI * t.freq_hz * interval_s;
-        without + tone_within_factor(theta, omega_t) * (full - without)
+        match &self.tone {
+            None => full,
+            Some(t) => {
+                let without = t.without.at(a_g);
+                without + tone_factor * (full - without)
+            }
+        }
     }
 }
 
@@ -892,24 +892,25 @@ impl Compensation {
                         m.a3_g[k][i] = s.a2_g;
                         m.a4_g[k][i] = s.a2_g;
                     } else {
-                        // The extended model's effects at a(1), removed after (20)
-                        // and carried in `rand` so that a4 = a3 - rand (first order:
-                        // the effects' VE changes slowly with the acceleration).
-                        let effects_g = grids
-                            .as_ref()
-                            .map_or(0.0, |g| g[i].at(s.a1_g, mid_ns(block, k), interval_s));
-                        // A single tone's stage (19) at the sample's phase
-                        // (`tone_within_factor`, as its effects' part).
-                        let det = match det_tone[i] {
+                        // A single tone's part inside the interval at the sample's
+                        // phase (`tone_within_factor`), for stage (19) and the effects'
+                        // tone part alike.
+                        let tone_factor = match det_tone[i] {
                             Some((f_hz, phase_rad, center_ns)) => {
                                 let dt_s = (i128::from(mid_ns(block, k)) - i128::from(center_ns))
                                     as f64
                                     * 1e-9;
                                 let w = 2.0 * std::f64::consts::PI * f_hz;
-                                s.det_g * tone_within_factor(w * dt_s + phase_rad, w * interval_s)
+                                tone_within_factor(w * dt_s + phase_rad, w * interval_s)
                             }
-                            None => s.det_g,
+                            None => 1.0,
                         };
+                        // The extended model's effects at a(1), removed after (20)
+                        // and carried in `rand` so that a4 = a3 - rand (first order:
+                        // the effects' VE changes slowly with the acceleration).
+                        let effects_g =
+                            grids.as_ref().map_or(0.0, |g| g[i].at(s.a1_g, tone_factor));
+                        let det = s.det_g * tone_factor;
                         m.a3_g[k][i] = s.a2_g - det;
                         m.a4_g[k][i] = s.a2_g - det - s.rand_g - effects_g;
                         m.det_g[k][i] = det;
