@@ -176,8 +176,10 @@ fn diagnose(logs: &[PathBuf]) -> serde_json::Value {
 }
 
 /// The hidden resonance, from the rig's logs alone: found, within three standard
-/// uncertainties of the generator's 150 Hz and Q 2.5, with chi2/dof after it near 1;
-/// the same rig without the resonance (same seeds) leaves the verdict "noise".
+/// uncertainties of the generator's 150 Hz and Q 2.5, with chi2/dof after it in
+/// 0.7..1.5; the same rig without the resonance (same seeds) leaves the verdict "noise"
+/// with chi2/dof in 0.7..1.5. (Before the windows' taper, `flight::window_ve`, the
+/// right model's chi2/dof was 0.54: the fitted response's end terms.)
 #[test]
 fn the_lab_finds_a_hidden_resonance_in_a_rigs_own_logs_and_nothing_without_it() {
     let dir = TempDir::new("riglog", "diagnose");
@@ -205,7 +207,7 @@ fn the_lab_finds_a_hidden_resonance_in_a_rigs_own_logs_and_nothing_without_it() 
         );
     }
     let chi2 = v["chi2_per_dof_after"].as_f64().unwrap();
-    assert!((0.5..1.5).contains(&chi2), "chi2/dof after {chi2}");
+    assert!((0.7..1.5).contains(&chi2), "chi2/dof after {chi2}");
     assert!(
         v["rms_residual_after_g"].as_f64().unwrap()
             < 0.1 * v["rms_residual_before_g"].as_f64().unwrap()
@@ -219,7 +221,7 @@ fn the_lab_finds_a_hidden_resonance_in_a_rigs_own_logs_and_nothing_without_it() 
     println!("FIGURES rig logs without it: {}", d["verdict"]);
     assert_eq!(d["verdict"]["verdict"], "noise", "{}", d["verdict"]);
     let chi2 = d["verdict"]["chi2_per_dof"].as_f64().unwrap();
-    assert!((0.5..1.5).contains(&chi2), "chi2/dof {chi2}");
+    assert!((0.7..1.5).contains(&chi2), "chi2/dof {chi2}");
 }
 
 /// Bad rig input: every problem of a rig file at once (file, key, value, rule), a

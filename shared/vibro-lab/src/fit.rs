@@ -328,10 +328,17 @@ impl Prepared {
             p.model_tables.push(tables);
             row_effects.push(effects);
         }
-        let (factor, scales) = crate::flight::data_scales(&table.conditions, &p.residual_g());
+        let stated_u_g = table
+            .conditions
+            .iter()
+            .zip(&row_effects)
+            .map(|(c, effects)| effective_u_g(model.mode, effects, c))
+            .collect::<Result<Vec<f64>>>()?;
+        let (factor, scales) =
+            crate::flight::data_scales(&table.conditions, &p.residual_g(), &stated_u_g);
         p.scales = scales;
-        for ((c, effects), f) in table.conditions.iter().zip(&row_effects).zip(&factor) {
-            let u_g = effective_u_g(model.mode, effects, c, *f)?;
+        for ((c, u0_g), f) in table.conditions.iter().zip(&stated_u_g).zip(&factor) {
+            let u_g = f * u0_g;
             let i = p.uncertainty_g.len();
             // Residuals and weights must stay finite: `(r/u)^2` summed over the
             // table is the fits' cost.
@@ -380,11 +387,23 @@ impl Prepared {
             });
             row_effects.push(Some(effects));
         }
-        let (factor, scales) = crate::flight::data_scales(&table.conditions, &residual_g);
+        // Rows whose weights do not move keep theirs (a scale of 1: no group).
+        let stated_u_g = table
+            .conditions
+            .iter()
+            .zip(&row_effects)
+            .enumerate()
+            .map(|(i, (c, effects))| match effects {
+                Some(effects) => effective_u_g(model.mode, effects, c),
+                None => Ok(self.uncertainty_g[i]),
+            })
+            .collect::<Result<Vec<f64>>>()?;
+        let (factor, scales) =
+            crate::flight::data_scales(&table.conditions, &residual_g, &stated_u_g);
         self.scales = scales;
-        for (i, (c, effects)) in table.conditions.iter().zip(&row_effects).enumerate() {
-            if let Some(effects) = effects {
-                self.uncertainty_g[i] = effective_u_g(model.mode, effects, c, factor[i])?;
+        for (i, effects) in row_effects.iter().enumerate() {
+            if effects.is_some() {
+                self.uncertainty_g[i] = factor[i] * stated_u_g[i];
             }
         }
         Ok(())
@@ -430,15 +449,19 @@ fn row_ve_g(
 /// (`ve_uncertainty_g`) and the stated IA vibration's (`aB3_u_g`, `sigma3_u_g`)
 /// through the model with `effects`, `dVE/daB3` and `dVE/dsigma3` by central
 /// differences (the effective-variance method: the model is evaluated at the stated
-/// vibration, so the sensor's error moves the prediction, by how much the model says).
+/// vibration, so the sensor's error moves the prediction, by how much the model says),
+/// and the stated band PSDs' through the effects that read them. A log's rows take it
+/// times their data scale ([`crate::flight::data_scales`]) as a whole: the measured VE
+/// and the spectrum a window states come from the same realised vibration, so every
+/// part of it overlaps the measured VE's scatter (a mount's band term left unscaled
+/// put chi2/dof at 0.54 with the generator's true mount on its rig logs).
 pub(crate) fn effective_u_g(
     mode: vibro_effects::model::BaseMode,
     effects: &[Box<dyn vibro_effects::Effect>],
     c: &crate::table::Condition,
-    scale: f64,
 ) -> Result<f64> {
     let (ua_g, us_g) = c.ia_u_g();
-    let mut var = (scale * c.ve_uncertainty_g).powi(2);
+    let mut var = c.ve_uncertainty_g.powi(2);
     let ve = |row: &crate::table::Condition| row_ve_g(mode, effects, row, c);
     if let (Some(t), true) = (c.tone, ua_g > 0.0) {
         let h = 1e-3 * t.a_b_g[2].abs().max(ua_g);
@@ -1482,7 +1505,7 @@ mod tests {
 
         let base = build_effects(&[], &c.passport).expect("no effects");
         assert_eq!(
-            effective_u_g(model.mode, &base, &c, 1.0).expect("propagates"),
+            effective_u_g(model.mode, &base, &c).expect("propagates"),
             0.0
         );
 
@@ -1490,7 +1513,7 @@ mod tests {
             toml::from_str("kind = \"mount_resonance\"\nfreq_hz = 48.0\nq = 1.56")
                 .expect("an effect table");
         let effects = build_effects(&[resonance], &c.passport).expect("the resonance builds");
-        let stated = effective_u_g(model.mode, &effects, &c, 1.0).expect("propagates");
+        let stated = effective_u_g(model.mode, &effects, &c).expect("propagates");
         let ve = |row: &crate::table::Condition| {
             predict::predict_ve(
                 model.mode,

@@ -274,6 +274,17 @@ pub fn table_from_log(
     if streams.sensed_unknown {
         sensed_from_sensors(path, &mut streams, &config, &units, &mut summary)?;
     }
+    // A fitted linear response leaves a residual whose window means are end terms
+    // (`flight::window_ve`): tapered over half the estimator's Welch segment. The
+    // simulator's sensed acceleration removes the linear response exactly: no taper
+    // (on its flights a taper took a right model's chi2/dof to 2.0 on one seed of
+    // three, and two flights fitted jointly no longer pinned the resonance tighter
+    // than each alone: left as it was).
+    if streams.sensed_unknown {
+        let half_segment_ns = 0.5 * config.raw().welch_segment_s * 1e9;
+        streams.taper_samples =
+            (half_segment_ns / streams.period_ns.max(1) as f64).round() as usize;
+    }
     let mut solver = SpectrumSolver::new(BandLeakage::new(&config));
     let conditions = window_conditions(&streams, &units, &mut solver, model, args, &mut summary)?;
     summary.conditions = conditions.len();
@@ -359,6 +370,9 @@ struct LogStreams {
     estimates: Vec<VibEstimate>,
     /// Some reference rows are a rig's ([`Row::sensed_unknown`]).
     sensed_unknown: bool,
+    /// The taper at each end of a window's measured VE, samples
+    /// (`flight::window_ve`): half the estimator's Welch segment.
+    taper_samples: usize,
 }
 
 /// Reads the log: `/vib` through the estimator (its windows' estimates), `/accel` and
@@ -448,6 +462,7 @@ fn read_streams(
     Ok(LogStreams {
         rows,
         period_ns,
+        taper_samples: 0,
         estimates,
         sensed_unknown,
     })
@@ -588,7 +603,7 @@ fn window_conditions(
         let follows = joined && est.start_ns <= last_end_ns + SAME_EDGE_NS;
         last_end_ns = est.end_ns;
         let Some((vib, range, measured)) =
-            measure_window(est, &complete, period_ns, units, &mapping, args, summary)
+            measure_window(est, &complete, streams, units, &mapping, args, summary)
         else {
             joined = false;
             continue;
@@ -638,6 +653,7 @@ fn window_conditions(
     };
     summary.pool_windows = pool_max;
     let groups = pools(&used, &complete, units, pool_max, args);
+    let taper_samples = streams.taper_samples;
     summary.lab_windows = groups.len();
     // Runs of consecutive windows, for the scale of the stated uncertainties.
     let run_of: Vec<u32> = used
@@ -658,6 +674,7 @@ fn window_conditions(
                 &used[g.clone()],
                 &complete,
                 u,
+                taper_samples,
                 units,
                 model,
                 args,
@@ -701,7 +718,7 @@ fn pools(
             let span_ok = (0..units.flat.len()).all(|u| {
                 let range = group[0].range.start..group[group.len() - 1].range.end;
                 let samples = unit_samples(&complete[range], u, units);
-                flight::window_ve(&units.flat[u], &samples, args.batches)
+                flight::window_ve(&units.flat[u], &samples, args.batches, 0)
                     .is_some_and(|m| m.a_l_span_g <= args.max_al_span_g)
             });
             if !(fits && span_ok) {
@@ -737,7 +754,7 @@ fn unit_samples(rows: &[Complete], u: usize, units: &Units) -> Vec<ReferenceSamp
 fn measure_window(
     est: &VibEstimate,
     complete: &[Complete],
-    period_ns: u64,
+    streams: &LogStreams,
     units: &Units,
     mapping: &EstimateMapping,
     args: &LogOptions,
@@ -747,6 +764,7 @@ fn measure_window(
         summary.left_out_flagged += 1;
         return None;
     }
+    let period_ns = streams.period_ns;
     // Samples whose interval (latch - T, latch] lies inside the window.
     let first = complete.partition_point(|r| r.latch_ns < est.start_ns + period_ns);
     let last = complete.partition_point(|r| r.latch_ns <= est.end_ns);
@@ -767,7 +785,12 @@ fn measure_window(
     let measured: Vec<Option<WindowVe>> = (0..units.flat.len())
         .map(|u| {
             let samples = unit_samples(&complete[first..last], u, units);
-            flight::window_ve(&units.flat[u], &samples, args.batches)
+            flight::window_ve(
+                &units.flat[u],
+                &samples,
+                args.batches,
+                streams.taper_samples,
+            )
         })
         .collect();
     if measured
@@ -825,12 +848,14 @@ fn stated_u(w: &UsedWindow<'_>, u: usize, units: &Units, model: &LabModel) -> Re
 /// the measured VE over all its samples, the pooled vibration and spectrum, and the
 /// uncertainty `sqrt(sum u_j^2) / k` of its `k` windows' stated ones (their
 /// errors are independent), plus, for a pool, the curvature of the VE over the pool's
-/// `aL3` (`flight::prediction_u_g` without the vibration's uncertainties).
+/// `aL3` (`flight::prediction_u_g` without the vibration's uncertainties). The
+/// measured VE is tapered over `taper_samples` at the pool's ends (`flight::window_ve`).
 #[allow(clippy::too_many_arguments)]
 fn pool_condition(
     group: &[UsedWindow<'_>],
     complete: &[Complete],
     u: usize,
+    taper_samples: usize,
     units: &Units,
     model: &LabModel,
     args: &LogOptions,
@@ -870,7 +895,8 @@ fn pool_condition(
         (first.measured[u], 0.0)
     } else {
         let samples = unit_samples(&complete[first.range.start..last.range.end], u, units);
-        let Some(m) = flight::window_ve(&units.flat[u], &samples, args.batches) else {
+        let Some(m) = flight::window_ve(&units.flat[u], &samples, args.batches, taper_samples)
+        else {
             return Err(Error::Invalid(format!("{}: too few samples", context())));
         };
         let c = flight::prediction_u_g(

@@ -117,7 +117,8 @@ pub struct RandomCondition {
 /// Where a log's window belongs for the scale of its uncertainty
 /// (`crate::flight::data_scales`): the log, the unit, and the run of consecutive
 /// windows (none left out between them) it is part of. Rows of one group follow each
-/// other in the table in time order.
+/// other in the table in time order. A campaign manifest's rows (`crate::campaign`)
+/// are one run per unit, in the manifest's order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
 pub struct ScaleGroup {
     /// Which input of a joint table (set by [`CampaignTable::joined`]).
@@ -155,9 +156,10 @@ pub struct Condition {
     /// flight window's estimate states them); empty when none are stated.
     #[serde(skip)]
     pub bands_u: Vec<PsdBand>,
-    /// A log's window: its stated uncertainty is scaled by the scatter of its group's
-    /// residuals against the model under test (`crate::flight::data_scales`). `None`
-    /// for table rows, whose uncertainty is what they state.
+    /// A log's window or a manifest's run: its stated uncertainty is scaled by the
+    /// scatter of its group's residuals against the model under test
+    /// (`crate::flight::data_scales`). `None` for table rows, whose uncertainty is what
+    /// they state.
     #[serde(skip)]
     pub scale_group: Option<ScaleGroup>,
     pub ve_measured_g: f64,

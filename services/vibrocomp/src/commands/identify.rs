@@ -33,7 +33,8 @@ pub enum IdentifyCommand {
 
 #[derive(Debug, Args)]
 pub struct CampaignArgs {
-    /// The campaign manifest (TOML, docs/identification.md "Campaigns from raw records").
+    /// The campaign manifest: TOML, or a CSV of the runs whose first line is
+    /// `# vibrocomp-campaign/1` (docs/identification.md "Campaigns from raw records").
     pub manifest: PathBuf,
     /// Write the lab's table (CSV, docs/lab.md) of the campaign here.
     #[arg(long)]

@@ -51,8 +51,9 @@ pub struct Input {
     /// Campaign tables (CSV, docs/lab.md), e.g. from `vibrocomp sim CAMPAIGN
     /// --lab-csv`, MCAP logs with a reference (`.mcap`: a flight cut into the
     /// estimator's windows, docs/lab.md "Logs as input"), and shake-table campaign
-    /// manifests (`.toml`: a rig's raw runs, docs/lab.md "Shake-table campaigns from raw
-    /// records"); several are fitted jointly.
+    /// manifests (`.toml`, or a CSV whose first line is `# vibrocomp-campaign/1`: a rig's
+    /// raw runs, docs/identification.md "Campaigns from raw records"); several are
+    /// fitted jointly.
     #[arg(required = true, num_args = 1..)]
     pub input: Vec<PathBuf>,
     /// The model to compare: an extended model file (`lab add --out`); default the
@@ -181,9 +182,8 @@ fn load(
         let is_mcap = input
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
-        let is_manifest = input
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+        // A `.toml`, or a CSV opening with `# vibrocomp-campaign/1`; other CSVs are tables.
+        let is_manifest = !is_mcap && vibro_lab::campaign::is_manifest(input);
         if is_mcap {
             let (table, summary) = table_from_log(input, &model, log_args)?;
             tables.push(table);

@@ -18,7 +18,9 @@
 //! response at the internal rate.
 
 use super::filter::{Analog, Biquad, BiquadState};
-use super::spectral::{check_rate, exact_shift, filtered_psd, filtered_vibration, Panels};
+use super::spectral::{
+    check_rate, exact_shift, filtered_psd, filtered_vibration, Panels, SeenCache,
+};
 use super::{unit_axes_param, EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
 use crate::Result;
@@ -75,6 +77,7 @@ fn build(p: &mut Params<'_>) -> Result<Box<dyn Effect>> {
         analog: Analog::transmissibility(freq_hz, q),
         filter: Biquad::IDENTITY,
         state: Default::default(),
+        seen: SeenCache::default(),
     }))
 }
 
@@ -88,6 +91,8 @@ struct MountResonance {
     filter: Biquad,
     /// Per unit, per unit axis.
     state: [[BiquadState; 3]; 3],
+    /// What the filter last passed ([`SeenCache`]).
+    seen: SeenCache,
 }
 
 impl Effect for MountResonance {
@@ -131,6 +136,14 @@ impl MountResonance {
     /// The vibration and band PSD through the suspension.
     fn seen(&self, ctx: &MeanContext<'_>) -> Result<(Vibration, Vec<PsdBand>)> {
         let rate = ctx.internal_rate_hz;
+        self.seen
+            .get_or(ctx.vibration_unit, ctx.psd_unit, rate, || {
+                self.seen_now(ctx)
+            })
+    }
+
+    fn seen_now(&self, ctx: &MeanContext<'_>) -> Result<(Vibration, Vec<PsdBand>)> {
+        let rate = ctx.internal_rate_hz;
         check_rate(KIND, rate)?;
         let filter = Biquad::bilinear(&self.analog, rate, self.freq_hz);
         // Panels far narrower than the resonance's half-power width f0/q at the
@@ -171,6 +184,35 @@ mod tests {
         s.bands = vec![band(20.0, 160.0, [0.01, 0.01, 0.02])];
         s.coherence = [[1.0, 0.1, 0.3], [0.1, 1.0, 0.2], [0.3, 0.2, 1.0]];
         s
+    }
+
+    /// What the filter passes is kept between calls with the same vibration
+    /// (`SeenCache`): one effect asked at three flight accelerations, then about
+    /// another spectrum, then the first again, gives bit for bit what a new effect
+    /// gives for each; the cache never answers for another input.
+    #[test]
+    fn the_filter_s_cache_answers_only_for_its_own_input() {
+        let p = al15();
+        let s = scene();
+        let mut other = scene();
+        other.bands = vec![band(20.0, 640.0, [0.002, 0.003, 0.004])];
+        let toml = "kind = \"mount_resonance\"\nfreq_hz = 150.0\nq = 2.5";
+        let kept = build_toml(toml, &p);
+        let vib = s.vibration();
+        let fresh = |scene: &Scene, a3: f64| {
+            let mut sc = scene.clone();
+            sc.a_l_g[2] = a3;
+            build_toml(toml, &p)
+                .mean_shift_g(&sc.ctx(0, &p, &vib))
+                .unwrap()
+        };
+        for (scene, a3) in [(&s, 1.0), (&s, -0.5), (&s, 2.0), (&other, 1.0), (&s, 1.0)] {
+            let mut sc = scene.clone();
+            sc.a_l_g[2] = a3;
+            let got = kept.mean_shift_g(&sc.ctx(0, &p, &vib)).unwrap();
+            assert_eq!(got.to_bits(), fresh(scene, a3).to_bits(), "a3 = {a3}");
+        }
+        assert_ne!(fresh(&s, 1.0), fresh(&other, 1.0));
     }
 
     #[test]

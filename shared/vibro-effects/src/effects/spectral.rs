@@ -14,6 +14,7 @@
 use super::quad::gauss_legendre;
 use crate::{Error, Result};
 use realfft::num_complex::Complex;
+use std::cell::RefCell;
 use vibro_physics::vibration::{PsdBand, Vibration};
 
 /// Most Gauss–Legendre panels spent on one band.
@@ -158,6 +159,38 @@ pub(crate) fn filtered_vibration(
         }
     }
     Ok(out)
+}
+
+/// A filtering effect's last input and what it passed: `(vibration, band PSD, rate)`
+/// and `(vibration, band PSD)` after the filter. The compensator evaluates an effect at
+/// 17 flight accelerations per grid for one estimate (`mean_shift_g`), and what the
+/// filter passes does not depend on the flight acceleration: without the cache each
+/// node repeated the quadrature (a 150 Hz mount under tone and random vibration took
+/// the compensator to 0.6 times real time at 800 Hz, 97 % of it in the quadrature).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct SeenCache(RefCell<Option<SeenEntry>>);
+
+type SeenEntry = ((Vibration, Vec<PsdBand>, f64), (Vibration, Vec<PsdBand>));
+
+impl SeenCache {
+    /// What `compute` gives for `(vib, psd, rate_hz)`, from the cache when it last
+    /// computed exactly that input (compared bit for bit).
+    pub(crate) fn get_or(
+        &self,
+        vib: &Vibration,
+        psd: &[PsdBand],
+        rate_hz: f64,
+        compute: impl FnOnce() -> Result<(Vibration, Vec<PsdBand>)>,
+    ) -> Result<(Vibration, Vec<PsdBand>)> {
+        if let Some(((v, p, r), out)) = self.0.borrow().as_ref() {
+            if v == vib && p.as_slice() == psd && r.to_bits() == rate_hz.to_bits() {
+                return Ok(out.clone());
+            }
+        }
+        let out = compute()?;
+        *self.0.borrow_mut() = Some(((*vib, psd.to_vec(), rate_hz), out.clone()));
+        Ok(out)
+    }
 }
 
 /// Pieces each band is cut into by [`filtered_psd`].

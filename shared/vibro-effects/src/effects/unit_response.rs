@@ -16,7 +16,9 @@
 //! variance (and IA covariances) through `H` band by band, minus the exact mean without.
 
 use super::filter::{Analog, Biquad, BiquadState};
-use super::spectral::{check_rate, exact_shift, filtered_psd, filtered_vibration, Panels};
+use super::spectral::{
+    check_rate, exact_shift, filtered_psd, filtered_vibration, Panels, SeenCache,
+};
 use super::{EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
 use crate::Result;
@@ -68,6 +70,7 @@ fn build(p: &mut Params<'_>) -> Result<Box<dyn Effect>> {
         analog: Analog::low_pass2(natural_freq_hz, damping_ratio),
         filter: Biquad::IDENTITY,
         state: Default::default(),
+        seen: SeenCache::default(),
     }))
 }
 
@@ -80,6 +83,8 @@ struct UnitResponse {
     filter: Biquad,
     /// Per unit.
     state: [BiquadState; 3],
+    /// What the filter last passed ([`SeenCache`]).
+    seen: SeenCache,
 }
 
 impl Effect for UnitResponse {
@@ -118,6 +123,14 @@ impl Effect for UnitResponse {
 impl UnitResponse {
     /// The vibration and band PSD the pendulum follows (IA through the loop).
     fn seen(&self, ctx: &MeanContext<'_>) -> Result<(Vibration, Vec<PsdBand>)> {
+        let rate = ctx.internal_rate_hz;
+        self.seen
+            .get_or(ctx.vibration_unit, ctx.psd_unit, rate, || {
+                self.seen_now(ctx)
+            })
+    }
+
+    fn seen_now(&self, ctx: &MeanContext<'_>) -> Result<(Vibration, Vec<PsdBand>)> {
         let rate = ctx.internal_rate_hz;
         check_rate(KIND, rate)?;
         let filter = Biquad::bilinear(&self.analog, rate, self.natural_freq_hz);
