@@ -420,11 +420,12 @@ fn session_errors(
 /// The loop on a tone through the generator's mount (150 Hz tone, 150 Hz Q 2.5 mount,
 /// no random part), replayed through the services with the base model and with the
 /// mount as an extended model (its true parameters): the compensator takes the tone's
-/// part inside each output interval at each sample's phase (through the mount) over a
-/// grid that covers the readings' swing, in its effects and in the base model's stage
-/// (19), and the error falls several times (measured: 282 -> 15 ug; with the phase in
-/// the effects only, 305 -> 47 ug). Before, the tone's part was taken at its mean over
-/// the phase on a +-2 g grid, and the model made the error worse (305 -> 450 ug).
+/// part inside each output interval at each sample's phase (through the mount), with
+/// its third to fifth moments, over a grid that covers the readings' swing, in its
+/// effects and in the base model's stage (19), and the error falls to about 1 % of the
+/// base model's (measured: 282.7 -> 3.4 ug; 14.7 ug with the variance alone at each
+/// phase; 47 ug with the phase in the effects only; 450 ug at the mean over the phase
+/// on a +-2 g grid).
 #[test]
 fn the_mount_model_removes_a_tones_error_through_the_mount() {
     let dir = TempDir::new("riglog", "loop");
@@ -437,15 +438,42 @@ fn the_mount_model_removes_a_tones_error_through_the_mount() {
         before * 1e6,
         after * 1e6
     );
-    assert!(after < 0.3 * before, "{after} vs {before}");
+    assert!(after < 0.03 * before, "{after} vs {before}");
+}
+
+/// A large tone read at a rate that partly resolves it (5.4 g at 150 Hz on AK1's IA,
+/// 800 Hz readings, no mount, no random part: what a 2 g tone through the mount
+/// becomes): stage (19) takes the tone's part inside each output interval at each
+/// sample's phase with its third to fifth moments as well as its variance
+/// (`higher_moments_g`), and the error against the rig's reference falls from 40 ug
+/// (the variance alone) to about 2 ug (measured 2.3 ug; the main error removed leaves
+/// 1.65 mg).
+#[test]
+fn a_large_tones_part_inside_each_interval_is_removed_at_its_phase() {
+    let dir = TempDir::new("riglog", "bigtone");
+    let extra = ["--random-psd", "0", "--tone-amp-g", "5.4,0,0"];
+    let log = rig_log_with(&dir.0, "b", 103, "+x", "150", false, &extra);
+    let (base, _) = mount_configs(&dir.0);
+    let v = session_errors(&log, &dir.0, "big", &base, "20.0, 640.0", 2.0);
+    let ak1 = &v["errors"]["units"][0];
+    let removed = ak1["vibration_removed_rms_g"].as_f64().unwrap();
+    let main = ak1["main_removed_rms_g"].as_f64().unwrap();
+    println!(
+        "FIGURES 5.4 g tone at 150 Hz: main removed {:.1} ug, vibration removed {:.2} ug",
+        main * 1e6,
+        removed * 1e6
+    );
+    assert!(main > 1e-3, "{main}");
+    assert!(removed < 8e-6, "{removed}");
 }
 
 /// The loop on a tone and random vibration through the mount (the generator's run: +x
 /// up, 150 Hz tone, 20..640 Hz random, 10 s), against the same rig without the mount,
 /// over 2 s windows (shorter ones through the mount mostly measure the linear fit's
 /// residual, docs/logs.md): with the mount as an extended model the error falls to
-/// within 2.5 times the rig's floor without it (measured: 2.1 with the generator's
-/// mount, 1.96 with the lab's fitted one), on every unit no worse than the base model
+/// within 2 times the rig's floor without it (measured: 29.7 ug against 15.7 ug, 1.89,
+/// with the generator's mount; 2.1 before the tone's higher moments inside each
+/// interval), on every unit no worse than the base model
 /// beyond the RMS's uncertainty over its 5 windows, and the same with the estimator
 /// over 20..640 Hz and 20..2000 Hz.
 #[test]
@@ -482,7 +510,7 @@ fn through_the_mount_the_model_brings_the_error_near_the_rigs_floor_whatever_the
             units(&after),
         );
         assert!(
-            all(&after) < 2.5 * all(&floor),
+            all(&after) < 2.0 * all(&floor),
             "{} vs floor {}",
             all(&after),
             all(&floor)
