@@ -348,6 +348,9 @@ const MOMENT_POINTS: usize = 128;
 #[derive(Debug, Clone, Copy)]
 struct ToneMoments {
     omega_t: f64,
+    /// The tone's amplitude inside the interval over its whole amplitude,
+    /// `sqrt(1 - sinc^2(w T / 2))` (`crate::interval`'s share of its mean square).
+    share: f64,
     mu: [[f64; 3]; MOMENT_PHASES + 1],
 }
 
@@ -372,7 +375,13 @@ impl ToneMoments {
                 *v /= MOMENT_POINTS as f64;
             }
         }
-        Self { omega_t, mu }
+        let x = 0.5 * omega_t;
+        let sinc = if x.abs() < 1e-9 { 1.0 } else { x.sin() / x };
+        Self {
+            omega_t,
+            share: (1.0 - sinc * sinc).max(0.0).sqrt(),
+            mu,
+        }
     }
 
     /// The moments at phase `theta`, rad.
@@ -1014,16 +1023,11 @@ impl Compensation {
                                 let w = 2.0 * std::f64::consts::PI * f_hz;
                                 let theta = w * dt_s + phase_rad;
                                 let factor = tone_within_factor(theta, w * interval_s);
-                                // The whole amplitude from the interval's share,
-                                // `1/2 (1 - sinc^2(w T / 2))` of its square's half.
-                                let x = 0.5 * w * interval_s;
-                                let sinc = if x.abs() < 1e-9 { 1.0 } else { x.sin() / x };
-                                let share = (1.0 - sinc * sinc).sqrt();
                                 let higher = match &tone_moments[i] {
-                                    Some(m) if share > 1e-6 => higher_moments_g(
+                                    Some(m) if m.share > 1e-6 => higher_moments_g(
                                         &passports_k[i],
                                         s.a1_g,
-                                        amplitude_within_g / share,
+                                        amplitude_within_g / m.share,
                                         amplitude_within_g,
                                         factor,
                                         m.at(theta),
