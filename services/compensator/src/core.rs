@@ -4,7 +4,7 @@
 //! ([`InProcess`]).
 
 use crate::config::{Config, Model};
-use crate::interval::{within_output_interval, within_spectrum};
+use crate::interval::{within_fraction, within_output_interval, within_spectrum};
 use crate::mapping::{sensor_map, unit_vibrations, UnitVibrations};
 use crate::reload::ModelUpdate;
 use crate::spectrum::{sensor_spectrum, unit_bands, SpectrumSolver};
@@ -375,11 +375,11 @@ impl ToneMoments {
                 *v /= MOMENT_POINTS as f64;
             }
         }
-        let x = 0.5 * omega_t;
-        let sinc = if x.abs() < 1e-9 { 1.0 } else { x.sin() / x };
         Self {
             omega_t,
-            share: (1.0 - sinc * sinc).max(0.0).sqrt(),
+            // The inverse of the reduction the estimate's tone took
+            // (`within_output_interval`): `f T = w T / 2 pi`.
+            share: within_fraction(omega_t / std::f64::consts::TAU, 1.0).sqrt(),
             mu,
         }
     }
@@ -968,7 +968,7 @@ impl Compensation {
             }
         }
         let tone_moments = &self.tone_moments;
-        let passports_k: [[f64; 6]; 3] = std::array::from_fn(|i| self.model.triad.passports[i].k);
+        let passports = &self.model.triad.passports;
         let compensator = &mut self.compensator;
         let mid_ns = |b: &AccelBlock, k: usize| {
             b.t0_ns
@@ -1025,7 +1025,7 @@ impl Compensation {
                                 let factor = tone_within_factor(theta, w * interval_s);
                                 let higher = match &tone_moments[i] {
                                     Some(m) if m.share > 1e-6 => higher_moments_g(
-                                        &passports_k[i],
+                                        &passports[i].k,
                                         s.a1_g,
                                         amplitude_within_g / m.share,
                                         amplitude_within_g,
