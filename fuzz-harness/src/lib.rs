@@ -13,6 +13,7 @@
 //! | [`config_parse`] | every TOML parser: estimator, compensator, passport, triad, scenario, and the PSD table (CSV) | no panic; errors name the file |
 //! | [`lab_table`] | UTF-8 text as a campaign table (`vibro_lab::CampaignTable::parse`), then `compare` and a `diagnose` of two candidates on a small budget | no panic, no hang; an error from the table names the file; a fit returned is finite |
 //! | [`message_validate`] | every wire type of `vibro-msgs` from raw bytes, and protobuf through `vibro_mcap` | no panic; what validates survives the protobuf round trip bit for bit |
+//! | [`stream_sequence`] | an adversarial input sequence (`vibro_service::adversary`) to the compensator's and the estimator's cores | no input silences them: the real stream is taken again within 4 messages, never dropped after, and estimated again within a window; no jump or fake step counted as a loss |
 //!
 //! A broken invariant is a panic with the reason, which libFuzzer reports as a crash.
 //!
@@ -43,12 +44,13 @@ use vibro_msgs::{
 pub type Target = fn(&[u8]);
 
 /// The targets by name, as in `fuzz/Cargo.toml` and the corpus folders.
-pub const TARGETS: [(&str, Target); 5] = [
+pub const TARGETS: [(&str, Target); 6] = [
     ("mcap_read", mcap_read),
     ("lab_table", lab_table),
     ("csv_import", csv_import),
     ("config_parse", config_parse),
     ("message_validate", message_validate),
+    ("stream_sequence", stream_sequence),
 ];
 
 /// Every message kind, in the order a selector byte picks them.
@@ -309,6 +311,148 @@ pub fn config_parse(data: &[u8]) {
     if let Err(e) = vibro_sim::parse_scenario(text, FILE, None) {
         check_error_names("scenario", &e, FILE);
     }
+}
+
+// ---------------------------------------------------------------------------------
+// stream sequences
+
+/// Steps of an adversarial prefix [`stream_sequence`] reads at most.
+const SEQUENCE_MAX_STEPS: usize = 64;
+
+/// The estimator [`stream_sequence`] runs: 4096 Hz, so that a window (1 s) is 8 blocks
+/// of 512 samples and a run stays fast.
+const SEQUENCE_ESTIMATOR: &str =
+    "[estimator]\nsample_rate_hz = 4096.0\nsensitivity_raw_per_g = [0.1, 0.1, 0.1]\n";
+
+/// Bytes as an adversarial input sequence (`vibro_service::adversary::generate`): byte
+/// 0 picks the mode (bit 0: isolated episodes, [`vibro_service::adversary::Sequence`]),
+/// the rest, 8 bytes a step, up to [`SEQUENCE_MAX_STEPS`] steps of the prefix (seq and
+/// sample-index jumps both ways, repeats, reorderings, time jumps, `u64::MAX`, 0,
+/// absurd values, fake bursts and streams); then the real stream alone. The sequence
+/// goes as accelerometer blocks (32 samples, 800 Hz) to the compensator's core and as
+/// vibration blocks (512 samples, 4096 Hz) to the estimator's core, both in-process
+/// (the services' own per-message code). Checks (`adversary::check`): the real stream
+/// is taken again within `RESYNC_AFTER` (4) messages and never dropped after (the
+/// compensator: a block taken is a block answered); with isolated episodes, no more
+/// messages counted lost than real ones never taken; the estimator takes every tail
+/// block its continuity takes, and its first estimate comes within `RESYNC_AFTER - 1`
+/// blocks plus a window (8 blocks) of the tail's start.
+pub fn stream_sequence(data: &[u8]) {
+    use vibro_msgs::accel_flags;
+    use vibro_service::adversary::{check, generate};
+    use vibro_service::{ConfigSource, ServiceConfig, RESYNC_AFTER};
+    static CONFIGS: std::sync::OnceLock<(vibro_compensator::Config, vibro_estimator::Config)> =
+        std::sync::OnceLock::new();
+    let [mode, rest @ ..] = data else {
+        return;
+    };
+    let (comp_config, est_config) = CONFIGS.get_or_init(|| {
+        (
+            vibro_compensator::Config::shipped().expect("the shipped compensator configuration"),
+            vibro_estimator::Config::parse(SEQUENCE_ESTIMATOR, ConfigSource::Inline)
+                .expect("the stream_sequence estimator configuration"),
+        )
+    });
+    let mut words = rest.chunks(8).map(|c| {
+        let mut w = [0u8; 8];
+        w[..c.len()].copy_from_slice(c);
+        u64::from_le_bytes(w)
+    });
+
+    // The compensator.
+    let s = generate(|| words.next(), SEQUENCE_MAX_STEPS, 32, mode & 1 != 0);
+    let mut comp = vibro_compensator::InProcess::new(comp_config).expect("the compensator core");
+    let k1 = comp_config.model.k1_v_per_g();
+    let mut out = Vec::new();
+    let taken: Vec<bool> = s
+        .messages
+        .iter()
+        .map(|m| {
+            let mut b = AccelBlock::ZEROED;
+            b.seq = m.seq;
+            b.first_sample_index = m.first_sample_index;
+            b.sample_period_ns = 1_250_000;
+            b.t0_ns = m.t0_periods.saturating_mul(b.sample_period_ns);
+            b.count = 32;
+            for (k, v) in b.output_v[..32].iter_mut().enumerate() {
+                let g = 1.0 + 0.01 * (k as f64 * 0.7).sin();
+                *v = [0.1 * g * k1[0], -0.2 * g * k1[1], g * k1[2]];
+            }
+            if m.absurd_values {
+                b.output_v[5] = [f64::NAN, 1e300, f64::NEG_INFINITY];
+                b.flags = accel_flags::SATURATED;
+            }
+            let before = out.len();
+            comp.on_accel(&b, 0, &mut out);
+            out.len() > before
+        })
+        .collect();
+    let summary = comp.summary();
+    if let Err(e) = check(&s, &taken, summary.accel.lost_messages) {
+        panic!("compensator: {e} ({:?})", summary.accel);
+    }
+
+    // The estimator, on the same steps with blocks of 512 samples.
+    let mut words = rest.chunks(8).map(|c| {
+        let mut w = [0u8; 8];
+        w[..c.len()].copy_from_slice(c);
+        u64::from_le_bytes(w)
+    });
+    const VIB_SAMPLES: usize = 512;
+    let s = generate(
+        || words.next(),
+        SEQUENCE_MAX_STEPS,
+        VIB_SAMPLES as u64,
+        mode & 1 != 0,
+    );
+    let estimator = &est_config.estimator;
+    let period_ns = estimator.sample_period_ns().round() as u64;
+    let window_blocks = estimator.window_samples().div_ceil(VIB_SAMPLES);
+    let mut core = vibro_estimator::InProcess::new(estimator).expect("the estimator core");
+    let mut estimates: Vec<VibEstimate> = Vec::new();
+    let mut taken = Vec::with_capacity(s.messages.len());
+    let mut first_estimate = None;
+    for (i, m) in s.messages.iter().enumerate() {
+        let mut b = VibBlock::ZEROED;
+        b.seq = m.seq;
+        b.first_sample_index = m.first_sample_index;
+        b.sample_period_ns = period_ns;
+        b.t0_ns = m.t0_periods.saturating_mul(period_ns);
+        b.count = VIB_SAMPLES as u32;
+        for (k, v) in b.sample_v[..VIB_SAMPLES].iter_mut().enumerate() {
+            let phase = (m.first_sample_index.wrapping_add(k as u64) % 4096) as f64;
+            let x = 0.1 * (std::f64::consts::TAU * 97.0 * phase / 4096.0).sin();
+            *v = [x, 0.5 * x, -x];
+        }
+        if m.absurd_values {
+            b.sample_v[9] = [f64::NAN, 1e300, f64::INFINITY];
+        }
+        let out_of_order = core.counters().vib.out_of_order;
+        let accepted = core.dsp_counters().blocks_accepted;
+        let before = estimates.len();
+        core.on_block(&b, 0, &mut estimates)
+            .expect("the estimator fails only on an internal FFT error");
+        let took = core.counters().vib.out_of_order == out_of_order;
+        taken.push(took);
+        if i >= s.tail {
+            assert!(
+                !took || core.dsp_counters().blocks_accepted == accepted + 1,
+                "estimator: tail block {} taken by the continuity, dropped by the estimator",
+                i - s.tail
+            );
+            if first_estimate.is_none() && estimates.len() > before {
+                first_estimate = Some(i - s.tail);
+            }
+        }
+    }
+    if let Err(e) = check(&s, &taken, core.summary().vib.lost_messages) {
+        panic!("estimator: {e} ({:?})", core.summary().vib);
+    }
+    let bound = RESYNC_AFTER as usize - 1 + window_blocks;
+    assert!(
+        first_estimate.is_some_and(|k| k <= bound),
+        "estimator: first estimate at tail block {first_estimate:?}, bound {bound}"
+    );
 }
 
 // ---------------------------------------------------------------------------------
@@ -627,6 +771,9 @@ mod tests {
         for (name, data) in seeds::csv_files() {
             write("csv_import", name, &data);
         }
+        for (name, data) in seeds::stream_sequences() {
+            write("stream_sequence", &name, &data);
+        }
         for dir in [
             "accelerometers",
             "triads",
@@ -743,6 +890,31 @@ mod tests {
                     bytes[..bytes.len() / 2].to_vec(),
                 ));
                 out.push((format!("{name}.mcap"), bytes));
+            }
+            out
+        }
+
+        /// `stream_sequence` inputs: issue 31 (a real stream of 11 messages, one fake
+        /// 999 ahead, then the stream), and seeded random steps in both modes.
+        pub fn stream_sequences() -> Vec<(String, Vec<u8>)> {
+            let word = |v: u64| v.to_le_bytes();
+            let mut issue31 = vec![1u8];
+            issue31.extend(word(0));
+            for _ in 0..11 {
+                issue31.extend(word(0));
+            }
+            // Step 6 with an offset of 998: a fake 999 ahead of the stream.
+            issue31.extend(word(6 | (998 << 16)));
+            let mut out = vec![("issue31".to_string(), issue31)];
+            for seed in 1..=3u64 {
+                for mode in [0u8, 1] {
+                    let mut rng = vibro_service::adversary::Xorshift::new(seed);
+                    let mut data = vec![mode];
+                    for _ in 0..40 {
+                        data.extend(word(rng.next_u64()));
+                    }
+                    out.push((format!("random-{seed}-mode{mode}"), data));
+                }
             }
             out
         }

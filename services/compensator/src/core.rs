@@ -18,7 +18,7 @@ use vibro_msgs::{
 use vibro_physics::compensation::TriadCompensator;
 use vibro_physics::vibration::{PsdBand, Vibration};
 use vibro_service::{
-    count_first, now_ns, Continuity, JsonObject, Latency, Quantiles, StreamCounters,
+    count_first, now_ns, Continuity, DisorderLog, JsonObject, Latency, Quantiles, StreamCounters,
 };
 
 /// Readings beyond this magnitude are treated like NaN: no accelerometer measures them,
@@ -32,7 +32,8 @@ pub struct Summary {
     /// Time the hot loop ran.
     pub uptime_s: f64,
     /// The `{prefix}accel` stream (received, lost by `seq` and `first_sample_index`,
-    /// out of order = dropped, restarts, malformed = dropped).
+    /// out of order = dropped, restarts, resyncs (taken up again after out-of-order
+    /// blocks: `vibro_service::continuity`), malformed = dropped).
     pub accel: StreamCounters,
     /// The `{prefix}estimate` stream.
     pub estimates: StreamCounters,
@@ -496,6 +497,10 @@ pub(crate) struct Compensation {
     timing: Option<AccelTiming>,
     accel_continuity: Continuity,
     estimate_continuity: Continuity,
+    /// Out-of-order messages and resyncs of each input, told at a bounded rate (the
+    /// service's summary period tells the rest).
+    pub(crate) accel_disorder: DisorderLog,
+    pub(crate) estimate_disorder: DisorderLog,
     /// A dropped (malformed) block: the next output is flagged `INPUT_GAP`.
     pending_gap: bool,
     rejecting: bool,
@@ -524,6 +529,8 @@ impl Compensation {
             timing: None,
             accel_continuity: Continuity::new(),
             estimate_continuity: Continuity::new(),
+            accel_disorder: DisorderLog::default(),
+            estimate_disorder: DisorderLog::default(),
             pending_gap: false,
             rejecting: false,
             out_seq: 0,
@@ -614,6 +621,13 @@ impl Compensation {
         }
         let arrival = self.estimate_continuity.check_seq(e.seq);
         self.s.estimates.record(&arrival);
+        self.estimate_disorder.arrival(
+            "vibration estimate",
+            &arrival,
+            e.seq,
+            self.estimate_continuity.last_seq(),
+            &self.s.estimates,
+        );
         if !arrival.accepted {
             return;
         }
@@ -788,13 +802,16 @@ impl Compensation {
             u64::from(block.count),
         );
         self.s.accel.record(&arrival);
+        // At a bounded rate: the first at once, the rest per summary period (a resync
+        // after 3 dropped blocks, `vibro_service::continuity`, ends any run of them).
+        self.accel_disorder.arrival(
+            "accelerometer",
+            &arrival,
+            block.seq,
+            self.accel_continuity.last_seq(),
+            &self.s.accel,
+        );
         if !arrival.accepted {
-            if self.s.accel.out_of_order == 1 {
-                warn!(
-                    seq = block.seq,
-                    "dropping a duplicate or out-of-order accelerometer block"
-                );
-            }
             return;
         }
         let count = block.count as u64;
@@ -822,7 +839,8 @@ impl Compensation {
             !arrival.restarted && self.timing.is_some_and(|timing| timing.jumped(block));
         self.timing = Some(AccelTiming::after(block));
         if arrival.restarted {
-            // The producer started again (a new replay, a restarted rig): the stream
+            // The producer started again (a new replay, a restarted rig), or the
+            // stream was taken up again after out-of-order blocks (a resync): the stream
             // history no longer applies, and an estimate dated after this block
             // belongs to the previous run.
             self.compensator.reset_tracking();
@@ -1347,6 +1365,104 @@ mod tests {
             assert!(g.covers(a), "{a}");
             // A cubic is interpolated exactly.
             assert!((g.at(a) - (a * a * a - 2.0 * a)).abs() < 1e-9, "{a}");
+        }
+    }
+
+    /// Block `seq` of a steady stream at 800 Hz, 32 samples of 1 g on every unit, its
+    /// sample index and time in step with its seq.
+    fn steady_block(k1_v_per_g: [f64; 3], seq: u64) -> AccelBlock {
+        let mut b = AccelBlock::ZEROED;
+        b.seq = seq;
+        b.first_sample_index = seq.wrapping_mul(32);
+        b.sample_period_ns = 1_250_000;
+        b.t0_ns = 1_000_000_000u64.wrapping_add(seq.wrapping_mul(32 * 1_250_000));
+        b.count = 32;
+        for s in b.output_v[..32].iter_mut() {
+            *s = k1_v_per_g;
+        }
+        b
+    }
+
+    /// Issue 31: one accelerometer block ahead of the stream by less than 2^20 (seq
+    /// 500,000) silenced the compensator: none of the blocks 11..=20 after it came out
+    /// (nor any other for 5.5 h at 25 blocks/s), and 499,989 blocks were counted lost.
+    /// Now the fourth of them resyncs the stream: 14..=20 come out, the first flagged
+    /// `INPUT_GAP`, and no loss is counted.
+    #[test]
+    fn one_block_ahead_of_the_stream_does_not_silence_the_compensator() {
+        use vibro_service::ServiceConfig;
+        let config = Config::shipped().unwrap();
+        let k1 = config.model.k1_v_per_g();
+        let mut c = InProcess::new(&config).unwrap();
+        let mut out = Vec::new();
+        for seq in 0..=10 {
+            c.on_accel(&steady_block(k1, seq), 0, &mut out);
+        }
+        c.on_accel(&steady_block(k1, 500_000), 0, &mut out);
+        out.clear();
+        for seq in 11..=20 {
+            c.on_accel(&steady_block(k1, seq), 0, &mut out);
+        }
+        let inputs: Vec<u64> = out.iter().map(|b| b.input_seq).collect();
+        assert_eq!(inputs, (14..=20).collect::<Vec<_>>());
+        assert_ne!(out[0].flags & cf::INPUT_GAP, 0);
+        assert!(out[1..].iter().all(|b| b.flags & cf::INPUT_GAP == 0));
+        let s = c.summary();
+        assert_eq!(
+            (
+                s.accel.lost_messages,
+                s.accel.lost_samples,
+                s.accel.out_of_order,
+                s.accel.resyncs
+            ),
+            (0, 0, 3, 1),
+            "{:?}",
+            s.accel
+        );
+        let json = s.to_json();
+        assert!(json.contains("\"resyncs\":1"), "{json}");
+        assert!(json.contains("\"out_of_order\":3"), "{json}");
+    }
+
+    /// The property (`vibro_service::adversary`): random adversarial prefixes of
+    /// accelerometer blocks (seq and sample-index jumps both ways, repeats,
+    /// reorderings, time jumps, `u64::MAX`, NaN and 1e300 readings), then the real
+    /// stream: its output resumes within `RESYNC_AFTER` (4) blocks and never stops
+    /// again, and where the episodes are isolated no more blocks are counted lost than
+    /// real ones that got no output.
+    #[test]
+    fn no_sequence_silences_the_compensator() {
+        use vibro_service::adversary::{check, generate, Xorshift};
+        use vibro_service::ServiceConfig;
+        let config = Config::shipped().unwrap();
+        let k1 = config.model.k1_v_per_g();
+        let mut rng = Xorshift::new(1931);
+        for trial in 0..300 {
+            let isolated = trial % 3 != 0;
+            let ops = (rng.next_u64() % 60) as usize;
+            let s = generate(|| Some(rng.next_u64()), ops, 32, isolated);
+            let mut c = InProcess::new(&config).unwrap();
+            let mut out = Vec::new();
+            let taken: Vec<bool> = s
+                .messages
+                .iter()
+                .map(|m| {
+                    let mut b = steady_block(k1, m.seq);
+                    b.first_sample_index = m.first_sample_index;
+                    b.t0_ns =
+                        1_000_000_000u64.saturating_add(m.t0_periods.saturating_mul(1_250_000));
+                    if m.absurd_values {
+                        b.output_v[3] = [f64::NAN, 1e300, -1e300];
+                    }
+                    let before = out.len();
+                    c.on_accel(&b, 0, &mut out);
+                    out.len() > before
+                })
+                .collect();
+            let summary = c.summary();
+            if let Err(e) = check(&s, &taken, summary.accel.lost_messages) {
+                panic!("trial {trial}: {e}\n{:?}", summary.accel);
+            }
         }
     }
 }

@@ -274,11 +274,14 @@ fn hot_loop(
         if now >= next_heartbeat_ns {
             next_heartbeat_ns = now.saturating_add(heartbeat_ns);
             let s = &st.s;
-            // A seq or sample-index jump (vibro_service::continuity) degrades like a loss.
+            // A seq or sample-index jump, an out-of-order message or a resync
+            // (vibro_service::continuity) degrades like a loss.
             let degraded = s.accel.lost_messages + s.accel.lost_samples + s.accel.malformed
                 > last.accel.lost_messages + last.accel.lost_samples + last.accel.malformed
                 || s.accel.seq_jumps + s.accel.index_jumps
                     > last.accel.seq_jumps + last.accel.index_jumps
+                || s.accel.disorder() + s.estimates.disorder()
+                    > last.accel.disorder() + last.estimates.disorder()
                 || s.stale_blocks + s.missing_blocks + s.ahead_blocks
                     > last.stale_blocks + last.missing_blocks + last.ahead_blocks
                 || s.time_jump_blocks > last.time_jump_blocks
@@ -300,13 +303,18 @@ fn hot_loop(
             let q = st.latency.period();
             let s = &st.s;
             info!(
-                "compensator ({}): {:.1} blocks/s, {} estimates ({} rejected), lost {} blocks / {} samples, stale {} missing {} ahead {} blocks, rate changes {}, time jumps {}, saturated {}, undelivered {}, latency p50 {:.1} us p99 {:.1} us",
+                "compensator ({}): {:.1} blocks/s, {} estimates ({} rejected), lost {} blocks / {} samples, out of order {} blocks / {} estimates, resyncs {} / {}, stale {} missing {} ahead {} blocks, rate changes {}, time jumps {}, saturated {}, undelivered {}, latency p50 {:.1} us p99 {:.1} us",
                 s.mode,
                 (s.accel.received - last.accel.received) as f64 / dt_s,
                 s.estimates.received - last.estimates.received,
                 s.estimates_rejected - last.estimates_rejected,
-                s.accel.lost_messages - last.accel.lost_messages,
-                s.accel.lost_samples - last.accel.lost_samples,
+                // Saturating: a resync can take back a loss counted earlier.
+                s.accel.lost_messages.saturating_sub(last.accel.lost_messages),
+                s.accel.lost_samples.saturating_sub(last.accel.lost_samples),
+                s.accel.out_of_order - last.accel.out_of_order,
+                s.estimates.out_of_order - last.estimates.out_of_order,
+                s.accel.resyncs - last.accel.resyncs,
+                s.estimates.resyncs - last.estimates.resyncs,
                 s.stale_blocks - last.stale_blocks,
                 s.missing_blocks - last.missing_blocks,
                 s.ahead_blocks - last.ahead_blocks,
@@ -317,6 +325,10 @@ fn hot_loop(
                 q.p50_ns as f64 * 1e-3,
                 q.p99_ns as f64 * 1e-3,
             );
+            // What the hot loop did not tell at once (vibro_service::DisorderLog).
+            st.accel_disorder.period("accelerometer", &st.s.accel);
+            st.estimate_disorder
+                .period("vibration estimate", &st.s.estimates);
             st.latency.reset_period();
             last = st.s.clone();
             period_start_ns = now;
@@ -340,6 +352,10 @@ fn hot_loop(
         lost_blocks = summary.accel.lost_messages,
         seq_jumps = summary.accel.seq_jumps,
         index_jumps = summary.accel.index_jumps,
+        out_of_order = summary.accel.out_of_order,
+        resyncs = summary.accel.resyncs,
+        estimates_out_of_order = summary.estimates.out_of_order,
+        estimate_resyncs = summary.estimates.resyncs,
         stale_blocks = summary.stale_blocks,
         missing_blocks = summary.missing_blocks,
         p50_us = summary.latency.p50_ns as f64 * 1e-3,

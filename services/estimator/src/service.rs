@@ -167,7 +167,8 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
             next_heartbeat_ns = now.saturating_add(heartbeat_ns);
             let c = core.counters();
             let period = core.latency_mut().period();
-            // A seq or sample-index jump (vibro_service::continuity) degrades like a loss.
+            // A seq or sample-index jump, an out-of-order block or a resync
+            // (vibro_service::continuity) degrades like a loss.
             let lost_now = c.vib.lost_messages
                 + c.vib.lost_samples
                 + c.vib.malformed
@@ -178,9 +179,11 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
                 + last_period.vib.malformed
                 + last_period.vib.seq_jumps
                 + last_period.vib.index_jumps;
+            let disordered = c.vib.disorder() > last_period.vib.disorder();
             let state = if c.vib.received == 0 {
                 ServiceState::Starting
             } else if lost_now > lost_before
+                || disordered
                 || c.estimates_flagged > last_period.estimates_flagged
                 || c.rate_mismatches > last_period.rate_mismatches
             {
@@ -209,18 +212,22 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
             let c = core.counters();
             let dsp = core.dsp_counters();
             info!(
-                "estimator: {:.1} blocks/s, {} estimates ({} flagged), lost {} blocks / {} samples, rate mismatches {}, latency p50 {:.1} us p99 {:.1} us, dsp gap samples {}, non-finite {}",
+                "estimator: {:.1} blocks/s, {} estimates ({} flagged), lost {} blocks / {} samples, out of order {} blocks, resyncs {}, rate mismatches {}, latency p50 {:.1} us p99 {:.1} us, dsp gap samples {}, non-finite {}",
                 (c.vib.received - last_period.vib.received) as f64 / dt_s.max(1e-9),
                 c.estimates_published - last_period.estimates_published,
                 c.estimates_flagged - last_period.estimates_flagged,
-                c.vib.lost_messages - last_period.vib.lost_messages,
-                c.vib.lost_samples - last_period.vib.lost_samples,
+                // Saturating: a resync can take back a loss counted earlier.
+                c.vib.lost_messages.saturating_sub(last_period.vib.lost_messages),
+                c.vib.lost_samples.saturating_sub(last_period.vib.lost_samples),
+                c.vib.out_of_order - last_period.vib.out_of_order,
+                c.vib.resyncs - last_period.vib.resyncs,
                 c.rate_mismatches - last_period.rate_mismatches,
                 q.p50_ns as f64 * 1e-3,
                 q.p99_ns as f64 * 1e-3,
                 dsp.gap_samples,
                 dsp.non_finite_samples,
             );
+            core.tell_disorder();
             core.latency_mut().reset_period();
             last_period = core.counters();
             period_start_ns = now;
@@ -255,6 +262,8 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
         lost_blocks = summary.vib.lost_messages,
         seq_jumps = summary.vib.seq_jumps,
         index_jumps = summary.vib.index_jumps,
+        out_of_order = summary.vib.out_of_order,
+        resyncs = summary.vib.resyncs,
         estimates = summary.estimates_published,
         p50_us = summary.latency.p50_ns as f64 * 1e-3,
         p99_us = summary.latency.p99_ns as f64 * 1e-3,

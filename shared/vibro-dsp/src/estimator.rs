@@ -20,6 +20,14 @@ const FLAG_SATURATED: [u8; 3] = [4, 8, 16];
 /// their fourth powers would overflow the kurtosis sums.
 pub const MAX_ABS_SAMPLE_G: f64 = 1e30;
 
+/// Out-of-order blocks in a row, each with a sequence number above the one before, after
+/// which the last of them is taken (as a clock that stepped back: the window restarts)
+/// rather than dropped. Without it one block dated and numbered ahead of the stream
+/// would have every later block dropped until the stream caught up with it, hours on.
+/// The same rule, and the same count, as `vibro_service::RESYNC_AFTER` (the services'
+/// continuity check, which resyncs first and says so with [`Estimator::resync`]).
+pub const RESYNC_AFTER_DROPS: u32 = 4;
+
 /// One block of 3-axis samples from the vibration sensors.
 #[derive(Debug, Clone, Copy)]
 pub struct SampleBlock<'a> {
@@ -78,6 +86,12 @@ struct Intake {
     last: Option<(u64, u64)>,
     pending_gap: bool,
     pending_out_of_order: bool,
+    /// The caller took the stream up again ([`Estimator::resync`]): the next block is
+    /// newer whatever its sequence number.
+    rebased: bool,
+    /// The sequence number of the last block dropped as out of order and how many were
+    /// dropped in a row, each numbered above the one before ([`RESYNC_AFTER_DROPS`]).
+    dropped_run: Option<(u64, u32)>,
     inverse_sensitivity: [f64; 3],
     full_scale_g: [f64; 3],
     period_ns: f64,
@@ -172,6 +186,8 @@ impl Estimator {
             last: None,
             pending_gap: false,
             pending_out_of_order: false,
+            rebased: false,
+            dropped_run: None,
             inverse_sensitivity: raw.sensitivity_raw_per_g.map(|s| 1.0 / s),
             full_scale_g: raw.full_scale_g.unwrap_or([f64::INFINITY; 3]),
             period_ns: config.sample_period_ns(),
@@ -217,11 +233,27 @@ impl Estimator {
         self.intake.last = None;
         self.intake.pending_gap = false;
         self.intake.pending_out_of_order = false;
+        self.intake.rebased = false;
+        self.intake.dropped_run = None;
+    }
+
+    /// The stream's sequence numbers were taken up again upstream (a continuity check
+    /// resynchronised to them, `vibro_service::Continuity`): the next block is taken as
+    /// newer than the last whatever its sequence number, and flagged as a gap; its
+    /// timestamp decides the rest as for any newer block (contiguous: the window goes
+    /// on; dated back: the window restarts; later: a gap). Unlike [`Self::reset`], the
+    /// window is kept when time goes on. Without it a block whose sequence number went
+    /// back, dated before the window's end, would be dropped as out of order, and so
+    /// would every block after it until the old sequence number was passed.
+    pub fn resync(&mut self) {
+        self.intake.rebased = self.intake.last.is_some();
     }
 
     /// Takes one block. A block dated before the end of the previous one (beyond the
     /// timestamp tolerance) is dropped as out of order, unless its sequence number is
-    /// newer (the source's clock stepped back: the window restarts). A gap up to one
+    /// newer (the source's clock stepped back: the window restarts) or it is the
+    /// [`RESYNC_AFTER_DROPS`]th such block in a row, each numbered above the one before
+    /// (the stream is taken up again, as after a clock that stepped back). A gap up to one
     /// window long is filled with invalid samples (kept out of the estimate), a longer
     /// one restarts the window. A sequence jump or reset with contiguous time is flagged
     /// as a gap. `on_estimate` is called for every window that fills, possibly several
@@ -251,15 +283,17 @@ impl Estimator {
             // The difference first, exactly, then to f64 (timestamps since the epoch
             // exceed f64's integer precision).
             let late_ns = (block.t0_ns as i128 - next_t_ns as i128) as f64;
-            let newer = block.seq > last_seq;
+            let rebased = std::mem::take(&mut self.intake.rebased);
+            let newer = rebased || block.seq > last_seq;
             if late_ns < -tolerance_ns {
-                if !newer {
+                if !newer && !self.drops_too_many(block.seq) {
                     status.out_of_order = true;
                     self.intake.pending_out_of_order = true;
                     self.counters.blocks_dropped += 1;
                     return Ok(status);
                 }
-                // A newer block dated in the past: the source's clock stepped back.
+                // A newer block dated in the past: the source's clock stepped back (or
+                // the stream is taken up again after RESYNC_AFTER_DROPS drops).
                 status.restarted = true;
                 self.restart();
             } else {
@@ -268,8 +302,9 @@ impl Estimator {
                 } else {
                     0
                 };
-                // A jump, or a sequence restarting while time goes on (publisher restart).
-                status.sequence_gap = !newer || block.seq > last_seq.saturating_add(1);
+                // A jump, or a sequence restarting while time goes on (publisher restart),
+                // or taken up again upstream.
+                status.sequence_gap = rebased || !newer || block.seq > last_seq.saturating_add(1);
                 status.gap_samples = missing;
                 if status.sequence_gap {
                     self.counters.sequence_gaps += 1;
@@ -290,6 +325,7 @@ impl Estimator {
             }
         }
         status.accepted = true;
+        self.intake.dropped_run = None;
         self.counters.blocks_accepted += 1;
         for (j, raw) in block.samples_raw.iter().enumerate() {
             let mut x_g = [0.0; 3];
@@ -327,13 +363,14 @@ impl Estimator {
     fn take_empty(&mut self, seq: u64) -> BlockStatus {
         let mut status = BlockStatus::default();
         if let Some((last_seq, next_t_ns)) = self.intake.last {
-            if seq <= last_seq {
+            let rebased = std::mem::take(&mut self.intake.rebased);
+            if seq <= last_seq && !rebased && !self.drops_too_many(seq) {
                 status.out_of_order = true;
                 self.intake.pending_out_of_order = true;
                 self.counters.blocks_dropped += 1;
                 return status;
             }
-            if seq > last_seq.saturating_add(1) {
+            if rebased || seq <= last_seq || seq > last_seq.saturating_add(1) {
                 status.sequence_gap = true;
                 self.counters.sequence_gaps += 1;
                 self.intake.pending_gap = true;
@@ -342,8 +379,20 @@ impl Estimator {
             self.intake.last = Some((seq, next_t_ns));
         }
         status.accepted = true;
+        self.intake.dropped_run = None;
         self.counters.blocks_accepted += 1;
         status
+    }
+
+    /// An out-of-order block numbered `seq`: true when it is the
+    /// [`RESYNC_AFTER_DROPS`]th in a row numbered above the one before, to be taken.
+    fn drops_too_many(&mut self, seq: u64) -> bool {
+        let run = match self.intake.dropped_run {
+            Some((last, n)) if seq > last => n + 1,
+            _ => 1,
+        };
+        self.intake.dropped_run = Some((seq, run));
+        run >= RESYNC_AFTER_DROPS
     }
 
     /// Drops the partial window after a discontinuity; the next estimate says so.

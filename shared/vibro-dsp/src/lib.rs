@@ -85,7 +85,9 @@ pub use config::{
     DEFAULT_TONE_SNR_THRESHOLD_DB, DEFAULT_WELCH_SEGMENT_S, DEFAULT_WINDOW_S, MAX_WINDOW_SAMPLES,
     MIN_SEGMENT_SAMPLES, MIN_WINDOW_SAMPLES, RIG_PSD_BANDS_HZ, TONE_EDGE_BINS,
 };
-pub use estimator::{BlockStatus, Counters, Estimator, SampleBlock, MAX_ABS_SAMPLE_G};
+pub use estimator::{
+    BlockStatus, Counters, Estimator, SampleBlock, MAX_ABS_SAMPLE_G, RESYNC_AFTER_DROPS,
+};
 pub use leakage::BandLeakage;
 pub use output::{BandEstimate, Broadband, Estimate, FixedList, Flags, ToneEstimate};
 

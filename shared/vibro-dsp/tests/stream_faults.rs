@@ -329,6 +329,74 @@ fn estimate_time_span_and_sensitivity_are_honoured() {
     }
 }
 
+/// Issue 31: one block numbered and dated ahead of the stream (block 500,000, 1 h on)
+/// had every later block dropped as out of order until the stream caught up with it.
+/// Now the fourth dropped block in a row is taken (the window restarts there), and so
+/// are the blocks after it.
+#[test]
+fn one_block_ahead_of_the_stream_does_not_silence_the_estimator() {
+    let (x, _) = signal(4);
+    let blocks: Vec<&[[f64; 3]]> = x.chunks(BLOCK).collect();
+    let mut est = estimator(cfg());
+    let push = |seq: usize, est: &mut vibro_dsp::Estimator| {
+        let b = SampleBlock {
+            seq: seq as u64,
+            t0_ns: block_t0_ns(seq),
+            samples_raw: blocks[seq % blocks.len()],
+        };
+        est.push_block(&b, |_| {}).unwrap()
+    };
+    for seq in 0..=10 {
+        assert!(push(seq, &mut est).accepted);
+    }
+    assert!(push(500_000, &mut est).accepted);
+    let after: Vec<_> = (11..=40).map(|seq| push(seq, &mut est)).collect();
+    let dropped = after.iter().take_while(|s| !s.accepted).count();
+    assert_eq!(dropped, vibro_dsp::RESYNC_AFTER_DROPS as usize - 1);
+    assert!(after[dropped].restarted, "{:?}", after[dropped]);
+    assert!(after[dropped..].iter().all(|s| s.accepted), "{after:?}");
+    // A window (1 s at 8192 Hz, 16 blocks) of the stream again gives estimates.
+    let mut estimates = 0;
+    for seq in 41..=120 {
+        let b = SampleBlock {
+            seq,
+            t0_ns: block_t0_ns(seq as usize),
+            samples_raw: blocks[seq as usize % blocks.len()],
+        };
+        est.push_block(&b, |_| estimates += 1).unwrap();
+    }
+    assert!(estimates > 0);
+}
+
+/// A caller that resynchronised upstream says so: the next block is newer whatever its
+/// sequence number, and the window goes on when its time does.
+#[test]
+fn a_resync_from_upstream_takes_the_next_block() {
+    let (x, _) = signal(5);
+    let blocks: Vec<&[[f64; 3]]> = x.chunks(BLOCK).collect();
+    let mut est = estimator(cfg());
+    for seq in 0..10 {
+        let b = SampleBlock {
+            seq: 1_000 + seq as u64,
+            t0_ns: block_t0_ns(seq),
+            samples_raw: blocks[seq],
+        };
+        est.push_block(&b, |_| {}).unwrap();
+    }
+    est.resync();
+    let b = SampleBlock {
+        seq: 10,
+        t0_ns: block_t0_ns(10),
+        samples_raw: blocks[10],
+    };
+    let s = est.push_block(&b, |_| {}).unwrap();
+    assert!(s.accepted && s.sequence_gap && !s.restarted, "{s:?}");
+    assert_eq!(
+        est.samples_to_next_estimate(),
+        (x.len() / 4 - 11 * BLOCK) as u64
+    );
+}
+
 #[test]
 fn garbage_streams_never_panic() {
     let mut r = rng(7);

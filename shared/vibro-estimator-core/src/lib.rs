@@ -31,7 +31,7 @@ use vibro_dsp::{Estimate, Estimator, EstimatorConfig, SampleBlock};
 use vibro_ipc::StreamPublisher;
 use vibro_msgs::{estimate_flags, vib_flags, VibBlock, VibEstimate, WireMessage};
 use vibro_service::{
-    count_first, now_ns, Continuity, JsonObject, Latency, Quantiles, StreamCounters,
+    count_first, now_ns, Continuity, DisorderLog, JsonObject, Latency, Quantiles, StreamCounters,
 };
 
 /// What the estimator did, returned by the service's `run` when it stops (and printed
@@ -41,7 +41,8 @@ pub struct Summary {
     /// Time the hot loop ran.
     pub uptime_s: f64,
     /// The `{prefix}vib` stream: received, lost (by `seq` and by `first_sample_index`),
-    /// out of order, restarts, malformed.
+    /// out of order, restarts, resyncs (taken up again after out-of-order blocks:
+    /// `vibro_service::continuity`), malformed.
     pub vib: StreamCounters,
     /// Blocks whose `sample_period_ns` disagrees with the configured rate by more than
     /// 1 ns: their samples were kept out (a gap), the estimates over them flagged
@@ -241,6 +242,9 @@ pub struct InProcess {
     estimator: Estimator,
     expected_period_ns: f64,
     continuity: Continuity,
+    /// Out-of-order blocks and resyncs, told at a bounded rate ([`Self::tell_disorder`]
+    /// tells the rest once per summary period).
+    disorder: DisorderLog,
     /// The time span `[from, to)` of the blocks dropped for their rate since the last
     /// estimate that started after them: the estimates whose windows overlap it are
     /// flagged RATE_MISMATCH.
@@ -260,6 +264,7 @@ impl InProcess {
             estimator: Estimator::new(config.clone()),
             expected_period_ns: config.sample_period_ns(),
             continuity: Continuity::new(),
+            disorder: DisorderLog::default(),
             mismatch_span: None,
             estimate_seq: 0,
             c: Counters::default(),
@@ -288,7 +293,20 @@ impl InProcess {
             self.continuity
                 .check(block.seq, block.first_sample_index, u64::from(block.count));
         self.c.vib.record(&arrival);
-        if arrival.restarted {
+        self.disorder.arrival(
+            "vibration",
+            &arrival,
+            block.seq,
+            self.continuity.last_seq(),
+            &self.c.vib,
+        );
+        if arrival.resynced {
+            // Taken up again after out-of-order blocks (or back to the stream left at
+            // a resync): the estimator takes this block as newer whatever its seq, so
+            // that it is not dropped by its older seq; its time decides whether the
+            // window goes on or restarts.
+            self.estimator.resync();
+        } else if arrival.restarted {
             // The producer started again (a new replay, a restarted rig): a new
             // time base, so a new window rather than "out of order" blocks.
             self.estimator.reset();
@@ -396,6 +414,12 @@ impl InProcess {
     /// The counters so far.
     pub fn counters(&self) -> Counters {
         self.c
+    }
+
+    /// At the end of a summary period: logs the out-of-order blocks and resyncs not told
+    /// yet (at most one line; `vibro_service::DisorderLog`).
+    pub fn tell_disorder(&mut self) {
+        self.disorder.period("vibration", &self.c.vib);
     }
 
     /// A receive failure of the transport (counted by the service's loop): true for the
@@ -572,4 +596,112 @@ mod tests {
     }
 
     const VIB_BLOCK_MAX_PLUS_ONE: u32 = vibro_msgs::VIB_BLOCK_MAX as u32 + 1;
+
+    /// Issue 31: one vibration block ahead of the stream (seq 500,000, its sample index
+    /// and time too) silenced the estimator: the blocks after it were dropped as out of
+    /// order (none of 11..=20 taken), no estimate came out of the next 180 blocks, and
+    /// 499,989 blocks were counted lost. Now the fourth block after it resyncs the
+    /// stream, the window restarts there, and estimates come again a window later.
+    #[test]
+    fn one_block_ahead_of_the_stream_does_not_silence_the_estimator() {
+        let config = shipped();
+        let period_ns = config.sample_period_ns().round() as u64;
+        let mut core = InProcess::new(&config).unwrap();
+        let mut out: Vec<VibEstimate> = Vec::new();
+        for seq in 0..=10 {
+            core.on_block(&block(seq, period_ns), 0, &mut out).unwrap();
+        }
+        core.on_block(&block(500_000, period_ns), 0, &mut out)
+            .unwrap();
+        let before = core.dsp_counters().blocks_accepted;
+        for seq in 11..=20 {
+            core.on_block(&block(seq, period_ns), 0, &mut out).unwrap();
+        }
+        assert_eq!(core.dsp_counters().blocks_accepted - before, 7, "14..=20");
+        out.clear();
+        for seq in 21..=200 {
+            core.on_block(&block(seq, period_ns), 0, &mut out).unwrap();
+        }
+        // A window (50 blocks) from block 14, then one per hop (25 blocks).
+        assert_eq!(out.len(), (200 - (14 + 49)) / 25 + 1);
+        assert_ne!(out[0].flags & estimate_flags::GAP, 0);
+        let s = core.summary();
+        assert_eq!(
+            (
+                s.vib.lost_messages,
+                s.vib.lost_samples,
+                s.vib.out_of_order,
+                s.vib.resyncs
+            ),
+            (0, 0, 3, 1),
+            "{:?}",
+            s.vib
+        );
+        assert!(s.to_json().contains("\"resyncs\":1"));
+    }
+
+    /// The property (`vibro_service::adversary`): random adversarial prefixes of
+    /// vibration blocks (seq, sample-index and time jumps both ways, repeats,
+    /// reorderings, `u64::MAX`, NaN and 1e300 samples), then the real stream: its blocks
+    /// are taken again within `RESYNC_AFTER` (4) and all after, the estimator takes
+    /// every one of those, an estimate comes out within `RESYNC_AFTER - 1 + 50` blocks
+    /// (3 dropped, then a window of 50 blocks at most), and where the episodes are
+    /// isolated no more blocks are counted lost than real ones never taken.
+    #[test]
+    fn no_sequence_silences_the_estimator() {
+        use vibro_service::adversary::{check, generate, Xorshift};
+        use vibro_service::RESYNC_AFTER;
+        let config = shipped();
+        let period_ns = config.sample_period_ns().round() as u64;
+        let window_blocks = config.window_samples().div_ceil(BLOCK);
+        let bound = RESYNC_AFTER as usize - 1 + window_blocks;
+        let mut rng = Xorshift::new(3131);
+        for trial in 0..120 {
+            let isolated = trial % 3 != 0;
+            let ops = (rng.next_u64() % 50) as usize;
+            let s = generate(|| Some(rng.next_u64()), ops, BLOCK as u64, isolated);
+            let mut core = InProcess::new(&config).unwrap();
+            let mut out: Vec<VibEstimate> = Vec::new();
+            let mut taken = Vec::new();
+            let mut first_estimate = None;
+            for (i, m) in s.messages.iter().enumerate() {
+                // The samples of the real block, with the message's numbers and time.
+                let mut b = block(m.seq % 1_000, period_ns);
+                b.seq = m.seq;
+                b.first_sample_index = m.first_sample_index;
+                b.t0_ns = m.t0_periods.saturating_mul(period_ns);
+                if m.absurd_values {
+                    b.sample_v[7] = [f64::NAN, 1e300, f64::INFINITY];
+                }
+                let (ooo, dsp) = (core.counters().vib.out_of_order, core.dsp_counters());
+                let estimates = out.len();
+                core.on_block(&b, 0, &mut out).unwrap();
+                let took = core.counters().vib.out_of_order == ooo;
+                taken.push(took);
+                if i >= s.tail {
+                    if took {
+                        // Every tail block the continuity takes, the estimator takes.
+                        assert_eq!(
+                            core.dsp_counters().blocks_accepted,
+                            dsp.blocks_accepted + 1,
+                            "trial {trial}: tail block {} taken but dropped by the estimator",
+                            i - s.tail
+                        );
+                    }
+                    if first_estimate.is_none() && out.len() > estimates {
+                        first_estimate = Some(i - s.tail);
+                    }
+                }
+            }
+            if let Err(e) = check(&s, &taken, core.summary().vib.lost_messages) {
+                panic!("trial {trial}: {e}\n{:?}", core.summary().vib);
+            }
+            match first_estimate {
+                Some(k) if k <= bound => {}
+                other => {
+                    panic!("trial {trial}: first estimate at tail block {other:?}, bound {bound}")
+                }
+            }
+        }
+    }
 }

@@ -14,11 +14,16 @@
 //!   the streams' quality of service;
 //! - what the hot loop keeps: the clock ([`now_ns`]), stream [`Continuity`] and its
 //!   [`StreamCounters`], [`Latency`] histograms, [`HeartbeatPublisher`], [`count_first`]
-//!   (log a problem once, count the rest), and [`JsonObject`] for the summaries;
+//!   (log a problem once, count the rest), [`Recurring`] and [`DisorderLog`] (log a
+//!   recurring problem, such as out-of-order messages, at once after a quiet period,
+//!   then once per summary period with its count), and [`JsonObject`] for the
+//!   summaries;
 //! - [`realtime`]: the hot-loop thread under `SCHED_FIFO` when asked for;
 //! - [`supervise`]: a system of services as child processes (stopped with their parent,
 //!   watched until their heartbeats come, restarted within limits);
-//! - with the `testing` feature, [`testing`]: a service running in-process for tests.
+//! - with the `testing` feature, [`testing`]: a service running in-process for tests,
+//!   and [`adversary`]: adversarial input sequences and what no consumer may do with
+//!   them (silence a stream, count a jump as a loss).
 //!
 //! Nothing here allocates, logs or locks per sample: the hot loop keeps counters and
 //! logs a summary per period.
@@ -55,6 +60,8 @@
 //! References: `docs/services.md` (command line, signals and shutdown, heartbeats and
 //! summaries, loss accounting), `docs/architecture.md` (where this crate sits).
 
+#[cfg(any(test, feature = "testing"))]
+pub mod adversary;
 mod cli;
 mod clock;
 mod config;
@@ -64,6 +71,7 @@ mod json;
 mod latency;
 pub mod logstream;
 pub mod realtime;
+mod recurring;
 mod runtime;
 mod settings;
 mod shutdown;
@@ -75,10 +83,13 @@ pub mod testing;
 pub use cli::ServiceArgs;
 pub use clock::now_ns;
 pub use config::ServiceConfig;
-pub use continuity::{Arrival, Continuity, StreamCounters};
+pub use continuity::{
+    Arrival, Continuity, StreamCounters, MAX_LOST_MESSAGES, MAX_LOST_SAMPLES, RESYNC_AFTER,
+};
 pub use heartbeat::{HeartbeatPublisher, HeartbeatReport};
 pub use json::JsonObject;
 pub use latency::{Latency, Quantiles};
+pub use recurring::{DisorderLog, Recurring};
 pub use runtime::{
     init_tracing, main_with, on_own_thread, run_service, ServiceSummary, SAME_REQUEST,
 };
