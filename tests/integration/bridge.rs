@@ -10,8 +10,14 @@
 //! - two hosts on one machine (two iceoryx2 roots joined only by Zenoh over loopback):
 //!   `demo --hosts 2` against `demo`, bit for bit.
 //!
-//! Every test uses its own service-name prefix, its own free port on 127.0.0.1 and
-//! temporary folders it removes; the processes stop when their handles drop.
+//! - who may connect: a process of another user (uid 65534, when the tests run as
+//!   root) cannot reach a bridge on one host (a Unix socket in a directory of this
+//!   user's alone), and a socket directory others may enter stops the bridge at start;
+//! - `seq` jumps from a crafted peer counted as jumps, never as losses.
+//!
+//! Every test uses its own service-name prefix, its own Unix socket (or free port on
+//! 127.0.0.1) in temporary folders it removes; the processes stop when their handles
+//! drop.
 
 use crate::common::{bin, repo_path, run_failing};
 use serde_json::Value;
@@ -138,22 +144,28 @@ fn write(path: &Path, text: &str) -> PathBuf {
     path.to_path_buf()
 }
 
-/// The compensator as a process on `prefix` (the shipped configuration).
-/// A bridge configuration in `dir` on `prefix`, listening on a free loopback port
-/// under a fresh key prefix named after `what`, with the `streams` section given
-/// (e.g. `[import]\nstreams = ["accel"]\n`): the file, the port and the key prefix.
-fn listening_config(dir: &Dir, prefix: &str, what: &str, streams: &str) -> (PathBuf, u16, String) {
-    let port = free_port().unwrap();
+/// A bridge configuration in `dir` on `prefix`, listening on a Unix socket in `dir`
+/// (its directory `zenoh/`, made mode 0700 by the bridge) under a fresh key prefix
+/// named after `what`, with the `streams` section given (e.g.
+/// `[import]\nstreams = ["accel"]\n`): the file, the endpoint and the key prefix.
+fn listening_config(
+    dir: &Dir,
+    prefix: &str,
+    what: &str,
+    streams: &str,
+) -> (PathBuf, String, String) {
+    let endpoint = format!("unixsock-stream/{}", dir.path("zenoh/b.sock").display());
     let key_prefix = format!("vibrocomp/{what}{}", next_id());
     let config = write(
         &dir.path("b.toml"),
         &format!(
-            "prefix = {prefix:?}\nkey_prefix = {key_prefix:?}\n[zenoh]\nmode = \"peer\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\nconnect_timeout_s = 5.0\n{streams}"
+            "prefix = {prefix:?}\nkey_prefix = {key_prefix:?}\n[zenoh]\nmode = \"peer\"\nlisten = [{endpoint:?}]\nconnect_timeout_s = 5.0\n{streams}"
         ),
     );
-    (config, port, key_prefix)
+    (config, endpoint, key_prefix)
 }
 
+/// The compensator as a process on `prefix` (the shipped configuration).
 fn compensator(prefix: &str, dir: &Dir) -> Kid {
     Kid::spawn(
         "compensator",
@@ -228,14 +240,16 @@ fn bridge_config_errors_name_file_line_key_and_every_problem() {
 
     let bad = write(
         &dir.path("bad.toml"),
-        "key_prefix = \"vibrocomp/**\"\n[zenoh]\nmode = \"router\"\nlisten = [\"tcp/0.0.0.0:7447\"]\nconnect_timeout_s = 0.0\n[export]\nstreams = [\"vibe\"]\n[import]\nqueue_depth = 0\n",
+        "key_prefix = \"vibrocomp/**\"\n[zenoh]\nmode = \"router\"\nlisten = [\"tcp/0.0.0.0:7447\"]\nconnect = [\"tcp/127.0.0.1:7447\"]\nconnect_timeout_s = 0.0\n[export]\nstreams = [\"vibe\"]\n[import]\nqueue_depth = 0\n",
     );
     let out = run_failing(&["bridge", "--config", bad.to_str().unwrap()]);
     let text = String::from_utf8_lossy(&out.stderr);
     for needle in [
         "key_prefix = \"vibrocomp/**\"",
         "zenoh.mode = \"router\": must be peer or client",
+        "zenoh.listen[0] = \"tcp/0.0.0.0:7447\": plain TCP proves nobody's identity",
         "zenoh.listen[0] = \"tcp/0.0.0.0:7447\": listens beyond loopback, so it needs [tls] with mutual = true and [access] allow_cert_common_names",
+        "zenoh.connect[0] = \"tcp/127.0.0.1:7447\": plain TCP proves nobody's identity, on loopback too",
         "zenoh.connect_timeout_s = 0: must be finite",
         "export.streams: \"vibe\" is not a stream",
         "import.queue_depth = 0",
@@ -267,11 +281,11 @@ fn the_shipped_two_host_configurations_are_valid_and_match() {
 #[test]
 fn an_unreachable_peer_fails_at_start_naming_the_endpoint() {
     let dir = Dir::new("unreach");
-    let port = free_port().unwrap();
+    let endpoint = format!("unixsock-stream/{}", dir.path("zenoh/b.sock").display());
     let config = write(
         &dir.path("b.toml"),
         &format!(
-            "prefix = {:?}\nkey_prefix = \"vibrocomp/unreach\"\n[zenoh]\nmode = \"peer\"\nconnect = [\"tcp/127.0.0.1:{port}\"]\nconnect_timeout_s = 0.5\n[export]\nstreams = [\"compensated\"]\n",
+            "prefix = {:?}\nkey_prefix = \"vibrocomp/unreach\"\n[zenoh]\nmode = \"peer\"\nconnect = [{endpoint:?}]\nconnect_timeout_s = 0.5\n[export]\nstreams = [\"compensated\"]\n",
             prefix("u")
         ),
     );
@@ -280,10 +294,7 @@ fn an_unreachable_peer_fails_at_start_naming_the_endpoint() {
     let text = String::from_utf8_lossy(&out.stderr);
     let v: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["error"]["file"], config.to_str().unwrap(), "{v}");
-    assert!(
-        text.contains(&format!("connect [tcp/127.0.0.1:{port}]")),
-        "{text}"
-    );
+    assert!(text.contains(&format!("connect [{endpoint}]")), "{text}");
     assert!(text.contains("connect_timeout_s = 0.5"), "{text}");
     assert!(
         start.elapsed() < Duration::from_secs(8),
@@ -292,16 +303,16 @@ fn an_unreachable_peer_fails_at_start_naming_the_endpoint() {
     );
 }
 
-/// A Zenoh peer connected to the bridge listening on `port`, with a publisher of
+/// A Zenoh peer connected to the bridge listening on `endpoint`, with a publisher of
 /// accelerometer blocks on `{key_prefix}/accel` that the bridge has matched: what a
 /// remote bridge would be.
 fn remote_accel_publisher(
-    port: u16,
+    endpoint: &str,
     key_prefix: &str,
 ) -> (zenoh::Session, zenoh::pubsub::Publisher<'static>) {
     let mut zc = zenoh::Config::default();
     zc.insert_json5("mode", "\"peer\"").unwrap();
-    zc.insert_json5("connect/endpoints", &format!("[\"tcp/127.0.0.1:{port}\"]"))
+    zc.insert_json5("connect/endpoints", &format!("[{endpoint:?}]"))
         .unwrap();
     zc.insert_json5("connect/timeout_ms", "10000").unwrap();
     zc.insert_json5("connect/exit_on_failure", "true").unwrap();
@@ -333,7 +344,7 @@ fn remote_accel_publisher(
 fn a_message_lost_or_reordered_on_the_network_is_counted_and_flagged() {
     let dir = Dir::new("loss");
     let prefix = prefix("l");
-    let (config, port, key_prefix) =
+    let (config, endpoint, key_prefix) =
         listening_config(&dir, &prefix, "loss", "[import]\nstreams = [\"accel\"]\n");
     let names = ServiceNames::new(&prefix).unwrap();
     let node = create_node("vcb-loss").unwrap();
@@ -354,7 +365,7 @@ fn a_message_lost_or_reordered_on_the_network_is_counted_and_flagged() {
         || probe.receive().unwrap().is_some(),
     );
 
-    let (session, publisher) = remote_accel_publisher(port, &key_prefix);
+    let (session, publisher) = remote_accel_publisher(&endpoint, &key_prefix);
     let order = [0u64, 1, 2, 3, 6, 4, 7, 8, 9];
     for seq in order {
         publisher.put(accel_block(seq).bytes()).wait().unwrap();
@@ -397,6 +408,376 @@ fn a_message_lost_or_reordered_on_the_network_is_counted_and_flagged() {
     assert_eq!(c["accel"]["lost_samples"], (never_sent + late) * 32, "{c}");
 }
 
+/// A peer that sends crafted `seq`s (issue 31, item 5: a bridge's final line read
+/// `lost 17752385060991721825`). The bridge applies the services' jump rule
+/// (vibro_service::Continuity: at most 2^20 messages count as lost in one step; a
+/// bigger step is a jump, counted as such and never as a loss). The reference is the
+/// list of `seq`s this test put: a gap of 2, a gap of exactly 2^20 (the limit,
+/// inclusive), a step of 2^20 + 2 and one to 0xF000... (two jumps).
+#[test]
+fn a_seq_jump_from_the_network_is_counted_as_a_jump_never_as_a_loss() {
+    const MAX_LOST: u64 = 1 << 20; // vibro_service's MAX_LOST_MESSAGES
+    let dir = Dir::new("jump");
+    let prefix = prefix("j");
+    let (config, endpoint, key_prefix) =
+        listening_config(&dir, &prefix, "jump", "[import]\nstreams = [\"accel\"]\n");
+    let names = ServiceNames::new(&prefix).unwrap();
+    let node = create_node("vcb-jump").unwrap();
+    let local = StreamSubscriber::<AccelBlock>::open(&node, &names, Stream::Accel).unwrap();
+    let br = bridge(&config, &dir);
+    let (session, publisher) = remote_accel_publisher(&endpoint, &key_prefix);
+    let s1 = 5 + MAX_LOST + 1;
+    let s2 = s1 + MAX_LOST + 2;
+    let s3 = 0xF000_0000_0000_0000u64;
+    let seqs = [0, 1, 2, 5, s1, s2, s2 + 1, s3, s3 + 1];
+    for (i, &seq) in seqs.iter().enumerate() {
+        let mut b = accel_block(i as u64);
+        b.seq = seq;
+        publisher.put(b.bytes()).wait().unwrap();
+    }
+    let mut got = Vec::new();
+    wait_until("the blocks in iceoryx2", Duration::from_secs(10), || {
+        while let Some(b) = local.receive().unwrap() {
+            got.push(b.seq);
+        }
+        got.len() >= seqs.len()
+    });
+    assert_eq!(got, seqs, "the bridge forwards every block, jumps included");
+    drop(publisher);
+    session.close().wait().unwrap();
+    let b = br.summary();
+    let s = &b["streams"][0];
+    let (gaps, jumps) = (2 + MAX_LOST, 2u64);
+    assert_eq!(s["gap_messages"], gaps, "{b}");
+    assert_eq!(s["seq_jumps"], jumps, "{b}");
+    assert_eq!(s["producer_restarts"], 0, "{b}");
+    assert_eq!(s["out_of_order"], 0, "{b}");
+    assert_eq!(s["forwarded"], seqs.len() as u64, "{b}");
+    assert_eq!(b["lost"], gaps, "{b}");
+}
+
+/// The uid and gid the intruder runs as (`nobody` on Debian and most distributions).
+const INTRUDER_ID: u32 = 65534;
+
+/// What the intruder reports: whether its Zenoh session opened (and why not), whether
+/// the bridge matched its accelerometer publisher, and how many bridged messages it
+/// received (its own puts not counted).
+#[derive(Debug)]
+struct Intrusion {
+    /// A Unix-socket endpoint: what a bare `connect(2)` to it met (`Ok`, or the
+    /// `io::ErrorKind`), so that a refusal is seen to be the operating system's.
+    socket: String,
+    opened: bool,
+    error: String,
+    matched: bool,
+    received: u64,
+}
+
+/// Runs [`intruder_child`] as uid/gid [`INTRUDER_ID`] (no supplementary groups: std
+/// clears them when root changes the uid): a Zenoh peer connecting to `endpoint`,
+/// subscribing to `{key_prefix}/**` and putting 10 accelerometer blocks on
+/// `{key_prefix}/accel`. The child is this test binary (any user can run it from the
+/// target folder; Python's zenoh lives under /root, which that user cannot read).
+fn intrude(endpoint: &str, key_prefix: &str) -> Intrusion {
+    use std::os::unix::process::CommandExt;
+    let out = Command::new(std::env::current_exe().unwrap())
+        .args([
+            "--exact",
+            "bridge::intruder_child",
+            "--ignored",
+            "--nocapture",
+            "--test-threads=1",
+        ])
+        .env("VCB_INTRUDER", format!("{endpoint} {key_prefix}"))
+        .current_dir("/")
+        .uid(INTRUDER_ID)
+        .gid(INTRUDER_ID)
+        .stdin(Stdio::null())
+        .output()
+        .expect("the intruder starts");
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text
+        .lines()
+        .find_map(|l| l.split_once("INTRUDER ").map(|(_, json)| json))
+        .unwrap_or_else(|| {
+            panic!(
+                "the intruder (uid {INTRUDER_ID}) did not report; it must be able to run {}:\n{text}\n{}",
+                std::env::current_exe().unwrap().display(),
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+    let v: Value = serde_json::from_str(line).unwrap();
+    Intrusion {
+        socket: v["socket"].as_str().unwrap_or_default().to_string(),
+        opened: v["opened"].as_bool().unwrap(),
+        error: v["error"].as_str().unwrap_or_default().to_string(),
+        matched: v["matched"].as_bool().unwrap_or(false),
+        received: v["received"].as_u64().unwrap_or(0),
+    }
+}
+
+/// The intruder of [`another_user_cannot_publish_into_or_read_from_a_single_host_bridge`],
+/// run by [`intrude`] as another user; does nothing unless `VCB_INTRUDER` is set.
+#[test]
+#[ignore = "a child process of another test"]
+fn intruder_child() {
+    let Ok(spec) = std::env::var("VCB_INTRUDER") else {
+        return;
+    };
+    let (endpoint, key_prefix) = spec.split_once(' ').unwrap();
+    let socket = match endpoint.split_once('/') {
+        Some(("unixsock-stream", path)) => match std::os::unix::net::UnixStream::connect(path) {
+            Ok(_) => "Ok".to_string(),
+            Err(e) => format!("{:?}", e.kind()),
+        },
+        _ => String::new(),
+    };
+    let mut zc = zenoh::Config::default();
+    zc.insert_json5("mode", "\"peer\"").unwrap();
+    zc.insert_json5("connect/endpoints", &format!("[{endpoint:?}]"))
+        .unwrap();
+    zc.insert_json5("connect/timeout_ms", "3000").unwrap();
+    zc.insert_json5("connect/exit_on_failure", "true").unwrap();
+    zc.insert_json5("listen/endpoints", "[]").unwrap();
+    zc.insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    let session = match zenoh::open(zc).wait() {
+        Ok(s) => s,
+        Err(e) => {
+            let v = serde_json::json!({"socket": socket, "opened": false, "error": e.to_string()});
+            println!("INTRUDER {v}");
+            return;
+        }
+    };
+    // What the bridge sends it: everything but its own accelerometer blocks (which
+    // Zenoh delivers to its own subscriber too).
+    let received = std::sync::Arc::new(AtomicU32::new(0));
+    let r = std::sync::Arc::clone(&received);
+    let own = format!("{key_prefix}/accel");
+    let sub = session
+        .declare_subscriber(format!("{key_prefix}/**"))
+        .callback(move |sample| {
+            if sample.key_expr().as_str() != own {
+                r.fetch_add(1, Ordering::Relaxed);
+            }
+        })
+        .wait()
+        .unwrap();
+    let publisher = session
+        .declare_publisher(format!("{key_prefix}/accel"))
+        .encoding(vibro_bridge::encoding_of(
+            vibro_msgs::MessageKind::AccelBlock,
+        ))
+        .wait()
+        .unwrap();
+    let start = Instant::now();
+    let mut matched = false;
+    while !matched && start.elapsed() < Duration::from_secs(5) {
+        matched = publisher.matching_status().wait().unwrap().matching();
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    for seq in 0..10 {
+        publisher.put(accel_block(seq).bytes()).wait().unwrap();
+    }
+    std::thread::sleep(Duration::from_millis(1500));
+    let v = serde_json::json!({
+        "socket": socket,
+        "opened": true,
+        "matched": matched,
+        "received": received.load(Ordering::Relaxed),
+    });
+    println!("INTRUDER {v}");
+    drop((sub, publisher));
+    let _ = session.close().wait();
+}
+
+/// Issue 31, item 2: on one host, another user (uid 65534 against this test's root)
+/// published accelerometer blocks into the shipped loopback bridge and read its
+/// streams. The bridge here is `config/bridge/compute-host.toml` as shipped, with
+/// only its prefixes and its listen address moved to this test's own; the intruder
+/// connects to it, subscribes to everything and puts 10 accelerometer blocks while
+/// this test publishes compensated blocks for the bridge to export. Nothing of the
+/// intruder's may arrive, and it may receive nothing. A control run of the same
+/// intruder against a socket it may reach shows that it would have got through.
+///
+/// Not as root, the other-user part cannot run: the test says so on stderr and checks
+/// only what a same-user process meets.
+#[test]
+fn another_user_cannot_publish_into_or_read_from_a_single_host_bridge() {
+    let dir = Dir::new("intr");
+    let prefix = prefix("i");
+    let key_prefix = format!("vibrocomp/intr{}", next_id());
+    let shipped = std::fs::read_to_string(repo_path("config/bridge/compute-host.toml")).unwrap();
+    let mut endpoint = String::new();
+    let text: String = shipped
+        .lines()
+        .map(|l| {
+            if l.starts_with("prefix = ") {
+                format!("prefix = {prefix:?}")
+            } else if l.starts_with("key_prefix = ") {
+                format!("key_prefix = {key_prefix:?}")
+            } else if let Some(rest) = l.strip_prefix("listen = [\"") {
+                let shipped_ep = rest.split('"').next().unwrap();
+                endpoint = match shipped_ep.split_once('/').unwrap().0 {
+                    "tcp" => format!("tcp/127.0.0.1:{}", free_port().unwrap()),
+                    "unixsock-stream" => {
+                        format!("unixsock-stream/{}", dir.path("zenoh/b.sock").display())
+                    }
+                    other => panic!("the shipped listen endpoint's protocol {other:?}"),
+                };
+                format!("listen = [{endpoint:?}]")
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    assert!(!endpoint.is_empty(), "no listen line in:\n{shipped}");
+    let config = write(&dir.path("b.toml"), &text);
+    let names = ServiceNames::new(&prefix).unwrap();
+    let node = create_node("vcb-intr").unwrap();
+    let local = StreamSubscriber::<AccelBlock>::open(&node, &names, Stream::Accel).unwrap();
+    let mut compensated =
+        StreamPublisher::<CompensatedBlock>::open(&node, &names, Stream::Compensated).unwrap();
+    let br = bridge(&config, &dir);
+    wait_until(
+        "the bridge's endpoint",
+        Duration::from_secs(10),
+        || match endpoint.split_once('/').unwrap() {
+            ("unixsock-stream", path) => Path::new(path).exists(),
+            (_, addr) => std::net::TcpStream::connect(addr).is_ok(),
+        },
+    );
+    // What any user meets: the socket's directory is this user's alone.
+    if let Some(("unixsock-stream", path)) = endpoint.split_once('/') {
+        use std::os::unix::fs::MetadataExt;
+        let meta = std::fs::metadata(Path::new(path).parent().unwrap()).unwrap();
+        assert_eq!(meta.mode() & 0o777, 0o700, "the socket's directory");
+        // SAFETY: geteuid has no preconditions.
+        assert_eq!(meta.uid(), unsafe { libc::geteuid() });
+    }
+    // SAFETY: geteuid has no preconditions.
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!(
+            "\n*** SKIPPED: another_user_cannot_publish_into_or_read_from_a_single_host_bridge: not running as root, so no process of another user can be started; only the same-user checks ran ***\n"
+        );
+        drop(br);
+        return;
+    }
+    // The bridge exports compensated blocks all along (to anybody it matched).
+    // (An iceoryx2 publisher stays on its thread: the intruder runs on another.)
+    let intrusion = std::thread::scope(|s| {
+        let intruder = s.spawn(|| intrude(&endpoint, &key_prefix));
+        let mut seq = 0;
+        while !intruder.is_finished() {
+            let mut b = CompensatedBlock::ZEROED;
+            b.seq = seq;
+            seq += 1;
+            let _ = compensated.publish(&b);
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        intruder.join().unwrap()
+    });
+    let mut arrived = 0;
+    while local.receive().unwrap().is_some() {
+        arrived += 1;
+    }
+    let b = br.summary();
+    let accel = b["streams"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["stream"] == "accel")
+        .unwrap()
+        .clone();
+    assert_eq!(
+        (accel["forwarded"].as_u64().unwrap(), arrived),
+        (0, 0),
+        "the intruder's accelerometer blocks went through ({intrusion:?}): {b}"
+    );
+    assert_eq!(
+        intrusion.received, 0,
+        "the intruder read the bridge's streams: {intrusion:?}"
+    );
+    assert!(!intrusion.matched, "{intrusion:?}");
+    assert!(
+        !intrusion.opened,
+        "the intruder's session opened ({}): {intrusion:?}",
+        intrusion.error
+    );
+    assert_eq!(
+        intrusion.socket, "PermissionDenied",
+        "the operating system refuses the intruder: {intrusion:?}"
+    );
+
+    // Control: the same intruder, given a socket it may reach, gets its 10 blocks
+    // through (so the refusal above is the bridge's directory, not the harness).
+    let open = dir.path("open");
+    std::fs::create_dir_all(&open).unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&open, std::fs::Permissions::from_mode(0o777)).unwrap();
+    let sock = open.join("c.sock");
+    let control_ep = format!("unixsock-stream/{}", sock.display());
+    let mut zc = zenoh::Config::default();
+    zc.insert_json5("mode", "\"peer\"").unwrap();
+    zc.insert_json5("listen/endpoints", &format!("[{control_ep:?}]"))
+        .unwrap();
+    zc.insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    let session = zenoh::open(zc).wait().unwrap();
+    std::fs::set_permissions(&sock, std::fs::Permissions::from_mode(0o777)).unwrap();
+    let got = std::sync::Arc::new(AtomicU32::new(0));
+    let g = std::sync::Arc::clone(&got);
+    let sub = session
+        .declare_subscriber(format!("{key_prefix}/accel"))
+        .callback(move |_| {
+            g.fetch_add(1, Ordering::Relaxed);
+        })
+        .wait()
+        .unwrap();
+    let control = intrude(&control_ep, &key_prefix);
+    assert!(
+        control.socket == "Ok" && control.opened && control.matched,
+        "control: {control:?}"
+    );
+    assert_eq!(got.load(Ordering::Relaxed), 10, "control: {control:?}");
+    eprintln!("intruder (uid {INTRUDER_ID}): {intrusion:?}\ncontrol: {control:?}");
+    drop(sub);
+    session.close().wait().unwrap();
+}
+
+/// A socket directory that others may enter (mode 0755), or a plain-TCP endpoint,
+/// stops the bridge at start: exit 1 before any Zenoh session or iceoryx2 port, the
+/// file, key, endpoint, what was found and the rule in the message.
+#[test]
+fn a_socket_directory_others_may_enter_stops_the_bridge_at_start() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = Dir::new("open");
+    let (config, endpoint, _) = listening_config(
+        &dir,
+        &prefix("o"),
+        "open",
+        "[import]\nstreams = [\"accel\"]\n",
+    );
+    std::fs::create_dir(dir.path("zenoh")).unwrap();
+    std::fs::set_permissions(dir.path("zenoh"), std::fs::Permissions::from_mode(0o755)).unwrap();
+    let out = run_failing(&["bridge", "--config", config.to_str().unwrap(), "--json"]);
+    let text = String::from_utf8_lossy(&out.stderr);
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["error"]["file"], config.to_str().unwrap(), "{v}");
+    for needle in [
+        format!("zenoh.listen[0] = {endpoint:?}"),
+        "with mode 0755".to_string(),
+        "give its group and others no permission (mode 0700".to_string(),
+    ] {
+        assert!(text.contains(&needle), "missing {needle:?} in:\n{text}");
+    }
+    assert!(
+        !dir.path("zenoh/b.sock").exists(),
+        "the bridge bound its socket"
+    );
+}
+
 /// The Python `eclipse-zenoh` client subscribes to the compensated stream a bridge
 /// exports and decodes it by docs/messages.md; every field of every block equals the
 /// block read from iceoryx2 here (doubles bit for bit).
@@ -405,7 +786,7 @@ fn a_python_zenoh_client_decodes_the_bridged_compensated_stream() {
     const BLOCKS: u64 = 12;
     let dir = Dir::new("py");
     let prefix = prefix("p");
-    let (config, port, key_prefix) = listening_config(
+    let (config, endpoint, key_prefix) = listening_config(
         &dir,
         &prefix,
         "py",
@@ -422,7 +803,7 @@ fn a_python_zenoh_client_decodes_the_bridged_compensated_stream() {
     let mut py = Command::new("python3")
         .arg(repo_path("tests/python/zenoh_client.py"))
         .args([
-            &format!("tcp/127.0.0.1:{port}"),
+            &endpoint,
             &format!("{key_prefix}/compensated"),
             "CompensatedBlock",
             &BLOCKS.to_string(),
@@ -776,7 +1157,7 @@ fn a_slow_receiving_side_drops_at_its_bounded_queue_and_counts_it() {
     const BURST: u64 = 400;
     let dir = Dir::new("slow");
     let prefix = prefix("s");
-    let (config, port, key_prefix) = listening_config(
+    let (config, endpoint, key_prefix) = listening_config(
         &dir,
         &prefix,
         "slow",
@@ -798,7 +1179,7 @@ fn a_slow_receiving_side_drops_at_its_bounded_queue_and_counts_it() {
         || probe.receive().unwrap().is_some(),
     );
     let stuck = StreamSubscriber::<AccelBlock>::open(&node, &names, Stream::Accel).unwrap();
-    let (session, publisher) = remote_accel_publisher(port, &key_prefix);
+    let (session, publisher) = remote_accel_publisher(&endpoint, &key_prefix);
     for seq in 0..BURST {
         publisher.put(accel_block(seq).bytes()).wait().unwrap();
     }

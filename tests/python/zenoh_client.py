@@ -3,7 +3,8 @@ every message by the tables of docs/messages.md alone (no vibrocomp code).
 
     python3 zenoh_client.py ENDPOINT KEY TYPE COUNT TIMEOUT_S
 
-ENDPOINT is the bridge's listen endpoint (tcp/127.0.0.1:PORT), KEY the stream's Zenoh
+ENDPOINT is the bridge's listen endpoint (unixsock-stream//PATH/b.sock: the client runs
+as the bridge's user, docs/bridge.md "Who may connect"), KEY the stream's Zenoh
 key ({key_prefix}/compensated), TYPE the message type's section in docs/messages.md
 (CompensatedBlock). Prints `ready` once subscribed, then one JSON line per message:
 its decoded fields, doubles as their IEEE-754 bit patterns (integers) so that the

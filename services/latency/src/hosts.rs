@@ -1,5 +1,5 @@
 //! `latency --hosts 2`: the vibrocomp pipeline across two hosts on this machine (the
-//! services in another iceoryx2 root, only two Zenoh bridges over loopback TCP between
+//! services in another iceoryx2 root, only two Zenoh bridges over a Unix socket between
 //! it and the rig), and its baseline, a bare Zenoh publisher/subscriber pair.
 //!
 //! The rig (this process) stays in its own iceoryx2 root: host A, with host A's bridge
@@ -105,7 +105,7 @@ pub(crate) fn run_bridged(
             + ba["lost"].as_u64().unwrap_or(0)
             + bb["lost"].as_u64().unwrap_or(0);
         summarize(
-            "vibrocomp, 2 hosts (iceoryx2 + Zenoh bridges over loopback TCP)",
+            "vibrocomp, 2 hosts (iceoryx2 + Zenoh bridges over a Unix socket)",
             opts,
             (ka, kv, &stamps),
             lost,

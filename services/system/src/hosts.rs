@@ -1,6 +1,8 @@
 //! Two "hosts" on one machine (`demo --hosts 2`, `latency --hosts 2`, the tests): two
 //! iceoryx2 roots with their own shared-memory file prefixes, so that nothing is shared
-//! in memory, joined only by two Zenoh bridges over loopback TCP.
+//! in memory, joined only by two Zenoh bridges over a Unix socket in a directory only
+//! this user can enter (docs/bridge.md, "Who may connect": plain TCP would let in any
+//! local user).
 //!
 //! Host A is the rig's (replay, recorder), host B the compute host (estimator,
 //! compensator). A process joins a host by running in its folder, where
@@ -46,8 +48,11 @@ pub struct Host {
 pub struct TwoHosts {
     pub a: Host,
     pub b: Host,
-    /// The loopback TCP port host B's bridge listens on.
-    pub port_b: u16,
+    /// The endpoint host B's bridge listens on: `unixsock-stream/{socket_dir}/b.sock`.
+    pub endpoint_b: String,
+    /// The directory of that socket (made mode 0700 by the bridges, removed when the
+    /// hosts are dropped).
+    pub socket_dir: PathBuf,
 }
 
 /// A TCP port on 127.0.0.1 that nothing listens on now.
@@ -85,7 +90,9 @@ impl TwoHosts {
     /// under /tmp named by `tag`, which must be short and unique) and bridge files for
     /// the system `prefix`.
     pub fn create(base: &Path, tag: &str, prefix: &str) -> anyhow::Result<Self> {
-        let port_b = free_port()?;
+        // Short, under /tmp: a socket's path holds at most 107 bytes.
+        let socket_dir = std::env::temp_dir().join(format!("zenoh-{tag}"));
+        let endpoint_b = format!("unixsock-stream/{}/b.sock", socket_dir.display());
         let key_prefix = format!("vibrocomp/{}", tag.trim_end_matches('/'));
         let back = compute_to_rig();
         let make = |name: &str, export: &[Stream], import: &[Stream], ep: (&str, &str)| {
@@ -117,10 +124,14 @@ impl TwoHosts {
                 bridge_config,
             })
         };
-        let listen = format!("tcp/127.0.0.1:{port_b}");
-        let b = make("b", &back, &RIG_TO_COMPUTE, ("listen", &listen))?;
-        let a = make("a", &RIG_TO_COMPUTE, &back, ("connect", &listen))?;
-        Ok(Self { a, b, port_b })
+        let b = make("b", &back, &RIG_TO_COMPUTE, ("listen", &endpoint_b))?;
+        let a = make("a", &RIG_TO_COMPUTE, &back, ("connect", &endpoint_b))?;
+        Ok(Self {
+            a,
+            b,
+            endpoint_b,
+            socket_dir,
+        })
     }
 }
 
@@ -128,7 +139,9 @@ impl Drop for TwoHosts {
     fn drop(&mut self) {
         // The roots hold only the files of nodes and services that are gone by now,
         // and /dev/shm iceoryx2's management segment of each prefix (which it keeps
-        // for the next process of that prefix: there is none).
+        // for the next process of that prefix: there is none). The socket's directory
+        // holds the socket and Zenoh's lock file.
+        let _ = std::fs::remove_dir_all(&self.socket_dir);
         for h in [&self.a, &self.b] {
             let _ = std::fs::remove_dir_all(&h.root);
             if let Ok(entries) = std::fs::read_dir("/dev/shm") {
@@ -151,14 +164,14 @@ mod tests {
         let text = bridge_toml(
             "p/",
             "vibrocomp/t",
-            ("listen", "tcp/127.0.0.1:7000"),
+            ("listen", "unixsock-stream//tmp/zenoh-t/b.sock"),
             &RIG_TO_COMPUTE,
             &[Stream::Estimate],
         );
         assert_eq!(
             text,
             "prefix = \"p/\"\nkey_prefix = \"vibrocomp/t\"\n\n[zenoh]\nmode = \"peer\"\n\
-             listen = [\"tcp/127.0.0.1:7000\"]\nconnect_timeout_s = 10.0\n\n[export]\n\
+             listen = [\"unixsock-stream//tmp/zenoh-t/b.sock\"]\nconnect_timeout_s = 10.0\n\n[export]\n\
              streams = [\"vib\", \"accel\"]\n\n[import]\nstreams = [\"estimate\"]\n\
              queue_depth = 1024\n"
         );

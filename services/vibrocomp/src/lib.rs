@@ -152,6 +152,10 @@ pub fn error_location(e: &anyhow::Error) -> Option<vibro_toml::Location> {
         if let Some(x) = cause.downcast_ref::<vibro_service::ConfigError>() {
             return Some(x.location());
         }
+        // The bridge's file: at load, or its socket directory found wrong at start.
+        if let Some(vibro_bridge::Error::Config(x)) = cause.downcast_ref::<vibro_bridge::Error>() {
+            return Some(x.location());
+        }
         if let Some(x) = cause.downcast_ref::<vibro_sim::Error>() {
             return x.location();
         }

@@ -39,6 +39,10 @@ pub struct StreamStats {
     pub out_of_order: AtomicU64,
     /// Import: times the producer's `seq` restarted from 0.
     pub producer_restarts: AtomicU64,
+    /// Import: forward steps of `seq` too big to be losses (more than
+    /// [`vibro_service::MAX_LOST_MESSAGES`] skipped, the services' rule): a corrupt,
+    /// crafted or renumbered counter, counted here and never in `gap_messages`.
+    pub seq_jumps: AtomicU64,
     /// Import: messages dropped because the queue to iceoryx2 was full.
     pub queue_dropped: AtomicU64,
     /// Messages refused: another type name, size or invalid counts.
@@ -77,15 +81,25 @@ pub struct StreamReport {
     pub gap_messages: u64,
     pub out_of_order: u64,
     pub producer_restarts: u64,
+    pub seq_jumps: u64,
     pub queue_dropped: u64,
     pub refused: u64,
     pub undelivered: u64,
 }
 
 impl StreamReport {
-    /// Messages this stream lost or refused, whatever the cause.
+    /// Messages this stream lost or refused, whatever the cause (a `seq` jump is none:
+    /// what it skipped is unknown).
     pub fn lost(&self) -> u64 {
-        self.unmatched + self.gap_messages + self.queue_dropped + self.refused + self.undelivered
+        [
+            self.unmatched,
+            self.gap_messages,
+            self.queue_dropped,
+            self.refused,
+            self.undelivered,
+        ]
+        .into_iter()
+        .fold(0, u64::saturating_add)
     }
 }
 
@@ -99,7 +113,10 @@ pub struct BridgeSummary {
 impl BridgeSummary {
     /// Every stream's losses.
     pub fn lost(&self) -> u64 {
-        self.streams.iter().map(StreamReport::lost).sum()
+        self.streams
+            .iter()
+            .map(StreamReport::lost)
+            .fold(0, u64::saturating_add)
     }
 
     /// One JSON object: `{"zenoh_id", "lost", "streams": [{...}]}`.
@@ -115,7 +132,7 @@ impl BridgeSummary {
             }
             let _ = write!(
                 s,
-                "{{\"stream\":\"{}\",\"direction\":\"{}\",\"key\":\"{}\",\"forwarded\":{},\"unmatched\":{},\"gap_messages\":{},\"out_of_order\":{},\"producer_restarts\":{},\"queue_dropped\":{},\"refused\":{},\"undelivered\":{},\"lost\":{}}}",
+                "{{\"stream\":\"{}\",\"direction\":\"{}\",\"key\":\"{}\",\"forwarded\":{},\"unmatched\":{},\"gap_messages\":{},\"out_of_order\":{},\"producer_restarts\":{},\"seq_jumps\":{},\"queue_dropped\":{},\"refused\":{},\"undelivered\":{},\"lost\":{}}}",
                 r.stream,
                 match r.direction {
                     Direction::Export => "export",
@@ -127,6 +144,7 @@ impl BridgeSummary {
                 r.gap_messages,
                 r.out_of_order,
                 r.producer_restarts,
+                r.seq_jumps,
                 r.queue_dropped,
                 r.refused,
                 r.undelivered,
@@ -138,9 +156,34 @@ impl BridgeSummary {
     }
 }
 
+/// Makes sure that the directory of every `unixsock-stream/` endpoint is this user's
+/// alone (creating it if missing, [`crate::socket`]); every problem at once, each with
+/// its key, endpoint and rule.
+pub fn secure_sockets(config: &BridgeConfig) -> Result<()> {
+    let mut problems = Vec::new();
+    for (key, path) in config.sockets() {
+        let Some(dir) = path.parent() else { continue };
+        if let Err(why) = crate::socket::secure_dir(dir) {
+            // (Checked when the file was loaded; this is the directory now.)
+            problems.push(format!(
+                "{key} = \"{}/{}\": {why}",
+                crate::config::UNIXSOCK,
+                path.display()
+            ));
+        }
+    }
+    if problems.is_empty() {
+        Ok(())
+    } else {
+        Err(vibro_service::ConfigError::new(config.source.clone(), problems).into())
+    }
+}
+
 /// The Zenoh session of `config`: fails after `connect_timeout` when a `connect`
-/// endpoint cannot be reached, naming the endpoints and the file.
+/// endpoint cannot be reached, naming the endpoints and the file. The directories of
+/// its Unix sockets are checked first ([`secure_sockets`]).
 pub fn open_session(config: &BridgeConfig) -> Result<Session> {
+    secure_sockets(config)?;
     let json5 = config.zenoh_json5();
     let zc = zenoh::Config::from_json5(&json5).map_err(|e| Error::ZenohConfig {
         file: config.source.clone(),
@@ -238,6 +281,7 @@ pub fn run_on(
         gap_messages: StreamStats::get(&st.gap_messages),
         out_of_order: StreamStats::get(&st.out_of_order),
         producer_restarts: StreamStats::get(&st.producer_restarts),
+        seq_jumps: StreamStats::get(&st.seq_jumps),
         queue_dropped: StreamStats::get(&st.queue_dropped),
         refused: StreamStats::get(&st.refused),
         undelivered: StreamStats::get(&st.undelivered),
@@ -544,6 +588,52 @@ trait ImportPort {
     fn forward(&mut self, sample: &Sample);
 }
 
+/// What one imported message's `seq` says about its stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SeqStep {
+    /// The first message, or the one expected.
+    InStep,
+    /// This many messages missing before it (at most
+    /// [`vibro_service::MAX_LOST_MESSAGES`]).
+    Gap(u64),
+    /// A forward step too big to be a loss (the services' jump rule, vibro-service's
+    /// `continuity` module): what follows starts a new history.
+    Jump,
+    /// `seq` back to 0: the producer restarted.
+    Restart,
+    /// Below the next expected `seq` (late, or repeated): the expectation stays.
+    Late,
+}
+
+/// The import side's expectation of a stream's `seq`.
+#[derive(Debug, Clone, Copy, Default)]
+struct SeqCheck {
+    next: Option<u64>,
+}
+
+impl SeqCheck {
+    fn arrive(&mut self, seq: u64) -> SeqStep {
+        let step = match self.next {
+            None => SeqStep::InStep,
+            Some(next) if seq > next => {
+                let missing = seq - next;
+                if missing > vibro_service::MAX_LOST_MESSAGES {
+                    SeqStep::Jump
+                } else {
+                    SeqStep::Gap(missing)
+                }
+            }
+            Some(next) if seq == next => SeqStep::InStep,
+            Some(_) if seq == 0 => SeqStep::Restart,
+            Some(_) => SeqStep::Late,
+        };
+        if step != SeqStep::Late {
+            self.next = Some(seq.wrapping_add(1));
+        }
+        step
+    }
+}
+
 struct Importer<T: WireMessage> {
     publisher: StreamPublisher<T>,
     stats: Arc<StreamStats>,
@@ -552,11 +642,12 @@ struct Importer<T: WireMessage> {
     encoding: Encoding,
     /// The wire bytes of one message, gathered from Zenoh's slices (allocated once).
     scratch: Vec<u8>,
-    next_seq: Option<u64>,
+    seq: SeqCheck,
     /// Of `stats.queue_dropped`, the drops already matched with a gap in `seq`.
     drops_seen: u64,
     refused_logged: bool,
     gap_logged: bool,
+    jump_logged: bool,
 }
 
 impl<T: WireMessage> Importer<T> {
@@ -574,10 +665,11 @@ impl<T: WireMessage> Importer<T> {
             schema: T::KIND.type_name(),
             encoding: encoding_of(T::KIND),
             scratch: Vec::with_capacity(T::KIND.size_bytes()),
-            next_seq: None,
+            seq: SeqCheck::default(),
             drops_seen: 0,
             refused_logged: false,
             gap_logged: false,
+            jump_logged: false,
         })
     }
 
@@ -617,11 +709,11 @@ impl<T: WireMessage> ImportPort for Importer<T> {
             return;
         }
         let seq = msg.seq();
-        match self.next_seq {
-            Some(next) if seq > next => {
+        match self.seq.arrive(seq) {
+            SeqStep::InStep => {}
+            SeqStep::Gap(missing) => {
                 // Messages this bridge's own queue dropped are counted there already;
                 // the rest of the gap was lost before they reached it.
-                let missing = seq - next;
                 let dropped_here = StreamStats::get(&self.stats.queue_dropped);
                 let explained = missing.min(dropped_here.saturating_sub(self.drops_seen));
                 self.drops_seen += explained;
@@ -629,16 +721,18 @@ impl<T: WireMessage> ImportPort for Importer<T> {
                 StreamStats::add(&self.stats.gap_messages, lost);
                 if lost > 0 && !self.gap_logged {
                     self.gap_logged = true;
-                    warn!(key = %self.key, expected = next, got = seq, "messages lost on the network (further gaps counted)");
+                    warn!(key = %self.key, missing, got = seq, "messages lost on the network (further gaps counted)");
                 }
             }
-            Some(_) if seq == 0 => StreamStats::add(&self.stats.producer_restarts, 1),
-            Some(next) if seq < next => StreamStats::add(&self.stats.out_of_order, 1),
-            _ => {}
-        }
-        // A late (reordered) message leaves the expectation where it was.
-        if self.next_seq.is_none_or(|next| seq >= next || seq == 0) {
-            self.next_seq = Some(seq.wrapping_add(1));
+            SeqStep::Jump => {
+                StreamStats::add(&self.stats.seq_jumps, 1);
+                if !self.jump_logged {
+                    self.jump_logged = true;
+                    warn!(key = %self.key, got = seq, "seq jumped too far to be a loss (more than {} messages): counted as a jump, not as lost (further jumps counted)", vibro_service::MAX_LOST_MESSAGES);
+                }
+            }
+            SeqStep::Restart => StreamStats::add(&self.stats.producer_restarts, 1),
+            SeqStep::Late => StreamStats::add(&self.stats.out_of_order, 1),
         }
         match self.publisher.publish(&msg) {
             Ok(_) => StreamStats::add(&self.stats.forwarded, 1),
@@ -714,4 +808,111 @@ fn import_loop(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vibro_service::MAX_LOST_MESSAGES as MAX;
+
+    fn steps(seqs: &[u64]) -> Vec<SeqStep> {
+        let mut c = SeqCheck::default();
+        seqs.iter().map(|&s| c.arrive(s)).collect()
+    }
+
+    /// The sequence of the integration test (a crafted peer): a gap of 2, one of
+    /// exactly 2^20 (the limit, inclusive), a step of 2^20 + 2 and one to 0xF000...
+    #[test]
+    fn gaps_count_up_to_the_services_limit_and_bigger_steps_are_jumps() {
+        let s1 = 5 + MAX + 1;
+        let s2 = s1 + MAX + 2;
+        let s3 = 0xF000_0000_0000_0000u64;
+        use SeqStep::*;
+        assert_eq!(
+            steps(&[0, 1, 2, 5, s1, s2, s2 + 1, s3, s3 + 1]),
+            [
+                InStep,
+                InStep,
+                InStep,
+                Gap(2),
+                Gap(MAX),
+                Jump,
+                InStep,
+                Jump,
+                InStep
+            ]
+        );
+        // Late, repeated and restarted, as before the jump rule.
+        assert_eq!(
+            steps(&[10, 12, 11, 12, 13, 0, 1, u64::MAX, 0]),
+            [
+                InStep,
+                Gap(1),
+                Late,
+                Late,
+                InStep,
+                Restart,
+                InStep,
+                Jump,
+                InStep
+            ]
+        );
+    }
+
+    /// A xorshift64 generator: the random `seq`s of a crafted peer, reproducibly.
+    fn xorshift(state: &mut u64) -> u64 {
+        *state ^= *state << 13;
+        *state ^= *state >> 7;
+        *state ^= *state << 17;
+        *state
+    }
+
+    /// Random `seq`s: what counts as lost stays below MAX per message (here none: two
+    /// random u64 fall within 2^20 of each other with probability 2^-43), every forward
+    /// step is a jump, and nothing overflows in the totals.
+    #[test]
+    fn random_seqs_are_jumps_and_the_totals_stay_bounded() {
+        let mut c = SeqCheck::default();
+        let mut rng = 0x9E37_79B9_7F4A_7C15u64;
+        let (mut lost, mut jumps, mut late) = (0u64, 0u64, 0u64);
+        let n = 10_000u64;
+        for _ in 0..n {
+            match c.arrive(xorshift(&mut rng)) {
+                SeqStep::Gap(k) => lost += k,
+                SeqStep::Jump => jumps += 1,
+                SeqStep::Late => late += 1,
+                SeqStep::InStep | SeqStep::Restart => {}
+            }
+        }
+        assert_eq!(lost, 0);
+        assert_eq!(jumps + late + 1, n, "{jumps} jumps, {late} late");
+        assert!(jumps > 0);
+    }
+
+    /// The summary's sums saturate instead of overflowing (a debug build panicked on
+    /// them with counters near u64::MAX).
+    #[test]
+    fn the_loss_totals_saturate() {
+        let r = StreamReport {
+            stream: "accel".into(),
+            direction: Direction::Import,
+            key: "k/accel".into(),
+            forwarded: 0,
+            unmatched: 3,
+            gap_messages: u64::MAX - 1,
+            out_of_order: 0,
+            producer_restarts: 0,
+            seq_jumps: 0,
+            queue_dropped: 0,
+            refused: 0,
+            undelivered: 0,
+        };
+        assert_eq!(r.lost(), u64::MAX);
+        let s = BridgeSummary {
+            zenoh_id: String::new(),
+            streams: vec![r.clone(), r],
+        };
+        assert_eq!(s.lost(), u64::MAX);
+        assert!(s.to_json().contains("\"seq_jumps\":0"));
+    }
 }

@@ -1,6 +1,15 @@
 //! The bridge's configuration file: raw TOML (unknown keys refused with their line) →
 //! [`BridgeConfig`], validated with every problem reported at once, and the Zenoh
 //! configuration (JSON5) built from it.
+//!
+//! **Who may connect** (docs/bridge.md). Every link proves who is at its other end:
+//! a Unix socket (`unixsock-stream/PATH`) in a directory only this user can enter
+//! (the operating system refuses everybody else, checked at start by
+//! [`crate::socket`]), or TLS with certificates signed by the configured CA (a
+//! `tls/` listen endpoint must ask for the peer's: `mutual = true`). Plain `tcp/` is
+//! refused, on loopback too: any local user can connect to a loopback port, and a
+//! Zenoh id is whatever the peer says it is, so `[access] allow_zids` filters peers
+//! but authenticates nobody.
 
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -112,7 +121,11 @@ pub struct Tls {
 /// Who may exchange messages with this bridge (Zenoh access control, default deny).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Access {
+    /// Common names of the peers' certificates (mutual TLS): authenticated by the CA.
     pub allow_cert_common_names: Vec<String>,
+    /// Zenoh ids: a filter, not authentication. A peer chooses its own id (any Zenoh
+    /// configuration sets `id`), so naming one admits whoever copies it; it narrows
+    /// who of the peers that the link already authenticated may exchange messages.
     pub allow_zids: Vec<String>,
 }
 
@@ -167,21 +180,85 @@ pub fn is_loopback_endpoint(endpoint: &str) -> bool {
         .is_ok_and(|ip| ip.is_loopback())
 }
 
+/// The Zenoh protocol of Unix-domain stream sockets.
+pub const UNIXSOCK: &str = "unixsock-stream";
+
+/// The longest path of a Unix socket: Linux's `sun_path` holds 108 bytes with the
+/// terminating NUL (unix(7)).
+pub const MAX_SOCKET_PATH_BYTES: usize = 107;
+
+/// The socket path of a `unixsock-stream/PATH` endpoint.
+pub fn socket_path(endpoint: &str) -> Option<&Path> {
+    endpoint
+        .strip_prefix(UNIXSOCK)
+        .and_then(|rest| rest.strip_prefix('/'))
+        .map(Path::new)
+}
+
+/// Why a `unixsock-stream/` endpoint's path cannot be used, if it cannot.
+fn check_socket_path(path: &str) -> Option<String> {
+    let p = Path::new(path);
+    let dir = p.parent();
+    if !p.is_absolute() {
+        Some("must be an absolute path (the bridges of one host may run in different working directories)".into())
+    } else if path.contains(['?', '#', '\0']) {
+        Some("must not contain ?, # or NUL (Zenoh reads ? and # as the start of the endpoint's metadata and configuration)".into())
+    } else if path.ends_with('/')
+        || path.contains("//")
+        || path.split('/').any(|c| c == "." || c == "..")
+    {
+        Some("must be a plain path to a file: no trailing /, //, . or ..".into())
+    } else if path.len() > MAX_SOCKET_PATH_BYTES {
+        Some(format!(
+            "is {} bytes: a Unix socket's path holds at most {MAX_SOCKET_PATH_BYTES}",
+            path.len()
+        ))
+    } else if dir.is_none_or(|d| d == Path::new("/")) {
+        Some("must be in a directory of the bridge's own, e.g. /tmp/vibrocomp-bridge/rig-a.sock (the directory, not the socket, keeps other users out)".into())
+    } else {
+        None
+    }
+}
+
+/// The endpoints with their keys: `("zenoh.listen[0]", endpoint)`, then `connect`.
+fn keyed_endpoints<'a>(
+    listen: &'a [String],
+    connect: &'a [String],
+) -> impl Iterator<Item = (String, &'a str)> {
+    let listen = listen
+        .iter()
+        .enumerate()
+        .map(|(i, e)| (format!("zenoh.listen[{i}]"), e.as_str()));
+    let connect = connect
+        .iter()
+        .enumerate()
+        .map(|(i, e)| (format!("zenoh.connect[{i}]"), e.as_str()));
+    listen.chain(connect)
+}
+
 fn check_endpoint(key: &str, endpoint: &str, tls: bool, problems: &mut Vec<String>) {
     let Some((proto, addr)) = endpoint.split_once('/') else {
         problems.push(format!(
-            "{key} = {endpoint:?}: must be PROTOCOL/HOST:PORT, e.g. tcp/127.0.0.1:7447"
+            "{key} = {endpoint:?}: must be {UNIXSOCK}/PATH (e.g. {UNIXSOCK}//tmp/vibrocomp-bridge/rig-a.sock) or tls/HOST:PORT"
         ));
         return;
     };
     match proto {
-        "tcp" => {}
+        UNIXSOCK => {
+            if let Some(rule) = check_socket_path(addr) {
+                problems.push(format!("{key} = {endpoint:?}: the socket's path {rule}"));
+            }
+            return;
+        }
         "tls" if tls => {}
         "tls" => problems.push(format!(
             "{key} = {endpoint:?}: a tls/ endpoint needs the [tls] table"
         )),
+        "tcp" => problems.push(format!(
+            "{key} = {endpoint:?}: plain TCP proves nobody's identity, on loopback too (any local user can connect to a loopback port, and a Zenoh id is whatever the peer says): use {UNIXSOCK}/PATH between the bridges of one host, tls/HOST:PORT with [tls] between hosts (docs/bridge.md, \"Who may connect\")"
+        )),
         other => problems.push(format!(
-            "{key} = {endpoint:?}: protocol {other:?} is not built in (tcp or tls)"
+            "{key} = {endpoint:?}: protocol {other:?} is not built in ({UNIXSOCK} or tls)"
         )),
     }
     let port_ok = addr
@@ -233,15 +310,29 @@ fn check_file(key: &str, path: &Path, problems: &mut Vec<String>) {
 }
 
 impl BridgeConfig {
-    /// Reads and validates `path`.
+    /// The socket paths of the `unixsock-stream/` endpoints, with their keys
+    /// (`zenoh.listen[0]`).
+    pub fn sockets(&self) -> Vec<(String, &Path)> {
+        keyed_endpoints(&self.listen, &self.connect)
+            .filter_map(|(k, e)| socket_path(e).map(|p| (k, p)))
+            .collect()
+    }
+
+    /// Reads and validates `path`, including the directories of its Unix sockets as
+    /// they are now ([`crate::socket::check_dir`]; nothing is created).
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = read_config_file(path)?;
-        Self::parse(&text, &path.display().to_string())
+        Self::validate(&text, &path.display().to_string(), true)
     }
 
     /// Validates the TOML `text` of the file `file`; relative certificate paths are
-    /// taken relative to the working directory.
+    /// taken relative to the working directory. The socket directories are left to
+    /// [`Self::load`] and to the bridge's start.
     pub fn parse(text: &str, file: &str) -> Result<Self, ConfigError> {
+        Self::validate(text, file, false)
+    }
+
+    fn validate(text: &str, file: &str, socket_dirs: bool) -> Result<Self, ConfigError> {
         let raw: Raw = parse_toml(text, file)?;
         let mut p = Vec::new();
         let prefix = raw.prefix.unwrap_or_else(vibro_service::default_prefix);
@@ -261,6 +352,22 @@ impl BridgeConfig {
         }
         for (i, e) in raw.zenoh.connect.iter().enumerate() {
             check_endpoint(&format!("zenoh.connect[{i}]"), e, tls_on, &mut p);
+        }
+        if socket_dirs {
+            // Each directory once (both sides of one host name the same socket).
+            let mut seen: Vec<&Path> = Vec::new();
+            for (key, e) in keyed_endpoints(&raw.zenoh.listen, &raw.zenoh.connect) {
+                let Some(path) = socket_path(e) else { continue };
+                let Some(dir) = path.parent() else { continue };
+                // A path already refused above, or a directory already looked at.
+                if check_socket_path(&path.to_string_lossy()).is_some() || seen.contains(&dir) {
+                    continue;
+                }
+                seen.push(dir);
+                if let Err(why) = crate::socket::check_dir(dir) {
+                    p.push(format!("{key} = {e:?}: {why}"));
+                }
+            }
         }
         if raw.zenoh.listen.is_empty() && raw.zenoh.connect.is_empty() {
             p.push(
@@ -356,24 +463,22 @@ impl BridgeConfig {
             {
                 p.push("tls.mutual = false: access.allow_cert_common_names needs the peers' certificates (mutual = true)".into());
             }
-            for (i, e) in raw
-                .zenoh
-                .listen
-                .iter()
-                .chain(&raw.zenoh.connect)
-                .enumerate()
-            {
-                if e.starts_with("tcp/") {
-                    p.push(format!(
-                        "endpoint {i} {e:?}: with [tls], every endpoint is tls/ (a tcp/ one would bypass it)"
-                    ));
+            // A TLS listener that asks for no certificate admits whoever reaches its
+            // port (on loopback: every local user).
+            if !t.mutual {
+                for (i, e) in raw.zenoh.listen.iter().enumerate() {
+                    if e.starts_with("tls/") {
+                        p.push(format!(
+                            "tls.mutual = false: zenoh.listen[{i}] = {e:?} would admit any peer that reaches it (on loopback, every local user): the peers must prove who they are with a certificate (mutual = true)"
+                        ));
+                    }
                 }
             }
         }
         // README, "Several hosts": a bridge reachable from other hosts names who may
-        // connect, and checks it with certificates.
+        // connect, and checks it with certificates. (A Unix socket is this host's.)
         for (i, e) in raw.zenoh.listen.iter().enumerate() {
-            if is_loopback_endpoint(e) {
+            if is_loopback_endpoint(e) || socket_path(e).is_some() {
                 continue;
             }
             let named = access
@@ -507,7 +612,7 @@ prefix = "host-a/"
 key_prefix = "vibrocomp/site-1/rig-a"
 [zenoh]
 mode = "peer"
-connect = ["tcp/127.0.0.1:7447"]
+connect = ["unixsock-stream//tmp/vibrocomp-bridge/rig-a.sock"]
 connect_timeout_s = 2.0
 [export]
 streams = ["vib", "accel", "truth"]
@@ -525,8 +630,141 @@ queue_depth = 64
         assert_eq!(c.queue_depth, 64);
         assert_eq!(c.key(Stream::Vib), "vibrocomp/site-1/rig-a/vib");
         assert_eq!(c.congestion, Congestion::Block);
+        assert_eq!(
+            c.sockets(),
+            [(
+                "zenoh.connect[0]".to_string(),
+                Path::new("/tmp/vibrocomp-bridge/rig-a.sock")
+            )]
+        );
         // The JSON5 is one Zenoh accepts.
         zenoh::Config::from_json5(&c.zenoh_json5()).unwrap();
+    }
+
+    /// Issue 31, item 2: plain TCP lets in any local user, whatever `allow_zids` says;
+    /// it is refused in `listen` and `connect`, on loopback and beyond, with the way
+    /// out in the message.
+    #[test]
+    fn plain_tcp_is_refused_on_loopback_too_and_in_connect() {
+        let text = GOOD.replace(
+            "connect = [\"unixsock-stream//tmp/vibrocomp-bridge/rig-a.sock\"]",
+            "listen = [\"tcp/127.0.0.1:7447\"]\nconnect = [\"tcp/127.0.0.1:7448\", \"tcp/192.168.1.2:7447\"]",
+        ) + "[access]\nallow_zids = [\"1f\"]\n";
+        let e = BridgeConfig::parse(&text, "t.toml").unwrap_err();
+        let all = e.problems.join("\n");
+        for key in [
+            "zenoh.listen[0] = \"tcp/127.0.0.1:7447\": plain TCP proves nobody's identity, on loopback too",
+            "zenoh.connect[0] = \"tcp/127.0.0.1:7448\": plain TCP",
+            "zenoh.connect[1] = \"tcp/192.168.1.2:7447\": plain TCP",
+        ] {
+            assert!(all.contains(key), "missing {key:?} in:\n{all}");
+        }
+        assert!(all.contains("use unixsock-stream/PATH"), "{all}");
+        assert_eq!(e.problems.len(), 3, "{all}");
+    }
+
+    /// A TLS listener must ask for the peer's certificate, on loopback too.
+    #[test]
+    fn a_tls_listener_without_mutual_is_refused() {
+        let dir = std::env::temp_dir().join(format!("vbc-tls-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for f in ["ca.pem", "b.pem", "b.key"] {
+            std::fs::write(dir.join(f), "").unwrap();
+        }
+        let tls = format!(
+            "[tls]\nroot_ca_certificate = {:?}\ncertificate = {:?}\nprivate_key = {:?}\nmutual = false\n",
+            dir.join("ca.pem"),
+            dir.join("b.pem"),
+            dir.join("b.key")
+        );
+        let listen = GOOD.replace(
+            "connect = [\"unixsock-stream//tmp/vibrocomp-bridge/rig-a.sock\"]",
+            "listen = [\"tls/127.0.0.1:7447\"]",
+        ) + &tls;
+        let e = BridgeConfig::parse(&listen, "l.toml").unwrap_err();
+        assert!(
+            e.problems.join("\n").contains(
+                "tls.mutual = false: zenoh.listen[0] = \"tls/127.0.0.1:7447\" would admit any peer"
+            ),
+            "{e}"
+        );
+        // Connecting, the server's certificate is checked: mutual is the listener's call.
+        let connect = GOOD.replace(
+            "connect = [\"unixsock-stream//tmp/vibrocomp-bridge/rig-a.sock\"]",
+            "connect = [\"tls/compute-1.lab:7447\"]",
+        ) + &tls;
+        let c = BridgeConfig::parse(&connect, "c.toml");
+        std::fs::remove_dir_all(&dir).unwrap();
+        c.unwrap();
+    }
+
+    /// Loading a file looks at its sockets' directories too, with every other problem.
+    #[test]
+    fn load_refuses_a_socket_directory_others_may_enter_with_the_rest() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("vbc-load-{}", std::process::id()));
+        let open = dir.join("open");
+        std::fs::create_dir_all(&open).unwrap();
+        std::fs::set_permissions(&open, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let file = dir.join("b.toml");
+        let text = GOOD
+            .replace("/tmp/vibrocomp-bridge", &open.display().to_string())
+            .replace("queue_depth = 64", "queue_depth = 0");
+        std::fs::write(&file, text).unwrap();
+        let e = BridgeConfig::load(&file).unwrap_err();
+        let missing = dir.join("missing");
+        std::fs::write(
+            &file,
+            GOOD.replace("/tmp/vibrocomp-bridge", &missing.display().to_string()),
+        )
+        .unwrap();
+        let ok = BridgeConfig::load(&file);
+        let created = missing.exists();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let all = e.problems.join("\n");
+        assert!(
+            all.contains(&format!(
+                "zenoh.connect[0] = \"unixsock-stream/{}/rig-a.sock\": the directory {} belongs to uid",
+                open.display(),
+                open.display()
+            )) && all.contains("with mode 0755")
+                && all.contains("(mode 0700"),
+            "{all}"
+        );
+        assert!(all.contains("import.queue_depth = 0"), "{all}");
+        assert_eq!(e.file, file.display().to_string());
+        // A directory still to be made passes, and loading does not make it.
+        ok.unwrap();
+        assert!(!created);
+    }
+
+    #[test]
+    fn socket_paths_are_checked_with_their_rule() {
+        let long = format!("/tmp/{}/b.sock", "x".repeat(MAX_SOCKET_PATH_BYTES));
+        let cases = [
+            ("tmp/b/b.sock", "must be an absolute path"),
+            ("/b.sock", "in a directory of the bridge's own"),
+            ("/tmp/b/b.sock?x=1", "must not contain ?, #"),
+            ("/tmp/b/../b.sock", "no trailing /, //, . or .."),
+            ("/tmp/b/", "no trailing /"),
+            (long.as_str(), "a Unix socket's path holds at most 107"),
+        ];
+        for (path, rule) in cases {
+            let text = GOOD.replace("/tmp/vibrocomp-bridge/rig-a.sock", path);
+            let e = BridgeConfig::parse(&text, "s.toml").unwrap_err();
+            let all = e.problems.join("\n");
+            assert!(
+                all.contains(&format!(
+                    "zenoh.connect[0] = \"unixsock-stream/{path}\": the socket's path"
+                )) && all.contains(rule),
+                "{path}: {all}"
+            );
+        }
+        // The longest path that fits.
+        let path = format!("/tmp/b/{}", "x".repeat(MAX_SOCKET_PATH_BYTES - 7));
+        assert_eq!(path.len(), MAX_SOCKET_PATH_BYTES);
+        let text = GOOD.replace("/tmp/vibrocomp-bridge/rig-a.sock", &path);
+        BridgeConfig::parse(&text, "s.toml").unwrap();
     }
 
     #[test]
@@ -536,7 +774,7 @@ prefix = "bad prefix"
 key_prefix = "vibrocomp/*/x"
 [zenoh]
 mode = "router"
-listen = ["udp/127.0.0.1:7447", "tcp/0.0.0.0:7447"]
+listen = ["udp/127.0.0.1:7447", "tls/0.0.0.0:7447"]
 connect_timeout_s = -1
 [export]
 streams = ["vib", "vibe", "vib"]
@@ -552,7 +790,8 @@ queue_depth = 0
             "key_prefix = \"vibrocomp/*/x\"",
             "zenoh.mode = \"router\"",
             "zenoh.listen[0] = \"udp/127.0.0.1:7447\": protocol \"udp\"",
-            "zenoh.listen[1] = \"tcp/0.0.0.0:7447\": listens beyond loopback",
+            "zenoh.listen[1] = \"tls/0.0.0.0:7447\": a tls/ endpoint needs the [tls] table",
+            "zenoh.listen[1] = \"tls/0.0.0.0:7447\": listens beyond loopback",
             "zenoh.connect_timeout_s = -1",
             "export.streams: \"vibe\" is not a stream",
             "export.streams: \"vib\" is named twice",

@@ -16,13 +16,17 @@
 //!   deliver ([`BridgeSummary`]).
 //! - **Threads.** One thread per direction, each with its own iceoryx2 node; the Zenoh
 //!   callbacks only push into a bounded queue. Nothing here runs on a tokio worker.
-//! - **Who may connect.** TLS (mutual) and Zenoh's access control, built from the same
-//!   TOML file ([`BridgeConfig::zenoh_json5`]); a bridge listening beyond loopback must
-//!   name the hosts that may connect.
+//! - **Who may connect.** Only peers that prove who they are: on one host a Unix
+//!   socket in a directory of this user's alone (mode 0700, created and checked at
+//!   start, [`secure_sockets`]), so the operating system refuses other users; between
+//!   hosts mutual TLS, with Zenoh's access control naming the certificates that may
+//!   connect. Plain TCP is refused, on loopback too. Both built from the same TOML file
+//!   ([`BridgeConfig::zenoh_json5`]); `[access] allow_zids` is a filter, not
+//!   authentication (a peer chooses its own Zenoh id).
 //!
 //! ```no_run
 //! use std::sync::atomic::AtomicBool;
-//! let config = vibro_bridge::BridgeConfig::load("config/bridge/host-a.toml".as_ref())?;
+//! let config = vibro_bridge::BridgeConfig::load("config/bridge/rig-host.toml".as_ref())?;
 //! let stop = AtomicBool::new(false);
 //! let summary = vibro_bridge::run(&config, &stop)?;
 //! println!("{}", summary.to_json());
@@ -34,13 +38,15 @@
 
 mod bridge;
 mod config;
+pub mod socket;
 
 pub use bridge::{
-    encoding_of, open_session, run, run_on, BridgeSummary, Direction, StreamReport, StreamStats,
+    encoding_of, open_session, run, run_on, secure_sockets, BridgeSummary, Direction, StreamReport,
+    StreamStats,
 };
 pub use config::{
-    is_loopback_endpoint, stream_by_name, Access, BridgeConfig, Congestion, Mode, Tls,
-    MAX_QUEUE_DEPTH,
+    is_loopback_endpoint, socket_path, stream_by_name, Access, BridgeConfig, Congestion, Mode, Tls,
+    MAX_QUEUE_DEPTH, MAX_SOCKET_PATH_BYTES, UNIXSOCK,
 };
 
 /// Errors of the bridge; each names the file, endpoint or key concerned.

@@ -43,8 +43,14 @@ pub fn run(args: &BridgeArgs) -> anyhow::Result<()> {
     }
     outln!("bridge {}: lost {}", summary.zenoh_id, summary.lost())?;
     for s in &summary.streams {
+        // `seq` jumps (a corrupt or forged counter, not in `lost`) only when seen.
+        let jumps = if s.seq_jumps > 0 {
+            format!("  seq jumps {}", s.seq_jumps)
+        } else {
+            String::new()
+        };
         outln!(
-            "  {:<22} {:<7} forwarded {:>9}  lost {:>6}",
+            "  {:<22} {:<7} forwarded {:>9}  lost {:>6}{jumps}",
             s.stream,
             match s.direction {
                 vibro_bridge::Direction::Export => "export",

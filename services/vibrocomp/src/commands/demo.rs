@@ -52,7 +52,7 @@ pub struct DemoArgs {
     #[arg(long = "window-s", default_value_t = DEFAULT_WINDOW_S)]
     pub window_s: f64,
     /// 2: the services on a second "host" (its own iceoryx2 root), reached only
-    /// through two Zenoh bridges over loopback TCP; the replay and the recorder stay on
+    /// through two Zenoh bridges over a Unix socket; the replay and the recorder stay on
     /// the first (README, "Several hosts").
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
     pub hosts: u8,
@@ -196,10 +196,10 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     if !args.json {
         match &hosts {
             Some(h) => outln!(
-                "Services up under {prefix} on host B ({}), recorder on host A ({}), bridged over Zenoh (tcp/127.0.0.1:{}); replaying the flight on host A as fast as possible, lock-stepped ...",
+                "Services up under {prefix} on host B ({}), recorder on host A ({}), bridged over Zenoh ({}); replaying the flight on host A as fast as possible, lock-stepped ...",
                 h.b.dir.display(),
                 h.a.dir.display(),
-                h.port_b
+                h.endpoint_b
             )?,
             None => outln!(
                 "Services up under {prefix} (estimator, compensator, recorder); replaying the flight as fast as possible, lock-stepped ..."
