@@ -225,3 +225,34 @@ fn a_json_error_without_a_file_has_no_location_fields() {
         assert!(!e.contains_key(field), "{field} in {v}");
     }
 }
+
+/// Issue 31, item 7: `view --listen 127.0.0.1:0` reports the port the system gave it,
+/// in its log line and its `--json` summary (before: port 0 in both).
+#[test]
+fn view_on_port_zero_reports_the_port_it_got() {
+    let out = bin()
+        .args([
+            "view",
+            "--prefix",
+            &prefix("pz"),
+            "--duration-s",
+            "0.3",
+            "--listen",
+            "127.0.0.1:0",
+            "--json",
+        ])
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)));
+    let listen: std::net::SocketAddr = v["listen"].as_str().unwrap().parse().unwrap();
+    assert_ne!(listen.port(), 0, "{v}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(&format!("ws://{listen}")), "{err}");
+}

@@ -17,9 +17,11 @@
 //! - `/log`: the services' log lines (`{prefix}log/{service}`) as Foxglove's well-known
 //!   `foxglove.Log`, for its Log panel.
 //!
-//! Each message is placed on the data's time (docs/logs.md, "Time"). The library does
+//! Each message is placed on the data's time (docs/logs.md, "Time"). The builder does
 //! no I/O: [`ViewBuilder::on_message`] turns a wire message into view messages, which
-//! the live view (`vibrocomp view`) sends to Foxglove.
+//! the live view (`vibrocomp view`) sends to Foxglove through [`live::LiveServer`]: the
+//! Foxglove SDK's WebSocket server behind a guard that bounds what a client can cost
+//! (connections, handshake time, message sizes, log lines; issue 31).
 //!
 //! ```
 //! use vibro_view::{ViewBuilder, UNIT_NAMES};
@@ -32,6 +34,8 @@
 //! assert_eq!(out[0].topic, "/view/health/compensator");
 //! ```
 
+pub mod live;
+
 use prost::Message as _;
 use vibro_mcap::view_proto::{ServiceHealth, Stage, UnitStages, VibrationAxis};
 use vibro_mcap::{
@@ -40,6 +44,29 @@ use vibro_mcap::{
 use vibro_msgs::{
     CompensatedBlock, Heartbeat, LogLevel, LogLine, ServiceId, TruthBlock, VibEstimate, UNITS,
 };
+
+/// What the live view's server can fail with.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("listening on {addr}")]
+    Listen {
+        addr: std::net::SocketAddr,
+        source: std::io::Error,
+    },
+    #[error("starting the Foxglove WebSocket server on an ephemeral port of 127.0.0.1")]
+    Server(#[source] foxglove::FoxgloveError),
+    #[error("the Foxglove channel {topic}")]
+    Channel {
+        topic: String,
+        source: foxglove::FoxgloveError,
+    },
+    #[error("starting the live view's runtime")]
+    Runtime(#[source] std::io::Error),
+    #[error("the live view's {0} task ended abnormally (it panicked or was cancelled)")]
+    Task(&'static str),
+}
+
+pub type Result<T> = std::result::Result<T, Error>;
 
 /// The triad's unit names when no other are given (RIG.md's AK1..AK3).
 pub const UNIT_NAMES: [&str; 3] = ["AK1", "AK2", "AK3"];

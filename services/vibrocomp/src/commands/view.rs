@@ -9,6 +9,11 @@
 //! counted when full), from which a sender thread hands them to the Foxglove server;
 //! the server queues each client's messages in a bounded queue of its own and drops
 //! the oldest for a client that falls behind. So the services never feel a viewer.
+//!
+//! The Foxglove server listens on 127.0.0.1 only, behind the guard of
+//! `vibro_view::live` (the address given): a cap on viewers (`--max-clients`), a
+//! handshake timeout, client messages of 64 KiB at most, a listener that outlives a
+//! descriptor shortage, log lines about clients rate-limited (issue 31).
 
 use anyhow::Context;
 use iceoryx2::prelude::CallbackProgression;
@@ -26,6 +31,7 @@ use vibro_msgs::{
     VibEstimate, WireMessage,
 };
 use vibro_service::{init_tracing, run_service};
+use vibro_view::live::{LiveOptions, LiveServer, LiveStats};
 use vibro_view::{ViewBuilder, ViewMessage, UNIT_NAMES};
 
 use crate::flags::FlagProblems;
@@ -53,6 +59,10 @@ pub struct ViewArgs {
     /// 127.0.0.1 only when you mean it).
     #[arg(long, default_value = DEFAULT_LISTEN)]
     pub listen: SocketAddr,
+    /// Viewers served at once; one more is refused (HTTP 503) until one leaves.
+    #[arg(long, default_value_t = vibro_view::live::DEFAULT_MAX_CLIENTS as u16,
+          value_parser = clap::value_parser!(u16).range(1..=1024))]
+    pub max_clients: u16,
     /// Stop by itself after this many seconds.
     #[arg(long = "duration-s")]
     pub duration_s: Option<f64>,
@@ -73,6 +83,9 @@ struct Summary {
     /// was full). A client's own backlog (4096) is the Foxglove SDK's: it drops the
     /// oldest for a client that falls behind without counting them.
     dropped: u64,
+    /// What the guard in front of the Foxglove server did (connections refused, closed,
+    /// log lines left out).
+    clients: LiveStats,
 }
 
 /// One subscribed stream, type-erased so that one loop drains them all.
@@ -251,30 +264,28 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
         .and_then(|d| problems.seconds("--duration-s", d, 1e-3, 1e9));
     problems.finish()?;
     let listen = args.listen;
+    let options = LiveOptions {
+        listen,
+        max_clients: usize::from(args.max_clients),
+        ..LiveOptions::default()
+    };
     let summary = run_service(|shutdown| async move {
         let ctx = foxglove::Context::new();
-        let mut channels = BTreeMap::new();
-        for (topic, schema) in vibro_view::topics(UNIT_NAMES) {
-            let ch = ctx
-                .channel_builder(topic.as_str())
-                .message_encoding(vibro_mcap::MESSAGE_ENCODING)
-                .schema(foxglove::Schema::new(
-                    schema.name,
-                    vibro_mcap::SCHEMA_ENCODING,
-                    schema.data,
-                ))
-                .build_raw()
-                .with_context(|| format!("the Foxglove channel {topic}"))?;
-            channels.insert(topic, ch);
-        }
-        let server = foxglove::WebSocketServer::new()
-            .name(format!("vibrocomp view ({})", names.prefix()))
-            .bind(listen.ip().to_string(), listen.port())
-            .message_backlog_size(CLIENT_BACKLOG)
-            .context(&ctx)
-            .start()
-            .await
-            .with_context(|| format!("starting the Foxglove WebSocket server on {listen}"))?;
+        let channels = vibro_view::live::channels(&ctx, UNIT_NAMES)?;
+        let name = format!("vibrocomp view ({})", names.prefix());
+        let server = LiveServer::start(
+            &ctx,
+            move || {
+                foxglove::WebSocketServer::new()
+                    .name(name.clone())
+                    .message_backlog_size(CLIENT_BACKLOG)
+            },
+            options,
+        )
+        .await
+        .with_context(|| format!("starting the Foxglove WebSocket server on {listen}"))?;
+        // The address it got (`--listen 127.0.0.1:0`: the port the system chose).
+        let listen = server.local_addr();
         tracing::info!(
             listen = %listen,
             prefix = names.prefix(),
@@ -327,14 +338,16 @@ pub fn run(args: &ViewArgs) -> anyhow::Result<()> {
             .await
             .context("waiting for the view's sender thread")?
             .map_err(|_| anyhow::anyhow!("the view's sender thread panicked"))?;
-        if let Ok(server) = Arc::try_unwrap(server) {
-            server.stop().wait().await;
-        }
+        let clients = match Arc::try_unwrap(server) {
+            Ok(server) => server.stop().await,
+            Err(server) => server.stats(),
+        };
         Ok(Summary {
             listen: listen.to_string(),
             received,
             published,
             dropped: outbox.dropped(),
+            clients,
         })
     })?;
     if args.json {
