@@ -265,3 +265,78 @@ fn random_seqs_through_the_services_are_flagged_jumps_not_losses() {
         a["lost"], a["gaps"], a["jumps"], a["out_of_order"]
     );
 }
+
+/// `log` with its `k`-th accelerometer block's `t0_ns` set to `u64::MAX`, the rest as it
+/// was; returns the latest data time of the real blocks.
+fn forged_time_log(log: &Path, out: &Path, k: usize) -> u64 {
+    let mut w = Recorder::create(out, RecorderOptions::default()).unwrap();
+    let mut channels = std::collections::HashMap::new();
+    let (mut n, mut latest_ns) = (0, 0u64);
+    for r in Reader::open(log).unwrap() {
+        let r = r.unwrap();
+        let kind = r.message.kind();
+        let ch = channels
+            .entry(r.topic.to_string())
+            .or_insert_with(|| w.add_channel(&r.topic, kind).unwrap())
+            .clone();
+        let mut m = r.message;
+        if let Some(t) = m.data_ns() {
+            latest_ns = latest_ns.max(t);
+        }
+        if let Message::AccelBlock(b) = &mut m {
+            if n == k {
+                b.t0_ns = u64::MAX;
+            }
+            n += 1;
+        }
+        while let Err(e) = w.write_to(&ch, r.log_time_ns, r.publish_time_ns, r.sequence, m) {
+            assert!(matches!(e, vibro_mcap::Error::QueueFull { .. }), "{e}");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+    w.finish().unwrap();
+    assert!(n > k, "{n} accelerometer blocks");
+    latest_ns
+}
+
+/// Issue 31, item 6: one block with `t0_ns = u64::MAX` stamped every later heartbeat
+/// and log line of the recording at 18,446,744,073.7 s. Now it is counted off the
+/// timeline, and every message of the recording keeps a log time on the data's own.
+#[test]
+fn one_forged_block_time_does_not_move_the_recordings_timeline() {
+    let dir = Dir::new("cnt");
+    let log = flight_log(&dir, "4");
+    let crafted = dir.path("forged-time.mcap");
+    let latest_ns = forged_time_log(&log, &crafted, 20);
+    let p = prefix("ct");
+    let session = dir.path("session.mcap");
+    let mut up = up(&p, &session);
+    let mut replay = replay(&p, &crafted);
+    let (status, _, err) = replay.wait(Duration::from_secs(60));
+    assert!(status.success(), "replay: {status}\n{err}");
+    std::thread::sleep(Duration::from_secs(2));
+    let (status, _, err) = up.stop(libc::SIGINT, Duration::from_secs(30));
+    assert!(status.success(), "up: {status}\n{err}");
+    let (mut beyond, mut heartbeats, mut max_ns) = (0, 0, 0u64);
+    for r in Reader::open(&session).unwrap() {
+        let r = r.unwrap();
+        heartbeats += usize::from(matches!(r.message, Message::Heartbeat(_)));
+        max_ns = max_ns.max(r.log_time_ns);
+        beyond += usize::from(r.log_time_ns > latest_ns + 60_000_000_000);
+    }
+    assert!(heartbeats > 0);
+    assert_eq!(
+        beyond, 0,
+        "messages stamped beyond the data (latest log time {max_ns} ns)"
+    );
+    // The forged block (and the compensator's output for it) counted off the timeline.
+    let info = log_info_json(&session);
+    let off = field(&err, "recording finished", "off_timeline");
+    assert!((1..=2).contains(&off), "off_timeline={off}\n{err}");
+    eprintln!(
+        "FIGURES counts-forged-time: latest log time {:.3} s (data up to {:.3} s), {heartbeats} heartbeats, {off} messages off the timeline; /accel {}",
+        max_ns as f64 * 1e-9,
+        latest_ns as f64 * 1e-9,
+        channel(&info, "/accel")
+    );
+}

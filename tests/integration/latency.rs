@@ -148,7 +148,7 @@ fn latency_across_two_hosts_answers_every_block_through_the_bridges() {
     assert_eq!(
         &names[3..],
         [
-            "vibrocomp, 2 hosts (iceoryx2 + Zenoh bridges over loopback TCP)",
+            "vibrocomp, 2 hosts (iceoryx2 + Zenoh bridges over a Unix socket)",
             "bare Zenoh (2 processes, loopback TCP)"
         ],
         "{v}"
@@ -181,4 +181,48 @@ fn latency_across_two_hosts_answers_every_block_through_the_bridges() {
         .map(|p| p[0].as_str().unwrap())
         .collect();
     assert_eq!(procs, ["peer", "rig"], "{v}");
+}
+
+/// Issue 31, item 7: absurd values are refused at once, named with their flag and the
+/// value in engineering form. Before: `--rate-hz 1e300` hung (no output, over 40 s),
+/// `--duration-s 1e300` was accepted, `--warmup-s 1e300` and `--vib-rate-hz 1e-300`
+/// printed some 300 digits.
+#[test]
+fn absurd_latency_values_are_refused_at_once_and_briefly() {
+    use std::time::{Duration, Instant};
+    for (flag, value) in [
+        ("--rate-hz", "1e300"),
+        ("--rate-hz", "1e6"),
+        ("--duration-s", "1e300"),
+        ("--warmup-s", "1e300"),
+        ("--vib-rate-hz", "1e-300"),
+        ("--vib-rate-hz", "inf"),
+    ] {
+        let mut child = crate::common::bin()
+            .args(["latency", flag, value])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("vibrocomp runs");
+        let started = Instant::now();
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            if started.elapsed() > Duration::from_secs(20) {
+                child.kill().unwrap();
+                child.wait().unwrap();
+                panic!("latency {flag} {value}: still running after 20 s");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!status.success(), "latency {flag} {value} was accepted");
+        assert!(err.contains(flag), "{flag} {value}: {err}");
+        assert!(
+            err.lines().all(|l| l.len() < 120),
+            "{flag} {value}: a line of hundreds of characters:\n{err}"
+        );
+    }
 }

@@ -150,17 +150,52 @@ pub struct Load {
     pub jobs: u32,
 }
 
+/// The longest run, s: the view's `--duration-s` bound (31 years; the harness keeps
+/// fixed-size histograms, so only the soak's memory samples grow with it).
+pub const MAX_DURATION_S: f64 = 1e9;
+/// The shortest run, s.
+pub const MIN_DURATION_S: f64 = 1e-3;
+/// The accelerometer rates the harness paces, Hz: a block period of at least 10 us
+/// (one sample at 100 kHz); beyond it the rig's pacing loop would spin without
+/// sleeping (`--rate-hz 1e300` hung at 31 % CPU with no output).
+pub const ACCEL_RATE_RANGE_HZ: (f64, f64) = (1.0, 1e5);
+/// The vibration-sensor rates, Hz: the simulator's sensor-rate rule (`rates.sensor_hz`,
+/// 100..=1e6).
+pub const VIB_RATE_RANGE_HZ: (f64, f64) = (100.0, 1e6);
+
+/// The problem of a rate outside `range`, if any.
+pub fn rate_problem(rate_hz: f64, range: (f64, f64)) -> Option<String> {
+    (!(rate_hz.is_finite() && rate_hz >= range.0 && rate_hz <= range.1))
+        .then(|| format!("must be finite within {}..={} Hz", range.0, range.1))
+}
+
+/// The problem of a warm-up against the run's length, if any.
+pub fn warmup_problem(warmup_s: f64, duration_s: f64) -> Option<&'static str> {
+    (!(warmup_s.is_finite() && warmup_s >= 0.0 && warmup_s < duration_s))
+        .then_some("must be finite, >= 0 and shorter than --duration-s")
+}
+
 impl Options {
     /// The ranges [`run`] relies on (the command checks them first, naming its flags).
     fn check(&self) -> anyhow::Result<()> {
-        let positive = |x: f64| x.is_finite() && x > 0.0;
-        anyhow::ensure!(
-            positive(self.duration_s) && positive(self.rate_hz) && positive(self.vib_rate_hz),
-            "duration_s = {}, rate_hz = {}, vib_rate_hz = {}: must be finite and > 0",
+        let mut problems = Vec::new();
+        if vibro_service::check_seconds(
+            "duration_s",
             self.duration_s,
-            self.rate_hz,
-            self.vib_rate_hz
-        );
+            MIN_DURATION_S,
+            MAX_DURATION_S,
+            &mut problems,
+        )
+        .is_none()
+        {
+            anyhow::bail!("{}", problems.join("; "));
+        }
+        if let Some(p) = rate_problem(self.rate_hz, ACCEL_RATE_RANGE_HZ) {
+            anyhow::bail!("rate_hz = {:e}: {p}", self.rate_hz);
+        }
+        if let Some(p) = rate_problem(self.vib_rate_hz, VIB_RATE_RANGE_HZ) {
+            anyhow::bail!("vib_rate_hz = {:e}: {p}", self.vib_rate_hz);
+        }
         anyhow::ensure!(
             (1..=vibro_msgs::ACCEL_BLOCK_MAX as u32).contains(&self.block_samples)
                 && (1..=vibro_msgs::VIB_BLOCK_MAX as u32).contains(&self.vib_block_samples),
@@ -170,12 +205,13 @@ impl Options {
             vibro_msgs::ACCEL_BLOCK_MAX,
             vibro_msgs::VIB_BLOCK_MAX
         );
-        anyhow::ensure!(
-            self.warmup_s.is_finite() && self.warmup_s >= 0.0 && self.warmup_s < self.duration_s,
-            "warmup_s = {}: must be >= 0 and shorter than duration_s = {}",
-            self.warmup_s,
-            self.duration_s
-        );
+        if let Some(p) = warmup_problem(self.warmup_s, self.duration_s) {
+            anyhow::bail!(
+                "warmup_s = {:e}: {p} ({:e} s)",
+                self.warmup_s,
+                self.duration_s
+            );
+        }
         Ok(())
     }
 }

@@ -102,7 +102,10 @@ pub mod session;
 pub mod text;
 mod topics;
 
-pub use record::{record, RecordOptions, RecordSummary, TopicCounts};
+pub use record::{
+    record, Placement, RecordOptions, RecordSummary, Timeline, TopicCounts, MAX_TIMELINE_STEP_NS,
+    TIMELINE_RESYNC_AFTER,
+};
 pub use replay::{replay, Pace, ReplayOptions, ReplaySummary};
 pub use topics::{rig_streams, stream_of_topic, topic, DEFAULT_RECORD_STREAMS};
 

@@ -74,6 +74,10 @@ pub struct TopicCounts {
     pub malformed: u64,
     /// Times the recorder waited for room in the MCAP writer's queue.
     pub queue_waits: u64,
+    /// Messages whose data time was off the recording's timeline ([`Timeline`]): written
+    /// at the timeline's time instead (their own time stays in the message), left out
+    /// of the view channels.
+    pub off_timeline: u64,
 }
 
 /// The most messages one forward `seq` step counts as lost; a bigger step is a jump
@@ -94,6 +98,10 @@ pub struct RecordSummary {
     pub lost: u64,
     /// `seq` jumps over all topics ([`TopicCounts::jumps`]).
     pub jumps: u64,
+    /// Messages off the data timeline over all topics ([`TopicCounts::off_timeline`]).
+    pub off_timeline: u64,
+    /// Times the timeline moved to where the data went ([`Timeline`]).
+    pub timeline_resyncs: u64,
     pub chunks: u64,
     pub bytes: u64,
     pub duration_s: f64,
@@ -112,15 +120,97 @@ struct State {
     next_seq: Option<u64>,
 }
 
+/// The most a message's data time may differ from the recording's timeline and still
+/// be on it: a minute, far beyond any stream's own latency (an estimate's window end
+/// lags its blocks by about a window) and any gap a subscriber's buffer hides, far below
+/// a corrupt or forged `t0_ns` (`u64::MAX` is 584 years away).
+pub const MAX_TIMELINE_STEP_NS: u64 = 60_000_000_000;
+
+/// How many messages in a row, off the timeline and consistent among themselves, move
+/// the timeline to them ([`Timeline`]).
+pub const TIMELINE_RESYNC_AFTER: u32 = 8;
+
+/// Where a message with a data time goes on the recording's timeline.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Placement {
+    /// On the timeline: written at its own data time.
+    On(u64),
+    /// Off the timeline: written at the timeline's time (the argument), counted, and
+    /// kept out of what is derived from time (the view channels).
+    Off(u64),
+    /// The messages off the timeline agreed long enough: the timeline moved to this
+    /// one, written at its own time.
+    Resync(u64),
+}
+
+/// The jump rule of the data timeline. A block's `t0_ns` comes from outside the
+/// process: one corrupt or forged value (`u64::MAX`) must not stamp every later
+/// heartbeat and log line 584 years ahead, nor stretch the log's time range.
+///
+/// - The first data time starts the timeline.
+/// - A data time within [`MAX_TIMELINE_STEP_NS`] of the timeline is on it; the timeline
+///   follows the latest such time.
+/// - Any other is off it: written at the timeline's time and counted. The timeline
+///   moves to a new place only when [`TIMELINE_RESYNC_AFTER`] messages in a row are off
+///   it and within the step of each other (a producer that really restarted on another
+///   clock, a replay of another log); any message on the old timeline in between shows
+///   it alive and clears them. The few messages before a real move keep their own time
+///   in the message, only their log time is the old timeline's.
+#[derive(Debug, Clone, Default)]
+pub struct Timeline {
+    now_ns: Option<u64>,
+    /// The run of messages off the timeline: (latest data time, count).
+    candidate: Option<(u64, u32)>,
+    /// Times the timeline moved.
+    pub resyncs: u64,
+}
+
+impl Timeline {
+    /// The timeline's time, once a data time started it.
+    pub fn now_ns(&self) -> Option<u64> {
+        self.now_ns
+    }
+
+    /// Places a message whose data time is `t_ns`.
+    pub fn place(&mut self, t_ns: u64) -> Placement {
+        let Some(now) = self.now_ns else {
+            self.now_ns = Some(t_ns);
+            return Placement::On(t_ns);
+        };
+        if t_ns.abs_diff(now) <= MAX_TIMELINE_STEP_NS {
+            self.candidate = None;
+            self.now_ns = Some(now.max(t_ns));
+            return Placement::On(t_ns);
+        }
+        let run = match self.candidate {
+            Some((last, n)) if t_ns.abs_diff(last) <= MAX_TIMELINE_STEP_NS => {
+                (last.max(t_ns), n + 1)
+            }
+            _ => (t_ns, 1),
+        };
+        if run.1 >= TIMELINE_RESYNC_AFTER {
+            self.candidate = None;
+            self.now_ns = Some(run.0);
+            self.resyncs += 1;
+            Placement::Resync(t_ns)
+        } else {
+            self.candidate = Some(run);
+            Placement::Off(now)
+        }
+    }
+}
+
 /// The data's timeline (docs/logs.md, "Time"): a message's log time is the time its
 /// data belongs to ([`Message::data_ns`]), so that a replay at any rate spans the
-/// flight's own time in a viewer; a heartbeat, which has no data time, gets the latest
-/// data time seen on any stream. Heartbeats that arrive before the first data message
-/// wait for it (at most [`PENDING_MAX`]; beyond, and when no data ever comes, they keep
-/// their receive time).
+/// flight's own time in a viewer; a heartbeat, which has no data time, gets the
+/// timeline's time. A data time far from the timeline does not move it ([`Timeline`]).
+/// Heartbeats that arrive before the first data message wait for it (at most
+/// [`PENDING_MAX`]; beyond, and when no data ever comes, they keep their receive time).
 struct DataClock {
-    latest_ns: Option<u64>,
+    timeline: Timeline,
     pending: Vec<Pending>,
+    /// When a message off the timeline was last logged (bounded rate).
+    off_logged_ns: Option<u64>,
 }
 
 /// A message waiting for the first data time.
@@ -137,8 +227,9 @@ pub const PENDING_MAX: usize = 256;
 impl DataClock {
     fn new() -> Self {
         Self {
-            latest_ns: None,
+            timeline: Timeline::default(),
             pending: Vec::new(),
+            off_logged_ns: None,
         }
     }
 
@@ -290,30 +381,57 @@ impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
             }
             let wire: Message = message.into();
             st.counts.recorded += 1;
-            if let Some(v) = view.as_mut() {
-                v.builder.on_message(&wire, &mut v.out);
-                v.write(recorder, receive_ns)?;
-            }
-            let log_time_ns = match (wire.data_ns(), clock.latest_ns) {
-                (Some(t), _) => {
-                    if clock.latest_ns.is_none() {
-                        clock.flush(recorder, Some(t), st)?;
+            let started = clock.timeline.now_ns().is_some();
+            let (log_time_ns, on_timeline) = match wire.data_ns() {
+                Some(t) => match clock.timeline.place(t) {
+                    Placement::On(t) => (t, true),
+                    Placement::Resync(t) => {
+                        warn!(topic = %st.topic, data_time_ns = t, "the data timeline moved: {} messages in a row agreed on it", TIMELINE_RESYNC_AFTER);
+                        (t, true)
                     }
-                    clock.latest_ns = Some(clock.latest_ns.map_or(t, |l| l.max(t)));
-                    t
-                }
-                (None, Some(t)) => t,
-                (None, None) if clock.pending.len() < PENDING_MAX => {
-                    clock.pending.push(Pending {
-                        channel: self.channel.clone(),
-                        receive_ns,
-                        seq: seq as u32,
-                        message: wire,
-                    });
-                    continue;
-                }
-                (None, None) => receive_ns,
+                    Placement::Off(now) => {
+                        st.counts.off_timeline += 1;
+                        // Bounded rate: at most one line a second of receive time.
+                        if clock
+                            .off_logged_ns
+                            .is_none_or(|l| receive_ns.saturating_sub(l) >= 1_000_000_000)
+                        {
+                            clock.off_logged_ns = Some(receive_ns);
+                            warn!(topic = %st.topic, seq, data_time_ns = t, timeline_ns = now, off = st.counts.off_timeline, "a message's data time is off the recording's timeline: written at the timeline's time");
+                        }
+                        (now, false)
+                    }
+                },
+                None => match clock.timeline.now_ns() {
+                    Some(t) => (t, true),
+                    None if clock.pending.len() < PENDING_MAX => {
+                        // The view takes it now (its own time is the receive time).
+                        if let Some(v) = view.as_mut() {
+                            v.builder.on_message(&wire, &mut v.out);
+                            v.write(recorder, receive_ns)?;
+                        }
+                        clock.pending.push(Pending {
+                            channel: self.channel.clone(),
+                            receive_ns,
+                            seq: seq as u32,
+                            message: wire,
+                        });
+                        continue;
+                    }
+                    None => (receive_ns, true),
+                },
             };
+            if !started {
+                if let Some(t) = clock.timeline.now_ns() {
+                    clock.flush(recorder, Some(t), st)?;
+                }
+            }
+            if on_timeline {
+                if let Some(v) = view.as_mut() {
+                    v.builder.on_message(&wire, &mut v.out);
+                    v.write(recorder, receive_ns)?;
+                }
+            }
             write_waiting(
                 recorder,
                 &self.channel,
@@ -475,18 +593,19 @@ pub fn record(
     let started_ns = now_ns();
     let mut recorder = Recorder::create(path, options.recorder.clone())
         .map_err(|e| output_error("create", path, e, None))?;
-    let (states, view) = match record_into(&mut recorder, path, options, stop, ready, started_ns) {
-        Ok(x) => x,
-        Err(e) => {
-            // The loop only sees that the writer thread stopped; `finish` says why.
-            let stopped = matches!(e, Error::Mcap(vibro_mcap::Error::RecorderStopped { .. }));
-            let written = recorder.stats().written;
-            return Err(match recorder.finish() {
-                Err(cause) if stopped => output_error("write", path, cause, Some(written)),
-                _ => e,
-            });
-        }
-    };
+    let (states, view, timeline_resyncs) =
+        match record_into(&mut recorder, path, options, stop, ready, started_ns) {
+            Ok(x) => x,
+            Err(e) => {
+                // The loop only sees that the writer thread stopped; `finish` says why.
+                let stopped = matches!(e, Error::Mcap(vibro_mcap::Error::RecorderStopped { .. }));
+                let written = recorder.stats().written;
+                return Err(match recorder.finish() {
+                    Err(cause) if stopped => output_error("write", path, cause, Some(written)),
+                    _ => e,
+                });
+            }
+        };
     let topics: BTreeMap<String, TopicCounts> =
         states.into_iter().map(|c| (c.topic, c.counts)).collect();
     let written = recorder.stats().written;
@@ -500,6 +619,8 @@ pub fn record(
         messages: finished.messages,
         lost: topics.values().map(|t| t.lost).sum(),
         jumps: topics.values().map(|t| t.jumps).sum(),
+        off_timeline: topics.values().map(|t| t.off_timeline).sum(),
+        timeline_resyncs,
         topics,
         chunks: finished.chunks,
         bytes: finished.bytes,
@@ -509,6 +630,8 @@ pub fn record(
         messages = summary.messages,
         lost = summary.lost,
         seq_jumps = summary.jumps,
+        off_timeline = summary.off_timeline,
+        timeline_resyncs = summary.timeline_resyncs,
         bytes = summary.bytes,
         "recording finished"
     );
@@ -551,7 +674,7 @@ fn record_into(
     stop: &AtomicBool,
     ready: impl FnOnce(),
     started_ns: u64,
-) -> Result<(Vec<State>, BTreeMap<String, u64>)> {
+) -> Result<(Vec<State>, BTreeMap<String, u64>, u64)> {
     let node = create_node("vibrocomp-recorder")?;
     let cleaned = cleanup_dead_nodes(&node);
     if cleaned > 0 {
@@ -686,7 +809,7 @@ fn record_into(
     status.heartbeat(received, recorded, lost, ServiceState::Stopping);
     drop(guards);
     drop(channels);
-    Ok((states, view_written))
+    Ok((states, view_written, clock.timeline.resyncs))
 }
 
 #[cfg(test)]
@@ -717,5 +840,92 @@ mod tests {
         }
         assert_eq!(counts.lost, 0, "{counts:?}");
         assert_eq!(counts.jumps + counts.out_of_order, 999, "{counts:?}");
+    }
+
+    /// Issue 31's probe: one block with `t0_ns = u64::MAX` stamped every later heartbeat
+    /// and log line at 18,446,744,073.7 s. It must not move the timeline.
+    #[test]
+    fn one_forged_data_time_does_not_move_the_timeline() {
+        let mut tl = Timeline::default();
+        let period_ns = 40_000_000;
+        let t0 = 1_000_000_000_000u64; // 1000 s
+        assert_eq!(tl.place(t0), Placement::On(t0));
+        assert_eq!(tl.place(t0 + period_ns), Placement::On(t0 + period_ns));
+        assert_eq!(tl.place(u64::MAX), Placement::Off(t0 + period_ns));
+        for k in 2..200u64 {
+            let t = t0 + k * period_ns;
+            assert_eq!(tl.place(t), Placement::On(t), "block {k}");
+            // Forged times between real blocks, each far from the last: never a run.
+            if k % 3 == 0 {
+                let forged = k.wrapping_mul(0x9E37_79B9_7F4A_7C15) | (1 << 63);
+                assert!(
+                    matches!(tl.place(forged), Placement::Off(_)),
+                    "forged at {k}"
+                );
+            }
+        }
+        assert_eq!(tl.now_ns(), Some(t0 + 199 * period_ns));
+        assert_eq!(tl.resyncs, 0);
+        // A time far in the past does not pull it back either.
+        assert!(matches!(tl.place(0), Placement::Off(_)));
+        assert_eq!(tl.now_ns(), Some(t0 + 199 * period_ns));
+    }
+
+    #[test]
+    fn a_real_move_of_the_data_clock_is_followed_after_a_run() {
+        let mut tl = Timeline::default();
+        tl.place(500_000_000_000);
+        // Another log replayed from t = 0: the first messages are off, then it moves.
+        let mut placed = Vec::new();
+        for k in 0..TIMELINE_RESYNC_AFTER as u64 + 2 {
+            placed.push(tl.place(k * 10_000_000 + 1));
+        }
+        let n = TIMELINE_RESYNC_AFTER as usize;
+        assert!(
+            placed[..n - 1]
+                .iter()
+                .all(|p| *p == Placement::Off(500_000_000_000)),
+            "{placed:?}"
+        );
+        assert_eq!(
+            placed[n - 1],
+            Placement::Resync((n as u64 - 1) * 10_000_000 + 1)
+        );
+        assert_eq!(placed[n], Placement::On(n as u64 * 10_000_000 + 1));
+        assert_eq!(tl.resyncs, 1);
+        // Forward by more than the step (a stream paused for minutes) moves the same way.
+        let later = 10 * MAX_TIMELINE_STEP_NS;
+        let p: Vec<_> = (0..TIMELINE_RESYNC_AFTER as u64)
+            .map(|k| tl.place(later + k))
+            .collect();
+        assert_eq!(
+            p.last(),
+            Some(&Placement::Resync(later + TIMELINE_RESYNC_AFTER as u64 - 1))
+        );
+        assert_eq!(tl.resyncs, 2);
+    }
+
+    /// Random data times, any order: the timeline never leaves the neighbourhood of
+    /// what it was fed as a real stream while that stream goes on, and placements are
+    /// always within the step of the timeline or its new place.
+    #[test]
+    fn random_data_times_never_stretch_the_timeline() {
+        let mut tl = Timeline::default();
+        let mut x = 0x2545_F491_4F6C_DD1Du64;
+        let mut real = 3_000_000_000u64;
+        tl.place(real);
+        for _ in 0..100_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            // One forged time in two, then the real stream's next block.
+            if x & 1 == 0 {
+                tl.place(x);
+            }
+            real += 40_000_000;
+            assert_eq!(tl.place(real), Placement::On(real));
+        }
+        assert_eq!(tl.now_ns(), Some(real));
+        assert_eq!(tl.resyncs, 0);
     }
 }

@@ -11,6 +11,7 @@ use vibro_service::LoopMode;
 
 use crate::output::print_json;
 
+use crate::flags::FlagProblems;
 /// The hidden `latency-peer` command: the harness's own peers, defined beside it.
 pub use vibro_latency::{run_peer, PeerCommand};
 
@@ -68,8 +69,9 @@ pub struct LatencyArgs {
     #[arg(long)]
     pub view: bool,
     /// 2: also the vibrocomp pipeline across two hosts on this machine (the services
-    /// in another iceoryx2 root, two Zenoh bridges over loopback TCP between), and a
-    /// bare Zenoh publisher/subscriber pair as its baseline (docs/bridge.md).
+    /// in another iceoryx2 root, two Zenoh bridges over a Unix socket between), and a
+    /// bare Zenoh publisher/subscriber pair over loopback TCP as its baseline
+    /// (docs/bridge.md).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
     pub hosts: u8,
     /// Print the measured latencies as JSON.
@@ -89,33 +91,41 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
 
 /// The flags, checked, as the harness's options.
 fn options(args: &LatencyArgs) -> anyhow::Result<Options> {
-    for (name, v) in [
-        ("--duration-s", args.duration_s),
-        ("--rate-hz", args.rate_hz),
-        ("--vib-rate-hz", args.vib_rate_hz),
-    ] {
-        anyhow::ensure!(
-            v.is_finite() && v > 0.0,
-            "{name} = {v}: must be finite and > 0"
-        );
-    }
-    anyhow::ensure!(
-        (1..=vibro_msgs::ACCEL_BLOCK_MAX as u32).contains(&args.block_samples),
-        "--block-samples = {}: must be 1..={}",
-        args.block_samples,
-        vibro_msgs::ACCEL_BLOCK_MAX
+    let mut problems = FlagProblems::new();
+    problems.seconds(
+        "--duration-s",
+        args.duration_s,
+        vibro_latency::MIN_DURATION_S,
+        vibro_latency::MAX_DURATION_S,
     );
-    anyhow::ensure!(
-        (1..=vibro_msgs::VIB_BLOCK_MAX as u32).contains(&args.vib_block_samples),
-        "--vib-block-samples = {}: must be 1..={}",
-        args.vib_block_samples,
-        vibro_msgs::VIB_BLOCK_MAX
+    problems.rule(
+        "--rate-hz",
+        args.rate_hz,
+        vibro_latency::rate_problem(args.rate_hz, vibro_latency::ACCEL_RATE_RANGE_HZ),
     );
-    anyhow::ensure!(
-        args.warmup_s.is_finite() && args.warmup_s >= 0.0 && args.warmup_s < args.duration_s,
-        "--warmup-s = {}: must be >= 0 and shorter than --duration-s",
-        args.warmup_s
+    problems.rule(
+        "--vib-rate-hz",
+        args.vib_rate_hz,
+        vibro_latency::rate_problem(args.vib_rate_hz, vibro_latency::VIB_RATE_RANGE_HZ),
     );
+    problems.count(
+        "--block-samples",
+        args.block_samples.into(),
+        (!(1..=vibro_msgs::ACCEL_BLOCK_MAX as u32).contains(&args.block_samples))
+            .then(|| format!("must be 1..={}", vibro_msgs::ACCEL_BLOCK_MAX)),
+    );
+    problems.count(
+        "--vib-block-samples",
+        args.vib_block_samples.into(),
+        (!(1..=vibro_msgs::VIB_BLOCK_MAX as u32).contains(&args.vib_block_samples))
+            .then(|| format!("must be 1..={}", vibro_msgs::VIB_BLOCK_MAX)),
+    );
+    problems.rule(
+        "--warmup-s",
+        args.warmup_s,
+        vibro_latency::warmup_problem(args.warmup_s, args.duration_s),
+    );
+    problems.finish()?;
     anyhow::ensure!(
         (1..=64).contains(&args.load_jobs),
         "--load-jobs = {}: must be 1..=64",

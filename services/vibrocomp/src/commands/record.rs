@@ -223,11 +223,15 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     }
     for (topic, c) in &s.topics {
         // `seq` jumps (a corrupt or renumbered counter, not in `lost`) only when seen.
-        let jumps = if c.jumps > 0 {
+        let mut jumps = if c.jumps > 0 {
             format!("  seq jumps {}", c.jumps)
         } else {
             String::new()
         };
+        // Data times off the recording's timeline (written at the timeline's time).
+        if c.off_timeline > 0 {
+            jumps.push_str(&format!("  off the timeline {}", c.off_timeline));
+        }
         outln!(
             "  {:<24} {:>9} recorded  lost {:>4}  out of order {:>3}  malformed {:>3}{jumps}",
             topic,
