@@ -148,13 +148,11 @@ fn a_compensator_restart_shows_as_lost_blocks_in_log_info() {
     );
 }
 
-/// A crafted log: `log`'s accelerometer blocks with random `seq`s (xorshift64), the
-/// rest as it was.
-fn random_seq_log(log: &Path, out: &Path) -> u64 {
+/// `log` rewritten to `out`, each message through `edit` (same channels, times and
+/// sequence numbers).
+fn rewrite_log(log: &Path, out: &Path, mut edit: impl FnMut(&mut Message)) {
     let mut w = Recorder::create(out, RecorderOptions::default()).unwrap();
     let mut channels = std::collections::HashMap::new();
-    let mut x = 0x9E37_79B9_7F4A_7C15u64;
-    let mut n = 0;
     for r in Reader::open(log).unwrap() {
         let r = r.unwrap();
         let kind = r.message.kind();
@@ -163,13 +161,7 @@ fn random_seq_log(log: &Path, out: &Path) -> u64 {
             .or_insert_with(|| w.add_channel(&r.topic, kind).unwrap())
             .clone();
         let mut m = r.message;
-        if let Message::AccelBlock(b) = &mut m {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            b.seq = x;
-            n += 1;
-        }
+        edit(&mut m);
         assert_eq!(kind, m.kind());
         while let Err(e) = w.write_to(&ch, r.log_time_ns, r.publish_time_ns, r.sequence, m) {
             assert!(matches!(e, vibro_mcap::Error::QueueFull { .. }), "{e}");
@@ -180,6 +172,22 @@ fn random_seq_log(log: &Path, out: &Path) -> u64 {
     assert!(channels
         .values()
         .any(|c| c.kind() == MessageKind::AccelBlock));
+}
+
+/// A crafted log: `log`'s accelerometer blocks with random `seq`s (xorshift64), the
+/// rest as it was.
+fn random_seq_log(log: &Path, out: &Path) -> u64 {
+    let mut x = 0x9E37_79B9_7F4A_7C15u64;
+    let mut n = 0;
+    rewrite_log(log, out, |m| {
+        if let Message::AccelBlock(b) = m {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            b.seq = x;
+            n += 1;
+        }
+    });
     n
 }
 
@@ -269,32 +277,18 @@ fn random_seqs_through_the_services_are_flagged_jumps_not_losses() {
 /// `log` with its `k`-th accelerometer block's `t0_ns` set to `u64::MAX`, the rest as it
 /// was; returns the latest data time of the real blocks.
 fn forged_time_log(log: &Path, out: &Path, k: usize) -> u64 {
-    let mut w = Recorder::create(out, RecorderOptions::default()).unwrap();
-    let mut channels = std::collections::HashMap::new();
     let (mut n, mut latest_ns) = (0, 0u64);
-    for r in Reader::open(log).unwrap() {
-        let r = r.unwrap();
-        let kind = r.message.kind();
-        let ch = channels
-            .entry(r.topic.to_string())
-            .or_insert_with(|| w.add_channel(&r.topic, kind).unwrap())
-            .clone();
-        let mut m = r.message;
+    rewrite_log(log, out, |m| {
         if let Some(t) = m.data_ns() {
             latest_ns = latest_ns.max(t);
         }
-        if let Message::AccelBlock(b) = &mut m {
+        if let Message::AccelBlock(b) = m {
             if n == k {
                 b.t0_ns = u64::MAX;
             }
             n += 1;
         }
-        while let Err(e) = w.write_to(&ch, r.log_time_ns, r.publish_time_ns, r.sequence, m) {
-            assert!(matches!(e, vibro_mcap::Error::QueueFull { .. }), "{e}");
-            std::thread::sleep(Duration::from_millis(1));
-        }
-    }
-    w.finish().unwrap();
+    });
     assert!(n > k, "{n} accelerometer blocks");
     latest_ns
 }

@@ -403,14 +403,8 @@ impl Continuity {
             self.next_sample_index = Some(first_sample_index.saturating_add(count));
         }
         self.last_seq = Some(seq);
-        self.lost_messages = self
-            .lost_messages
-            .saturating_sub(a.retracted_messages)
-            .saturating_add(a.lost_messages);
-        self.lost_samples = self
-            .lost_samples
-            .saturating_sub(a.retracted_samples)
-            .saturating_add(a.lost_samples);
+        self.lost_messages = net_loss(self.lost_messages, a.retracted_messages, a.lost_messages);
+        self.lost_samples = net_loss(self.lost_samples, a.retracted_samples, a.lost_samples);
         if a.restarted || a.lost_messages > 0 {
             // A discontinuity: the baseline it left is kept (a plain resync keeps it
             // itself; a return keeps the baseline it returned to if it steps on with a
@@ -433,6 +427,12 @@ impl Continuity {
             self.runs = [Run::default(); RUNS];
         }
     }
+}
+
+/// A running loss total after an arrival: what a resync showed was no loss taken back,
+/// the new loss added (saturating both ways).
+fn net_loss(total: u64, retracted: u64, lost: u64) -> u64 {
+    total.saturating_sub(retracted).saturating_add(lost)
 }
 
 /// Totals of one input stream, for the heartbeat and the summary.
@@ -466,14 +466,8 @@ pub struct StreamCounters {
 
 impl StreamCounters {
     pub fn record(&mut self, a: &Arrival) {
-        self.lost_messages = self
-            .lost_messages
-            .saturating_sub(a.retracted_messages)
-            .saturating_add(a.lost_messages);
-        self.lost_samples = self
-            .lost_samples
-            .saturating_sub(a.retracted_samples)
-            .saturating_add(a.lost_samples);
+        self.lost_messages = net_loss(self.lost_messages, a.retracted_messages, a.lost_messages);
+        self.lost_samples = net_loss(self.lost_samples, a.retracted_samples, a.lost_samples);
         self.out_of_order += u64::from(!a.accepted);
         self.restarts += u64::from(a.restarted && !a.seq_jump && !a.index_jump && !a.resynced);
         self.resyncs += u64::from(a.resynced);
