@@ -226,6 +226,19 @@ fn strip_ansi(text: &str) -> String {
     out
 }
 
+/// `log` replayed (rate 2) into `up --record session` on `prefix`, `up` stopped by
+/// SIGINT 2 s after the replay's end: `up`'s stdout and stderr.
+fn replay_recorded(prefix: &str, log: &Path, session: &Path) -> (String, String) {
+    let mut up = up(prefix, session);
+    let mut replay = replay(prefix, log);
+    let (status, _, err) = replay.wait(Duration::from_secs(60));
+    assert!(status.success(), "replay: {status}\n{err}");
+    std::thread::sleep(Duration::from_secs(2));
+    let (status, out, err) = up.stop(libc::SIGINT, Duration::from_secs(30));
+    assert!(status.success(), "up: {status}\n{err}");
+    (out, err)
+}
+
 /// Random accelerometer `seq`s through `replay` into `up --record`: no absurd loss
 /// count anywhere, the jumps are flagged.
 #[test]
@@ -234,15 +247,8 @@ fn random_seqs_through_the_services_are_flagged_jumps_not_losses() {
     let log = flight_log(&dir, "4");
     let crafted = dir.path("random-seq.mcap");
     let blocks = random_seq_log(&log, &crafted);
-    let p = prefix("cr");
     let session = dir.path("session.mcap");
-    let mut up = up(&p, &session);
-    let mut replay = replay(&p, &crafted);
-    let (status, _, err) = replay.wait(Duration::from_secs(60));
-    assert!(status.success(), "replay: {status}\n{err}");
-    std::thread::sleep(Duration::from_secs(2));
-    let (status, out, err) = up.stop(libc::SIGINT, Duration::from_secs(30));
-    assert!(status.success(), "up: {status}\n{err}");
+    let (out, err) = replay_recorded(&prefix("cr"), &crafted, &session);
     // Each of the `blocks` random seqs is, against the one accepted before it, either
     // a jump (forward) or out of order (back): never a loss of 2^63 blocks.
     let lost = field(&err, "compensator stopped", "lost_blocks");
@@ -302,15 +308,8 @@ fn one_forged_block_time_does_not_move_the_recordings_timeline() {
     let log = flight_log(&dir, "4");
     let crafted = dir.path("forged-time.mcap");
     let latest_ns = forged_time_log(&log, &crafted, 20);
-    let p = prefix("ct");
     let session = dir.path("session.mcap");
-    let mut up = up(&p, &session);
-    let mut replay = replay(&p, &crafted);
-    let (status, _, err) = replay.wait(Duration::from_secs(60));
-    assert!(status.success(), "replay: {status}\n{err}");
-    std::thread::sleep(Duration::from_secs(2));
-    let (status, _, err) = up.stop(libc::SIGINT, Duration::from_secs(30));
-    assert!(status.success(), "up: {status}\n{err}");
+    let (_, err) = replay_recorded(&prefix("ct"), &crafted, &session);
     let (mut beyond, mut heartbeats, mut max_ns) = (0, 0, 0u64);
     for r in Reader::open(&session).unwrap() {
         let r = r.unwrap();
