@@ -80,10 +80,10 @@ pub struct TopicCounts {
     pub off_timeline: u64,
 }
 
-/// The most messages one forward `seq` step counts as lost; a bigger step is a jump
-/// (the rule of `vibro_service::continuity`: 2^20 blocks is hours of any stream, while
-/// a subscriber loses at most its buffer at a time).
-pub const MAX_LOST_MESSAGES: u64 = 1 << 20;
+// The most messages one forward `seq` step counts as lost; a bigger step is a jump
+// (the rule of `vibro_service::continuity`, which `log info` applies too: one
+// constant, `vibro_mcap::MAX_LOST_MESSAGES`).
+use vibro_mcap::MAX_LOST_MESSAGES;
 
 /// What a recording holds, returned when it stops.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
