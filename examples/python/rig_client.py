@@ -58,7 +58,7 @@ except ImportError as e:  # pragma: no cover - depends on the environment
 # --- The message contracts (docs/messages.md) -----------------------------------------
 
 #: Every type name ends in ``::v{SCHEMA_VERSION}`` (``vibro_msgs::SCHEMA_VERSION``).
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 UNITS = 3
 ACCEL_BLOCK_MAX = 32
 VIB_BLOCK_MAX = 512
@@ -211,7 +211,7 @@ class CompensatedBlock(C.Structure):
     ]
 
 
-@wire(96)
+@wire(112)
 class Heartbeat(C.Structure):
     _fields_ = [
         ("seq", U64),
@@ -225,6 +225,8 @@ class Heartbeat(C.Structure):
         ("latency_p99_ns", U64),
         ("input_samples_to_output", U64),
         ("input_samples_per_output", U64),
+        ("out_of_order", U64),
+        ("resyncs", U64),
         ("service", U8),
         ("state", U8),
         ("_pad", U8 * 6),

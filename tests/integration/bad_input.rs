@@ -292,7 +292,7 @@ struct AccelBlockV1 {
 /// edited without the version bump docs/messages.md asks for. Never built, as above.
 #[allow(dead_code)]
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
-#[type_name("vibrocomp::VibBlock::v4")]
+#[type_name("vibrocomp::VibBlock::v5")]
 #[repr(C)]
 struct VibBlockEdited {
     seq: u64,
@@ -323,14 +323,14 @@ fn services_finding_a_stream_of_another_version_refuse_naming_both_payloads() {
         &out,
         &[
             &format!("subscribing to {p}accel"),
-            &format!("\"{p}accel\" carries vibrocomp::AccelBlock::v1 (816 bytes, alignment 8), but this process uses vibrocomp::AccelBlock::v4 (824 bytes, alignment 8)"),
-            "incompatible version of the message contracts (this build's is version 4",
+            &format!("\"{p}accel\" carries vibrocomp::AccelBlock::v1 (816 bytes, alignment 8), but this process uses vibrocomp::AccelBlock::v5 (824 bytes, alignment 8)"),
+            "incompatible version of the message contracts (this build's is version 5",
         ],
     );
 
     let (data, event, config) = open(Stream::Vib);
     let _edited = StreamPublisher::<VibBlockEdited>::create(&node, &data, &event, &config).unwrap();
-    let same_name = format!("\"{p}vib\" carries vibrocomp::VibBlock::v4 (16 bytes, alignment 8), but this process uses vibrocomp::VibBlock::v4 (12344 bytes, alignment 8)");
+    let same_name = format!("\"{p}vib\" carries vibrocomp::VibBlock::v5 (16 bytes, alignment 8), but this process uses vibrocomp::VibBlock::v5 (12344 bytes, alignment 8)");
     let out = run_within(
         bin().args(["service", "estimator", "--prefix", &p]),
         Duration::from_secs(20),
@@ -401,7 +401,7 @@ fn a_running_system_refuses_a_publisher_of_another_version() {
         "{err}"
     );
     let text = err.to_string();
-    let wanted = format!("\"{p}accel\" carries vibrocomp::AccelBlock::v4 (824 bytes, alignment 8), but this process uses vibrocomp::AccelBlock::v1 (816 bytes, alignment 8): one of the two was built against an incompatible version of the message contracts");
+    let wanted = format!("\"{p}accel\" carries vibrocomp::AccelBlock::v5 (824 bytes, alignment 8), but this process uses vibrocomp::AccelBlock::v1 (816 bytes, alignment 8): one of the two was built against an incompatible version of the message contracts");
     assert!(text.contains(&wanted), "{text}");
 
     let s = Stream::Vib;
@@ -415,7 +415,7 @@ fn a_running_system_refuses_a_publisher_of_another_version() {
     .expect("an edited publisher is refused")
     .to_string();
     assert!(
-        err.contains("carries vibrocomp::VibBlock::v4 (12344 bytes, alignment 8), but this process uses vibrocomp::VibBlock::v4 (16 bytes, alignment 8)"),
+        err.contains("carries vibrocomp::VibBlock::v5 (12344 bytes, alignment 8), but this process uses vibrocomp::VibBlock::v5 (16 bytes, alignment 8)"),
         "{err}"
     );
 

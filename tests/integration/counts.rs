@@ -264,6 +264,27 @@ fn random_seqs_through_the_services_are_flagged_jumps_not_losses() {
         serde_json::from_str::<serde_json::Value>(&out).is_ok(),
         "{out}"
     );
+    // The compensator's heartbeats carry its out-of-order and resync counts (schema
+    // v5): the last one recorded (2 s after the replay's end) says what its stop line
+    // says, over both inputs. Random seqs are about half behind the last accepted one.
+    let ooo = field(&err, "compensator stopped", "out_of_order")
+        + field(&err, "compensator stopped", "estimates_out_of_order");
+    let resyncs = field(&err, "compensator stopped", "resyncs")
+        + field(&err, "compensator stopped", "estimate_resyncs");
+    let beat = Reader::open(&session)
+        .unwrap()
+        .filter_map(|r| match r.unwrap().message {
+            Message::Heartbeat(h) if h.service == ServiceId::Compensator.code() => Some(h),
+            _ => None,
+        })
+        .last()
+        .expect("a compensator heartbeat in the recording");
+    assert!(ooo > blocks / 4, "{ooo} of {blocks} out of order\n{err}");
+    assert_eq!(
+        (beat.out_of_order, beat.resyncs),
+        (ooo, resyncs),
+        "{beat:?}"
+    );
     // The recording: MCAP keeps 32 bits of the random seqs; info flags them as jumps.
     let info = log_info_json(&session);
     let a = channel(&info, "/accel");
@@ -274,8 +295,8 @@ fn random_seqs_through_the_services_are_flagged_jumps_not_losses() {
     );
     assert!(a["jumps"].as_u64().unwrap() > 0, "{a}");
     eprintln!(
-        "FIGURES counts-random: {blocks} blocks, compensator lost_blocks={lost} seq_jumps={jumps}; \
-         info /accel lost {} gaps {} jumps {} out_of_order {}",
+        "FIGURES counts-random: {blocks} blocks, compensator lost_blocks={lost} seq_jumps={jumps} \
+         out_of_order={ooo} resyncs={resyncs}; info /accel lost {} gaps {} jumps {} out_of_order {}",
         a["lost"], a["gaps"], a["jumps"], a["out_of_order"]
     );
 }

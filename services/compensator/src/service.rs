@@ -72,19 +72,26 @@ pub async fn run_async(config: Config, shutdown: Shutdown) -> anyhow::Result<Sum
 
 /// What the transport reports of the core.
 impl Compensation {
-    /// The heartbeat of the counters so far, in `state`.
+    /// The heartbeat of the counters so far, in `state`, with the period's latency.
     fn heartbeat_report(&self, state: ServiceState) -> HeartbeatReport {
+        self.counters_report(self.latency.period(), state)
+    }
+
+    /// The heartbeat of the counters so far, with `latency`, in `state`.
+    fn counters_report(&self, latency: Quantiles, state: ServiceState) -> HeartbeatReport {
         HeartbeatReport {
             received: self.s.accel.received,
             published: self.s.published,
             // A dropped malformed block shows as a missing seq: counted once.
             lost: self.s.accel.lost_messages,
             stale: self.s.stale_blocks + self.s.missing_blocks + self.s.ahead_blocks,
-            latency: self.latency.period(),
+            latency,
             state,
             // Every block is answered at once: nothing to report.
             input_samples_to_output: 0,
             input_samples_per_output: 0,
+            out_of_order: self.s.accel.out_of_order + self.s.estimates.out_of_order,
+            resyncs: self.s.accel.resyncs + self.s.estimates.resyncs,
         }
     }
 }
@@ -246,16 +253,8 @@ fn hot_loop(
         }
         if received_any {
             // Once per wake-up: every block taken so far is compensated and published.
-            let report = HeartbeatReport {
-                received: st.s.accel.received,
-                published: st.s.published,
-                lost: st.s.accel.lost_messages,
-                stale: st.s.stale_blocks + st.s.missing_blocks + st.s.ahead_blocks,
-                latency: Quantiles::default(),
-                state: ServiceState::Running,
-                input_samples_to_output: 0,
-                input_samples_per_output: 0,
-            };
+            // No latency: quantiles per wake-up would cost the hot loop for nothing.
+            let report = st.counters_report(Quantiles::default(), ServiceState::Running);
             if let Err(e) = progress.publish(&report) {
                 debug!("progress: {e}");
             }

@@ -41,6 +41,23 @@ pub async fn run_async(config: Config, shutdown: Shutdown) -> anyhow::Result<Sum
         .map_err(|_| anyhow!("the estimator's hot loop ended without a result (it panicked)"))?
 }
 
+/// The heartbeat of the core's counters so far, with `latency` and in `state`.
+fn heartbeat_report(core: &InProcess, latency: Quantiles, state: ServiceState) -> HeartbeatReport {
+    let c = core.counters();
+    HeartbeatReport {
+        received: c.vib.received,
+        published: c.estimates_published,
+        lost: c.vib.lost_messages,
+        stale: c.estimates_flagged,
+        latency,
+        state,
+        input_samples_to_output: core.samples_to_next_estimate(),
+        input_samples_per_output: core.samples_per_estimate(),
+        out_of_order: c.vib.out_of_order,
+        resyncs: c.vib.resyncs,
+    }
+}
+
 fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
     let started_ns = now_ns();
     // First, so that everything the loop sets up and runs is under the policy.
@@ -138,17 +155,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
         }
         if received_any {
             // Once per wake-up: every estimate the blocks completed is out.
-            let c = core.counters();
-            let report = HeartbeatReport {
-                received: c.vib.received,
-                published: c.estimates_published,
-                lost: c.vib.lost_messages,
-                stale: c.estimates_flagged,
-                latency: Quantiles::default(),
-                state: ServiceState::Running,
-                input_samples_to_output: core.samples_to_next_estimate(),
-                input_samples_per_output: core.samples_per_estimate(),
-            };
+            let report = heartbeat_report(&core, Quantiles::default(), ServiceState::Running);
             if let Err(e) = progress.publish(&report) {
                 debug!("progress: {e}");
             }
@@ -191,16 +198,7 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
             } else {
                 ServiceState::Running
             };
-            let report = HeartbeatReport {
-                received: c.vib.received,
-                published: c.estimates_published,
-                lost: c.vib.lost_messages,
-                stale: c.estimates_flagged,
-                latency: period,
-                state,
-                input_samples_to_output: core.samples_to_next_estimate(),
-                input_samples_per_output: core.samples_per_estimate(),
-            };
+            let report = heartbeat_report(&core, period, state);
             if let Err(e) = heartbeat.publish(&report) {
                 debug!("heartbeat: {e}");
             }
@@ -238,17 +236,8 @@ fn hot_loop(config: Config, shutdown: Shutdown) -> anyhow::Result<Summary> {
         }
     }
 
-    let c = core.counters();
-    let report = HeartbeatReport {
-        received: c.vib.received,
-        published: c.estimates_published,
-        lost: c.vib.lost_messages,
-        stale: c.estimates_flagged,
-        latency: core.latency_mut().period(),
-        state: ServiceState::Stopping,
-        input_samples_to_output: core.samples_to_next_estimate(),
-        input_samples_per_output: core.samples_per_estimate(),
-    };
+    let latency = core.latency_mut().period();
+    let report = heartbeat_report(&core, latency, ServiceState::Stopping);
     if let Err(e) = heartbeat.publish(&report) {
         debug!("final heartbeat: {e}");
     }

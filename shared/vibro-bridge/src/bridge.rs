@@ -308,7 +308,7 @@ pub fn run_on(
 }
 
 /// The encoding every bridged message carries: raw bytes, with the iceoryx2 type name
-/// (`vibrocomp::AccelBlock::v4`) as its schema.
+/// (`vibrocomp::AccelBlock::v5`) as its schema.
 pub fn encoding_of(kind: MessageKind) -> Encoding {
     Encoding::APPLICATION_OCTET_STREAM.with_schema(kind.type_name())
 }

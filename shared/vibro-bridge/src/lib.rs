@@ -6,7 +6,7 @@
 //! the recorder can run on different hosts (docs/bridge.md).
 //!
 //! - **Bytes unchanged.** A message travels as its wire bytes (docs/messages.md), with
-//!   its iceoryx2 type name (`vibrocomp::AccelBlock::v4`) as the Zenoh encoding's
+//!   its iceoryx2 type name (`vibrocomp::AccelBlock::v5`) as the Zenoh encoding's
 //!   schema; the receiving bridge refuses (and counts) another type name or size, and
 //!   republishes the very bytes, producer's `seq` included, so the services downstream
 //!   see a network loss as a gap in `seq` exactly as a local one.

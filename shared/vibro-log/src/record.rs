@@ -525,52 +525,63 @@ impl Status {
         })
     }
 
-    fn message(
-        &self,
-        seq: u64,
-        received: u64,
-        recorded: u64,
-        lost: u64,
-        state: ServiceState,
-    ) -> Heartbeat {
+    fn message(&self, seq: u64, t: &Totals, state: ServiceState) -> Heartbeat {
         let now = now_ns();
         Heartbeat {
             seq,
             publish_ns: now,
             uptime_ns: now.saturating_sub(self.started_ns),
-            received,
-            published: recorded,
-            lost,
+            received: t.received,
+            published: t.recorded,
+            lost: t.lost,
+            out_of_order: t.out_of_order,
+            resyncs: t.timeline_resyncs,
             service: ServiceId::Recorder.code(),
             state: state.code(),
             ..Heartbeat::ZEROED
         }
     }
 
-    fn heartbeat(&mut self, received: u64, recorded: u64, lost: u64, state: ServiceState) {
-        let m = self.message(self.heartbeat_seq, received, recorded, lost, state);
+    fn heartbeat(&mut self, t: &Totals, state: ServiceState) {
+        let m = self.message(self.heartbeat_seq, t, state);
         self.heartbeat_seq += 1;
         let _ = self.heartbeat.publish(&m);
     }
 
-    fn progress(&mut self, received: u64, recorded: u64, lost: u64) {
-        let m = self.message(
-            self.progress_seq,
-            received,
-            recorded,
-            lost,
-            ServiceState::Running,
-        );
+    fn progress(&mut self, t: &Totals) {
+        let m = self.message(self.progress_seq, t, ServiceState::Running);
         self.progress_seq += 1;
         let _ = self.progress.publish(&m);
     }
 }
 
-fn totals(states: &[State]) -> (u64, u64, u64) {
-    states.iter().fold((0, 0, 0), |(r, w, l), c| {
-        let k = &c.counts;
-        (r + k.received, w + k.recorded, l + k.lost)
-    })
+/// The recorder's counters over all topics, for its heartbeat.
+#[derive(Debug, Default, Clone, Copy)]
+struct Totals {
+    received: u64,
+    recorded: u64,
+    lost: u64,
+    /// Messages behind their topic's sequence (recorded all the same).
+    out_of_order: u64,
+    /// Times the data timeline was taken up again ([`Timeline`]).
+    timeline_resyncs: u64,
+}
+
+impl Totals {
+    fn of(states: &[State], clock: &DataClock) -> Self {
+        let mut t = states.iter().fold(Self::default(), |t, c| {
+            let k = &c.counts;
+            Self {
+                received: t.received + k.received,
+                recorded: t.recorded + k.recorded,
+                lost: t.lost + k.lost,
+                out_of_order: t.out_of_order + k.out_of_order,
+                ..t
+            }
+        });
+        t.timeline_resyncs = clock.timeline.resyncs;
+        t
+    }
 }
 
 /// Records `options.streams` into `path` until `stop` is set, then takes what is still
@@ -737,11 +748,11 @@ fn record_into(
         path = %path.display(),
         "recording"
     );
-    status.heartbeat(0, 0, 0, ServiceState::Starting);
+    let mut clock = DataClock::new();
+    status.heartbeat(&Totals::default(), ServiceState::Starting);
     ready();
     let heartbeat_ns = options.heartbeat_period.as_nanos() as u64;
     let mut next_heartbeat_ns = now_ns().saturating_add(heartbeat_ns);
-    let mut clock = DataClock::new();
     loop {
         let stopping = stop.load(Ordering::Acquire);
         if !stopping {
@@ -770,19 +781,19 @@ fn record_into(
         for (c, st) in channels.iter().zip(&mut states) {
             taken += c.drain(recorder, st, &mut clock, &mut view)?;
         }
-        let (received, recorded, lost) = totals(&states);
+        let totals = Totals::of(&states, &clock);
         if taken > 0 {
-            status.progress(received, recorded, lost);
+            status.progress(&totals);
         }
         let now = now_ns();
         if now >= next_heartbeat_ns {
             next_heartbeat_ns = now.saturating_add(heartbeat_ns);
-            let state = if received == 0 {
+            let state = if totals.received == 0 {
                 ServiceState::Starting
             } else {
                 ServiceState::Running
             };
-            status.heartbeat(received, recorded, lost, state);
+            status.heartbeat(&totals, state);
         }
         // On stop: one last pass took everything the publishers had sent.
         if stopping {
@@ -805,8 +816,7 @@ fn record_into(
         }
         view_written = v.written;
     }
-    let (received, recorded, lost) = totals(&states);
-    status.heartbeat(received, recorded, lost, ServiceState::Stopping);
+    status.heartbeat(&Totals::of(&states, &clock), ServiceState::Stopping);
     drop(guards);
     drop(channels);
     Ok((states, view_written, clock.timeline.resyncs))

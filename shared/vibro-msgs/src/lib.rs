@@ -8,7 +8,7 @@
 //! Every type is `#[repr(C)]`, fixed-size, made of plain numbers only (no pointers,
 //! strings or vectors), `Copy`, free of implicit padding (checked at compile time), and
 //! derives iceoryx2's `ZeroCopySend` with an explicit, versioned type name
-//! (`vibrocomp::AccelBlock::v4`). Field names carry units (`_v`, `_g`, `_hz`, `_ns`,
+//! (`vibrocomp::AccelBlock::v5`). Field names carry units (`_v`, `_g`, `_hz`, `_ns`,
 //! `_rad`, `_db`). Their byte layouts are published in `docs/messages.md` for rigs written
 //! in C or Python, and a test checks that document against [`FieldLayout`] tables made by
 //! `core::mem::offset_of!`, so the two cannot drift.
@@ -60,7 +60,7 @@ pub use names::{
 
 /// Version of the message contracts. Every type name ends in `::v{SCHEMA_VERSION}`; any
 /// change to any wire type's layout or meaning increments it (docs/messages.md).
-pub const SCHEMA_VERSION: u32 = 4;
+pub const SCHEMA_VERSION: u32 = 5;
 
 /// Units in a triad: accelerometers AK1..AK3, each with its vibration sensor VD1..VD3.
 pub const UNITS: usize = 3;
@@ -125,23 +125,23 @@ mod tests {
         let expected = [
             (
                 iceoryx_type_name::<AccelBlock>(),
-                "vibrocomp::AccelBlock::v4",
+                "vibrocomp::AccelBlock::v5",
             ),
-            (iceoryx_type_name::<VibBlock>(), "vibrocomp::VibBlock::v4"),
+            (iceoryx_type_name::<VibBlock>(), "vibrocomp::VibBlock::v5"),
             (
                 iceoryx_type_name::<VibEstimate>(),
-                "vibrocomp::VibEstimate::v4",
+                "vibrocomp::VibEstimate::v5",
             ),
             (
                 iceoryx_type_name::<CompensatedBlock>(),
-                "vibrocomp::CompensatedBlock::v4",
+                "vibrocomp::CompensatedBlock::v5",
             ),
             (
                 iceoryx_type_name::<TruthBlock>(),
-                "vibrocomp::TruthBlock::v4",
+                "vibrocomp::TruthBlock::v5",
             ),
-            (iceoryx_type_name::<Heartbeat>(), "vibrocomp::Heartbeat::v4"),
-            (iceoryx_type_name::<LogLine>(), "vibrocomp::LogLine::v4"),
+            (iceoryx_type_name::<Heartbeat>(), "vibrocomp::Heartbeat::v5"),
+            (iceoryx_type_name::<LogLine>(), "vibrocomp::LogLine::v5"),
         ];
         for (seen, want) in expected {
             assert_eq!(seen, want);

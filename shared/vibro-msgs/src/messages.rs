@@ -130,7 +130,7 @@ wire_struct! {
     /// output interval `T = sample_period_ns`. Sample `i` is the mean over
     /// `(t0_ns + (i - 1) T, t0_ns + i T]`: `t0_ns` is the END of sample 0's interval, the
     /// time the reading is latched (RIG.md: "read as means over navigation intervals").
-    type_name = "vibrocomp::AccelBlock::v4";
+    type_name = "vibrocomp::AccelBlock::v5";
     pub struct AccelBlock {
         /// Producer's block counter: +1 per published block, from 0.
         pub seq: u64,
@@ -160,7 +160,7 @@ wire_struct! {
     /// index), in the sensor's raw output (volts: sensitivity, AC coupling and response
     /// are the estimator's job). Sample `i` was taken at `t0_ns + i T`. `f64` keeps
     /// simulated samples bit-exact through the system.
-    type_name = "vibrocomp::VibBlock::v4";
+    type_name = "vibrocomp::VibBlock::v5";
     pub struct VibBlock {
         /// Producer's block counter: +1 per published block, from 0.
         pub seq: u64,
@@ -191,7 +191,7 @@ wire_struct! {
     /// [`estimate_flags`] bits) plus stream bookkeeping. Values that could not be estimated
     /// are NaN. Per-axis arrays are in sensor-axis order; tone and band slots at or beyond
     /// `tone_count`/`band_count` are not part of the message.
-    type_name = "vibrocomp::VibEstimate::v4";
+    type_name = "vibrocomp::VibEstimate::v5";
     pub struct VibEstimate {
         /// Estimator service's publish counter: +1 per published estimate, from 0.
         pub seq: u64,
@@ -274,7 +274,7 @@ wire_struct! {
     /// acceleration units along each unit's IA: the stages of MODEL.md section 7,
     /// `a(1)` (17) to `a(4)` (20), and the corrections removed between them
     /// (`a2 = a1 - main`, `a3 = a2 - det`, `a4 = a3 - rand`). Sample timing is the input's.
-    type_name = "vibrocomp::CompensatedBlock::v4";
+    type_name = "vibrocomp::CompensatedBlock::v5";
     pub struct CompensatedBlock {
         /// Compensator's publish counter: +1 per published block, from 0.
         pub seq: u64,
@@ -327,7 +327,7 @@ wire_struct! {
 wire_struct! {
     /// The simulator's truth for each accelerometer output sample, aligned with the
     /// [`AccelBlock`] of the same `seq` (same `first_sample_index`, `t0_ns`, `count`).
-    type_name = "vibrocomp::TruthBlock::v4";
+    type_name = "vibrocomp::TruthBlock::v5";
     pub struct TruthBlock {
         /// `seq` of the matching [`AccelBlock`].
         pub seq: u64,
@@ -364,7 +364,7 @@ wire_struct! {
 wire_struct! {
     /// A service's periodic health report, published on `{prefix}heartbeat/{service}`.
     /// Counters are cumulative since the service started.
-    type_name = "vibrocomp::Heartbeat::v4";
+    type_name = "vibrocomp::Heartbeat::v5";
     pub struct Heartbeat {
         /// Heartbeat counter: +1 per heartbeat, from 0.
         pub seq: u64,
@@ -392,6 +392,13 @@ wire_struct! {
         /// Input samples between two outputs once the next has come out (the
         /// estimator's hop); 0 when not reported.
         pub input_samples_per_output: u64,
+        /// Input messages taken as out of order (a sequence number behind the stream's),
+        /// over all the service's inputs. A service drops them, the recorder records them.
+        pub out_of_order: u64,
+        /// Times the service took an input stream up again after a run of out-of-order
+        /// messages from one producer (a reset or glitched counter; docs/reliability.md);
+        /// the recorder: times its data timeline was taken up again.
+        pub resyncs: u64,
         /// [`ServiceId`] code.
         pub service: u8,
         /// [`ServiceState`] code.
@@ -405,7 +412,7 @@ wire_struct! {
     /// One log line of a service, published on `{prefix}log/{service}` beside what it
     /// writes to stderr: for viewers (`foxglove.Log` in the view) and recordings. Never
     /// published per sample (the services log a summary per period).
-    type_name = "vibrocomp::LogLine::v4";
+    type_name = "vibrocomp::LogLine::v5";
     pub struct LogLine {
         /// Line counter: +1 per line, from 0.
         pub seq: u64,
@@ -517,7 +524,7 @@ impl MessageKind {
         }
     }
 
-    /// The iceoryx2 payload type name, e.g. `vibrocomp::AccelBlock::v4`.
+    /// The iceoryx2 payload type name, e.g. `vibrocomp::AccelBlock::v5`.
     pub const fn type_name(self) -> &'static str {
         match self {
             MessageKind::AccelBlock => AccelBlock::TYPE_NAME,

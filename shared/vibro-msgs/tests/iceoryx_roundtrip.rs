@@ -150,6 +150,8 @@ fn heartbeat() -> Heartbeat {
         latency_p99_ns: 108,
         input_samples_to_output: 109,
         input_samples_per_output: 110,
+        out_of_order: 111,
+        resyncs: 112,
         service: ServiceId::Estimator.code(),
         state: ServiceState::Degraded.code(),
         _pad: [0; 6],

@@ -20,6 +20,12 @@ pub struct HeartbeatReport {
     pub input_samples_to_output: u64,
     /// Input samples between outputs after the next; 0: not reported.
     pub input_samples_per_output: u64,
+    /// Input messages dropped as out of order, over all inputs
+    /// (`Heartbeat::out_of_order`).
+    pub out_of_order: u64,
+    /// Input streams taken up again after a run of out-of-order messages, over all
+    /// inputs (`Heartbeat::resyncs`; `crate::continuity`).
+    pub resyncs: u64,
 }
 
 /// Publishes one service's heartbeats.
@@ -91,6 +97,8 @@ impl HeartbeatPublisher {
             latency_p99_ns: report.latency.p99_ns,
             input_samples_to_output: report.input_samples_to_output,
             input_samples_per_output: report.input_samples_per_output,
+            out_of_order: report.out_of_order,
+            resyncs: report.resyncs,
             service: self.service.code(),
             state: report.state.code(),
             ..Heartbeat::ZEROED

@@ -477,6 +477,8 @@ impl ViewBuilder {
             stale: h.stale,
             latency_p50_ms: h.latency_p50_ns as f64 * 1e-6,
             latency_p99_ms: h.latency_p99_ns as f64 * 1e-6,
+            out_of_order: h.out_of_order,
+            resyncs: h.resyncs,
         };
         out.push(ViewMessage {
             topic: format!("/view/health/{}", service.map_or("unknown", |s| s.as_str())),
@@ -714,6 +716,8 @@ mod tests {
             service: ServiceId::Estimator.code(),
             state: 3,
             latency_p99_ns: 2_500_000,
+            out_of_order: 17,
+            resyncs: 2,
             ..Heartbeat::ZEROED
         };
         view.on_message(&Message::Heartbeat(hb), &mut out);
@@ -722,6 +726,7 @@ mod tests {
         assert_eq!(h.service(), Service::Estimator);
         assert_eq!(h.state(), State::Degraded);
         assert_eq!(h.latency_p99_ms, 2.5);
+        assert_eq!((h.out_of_order, h.resyncs), (17, 2));
         assert_eq!(out[0].log_time_ns, 1_250_000 * 4);
         // The schema's enums number the services and states as the wire does.
         for s in ServiceId::ALL {

@@ -5,7 +5,7 @@
 use crate::support::*;
 use vibro_compensator::Config;
 use vibro_msgs::compensation_flags as cf;
-use vibro_msgs::{Heartbeat, ServiceId, Stream};
+use vibro_msgs::{Heartbeat, ServiceId, ServiceState, Stream};
 use vibro_service::{LoopMode, ServiceConfig};
 
 #[test]
@@ -78,6 +78,7 @@ fn gaps_duplicates_malformed_and_non_finite_input_are_counted_and_flagged() {
     let summary = service.stop();
     let beat = beat.unwrap();
     assert_eq!((beat.received, beat.lost, beat.stale), (10, 2, 8));
+    assert_eq!((beat.out_of_order, beat.resyncs), (1, 0), "the duplicate");
 
     let a = summary.accel;
     assert_eq!(a.received, 10);
@@ -92,4 +93,65 @@ fn gaps_duplicates_malformed_and_non_finite_input_are_counted_and_flagged() {
         "spin mode: recv->publish p50 {} ns, p99 {} ns over {} blocks",
         summary.latency.p50_ns, summary.latency.p99_ns, summary.latency.count
     );
+}
+
+/// Issue 31, item 1, as a watcher sees it: one block 500,000 ahead of the stream (a
+/// glitched counter) and the three real blocks after it taken as out of order, then the
+/// fourth resyncs the stream. The heartbeat says so: `out_of_order` 3, `resyncs` 1,
+/// `degraded`, and no loss once the resync takes the 499,989 back. Before schema v5
+/// the heartbeat had no field for either count (it said `running`, lost 0).
+#[test]
+fn a_block_ahead_of_the_stream_shows_in_the_heartbeat() {
+    let prefix = prefix();
+    let mut config = Config::shipped().unwrap().with_prefix(&prefix).unwrap();
+    config.service.loop_mode = LoopMode::Spin;
+    let k1 = config.model.k1_v_per_g();
+    let mut rig = Rig::new(&prefix);
+    let node = vibro_ipc::create_node("vct-cmp-test-hb").unwrap();
+    let hb = Stream::Heartbeat(ServiceId::Compensator);
+    let heartbeats = vibro_ipc::StreamSubscriber::<Heartbeat>::create(
+        &node,
+        &rig.names.stream(hb),
+        &rig.names.event(hb),
+        &vibro_service::data_stream_config(),
+    )
+    .unwrap();
+    let service = Running::start(vibro_compensator::run, config);
+    rig.wait_for_service();
+
+    let one_g = [[k1[0], 0.0, 0.0]; 32];
+    let block = |seq: u64, at: u64| accel_block(seq, at * 32_000_000, &one_g);
+    for seq in 0..=10 {
+        rig.roundtrip(&block(seq, seq));
+    }
+    // The glitch: the counter of block 11 reads 500,000.
+    rig.roundtrip(&block(500_000, 11));
+    for seq in 11..=13 {
+        rig.send(&block(seq, seq + 1));
+    }
+    let out = rig.roundtrip(&block(14, 15));
+    assert_ne!(out.flags & cf::INPUT_GAP, 0, "the resync is flagged");
+    for seq in 15..=20 {
+        assert_eq!(rig.roundtrip(&block(seq, seq + 1)).flags & cf::INPUT_GAP, 0);
+    }
+
+    let mut beat = None;
+    let mut degraded = false;
+    assert!(wait_until(std::time::Duration::from_secs(5), || {
+        while let Some(h) = heartbeats.receive().unwrap() {
+            degraded |= h.state == ServiceState::Degraded.code();
+            beat = Some(*h);
+        }
+        beat.is_some_and(|h| h.published == 19)
+    }));
+    let summary = service.stop();
+    let beat = beat.unwrap();
+    assert_eq!(
+        (beat.received, beat.published, beat.lost),
+        (22, 19, 0),
+        "{beat:?}"
+    );
+    assert_eq!((beat.out_of_order, beat.resyncs), (3, 1), "{beat:?}");
+    assert!(degraded, "no heartbeat said degraded");
+    assert_eq!((summary.accel.out_of_order, summary.accel.resyncs), (3, 1));
 }

@@ -164,6 +164,8 @@ pub fn heartbeat(seq: u64) -> Heartbeat {
         latency_p99_ns: 120_000,
         input_samples_to_output: 6_400,
         input_samples_per_output: 12_800,
+        out_of_order: 7 * seq + 2,
+        resyncs: seq + 1,
         service: ServiceId::Compensator.code(),
         state: ServiceState::Running.code(),
         _pad: [0; 6],

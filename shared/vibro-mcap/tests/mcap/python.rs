@@ -303,6 +303,8 @@ fn the_python_reference_reader_decodes_every_type_to_the_written_values() {
         ("latency_p99_ns", h.latency_p99_ns),
         ("input_samples_to_output", h.input_samples_to_output),
         ("input_samples_per_output", h.input_samples_per_output),
+        ("out_of_order", h.out_of_order),
+        ("resyncs", h.resyncs),
         ("service", h.service.into()),
         ("state", h.state.into()),
     ] {
