@@ -16,6 +16,7 @@ mod flag_rules;
 mod identify;
 mod interrupted;
 mod lab;
+mod lab_battery;
 mod lab_flight;
 mod latency;
 mod line_cap;

@@ -27,8 +27,8 @@
 //!      follows, and how much the best candidate would explain.
 
 use crate::fit::{
-    chi2_sf, fit_joint, fit_prepared, fit_reweighted, Budget, BudgetUsed, EffectFit, Meter,
-    NotApplicable, Prepared,
+    chi2_sf, fit_joint, fit_prepared, fit_reweighted, fit_screen, fit_set, Budget, BudgetUsed,
+    EffectFit, Meter, NotApplicable, Prepared,
 };
 use crate::library::{self, Candidate, LIBRARY};
 use crate::table::{CampaignTable, Condition, RandomCondition, ToneCondition};
@@ -37,6 +37,10 @@ use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 use std::collections::BTreeMap;
 use vibro_effects::model::{FitRecord, LabModel};
+
+/// Most starts of the refit that checks a new effect against the set refitted from
+/// other starts (the product of its effects' grids).
+const MAX_REFIT_STARTS: usize = 400;
 
 /// Options of [`diagnose`].
 #[derive(Debug, Clone, Serialize)]
@@ -582,8 +586,14 @@ struct Chosen {
     values: Vec<Vec<f64>>,
 }
 
-/// Every candidate of `cands` fitted jointly with the `chosen` effects (all
-/// parameters free, the chosen ones starting at their values), `threads` at once.
+/// Candidates of a round refitted with every parameter free after the screening.
+const FULL_REFITS: usize = 3;
+
+/// Every candidate of `cands` fitted jointly with the `chosen` effects, `threads` at
+/// once. With effects chosen, each candidate is screened first ([`fit_screen`]: the
+/// chosen effects' nonlinear parameters held at their values, every linear one
+/// solved), and the [`FULL_REFITS`] best by BIC are refitted with every parameter
+/// free from there: the others' screening fits stand (their BIC an upper bound).
 #[allow(clippy::too_many_arguments)]
 fn fit_round(
     model: &LabModel,
@@ -594,6 +604,72 @@ fn fit_round(
     threads: usize,
     progress: &Progress,
     meter: &Meter,
+) -> Vec<(&'static Candidate, Result<EffectFit>)> {
+    let screened = fit_each(
+        model, table, prep, chosen, cands, threads, progress, meter, true,
+    );
+    if chosen.terms.is_empty() {
+        return screened;
+    }
+    let mut order: Vec<usize> = (0..screened.len())
+        .filter(|&i| screened[i].1.is_ok())
+        .collect();
+    let bic = |i: usize| {
+        screened[i]
+            .1
+            .as_ref()
+            .map_or(f64::INFINITY, |f| f.bic_after)
+    };
+    order.sort_by(|a, b| bic(*a).total_cmp(&bic(*b)));
+    order.truncate(FULL_REFITS);
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let refits = std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..threads.clamp(1, order.len().max(1)) {
+            s.spawn(|| loop {
+                let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(&i) = order.get(j) else { break };
+                let (c, Ok(f)) = (&screened[i].0, &screened[i].1) else {
+                    continue;
+                };
+                let terms: Vec<&'static Candidate> = f
+                    .kinds
+                    .iter()
+                    .filter_map(|k| library::candidate(k))
+                    .collect();
+                let known: Vec<Option<Vec<f64>>> =
+                    f.kinds.iter().map(|k| Some(f.values_of(k))).collect();
+                let r = fit_joint(model, table, prep, &terms, &known, meter);
+                if let Ok(mut v) = refits.lock() {
+                    v.push((i, *c, r));
+                }
+            });
+        }
+    });
+    let mut out = screened;
+    for (i, _, r) in refits.into_inner().unwrap_or_default() {
+        match (&out[i].1, r) {
+            (Ok(old), Ok(new)) if new.chi2_after <= old.chi2_after => out[i].1 = Ok(new),
+            (_, Err(e @ Error::Budget { .. })) => out[i].1 = Err(e),
+            _ => {}
+        }
+    }
+    out
+}
+
+/// Every candidate of `cands` fitted with the `chosen` effects, `threads` at once:
+/// screening fits ([`fit_screen`]) or full ones.
+#[allow(clippy::too_many_arguments)]
+fn fit_each(
+    model: &LabModel,
+    table: &CampaignTable,
+    prep: &Prepared,
+    chosen: &Chosen,
+    cands: &[&'static Candidate],
+    threads: usize,
+    progress: &Progress,
+    meter: &Meter,
+    screen: bool,
 ) -> Vec<(&'static Candidate, Result<EffectFit>)> {
     let next = std::sync::atomic::AtomicUsize::new(0);
     let fitted = std::sync::atomic::AtomicUsize::new(0);
@@ -608,7 +684,11 @@ fn fit_round(
                 let mut known: Vec<Option<Vec<f64>>> =
                     chosen.values.iter().cloned().map(Some).collect();
                 known.push(None);
-                let r = fit_joint(model, table, prep, &terms, &known, meter);
+                let r = if screen {
+                    fit_screen(model, table, prep, &terms, &known, meter)
+                } else {
+                    fit_joint(model, table, prep, &terms, &known, meter)
+                };
                 if let Ok(mut v) = results.lock() {
                     v.push((i, *c, r));
                 }
@@ -622,6 +702,105 @@ fn fit_round(
     let mut v = results.into_inner().unwrap_or_default();
     v.sort_by_key(|(i, _, _)| *i);
     v.into_iter().map(|(_, c, r)| (c, r)).collect()
+}
+
+/// First-round fits whose VE changes correlate at least this with an earlier effect's
+/// are its twins, tried in its place ([`best_swap`]).
+const SWAP_TWIN: f64 = 0.9;
+
+/// The best replacement of an earlier chosen effect (not the last added) by a twin
+/// ([`SWAP_TWIN`]): the set with the twin in its place fitted jointly (the others
+/// from their values, the twin from its grid); `(position, fit)` when it lowers the
+/// BIC of `cur` by more than `-bic_support`.
+#[allow(clippy::too_many_arguments)]
+fn best_swap(
+    model: &LabModel,
+    table: &CampaignTable,
+    prep: &Prepared,
+    chosen: &Chosen,
+    cur: &EffectFit,
+    candidates: &[RankedCandidate],
+    opts: &DiagnoseOptions,
+    meter: &Meter,
+) -> Option<(usize, EffectFit)> {
+    let first = |kind: &str| {
+        candidates
+            .iter()
+            .find(|c| c.kind == kind)
+            .and_then(|c| c.fit.as_ref())
+            .and_then(|f| f.effect_shift_g.last().cloned())
+    };
+    let mut best: Option<(usize, EffectFit)> = None;
+    for at in 0..chosen.terms.len() - 1 {
+        let Some(own) = first(chosen.terms[at].kind) else {
+            continue;
+        };
+        for c in candidates {
+            if chosen.terms.iter().any(|t| t.kind == c.kind) {
+                continue;
+            }
+            let Some(twin) = first(&c.kind) else { continue };
+            if correlation(&own, &twin, &prep.uncertainty_g).abs() < SWAP_TWIN {
+                continue;
+            }
+            let Some(cand) = library::candidate(&c.kind) else {
+                continue;
+            };
+            let mut terms = chosen.terms.clone();
+            let mut known: Vec<Option<Vec<f64>>> =
+                chosen.values.iter().cloned().map(Some).collect();
+            terms[at] = cand;
+            known[at] = None;
+            let Ok(g) = fit_joint(model, table, prep, &terms, &known, meter) else {
+                continue;
+            };
+            let bar = best
+                .as_ref()
+                .map_or(cur.bic_after + opts.bic_support, |b| b.1.bic_after);
+            if g.bic_after < bar {
+                best = Some((at, g));
+            }
+        }
+    }
+    best
+}
+
+/// The round of every candidate of `cands` not chosen yet ([`fit_round`]).
+fn next_round(
+    model: &LabModel,
+    table: &CampaignTable,
+    prep: &Prepared,
+    chosen: &Chosen,
+    cands: &[&'static Candidate],
+    opts: &DiagnoseOptions,
+    meter: &Meter,
+) -> Vec<(&'static Candidate, Result<EffectFit>)> {
+    let rest: Vec<&'static Candidate> = cands
+        .iter()
+        .copied()
+        .filter(|c| !chosen.terms.iter().any(|t| t.kind == c.kind))
+        .collect();
+    fit_round(
+        model,
+        table,
+        prep,
+        chosen,
+        &rest,
+        opts.threads,
+        &opts.progress,
+        meter,
+    )
+}
+
+/// `step`'s figures set to those of `fit` (the set's fit after a refit).
+fn restate(step: Option<&mut Step>, fit: &EffectFit) {
+    if let Some(st) = step {
+        st.chi2 = fit.chi2_after;
+        st.chi2_per_dof = fit.chi2_per_dof_after;
+        st.p_value = fit.p_value_after;
+        st.bic = fit.bic_after;
+        st.rms_residual_g = fit.rms_residual_after_g;
+    }
 }
 
 /// Weighted correlation of two fitted VE changes (weights `1/u^2`, about zero: the
@@ -902,6 +1081,11 @@ pub fn diagnose(
     let mut current: Option<EffectFit> = None;
     let mut confounded: Option<(Vec<EffectFit>, f64)> = None;
     let mut best_left: Option<EffectFit> = None;
+    // The set sizes whose set was refitted from every start already.
+    let mut refitted: Vec<usize> = Vec::new();
+    // Once the set explains the residual to `model_tolerance`: its chi2 and the part
+    // of it above its degrees of freedom.
+    let mut tolerated: Option<(f64, f64)> = None;
     if s.p_value < opts.alpha_noise {
         let max_steps = opts.max_effects + 2;
         for _ in 0..max_steps {
@@ -912,9 +1096,38 @@ pub fn diagnose(
             let Some(best) = ok.first().copied() else {
                 break;
             };
-            if best.bic_after - bic_now > opts.bic_support {
+            let too_little =
+                tolerated.is_some_and(|(chi2, excess)| chi2 - best.chi2_after < 0.5 * excess);
+            if best.bic_after - bic_now > opts.bic_support || too_little {
                 best_left = Some(best.clone());
                 break;
+            }
+            // The alternative to a new effect: the set as it is, refitted from other
+            // starts (every start of its effects' grids, where that stays affordable).
+            // A strong effect stuck beside its minimum leaves a residual any flexible
+            // candidate can take; the addition must beat the set's best fit, not its
+            // first one.
+            if chosen.terms.len() >= 2
+                && !refitted.contains(&chosen.terms.len())
+                && crate::fit::start_count(&chosen.terms, table) <= MAX_REFIT_STARTS
+            {
+                refitted.push(chosen.terms.len());
+                let none = vec![None; chosen.terms.len()];
+                match fit_joint(model, table, &prep, &chosen.terms, &none, &meter) {
+                    Ok(alt) if alt.bic_after < bic_now - 1e-9 * bic_now.abs() => {
+                        chosen.values = alt.kinds.iter().map(|k| alt.values_of(k)).collect();
+                        restate(steps.last_mut(), &alt);
+                        current = Some(alt);
+                        // The round again, from the better fit.
+                        round = next_round(model, table, &prep, &chosen, &cands, opts, &meter);
+                        note_cut(&round, &mut cut_short);
+                        continue;
+                    }
+                    Err(Error::Budget { .. }) => {
+                        cut_short.push(format!("refit of {}", chosen.terms.len()))
+                    }
+                    _ => {}
+                }
             }
             // Candidates the table cannot tell from the best: supported too, within
             // `bic_tie`, their own shares nearly collinear with the best's.
@@ -954,10 +1167,54 @@ pub fn diagnose(
                 .collect();
             chosen.values = best.kinds.iter().map(|k| best.values_of(k)).collect();
             current = Some(best.clone());
-            // Backward check: an earlier effect the new set no longer needs (removing
-            // it costs less than `-bic_support` in BIC) is dropped.
+            // Swap check: an earlier effect may stand in for a twin (a
+            // `unit_response` for a `mount_resonance`: both filter the vibration, and
+            // alone they fit the first residual almost equally). With the effects
+            // added since, each earlier one is replaced by each candidate whose
+            // first-round fit looked like its own (weighted correlation of their VE
+            // changes >= `SWAP_TWIN`); a replacement that lowers the BIC by more than
+            // `bic_support` is taken. The backward check (next) removes, this replaces;
+            // an effect the replacement makes needless goes there.
             if chosen.terms.len() >= 2 {
-                let cur = best.clone();
+                if let Some(cur) = current.clone() {
+                    if let Some((at, g)) = best_swap(
+                        model,
+                        table,
+                        &prep,
+                        &chosen,
+                        &cur,
+                        &candidates,
+                        opts,
+                        &meter,
+                    ) {
+                        let mut step = step_from(
+                            format!(
+                                "replace {} by {}",
+                                chosen.terms[at].kind,
+                                g.kinds.get(at).map_or("?", String::as_str)
+                            ),
+                            &g,
+                            cur.bic_after,
+                        );
+                        step.runners_up = Vec::new();
+                        steps.push(step);
+                        chosen.terms = g
+                            .kinds
+                            .iter()
+                            .filter_map(|k| library::candidate(k))
+                            .collect();
+                        chosen.values = g.kinds.iter().map(|k| g.values_of(k)).collect();
+                        current = Some(g);
+                    }
+                }
+            }
+            // Backward check: an earlier effect the new set no longer needs (removing
+            // it costs less than `-bic_support` in BIC) is dropped, the cheapest first,
+            // and again until every earlier one is needed (a 6th-order term and a
+            // heating taken for what a sensor gain explains both go).
+            while chosen.terms.len() >= 2 {
+                let Some(cur) = current.clone() else { break };
+                let mut removed = false;
                 let mut costs: Vec<(usize, EffectFit)> = Vec::new();
                 for drop in 0..chosen.terms.len() - 1 {
                     let terms: Vec<&'static Candidate> = chosen
@@ -1001,9 +1258,13 @@ pub fn diagnose(
                             .collect();
                         steps.push(step);
                         chosen.terms.remove(*drop);
-                        chosen.values.remove(*drop);
+                        chosen.values = f.kinds.iter().map(|k| f.values_of(k)).collect();
                         current = Some(f.clone());
+                        removed = true;
                     }
+                }
+                if !removed {
+                    break;
                 }
             }
             // The stated vibration's uncertainty through the model with the effects
@@ -1012,46 +1273,67 @@ pub fn diagnose(
             if let Some(f) = current.clone() {
                 if table.weights_follow_model() {
                     let g = fit_reweighted(model, table, &mut prep, &chosen.terms, f, &meter)?;
-                    if let Some(st) = steps.last_mut() {
-                        st.chi2 = g.chi2_after;
-                        st.chi2_per_dof = g.chi2_per_dof_after;
-                        st.p_value = g.p_value_after;
-                        st.bic = g.bic_after;
-                    }
+                    restate(steps.last_mut(), &g);
                     chosen.values = g.kinds.iter().map(|k| g.values_of(k)).collect();
                     current = Some(g);
                 }
             }
             let cur = current.as_ref().unwrap_or(best);
-            // Stop when the residual is noise, or noise once the effects' mean
-            // formulas are taken as good to `model_tolerance` ([`explains`]).
-            if cur.p_value_after >= opts.alpha_noise
-                || explains(cur, &prep.uncertainty_g, opts)
-                || chosen.terms.len() >= opts.max_effects
+            // Stop when the residual is noise. Once the effects' mean formulas
+            // explain it to `model_tolerance` ([`explains`]) the search goes on, but a
+            // further effect must take at least half of the chi-square left above its
+            // degrees of freedom (`tolerated`): a weak effect a thousand times below a
+            // strong one does, a formula's last per-mille spread over every candidate
+            // does not.
+            if cur.p_value_after >= opts.alpha_noise || chosen.terms.len() >= opts.max_effects {
+                break;
+            }
+            tolerated = explains(cur, &prep.uncertainty_g, opts).then(|| {
+                let dof = cur.n.saturating_sub(cur.k).max(1) as f64;
+                (cur.chi2_after, (cur.chi2_after - dof).max(0.0))
+            });
+            // Every candidate not chosen yet is tried again: one effect can hide
+            // another (axis phases under a 6th-order term are not supported alone).
+            if cands
+                .iter()
+                .all(|c| chosen.terms.iter().any(|t| t.kind == c.kind))
             {
                 break;
             }
-            // Every candidate not chosen yet is tried again: one effect can hide
-            // another (axis phases under a 6th-order term are not supported alone).
-            let rest: Vec<&'static Candidate> = cands
-                .iter()
-                .copied()
-                .filter(|c| !chosen.terms.iter().any(|t| t.kind == c.kind))
-                .collect();
-            if rest.is_empty() {
-                break;
-            }
-            round = fit_round(
-                model,
-                table,
-                &prep,
-                &chosen,
-                &rest,
-                opts.threads,
-                &opts.progress,
-                &meter,
-            );
+            round = next_round(model, table, &prep, &chosen, &cands, opts, &meter);
             note_cut(&round, &mut cut_short);
+        }
+    }
+    // The set found, fitted as `lab add` and `lab report` fit it ([`final_fit`], on
+    // the weights of the model as is): the path (the order of the steps, the weights
+    // after each) does not change the fit reported.
+    if let Some(f) = current.as_ref() {
+        let terms: Vec<&'static Candidate> = f
+            .kinds
+            .iter()
+            .filter_map(|k| library::candidate(k))
+            .collect();
+        let none = vec![None; terms.len()];
+        let mut fresh = Prepared::new(model, table)?;
+        // The first round's fits were made on these weights, from no known values.
+        let singles: Vec<&EffectFit> = candidates.iter().filter_map(|c| c.fit.as_ref()).collect();
+        match final_fit(model, table, &mut fresh, &terms, &none, &singles, &meter) {
+            Ok((g, _)) => {
+                // The last step states the fit reported (its path's fit may differ).
+                restate(steps.last_mut(), &g);
+                chosen.values = g.kinds.iter().map(|k| g.values_of(k)).collect();
+                chosen.terms = g
+                    .kinds
+                    .iter()
+                    .filter_map(|k| library::candidate(k))
+                    .collect();
+                current = Some(g);
+                prep = fresh;
+            }
+            Err(Error::Budget { .. }) => {
+                cut_short.push(format!("final fit of {}", f.kinds.join("+")))
+            }
+            Err(e) => return Err(e),
         }
     }
     // The final set's nonlinear parameters get their profile-likelihood reach (a
@@ -1113,10 +1395,15 @@ pub fn diagnose(
             },
             _ => {
                 let chi2_after = current.as_ref().map_or(s.chi2, |f| f.chi2_after);
-                let best = best_left.as_ref().or(candidates
-                    .first()
-                    .and_then(|c| c.fit.as_ref())
-                    .filter(|_| current.is_none()));
+                let bic_now = current.as_ref().map_or(s.chi2, |f| f.bic_after);
+                // Only an effect that lowers the BIC is named as the best one.
+                let best = best_left
+                    .as_ref()
+                    .or(candidates
+                        .first()
+                        .and_then(|c| c.fit.as_ref())
+                        .filter(|_| current.is_none()))
+                    .filter(|b| b.bic_after < bic_now);
                 Verdict::Unexplained {
                     chi2_per_dof: current
                         .as_ref()
@@ -1264,10 +1551,8 @@ pub fn add_effects(
     let before = compare(model, table)?;
     let mut prep = Prepared::new(&frozen, table)?;
     let meter = Meter::new(Budget::default());
-    let mut fit = fit_joint(&frozen, table, &prep, &terms, &known, &meter)?;
-    // The stated vibration's uncertainty through the model with the fitted effects
-    // (as `diagnose` does after each step), and the effects refitted under it.
-    fit = fit_reweighted(&frozen, table, &mut prep, &terms, fit, &meter)?;
+    let (fit, terms) = final_fit(&frozen, table, &mut prep, &terms, &known, &[], &meter)?;
+    let mut fit = fit;
     crate::fit::profile(&frozen, table, &prep, &terms, &mut fit, &meter)?;
     let mut out = frozen.clone();
     for (c, t) in terms.iter().zip(&fit.tables) {
@@ -1307,6 +1592,30 @@ pub fn add_effects(
         out = out.with_effect(t.clone(), Some(record));
     }
     Ok((out, fit))
+}
+
+/// The joint fit of the set `terms` ([`fit_set`]: the same whatever the path), then
+/// under weights that follow it ([`fit_reweighted`]); with the effects in the fit's
+/// order.
+fn final_fit(
+    model: &LabModel,
+    table: &CampaignTable,
+    prep: &mut Prepared,
+    terms: &[&'static Candidate],
+    known: &[Option<Vec<f64>>],
+    singles: &[&EffectFit],
+    meter: &Meter,
+) -> Result<(EffectFit, Vec<&'static Candidate>)> {
+    let fit = fit_set(model, table, prep, terms, known, singles, meter)?;
+    let ordered: Vec<&'static Candidate> = fit
+        .kinds
+        .iter()
+        .filter_map(|k| library::candidate(k))
+        .collect();
+    // The stated vibration's uncertainty through the model with the fitted effects,
+    // and the effects refitted under it.
+    let fit = fit_reweighted(model, table, prep, &ordered, fit, meter)?;
+    Ok((fit, ordered))
 }
 
 /// `model` with `kind` fitted to `table` added (the model's own effects of the library

@@ -732,6 +732,14 @@ fn starts(cand: &Candidate, table: &CampaignTable) -> Vec<Vec<f64>> {
     product(grids)
 }
 
+/// How many starts a joint fit of `terms` from their own grids takes (the product).
+pub(crate) fn start_count(terms: &[&Candidate], table: &CampaignTable) -> usize {
+    terms
+        .iter()
+        .map(|c| starts(c, table).len().max(1))
+        .fold(1usize, |a, b| a.saturating_mul(b))
+}
+
 /// Every combination of one value from each grid, in order.
 fn product(grids: Vec<Vec<f64>>) -> Vec<Vec<f64>> {
     let mut out = vec![Vec::new()];
@@ -757,6 +765,9 @@ struct Problem<'a> {
     terms: &'a [&'static Candidate],
     /// Every parameter's spec, effect by effect (the order of `theta`).
     specs: Vec<&'static ParamSpec>,
+    /// Which of them enter linearly ([`Search::Linear`]): solved exactly at every
+    /// point of a reduced search ([`Self::solve_linear`]).
+    linear: Vec<bool>,
     /// The effects' kinds joined, for messages.
     what: String,
     residual_g: Vec<f64>,
@@ -785,6 +796,11 @@ impl<'a> Problem<'a> {
             prep,
             terms,
             specs: terms.iter().flat_map(|c| c.params.iter()).collect(),
+            linear: terms
+                .iter()
+                .flat_map(|c| c.params.iter())
+                .map(|p| matches!(p.search, Search::Linear))
+                .collect(),
             what,
             residual_g: prep.residual_g(),
             evaluations: 0,
@@ -852,6 +868,19 @@ impl<'a> Problem<'a> {
     }
 
     fn jacobian(&mut self, theta: &[f64], r: &DVector<f64>, free: &[bool]) -> Result<DMatrix<f64>> {
+        self.jacobian_with(theta, r, free, false)
+    }
+
+    /// The Jacobian of the weighted residual over the `free` parameters by forward
+    /// differences; with `reduce`, of the reduced residual (the linear parameters
+    /// solved at each point).
+    fn jacobian_with(
+        &mut self,
+        theta: &[f64],
+        r: &DVector<f64>,
+        free: &[bool],
+        reduce: bool,
+    ) -> Result<DMatrix<f64>> {
         let mut j = DMatrix::zeros(r.len(), theta.len());
         for k in 0..theta.len() {
             if !free[k] {
@@ -869,7 +898,7 @@ impl<'a> Problem<'a> {
                 h = -h;
             }
             t[k] += h;
-            let rk = self.weighted(&t)?;
+            let rk = self.eval(&mut t, reduce)?;
             j.set_column(k, &((rk - r) / h));
         }
         // nalgebra's SVD panics on NaN and LU steps from infinities are meaningless.
@@ -882,18 +911,147 @@ impl<'a> Problem<'a> {
         Ok(j)
     }
 
+    /// Variable projection (Golub & Pereyra 1973; the separable problem of Kaufman
+    /// 1975): the linear parameters ([`Search::Linear`]: k6 and k7, gains, coupling
+    /// constants) solved by weighted least squares at `theta`'s nonlinear values,
+    /// written into `theta`; the weighted residual there. Each linear parameter's
+    /// column is the change of the weighted residual per unit of it (a difference over
+    /// its `scale`: exact for a parameter that enters exactly linearly), the system
+    /// solved by SVD with the columns scaled to unit norm (a column of zeros, an
+    /// effect that acts on no row, keeps its value). A parameter that enters only
+    /// nearly linearly (a sensor gain) gets Gauss-Newton steps, at most 3, each kept
+    /// only when it lowers the cost. So a weak effect's linear parameters never stay
+    /// at their start beside a strong effect already at its minimum.
+    fn solve_linear(&mut self, theta: &mut [f64]) -> Result<DVector<f64>> {
+        let lin: Vec<usize> = (0..theta.len()).filter(|&k| self.linear[k]).collect();
+        let mut r = self.weighted(theta)?;
+        if lin.is_empty() {
+            return Ok(r);
+        }
+        let mut cost = r.norm_squared();
+        for _ in 0..3 {
+            let n = r.len();
+            let mut b = DMatrix::zeros(n, lin.len());
+            for (c, &k) in lin.iter().enumerate() {
+                let p = self.specs[k];
+                let mut h = p.scale.max(1e-3 * theta[k].abs());
+                if theta[k] + h > p.bounds.1 {
+                    h = -h;
+                }
+                let mut t = theta.to_vec();
+                t[k] += h;
+                let rk = self.weighted(&t)?;
+                b.set_column(c, &((rk - &r) / h));
+            }
+            let norms: Vec<f64> = (0..lin.len()).map(|c| b.column(c).norm()).collect();
+            for (c, nrm) in norms.iter().enumerate() {
+                let f = if *nrm > 0.0 && nrm.is_finite() {
+                    1.0 / nrm
+                } else {
+                    0.0
+                };
+                b.column_mut(c).scale_mut(f);
+            }
+            if !b.iter().all(|x| x.is_finite()) {
+                break;
+            }
+            let svd = b.svd(true, true);
+            let smax = svd.singular_values.max();
+            if smax <= 0.0 {
+                break;
+            }
+            let Ok(step) = svd.solve(&(-&r), 1e-12 * smax) else {
+                break;
+            };
+            let before: Vec<f64> = lin.iter().map(|&k| theta[k]).collect();
+            for (c, &k) in lin.iter().enumerate() {
+                let d = if norms[c] > 0.0 {
+                    step[c] / norms[c]
+                } else {
+                    0.0
+                };
+                let p = self.specs[k];
+                theta[k] = (theta[k] + d).clamp(p.bounds.0, p.bounds.1);
+            }
+            let rn = match self.weighted(theta) {
+                Ok(rn) => rn,
+                Err(e @ Error::Budget { .. }) => return Err(e),
+                Err(_) => {
+                    for (c, &k) in lin.iter().enumerate() {
+                        theta[k] = before[c];
+                    }
+                    break;
+                }
+            };
+            let cn = rn.norm_squared();
+            if cn.partial_cmp(&cost) != Some(std::cmp::Ordering::Less) {
+                for (c, &k) in lin.iter().enumerate() {
+                    theta[k] = before[c];
+                }
+                break;
+            }
+            let rel = (cost - cn) / cost.max(1e-300);
+            r = rn;
+            cost = cn;
+            if rel < 1e-9 {
+                break;
+            }
+        }
+        Ok(r)
+    }
+
+    /// The weighted residual at `theta`; with `reduce`, at `theta` with its linear
+    /// parameters solved first ([`Self::solve_linear`], written into `theta`).
+    fn eval(&mut self, theta: &mut [f64], reduce: bool) -> Result<DVector<f64>> {
+        if reduce {
+            self.solve_linear(theta)
+        } else {
+            self.weighted(theta)
+        }
+    }
+
     /// Levenberg-Marquardt over the free parameters from `theta`.
     fn minimise(
+        &mut self,
+        theta: Vec<f64>,
+        free: &[bool],
+        max_iter: usize,
+    ) -> Result<(Vec<f64>, f64)> {
+        self.minimise_with(theta, free, max_iter, false)
+    }
+
+    /// Levenberg-Marquardt over the free nonlinear parameters from `theta`, the linear
+    /// ones solved at every point (variable projection, [`Self::solve_linear`]).
+    fn minimise_reduced(
+        &mut self,
+        theta: Vec<f64>,
+        free: &[bool],
+        max_iter: usize,
+    ) -> Result<(Vec<f64>, f64)> {
+        let free: Vec<bool> = free
+            .iter()
+            .zip(&self.linear)
+            .map(|(f, l)| *f && !*l)
+            .collect();
+        self.minimise_with(theta, &free, max_iter, true)
+    }
+
+    fn minimise_with(
         &mut self,
         mut theta: Vec<f64>,
         free: &[bool],
         max_iter: usize,
+        reduce: bool,
     ) -> Result<(Vec<f64>, f64)> {
-        let mut r = self.weighted(&theta)?;
+        let mut r = self.eval(&mut theta, reduce)?;
+        if !free.iter().any(|f| *f) {
+            let cost = r.norm_squared();
+            return Ok((theta, cost));
+        }
         let mut cost = r.norm_squared();
         let mut lambda = 1e-3;
         for _ in 0..max_iter {
-            let j = self.jacobian(&theta, &r, free)?;
+            let j = self.jacobian_with(&theta, &r, free, reduce)?;
             let a = j.transpose() * &j;
             let g = j.transpose() * &r;
             let max_diag = a.diagonal().max().max(1e-300);
@@ -924,7 +1082,7 @@ impl<'a> Problem<'a> {
                     }
                 }
                 self.clamp(&mut next);
-                let rn = match self.weighted(&next) {
+                let rn = match self.eval(&mut next, reduce) {
                     Ok(rn) => rn,
                     Err(e @ Error::Budget { .. }) => return Err(e),
                     Err(_) => {
@@ -1018,9 +1176,11 @@ fn covariance(a: &DMatrix<f64>) -> (DMatrix<f64>, Vec<bool>) {
 
 /// Fits the effects `terms` jointly (all parameters free) to the residual of `model`
 /// on `table`. `known[t]`: where effect `t` starts (its values in an earlier fit);
-/// `None`: its own start grid. At each start the linear parameters are solved first
-/// (6 Levenberg-Marquardt iterations), then the three best distinct starts are
-/// refined with every parameter free (60 iterations).
+/// `None`: its own start grid. At each start the linear parameters are solved
+/// ([`Problem::solve_linear`]); the three best distinct starts are refined: the
+/// unknown effects' nonlinear parameters first (when some effects are known), then
+/// every nonlinear one with the linear ones solved at each point (60 iterations),
+/// then every parameter at once (60).
 pub(crate) fn fit_joint(
     model: &LabModel,
     table: &CampaignTable,
@@ -1030,6 +1190,88 @@ pub(crate) fn fit_joint(
     meter: &Meter,
 ) -> Result<EffectFit> {
     fit_joint_projected(model, table, prep, terms, known, meter, None)
+}
+
+/// The joint fit of the set `terms`, the same whatever the path that led to it
+/// (`lab add A,B`, `lab add --diagnosed`, `lab report` and `lab diagnose` call it on
+/// the same set and get the same fit): the set in the library's order, built up
+/// greedily. Each effect not in the set yet is fitted jointly with those already in
+/// it (they start at their values, it from its own grid, fitted first to what they
+/// leave; [`fit_joint`]), the one with the lowest BIC joins, until all have. A joint
+/// fit from the product of the effects' own grids would take their product of starts
+/// (a resonance's 48 times a saturation's 19), and one from a strong effect at its
+/// minimum and a weak one at its start stops there; the greedy build-up starts each
+/// effect where it explains what the others leave. `known` values (a model's own
+/// effects) are one more start for the whole set; the lower chi2 wins.
+///
+/// `singles`: fits of one effect alone made on the same `prep` by [`fit_joint`] with
+/// no known values (a diagnosis's first round), used instead of fitting again: the
+/// same computation, so the same fit.
+pub(crate) fn fit_set(
+    model: &LabModel,
+    table: &CampaignTable,
+    prep: &Prepared,
+    terms: &[&'static Candidate],
+    known: &[Option<Vec<f64>>],
+    singles: &[&EffectFit],
+    meter: &Meter,
+) -> Result<EffectFit> {
+    let order = |c: &Candidate| {
+        crate::library::LIBRARY
+            .iter()
+            .position(|l| l.kind == c.kind)
+    };
+    let mut set: Vec<(&'static Candidate, Option<Vec<f64>>)> = terms
+        .iter()
+        .enumerate()
+        .map(|(i, c)| (*c, known.get(i).cloned().flatten()))
+        .collect();
+    set.sort_by_key(|(c, _)| order(c));
+    let mut chosen: Vec<&'static Candidate> = Vec::new();
+    let mut values: Vec<Option<Vec<f64>>> = Vec::new();
+    let mut fit: Option<EffectFit> = None;
+    while chosen.len() < set.len() {
+        let mut best: Option<(usize, EffectFit)> = None;
+        for (i, (c, _)) in set.iter().enumerate() {
+            if chosen.iter().any(|x| x.kind == c.kind) {
+                continue;
+            }
+            let cached = singles
+                .iter()
+                .find(|f| chosen.is_empty() && f.kinds.len() == 1 && f.kinds[0] == c.kind);
+            let f = match cached {
+                Some(f) => (*f).clone(),
+                None => {
+                    let mut t = chosen.clone();
+                    t.push(c);
+                    let mut v = values.clone();
+                    v.push(None);
+                    fit_joint(model, table, prep, &t, &v, meter)?
+                }
+            };
+            if best.as_ref().is_none_or(|(_, b)| f.bic_after < b.bic_after) {
+                best = Some((i, f));
+            }
+        }
+        let Some((i, f)) = best else { break };
+        chosen.push(set[i].0);
+        values = chosen.iter().map(|c| Some(f.values_of(c.kind))).collect();
+        fit = Some(f);
+    }
+    let mut fit = fit.ok_or_else(|| Error::Invalid("no effect to fit".into()))?;
+    if set
+        .iter()
+        .all(|(c, v)| v.as_ref().is_some_and(|v| v.len() == c.params.len()))
+    {
+        let t: Vec<&'static Candidate> = set.iter().map(|(c, _)| *c).collect();
+        let v: Vec<Option<Vec<f64>>> = set.iter().map(|(_, v)| v.clone()).collect();
+        if let Ok(g) = fit_joint(model, table, prep, &t, &v, meter) {
+            if g.chi2_after < fit.chi2_after {
+                fit = g;
+            }
+        }
+    }
+    Ok(fit)
 }
 
 /// Passes of [`fit_reweighted`] at most.
@@ -1087,6 +1329,36 @@ pub(crate) fn fit_joint_projected(
     meter: &Meter,
     project: Option<&DMatrix<f64>>,
 ) -> Result<EffectFit> {
+    fit_joint_inner(model, table, prep, terms, known, meter, project, false)
+}
+
+/// A screening fit of `terms` for a stepwise round: like [`fit_joint`], but the
+/// effects whose values are `known` keep their nonlinear parameters (every linear
+/// parameter is still solved): the new effects fitted to what the known ones leave.
+/// Its chi2 bounds the full joint fit's from above; a round refits the best of them
+/// with everything free.
+pub(crate) fn fit_screen(
+    model: &LabModel,
+    table: &CampaignTable,
+    prep: &Prepared,
+    terms: &[&'static Candidate],
+    known: &[Option<Vec<f64>>],
+    meter: &Meter,
+) -> Result<EffectFit> {
+    fit_joint_inner(model, table, prep, terms, known, meter, None, true)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn fit_joint_inner(
+    model: &LabModel,
+    table: &CampaignTable,
+    prep: &Prepared,
+    terms: &[&'static Candidate],
+    known: &[Option<Vec<f64>>],
+    meter: &Meter,
+    project: Option<&DMatrix<f64>>,
+    screen: bool,
+) -> Result<EffectFit> {
     let what = terms.iter().map(|c| c.kind).collect::<Vec<_>>().join("+");
     let residual_g = prep.residual_g();
     let n = residual_g.len();
@@ -1133,16 +1405,17 @@ pub(crate) fn fit_joint_projected(
             })
             .collect();
     }
+    // Each start scored with its linear parameters solved (variable projection).
+    let any_linear = linear.iter().any(|l| *l);
+    let any_nonlinear = linear.iter().any(|l| !*l);
     let mut scored = Vec::new();
     let mut last_error = None;
-    for s in all_starts {
-        let r = if linear.iter().any(|l| *l) && linear.iter().any(|l| !*l) {
-            pb.minimise(s, &linear, 6)
-        } else {
-            pb.weighted(&s).map(|r| (s, r.norm_squared()))
-        };
-        match r {
-            Ok(x) => scored.push(x),
+    for mut s in all_starts {
+        match pb.eval(&mut s, any_linear) {
+            Ok(r) => {
+                let c = r.norm_squared();
+                scored.push((s, c));
+            }
             Err(e @ Error::Budget { .. }) => return Err(e),
             Err(e) => last_error = Some(e),
         }
@@ -1154,11 +1427,47 @@ pub(crate) fn fit_joint_projected(
     // Starts on a plateau (e.g. a saturation range above every peak: no change at all)
     // tie; keep one of each cost so that the refinement starts from distinct places.
     scored.dedup_by(|b, a| (a.1 - b.1).abs() <= 1e-12 * a.1.abs());
+    // The effects whose values are known (an earlier fit's) hold their nonlinear
+    // parameters while the others' are searched (the new effect fitted to what the
+    // known ones leave), then everything is freed: the nonlinear parameters by the
+    // reduced search (the linear ones solved at every point), then all of them
+    // together (a parameter that enters only nearly linearly).
+    let mut searched = vec![true; k];
+    {
+        let mut at = 0;
+        for (t, c) in terms.iter().enumerate() {
+            let is_known = known
+                .get(t)
+                .and_then(|x| x.as_ref())
+                .is_some_and(|v| v.len() == c.params.len());
+            for _ in c.params {
+                searched[at] = !is_known;
+                at += 1;
+            }
+        }
+    }
+    let partly_known =
+        searched.iter().any(|h| !*h) && searched.iter().zip(&linear).any(|(h, l)| *h && !*l);
     let mut best: Option<(Vec<f64>, f64)> = None;
-    for (theta, _) in scored.into_iter().take(3) {
-        let (t, c) = pb.minimise(theta, &all, 60)?;
+    let screening = screen && searched.iter().any(|s| !*s);
+    for (mut theta, _) in scored.into_iter().take(3) {
+        let c = if screening {
+            let (t, c) = pb.minimise_reduced(theta, &searched, 30)?;
+            theta = t;
+            c
+        } else {
+            if any_linear && any_nonlinear {
+                if partly_known {
+                    theta = pb.minimise_reduced(theta, &searched, 30)?.0;
+                }
+                theta = pb.minimise_reduced(theta, &all, 60)?.0;
+            }
+            let (t, c) = pb.minimise(theta, &all, 60)?;
+            theta = t;
+            c
+        };
         if best.as_ref().is_none_or(|b| c < b.1) {
-            best = Some((t, c));
+            best = Some((theta, c));
         }
     }
     let Some((theta, chi2_after)) = best else {
