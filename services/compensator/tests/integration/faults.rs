@@ -8,13 +8,20 @@ use vibro_msgs::compensation_flags as cf;
 use vibro_msgs::{Heartbeat, ServiceId, ServiceState, Stream};
 use vibro_service::{LoopMode, ServiceConfig};
 
-#[test]
-fn gaps_duplicates_malformed_and_non_finite_input_are_counted_and_flagged() {
+/// The compensator in spin mode on a fresh prefix, its rig, and a subscriber to its
+/// heartbeats (with the node that holds it): `(k1, rig, node, heartbeats, service)`.
+fn start_watched() -> (
+    [f64; 3],
+    Rig,
+    vibro_ipc::IpcNode,
+    vibro_ipc::StreamSubscriber<Heartbeat>,
+    Running<vibro_compensator::Summary>,
+) {
     let prefix = prefix();
     let mut config = Config::shipped().unwrap().with_prefix(&prefix).unwrap();
     config.service.loop_mode = LoopMode::Spin;
     let k1 = config.model.k1_v_per_g();
-    let mut rig = Rig::new(&prefix);
+    let rig = Rig::new(&prefix);
     let node = vibro_ipc::create_node("vct-cmp-test-hb").unwrap();
     let hb = Stream::Heartbeat(ServiceId::Compensator);
     let heartbeats = vibro_ipc::StreamSubscriber::<Heartbeat>::create(
@@ -26,6 +33,12 @@ fn gaps_duplicates_malformed_and_non_finite_input_are_counted_and_flagged() {
     .unwrap();
     let service = Running::start(vibro_compensator::run, config);
     rig.wait_for_service();
+    (k1, rig, node, heartbeats, service)
+}
+
+#[test]
+fn gaps_duplicates_malformed_and_non_finite_input_are_counted_and_flagged() {
+    let (k1, mut rig, _node, heartbeats, service) = start_watched();
 
     let one_g = [[k1[0], 0.0, 0.0]; 32]; // 1 g on unit 1, 0 on the others
     let block = |seq: u64| accel_block(seq, seq * 32_000_000, &one_g);
@@ -102,22 +115,7 @@ fn gaps_duplicates_malformed_and_non_finite_input_are_counted_and_flagged() {
 /// the heartbeat had no field for either count (it said `running`, lost 0).
 #[test]
 fn a_block_ahead_of_the_stream_shows_in_the_heartbeat() {
-    let prefix = prefix();
-    let mut config = Config::shipped().unwrap().with_prefix(&prefix).unwrap();
-    config.service.loop_mode = LoopMode::Spin;
-    let k1 = config.model.k1_v_per_g();
-    let mut rig = Rig::new(&prefix);
-    let node = vibro_ipc::create_node("vct-cmp-test-hb").unwrap();
-    let hb = Stream::Heartbeat(ServiceId::Compensator);
-    let heartbeats = vibro_ipc::StreamSubscriber::<Heartbeat>::create(
-        &node,
-        &rig.names.stream(hb),
-        &rig.names.event(hb),
-        &vibro_service::data_stream_config(),
-    )
-    .unwrap();
-    let service = Running::start(vibro_compensator::run, config);
-    rig.wait_for_service();
+    let (k1, mut rig, _node, heartbeats, service) = start_watched();
 
     let one_g = [[k1[0], 0.0, 0.0]; 32];
     let block = |seq: u64, at: u64| accel_block(seq, at * 32_000_000, &one_g);
