@@ -605,9 +605,7 @@ fn fit_round(
     progress: &Progress,
     meter: &Meter,
 ) -> Vec<(&'static Candidate, Result<EffectFit>)> {
-    let screened = fit_each(
-        model, table, prep, chosen, cands, threads, progress, meter, true,
-    );
+    let screened = fit_each(model, table, prep, chosen, cands, threads, progress, meter);
     if chosen.terms.is_empty() {
         return screened;
     }
@@ -622,32 +620,18 @@ fn fit_round(
     };
     order.sort_by(|a, b| bic(*a).total_cmp(&bic(*b)));
     order.truncate(FULL_REFITS);
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let refits = std::sync::Mutex::new(Vec::new());
-    std::thread::scope(|s| {
-        for _ in 0..threads.clamp(1, order.len().max(1)) {
-            s.spawn(|| loop {
-                let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some(&i) = order.get(j) else { break };
-                let (c, Ok(f)) = (&screened[i].0, &screened[i].1) else {
-                    continue;
-                };
-                let terms: Vec<&'static Candidate> = f
-                    .kinds
-                    .iter()
-                    .filter_map(|k| library::candidate(k))
-                    .collect();
-                let known: Vec<Option<Vec<f64>>> =
-                    f.kinds.iter().map(|k| Some(f.values_of(k))).collect();
-                let r = fit_joint(model, table, prep, &terms, &known, meter);
-                if let Ok(mut v) = refits.lock() {
-                    v.push((i, *c, r));
-                }
-            });
-        }
+    let refits = in_parallel(&order, threads, |_, &i| {
+        let f = screened[i].1.as_ref().ok()?;
+        let terms: Vec<&'static Candidate> = f
+            .kinds
+            .iter()
+            .filter_map(|k| library::candidate(k))
+            .collect();
+        let known: Vec<Option<Vec<f64>>> = f.kinds.iter().map(|k| Some(f.values_of(k))).collect();
+        Some((i, fit_joint(model, table, prep, &terms, &known, meter)))
     });
     let mut out = screened;
-    for (i, _, r) in refits.into_inner().unwrap_or_default() {
+    for (i, r) in refits.into_iter().flatten() {
         match (&out[i].1, r) {
             (Ok(old), Ok(new)) if new.chi2_after <= old.chi2_after => out[i].1 = Ok(new),
             (_, Err(e @ Error::Budget { .. })) => out[i].1 = Err(e),
@@ -657,8 +641,8 @@ fn fit_round(
     out
 }
 
-/// Every candidate of `cands` fitted with the `chosen` effects, `threads` at once:
-/// screening fits ([`fit_screen`]) or full ones.
+/// Every candidate of `cands` screened with the `chosen` effects ([`fit_screen`]),
+/// `threads` at once.
 #[allow(clippy::too_many_arguments)]
 fn fit_each(
     model: &LabModel,
@@ -669,39 +653,45 @@ fn fit_each(
     threads: usize,
     progress: &Progress,
     meter: &Meter,
-    screen: bool,
 ) -> Vec<(&'static Candidate, Result<EffectFit>)> {
-    let next = std::sync::atomic::AtomicUsize::new(0);
     let fitted = std::sync::atomic::AtomicUsize::new(0);
-    let results = std::sync::Mutex::new(Vec::new());
+    in_parallel(cands, threads, |_, c| {
+        let mut terms = chosen.terms.clone();
+        terms.push(c);
+        let mut known: Vec<Option<Vec<f64>>> = chosen.values.iter().cloned().map(Some).collect();
+        known.push(None);
+        let r = fit_screen(model, table, prep, &terms, &known, meter);
+        if let Some(f) = &progress.0 {
+            let done = fitted.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            f(done, cands.len(), c.kind);
+        }
+        (*c, r)
+    })
+}
+
+/// `f` over `items`, `threads` at once, the results in the items' order.
+fn in_parallel<T: Sync, R: Send>(
+    items: &[T],
+    threads: usize,
+    f: impl Fn(usize, &T) -> R + Sync,
+) -> Vec<R> {
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results = std::sync::Mutex::new(Vec::with_capacity(items.len()));
     std::thread::scope(|s| {
-        for _ in 0..threads.clamp(1, cands.len().max(1)) {
+        for _ in 0..threads.clamp(1, items.len().max(1)) {
             s.spawn(|| loop {
                 let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some(c) = cands.get(i) else { break };
-                let mut terms = chosen.terms.clone();
-                terms.push(c);
-                let mut known: Vec<Option<Vec<f64>>> =
-                    chosen.values.iter().cloned().map(Some).collect();
-                known.push(None);
-                let r = if screen {
-                    fit_screen(model, table, prep, &terms, &known, meter)
-                } else {
-                    fit_joint(model, table, prep, &terms, &known, meter)
-                };
+                let Some(x) = items.get(i) else { break };
+                let r = f(i, x);
                 if let Ok(mut v) = results.lock() {
-                    v.push((i, *c, r));
-                }
-                if let Some(f) = &progress.0 {
-                    let done = fitted.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-                    f(done, cands.len(), c.kind);
+                    v.push((i, r));
                 }
             });
         }
     });
     let mut v = results.into_inner().unwrap_or_default();
-    v.sort_by_key(|(i, _, _)| *i);
-    v.into_iter().map(|(_, c, r)| (c, r)).collect()
+    v.sort_by_key(|(i, _)| *i);
+    v.into_iter().map(|(_, r)| r).collect()
 }
 
 /// First-round fits whose VE changes correlate at least this with an earlier effect's
