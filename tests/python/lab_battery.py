@@ -91,7 +91,10 @@ by the lab's library names (shared/vibro-lab/src/library.rs): for heating the la
 the steady-state coefficient with tau fixed short, so the truth of `c_g_per_g2` is
 c (1 - tau/T (1 - exp(-T/tau))) (the physical c and tau are under "physical"); for
 axis_phase with the table's phases all 0 only cos(offset) is observable, so the
-truth is +-offset modulo 360 ("sign_observable": false).
+truth is +-offset modulo 360 ("sign_observable": false). Each offset's sign is free on
+its own too; with an anisoelastic term (which takes cos(d_OA - d_PA)) a flip of one
+sign is made up by k_ae, so truth.json also lists such sets ("equivalent_params"),
+each checked to give the member's table to rounding.
 
 Ambiguities found in docs/effects.md (and docs/lab.md)
 ------------------------------------------------------
@@ -1488,6 +1491,36 @@ def draw_member(P, kinds, rng, n_rows, name, max_tries=40):
     raise RuntimeError(f"{name}: could not draw a detectable member of {kinds}")
 
 
+def equivalent_params(eff, u, joint, table_of):
+    """Other parameter sets this design cannot tell from `eff`: with the table's
+    phases all 0 the axis phases enter the IA cross terms through cos(offset) alone,
+    so each offset's sign is free; the anisoelastic product takes cos(d_OA - d_PA), so
+    a flip of one sign is made up by k_ae cos(d_OA - d_PA) / cos(d_OA' - d_PA'). Each
+    such set is kept only when its table (this generator's physics) equals the
+    member's to 1e-6 of the noise (chi2 of the difference below 1e-12; `table_of`: the
+    member's VE for a parameter set, in the battery's composition)."""
+    if "axis_phase" not in eff:
+        return []
+    ph = eff["axis_phase"]
+    dx, dy = ph.get("phase_x_deg", 0.0), ph.get("phase_y_deg", 0.0)
+    out = []
+    for sx, sy in ((1, -1), (-1, 1), (-1, -1)):
+        e = {k: dict(v) for k, v in eff.items()}
+        e["axis_phase"]["phase_x_deg"] = sx * dx
+        e["axis_phase"]["phase_y_deg"] = sy * dy
+        if "anisoelastic" in e:
+            c_new = math.cos(math.radians(sx * dx - sy * dy))
+            if abs(c_new) < 1e-3:
+                continue
+            e["anisoelastic"]["k_ae_per_g"] = eff["anisoelastic"]["k_ae_per_g"] * math.cos(math.radians(dx - dy)) / c_new
+            if not _within_caps("anisoelastic", e["anisoelastic"]):
+                continue
+        diff = table_of(e) - joint
+        if float(np.sum((diff / u) ** 2)) < 1e-12:
+            out.append(e)
+    return out
+
+
 def confounded_member(P, which, rng, n_rows):
     """One tone frequency: a design that cannot separate two effects."""
     u0 = 0.5e-6
@@ -1591,11 +1624,14 @@ def cmd_battery(args):
         d.mkdir(parents=True, exist_ok=True)
         write_csv(d / "table.csv", rows)
         T = float(tab.T[0])
+        table_of = (lambda e: ve(P, tab, e)) if args.composition == "physical" else (lambda e: lab_composition(P, tab, e))
+        equivalent = equivalent_params(eff, u, truth_ve, table_of) if expect == "effect" else []
         truth = {
             "member": name,
             "expect": expect,
             "kinds": list(eff),
             "params": {k: lab_truth(k, v, T) for k, v in eff.items()},
+            "equivalent_params": [{k: lab_truth(k, v, T) for k, v in e.items()} for e in equivalent],
             "physical": eff,
             "sign_observable": {"axis_phase": False} if "axis_phase" in eff else {},
             "noise": {"ve_uncertainty_g_min": float(u.min()), "ve_uncertainty_g_max": float(u.max()),

@@ -68,6 +68,55 @@ pub struct MeanContext<'a> {
     pub duration_s: f64,
 }
 
+/// Output terms that are memoryless functions of the unit's total acceleration (or
+/// constant over a run), `bias + c12 a1 a2 + k6 a3^6 + k7 a3^7`, g: what an effect
+/// that clips the whole output ([`Effect::mean_shift_over_g`]) must clip with the FP.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct OutputTerms {
+    /// Constant over the run, g.
+    pub bias_g: f64,
+    /// Coefficient of `a1 a2` (OA x PA), 1/g.
+    pub a1_a2_per_g: f64,
+    /// Coefficient of `a3^6`, 1/g^5.
+    pub a3_pow6_per_g5: f64,
+    /// Coefficient of `a3^7`, 1/g^6.
+    pub a3_pow7_per_g6: f64,
+}
+
+impl OutputTerms {
+    /// The terms at the total acceleration `a_g` (unit axes), g.
+    #[inline]
+    pub fn at(&self, a_g: [f64; 3]) -> f64 {
+        let a3_6 = a_g[2].powi(6);
+        self.bias_g
+            + self.a1_a2_per_g * a_g[0] * a_g[1]
+            + a3_6 * (self.a3_pow6_per_g5 + self.a3_pow7_per_g6 * a_g[2])
+    }
+
+    /// An upper bound of `|terms|` over `|a_i| <= reach_g[i]`.
+    pub fn bound_g(&self, reach_g: [f64; 3]) -> f64 {
+        let a3_6 = reach_g[2].powi(6);
+        self.bias_g.abs()
+            + self.a1_a2_per_g.abs() * reach_g[0] * reach_g[1]
+            + a3_6 * (self.a3_pow6_per_g5.abs() + self.a3_pow7_per_g6.abs() * reach_g[2])
+    }
+
+    /// Whether every term is zero.
+    pub fn is_zero(&self) -> bool {
+        *self == Self::default()
+    }
+
+    /// The sum of two sets of terms.
+    pub fn plus(self, o: Self) -> Self {
+        Self {
+            bias_g: self.bias_g + o.bias_g,
+            a1_a2_per_g: self.a1_a2_per_g + o.a1_a2_per_g,
+            a3_pow6_per_g5: self.a3_pow6_per_g5 + o.a3_pow6_per_g5,
+            a3_pow7_per_g6: self.a3_pow7_per_g6 + o.a3_pow7_per_g6,
+        }
+    }
+}
+
 /// One physical effect the conversion function (FP) of MODEL.md leaves out
 /// (MODEL.md section 11). Every hook defaults to "no change".
 pub trait Effect: Send {
@@ -113,6 +162,31 @@ pub trait Effect: Send {
     /// unit's path sees its output ([`Effect::transmitted`]).
     fn on_vibration_path(&self) -> bool {
         false
+    }
+
+    /// For effects whose output term is memoryless in the unit's total acceleration
+    /// (or constant over the run): that term under `ctx` (the effect switched on).
+    /// `None` for others (filters, clips, sensor effects).
+    fn output_terms(&self, _ctx: &MeanContext<'_>) -> Option<OutputTerms> {
+        None
+    }
+
+    /// Whether the effect acts on the whole output (a clip), so that its mean depends
+    /// on the other effects' output terms ([`Effect::mean_shift_over_g`]).
+    fn clips_output(&self) -> bool {
+        false
+    }
+
+    /// For effects that act on the whole output (a clip): the mean change when the
+    /// output already carries `others`, the memoryless terms of the unit's other
+    /// effects ([`Effect::output_terms`]). `None` for effects that only add to the
+    /// output.
+    fn mean_shift_over_g(
+        &self,
+        _ctx: &MeanContext<'_>,
+        _others: &OutputTerms,
+    ) -> Option<crate::Result<f64>> {
+        None
     }
 
     /// For effects on the vibration path: the vibration and its band PSD reaching the

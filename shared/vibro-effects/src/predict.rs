@@ -17,8 +17,17 @@
 //! - `m_e(v)` is every other effect's documented mean contribution (docs/effects.md) under
 //!   vibration `v`, and `m_e(0)` the same without vibration: a campaign measures the
 //!   VE as the vibrating record minus the still ones (MODEL.md section 8), so an
-//!   effect's static part cancels.
+//!   effect's static part cancels;
+//! - an effect that clips the whole output (`saturation`,
+//!   `Effect::mean_shift_over_g`) clips the FP plus the memoryless output terms of the
+//!   unit's other effects (`Effect::output_terms`: k6/k7, anisoelastic, heating's
+//!   mean bias), whatever their order, as the servo's range bounds everything the
+//!   unit outputs; its `m_e` is `E[clip(y) - y]` with that `y`, so that the total is
+//!   `E[clip(y)] - E[FP]`. Filtered terms (vibropendulous, scale_factor_frequency)
+//!   stay outside the clip: a departure from the simulator, which clips whatever is
+//!   listed before `saturation`.
 
+use crate::effect::OutputTerms;
 use crate::model::BaseMode;
 use crate::{Effect, Error, MeanContext, Result};
 use serde::Serialize;
@@ -201,6 +210,17 @@ pub fn effect_shifts_g(
         psd = p;
     }
     let on = context(passport, a_l_unit_g, &vib, &psd, duration_s);
+    // What a clip (saturation) clips besides the FP: every memoryless output term of
+    // the unit's other effects, whatever their order in the model.
+    let terms = |ctx: &MeanContext<'_>| {
+        effects
+            .iter()
+            .enumerate()
+            .filter(|(k, e)| shifts[*k].is_none() && e.sensor_rms_factor(&on).is_none())
+            .filter_map(|(_, e)| e.output_terms(ctx))
+            .fold(OutputTerms::default(), OutputTerms::plus)
+    };
+    let (terms_on, terms_off) = (terms(&on), terms(&off));
     let mut out = Vec::new();
     for (k, e) in effects.iter().enumerate() {
         if e.sensor_rms_factor(&on).is_some() {
@@ -208,10 +228,23 @@ pub fn effect_shifts_g(
         }
         let shift = match shifts[k] {
             Some(s) => s,
-            None => {
-                e.mean_shift_g(&on).map_err(|x| fail(e.as_ref(), x))?
-                    - e.mean_shift_g(&off).map_err(|x| fail(e.as_ref(), x))?
-            }
+            None => match e
+                .clips_output()
+                .then(|| e.mean_shift_over_g(&on, &terms_on))
+                .flatten()
+            {
+                Some(with) => {
+                    let without = e
+                        .mean_shift_over_g(&off, &terms_off)
+                        .unwrap_or_else(|| e.mean_shift_g(&off));
+                    with.map_err(|x| fail(e.as_ref(), x))?
+                        - without.map_err(|x| fail(e.as_ref(), x))?
+                }
+                None => {
+                    e.mean_shift_g(&on).map_err(|x| fail(e.as_ref(), x))?
+                        - e.mean_shift_g(&off).map_err(|x| fail(e.as_ref(), x))?
+                }
+            },
         };
         out.push((e.kind().to_string(), shift));
     }
@@ -362,6 +395,103 @@ mod tests {
             with.ve_g - base,
             want
         );
+    }
+
+    /// axis_phase is on the vibration path: the anisoelastic product sees the shifted
+    /// phases, in either order of the two in the model, `k_ae 0.5 aB1 aB2 cos(phi1 -
+    /// phi2 + d1 - d2)` (`build_effects`' frame: OA on body x, PA on y, IA on z),
+    /// and axis_phase's own change is the exact model's with the phases shifted.
+    #[test]
+    fn the_anisoelastic_term_sees_the_shifted_phases() {
+        let p = al15();
+        let mut vib = Vibration::none();
+        let tone = |phases: [f64; 3]| vibro_physics::vibration::Tone {
+            freq_hz: 30.0,
+            amplitude_g: [1.2, 0.8, 1.5],
+            phase_rad: phases,
+        };
+        vib.push_tone(tone([0.3, -0.5, 0.1])).unwrap();
+        let a_l = [0.3, 0.5, 1.0];
+        let k_ae = 2.0e-5;
+        let (dy, dz) = (70f64.to_radians(), -40f64.to_radians());
+        let ae = format!("kind = \"anisoelastic\"\nk_ae_per_g = {k_ae:e}");
+        let phase = "kind = \"axis_phase\"\nphase_y_deg = 70.0\nphase_z_deg = -40.0";
+        let mut shifted = Vibration::none();
+        shifted.push_tone(tone([0.3, -0.5 + dy, 0.1 + dz])).unwrap();
+        let base = exact_ve(&p, a_l, &vib).unwrap().total_g;
+        let want_phase = exact_ve(&p, a_l, &shifted).unwrap().total_g - base;
+        let want_ae = k_ae * 0.5 * 1.2 * 0.8 * (0.3 - (-0.5 + dy)).cos();
+        assert!(
+            (want_ae - k_ae * 0.5 * 1.2 * 0.8 * 0.8f64.cos()).abs() > 1e-6,
+            "the offsets must move the product"
+        );
+        for order in [[ae.as_str(), phase], [phase, ae.as_str()]] {
+            let effects = build_effects(&[table(order[0]), table(order[1])], &p).unwrap();
+            let got = predict_ve(BaseMode::Exact, &effects, &p, a_l, &vib, &[], 300.0).unwrap();
+            let by_kind = |k: &str| {
+                got.effects
+                    .iter()
+                    .find(|(kind, _)| kind == k)
+                    .map(|(_, s)| *s)
+                    .unwrap()
+            };
+            assert!(
+                (by_kind("anisoelastic") - want_ae).abs() < 1e-18,
+                "{order:?}: {} vs {want_ae}",
+                by_kind("anisoelastic")
+            );
+            assert!((by_kind("axis_phase") - want_phase).abs() < 1e-15);
+            assert!((got.ve_g - base - want_ae - want_phase).abs() < 1e-15);
+        }
+    }
+
+    /// saturation clips what the 6th-order term adds, in either order of the two:
+    /// `E[clip(FP + k6 a3^6)] - E[FP + k6 a3^6]` against the same mean over 200,000
+    /// phases of the tone (midpoint rule; the clipped excess has square-root kinks, so
+    /// it converges as n^-1.5: about 1e-9 relative here). Without the 6th-order term
+    /// nothing reaches the range and the clip alone changes nothing.
+    #[test]
+    fn saturation_clips_the_sixth_order_term() {
+        let p = al15();
+        let (a_l, amp, r) = ([0.0, 0.0, 1.0], 3.0, 4.2);
+        let vib = Vibration::single_tone(40.0, [0.0, 0.0, amp]);
+        let k6_ppm = 100.0;
+        let k6 = k6_ppm * 1e-6;
+        let n = 200_000;
+        let fp_mean = |with_k6: bool| {
+            (0..n)
+                .map(|i| {
+                    let th = std::f64::consts::TAU * (i as f64 + 0.5) / n as f64;
+                    let a3 = a_l[2] + amp * th.sin();
+                    let y = vibro_physics::fp::output_g(&p, 0.0, 0.0, a3)
+                        + if with_k6 { k6 * a3.powi(6) } else { 0.0 };
+                    y.clamp(-r, r) - y
+                })
+                .sum::<f64>()
+                / n as f64
+        };
+        let want_clip = fp_mean(true);
+        assert!(want_clip < -1e-3, "{want_clip}");
+        assert_eq!(fp_mean(false), 0.0);
+        let sat = format!("kind = \"saturation\"\nrange_g = {r}");
+        let high = format!("kind = \"high_order_nonlinearity\"\nk6_ppm_per_g5 = {k6_ppm}");
+        let alone = build_effects(&[table(&sat)], &p).unwrap();
+        let got = predict_ve(BaseMode::Exact, &alone, &p, a_l, &vib, &[], 300.0).unwrap();
+        assert_eq!(got.effects[0].1, 0.0);
+        for order in [[sat.as_str(), high.as_str()], [high.as_str(), sat.as_str()]] {
+            let effects = build_effects(&[table(order[0]), table(order[1])], &p).unwrap();
+            let got = predict_ve(BaseMode::Exact, &effects, &p, a_l, &vib, &[], 300.0).unwrap();
+            let clip = got
+                .effects
+                .iter()
+                .find(|(k, _)| k == "saturation")
+                .map(|(_, s)| *s)
+                .unwrap();
+            assert!(
+                (clip - want_clip).abs() < 1e-7 * want_clip.abs(),
+                "{order:?}: {clip} vs {want_clip}"
+            );
+        }
     }
 
     /// A sensor gain error `g` makes the sensors read `(1 + g)` times the vibration:

@@ -620,7 +620,7 @@ fn fit_round(
     };
     order.sort_by(|a, b| bic(*a).total_cmp(&bic(*b)));
     order.truncate(FULL_REFITS);
-    let refits = in_parallel(&order, threads, |_, &i| {
+    let refits = crate::parallel::in_parallel(&order, threads, |_, &i| {
         let f = screened[i].1.as_ref().ok()?;
         let terms: Vec<&'static Candidate> = f
             .kinds
@@ -655,7 +655,7 @@ fn fit_each(
     meter: &Meter,
 ) -> Vec<(&'static Candidate, Result<EffectFit>)> {
     let fitted = std::sync::atomic::AtomicUsize::new(0);
-    in_parallel(cands, threads, |_, c| {
+    crate::parallel::in_parallel(cands, threads, |_, c| {
         let mut terms = chosen.terms.clone();
         terms.push(c);
         let mut known: Vec<Option<Vec<f64>>> = chosen.values.iter().cloned().map(Some).collect();
@@ -667,31 +667,6 @@ fn fit_each(
         }
         (*c, r)
     })
-}
-
-/// `f` over `items`, `threads` at once, the results in the items' order.
-fn in_parallel<T: Sync, R: Send>(
-    items: &[T],
-    threads: usize,
-    f: impl Fn(usize, &T) -> R + Sync,
-) -> Vec<R> {
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let results = std::sync::Mutex::new(Vec::with_capacity(items.len()));
-    std::thread::scope(|s| {
-        for _ in 0..threads.clamp(1, items.len().max(1)) {
-            s.spawn(|| loop {
-                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some(x) = items.get(i) else { break };
-                let r = f(i, x);
-                if let Ok(mut v) = results.lock() {
-                    v.push((i, r));
-                }
-            });
-        }
-    });
-    let mut v = results.into_inner().unwrap_or_default();
-    v.sort_by_key(|(i, _)| *i);
-    v.into_iter().map(|(_, r)| r).collect()
 }
 
 /// First-round fits whose VE changes correlate at least this with an earlier effect's
@@ -720,7 +695,8 @@ fn best_swap(
             .and_then(|c| c.fit.as_ref())
             .and_then(|f| f.effect_shift_g.last().cloned())
     };
-    let mut best: Option<(usize, EffectFit)> = None;
+    // Every (position, twin) pair, fitted side by side, then taken in order.
+    let mut swaps: Vec<(usize, &'static Candidate)> = Vec::new();
     for at in 0..chosen.terms.len() - 1 {
         let Some(own) = first(chosen.terms[at].kind) else {
             continue;
@@ -733,23 +709,26 @@ fn best_swap(
             if correlation(&own, &twin, &prep.uncertainty_g).abs() < SWAP_TWIN {
                 continue;
             }
-            let Some(cand) = library::candidate(&c.kind) else {
-                continue;
-            };
-            let mut terms = chosen.terms.clone();
-            let mut known: Vec<Option<Vec<f64>>> =
-                chosen.values.iter().cloned().map(Some).collect();
-            terms[at] = cand;
-            known[at] = None;
-            let Ok(g) = fit_joint(model, table, prep, &terms, &known, meter) else {
-                continue;
-            };
-            let bar = best
-                .as_ref()
-                .map_or(cur.bic_after + opts.bic_support, |b| b.1.bic_after);
-            if g.bic_after < bar {
-                best = Some((at, g));
+            if let Some(cand) = library::candidate(&c.kind) {
+                swaps.push((at, cand));
             }
+        }
+    }
+    let fits = crate::parallel::in_parallel(&swaps, opts.threads, |_, &(at, cand)| {
+        let mut terms = chosen.terms.clone();
+        let mut known: Vec<Option<Vec<f64>>> = chosen.values.iter().cloned().map(Some).collect();
+        terms[at] = cand;
+        known[at] = None;
+        fit_joint(model, table, prep, &terms, &known, meter).ok()
+    });
+    let mut best: Option<(usize, EffectFit)> = None;
+    for ((at, _), g) in swaps.iter().zip(fits) {
+        let Some(g) = g else { continue };
+        let bar = best
+            .as_ref()
+            .map_or(cur.bic_after + opts.bic_support, |b| b.1.bic_after);
+        if g.bic_after < bar {
+            best = Some((*at, g));
         }
     }
     best
@@ -1038,6 +1017,7 @@ pub fn diagnose(
         }
     };
     note_cut(&round, &mut cut_short);
+    meter.close_stage("first round");
     let mut candidates: Vec<RankedCandidate> = round
         .iter()
         .map(|(c, r)| {
@@ -1103,7 +1083,9 @@ pub fn diagnose(
             {
                 refitted.push(chosen.terms.len());
                 let none = vec![None; chosen.terms.len()];
-                match fit_joint(model, table, &prep, &chosen.terms, &none, &meter) {
+                let alt = fit_joint(model, table, &prep, &chosen.terms, &none, &meter);
+                meter.close_stage("refit from every start");
+                match alt {
                     Ok(alt) if alt.bic_after < bic_now - 1e-9 * bic_now.abs() => {
                         chosen.values = alt.kinds.iter().map(|k| alt.values_of(k)).collect();
                         restate(steps.last_mut(), &alt);
@@ -1111,6 +1093,7 @@ pub fn diagnose(
                         // The round again, from the better fit.
                         round = next_round(model, table, &prep, &chosen, &cands, opts, &meter);
                         note_cut(&round, &mut cut_short);
+                        meter.close_stage("later rounds");
                         continue;
                     }
                     Err(Error::Budget { .. }) => {
@@ -1197,6 +1180,7 @@ pub fn diagnose(
                         current = Some(g);
                     }
                 }
+                meter.close_stage("swap check");
             }
             // Backward check: an earlier effect the new set no longer needs (removing
             // it costs less than `-bic_support` in BIC) is dropped, the cheapest first,
@@ -1253,6 +1237,7 @@ pub fn diagnose(
                         removed = true;
                     }
                 }
+                meter.close_stage("backward check");
                 if !removed {
                     break;
                 }
@@ -1263,6 +1248,7 @@ pub fn diagnose(
             if let Some(f) = current.clone() {
                 if table.weights_follow_model() {
                     let g = fit_reweighted(model, table, &mut prep, &chosen.terms, f, &meter)?;
+                    meter.close_stage("reweighted fit");
                     restate(steps.last_mut(), &g);
                     chosen.values = g.kinds.iter().map(|k| g.values_of(k)).collect();
                     current = Some(g);
@@ -1292,6 +1278,7 @@ pub fn diagnose(
             }
             round = next_round(model, table, &prep, &chosen, &cands, opts, &meter);
             note_cut(&round, &mut cut_short);
+            meter.close_stage("later rounds");
         }
     }
     // The set found, fitted as `lab add` and `lab report` fit it ([`final_fit`], on
@@ -1307,7 +1294,9 @@ pub fn diagnose(
         let mut fresh = Prepared::new(model, table)?;
         // The first round's fits were made on these weights, from no known values.
         let singles: Vec<&EffectFit> = candidates.iter().filter_map(|c| c.fit.as_ref()).collect();
-        match final_fit(model, table, &mut fresh, &terms, &none, &singles, &meter) {
+        let fitted = final_fit(model, table, &mut fresh, &terms, &none, &singles, &meter);
+        meter.close_stage("final fit");
+        match fitted {
             Ok((g, _)) => {
                 // The last step states the fit reported (its path's fit may differ).
                 restate(steps.last_mut(), &g);
@@ -1345,6 +1334,7 @@ pub fn diagnose(
                 cut_short.push(format!("profile of {}", f.kinds.join("+")));
             }
             profile_evaluations = meter.total() - before;
+            meter.close_stage("profile intervals");
         }
     }
     let residual_after: Vec<f64> = current
@@ -1455,6 +1445,7 @@ pub fn diagnose(
             elapsed_s: meter.elapsed_s(),
             exhausted: !cut_short.is_empty(),
             cut_short,
+            stages: meter.stages(),
         },
         empirical,
         empirical_none,

@@ -36,7 +36,9 @@ use vibro_effects::predict::{self, effect_shifts_g};
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Budget {
     /// Model evaluations (one evaluation: the candidate's VE change on every row) one
-    /// candidate's fit may take. The walkthrough's fits take at most about 200.
+    /// candidate's fit may take (its start scores and each of its three refinements,
+    /// which run side by side, count their own). The walkthrough's fits take at most
+    /// about 200.
     pub max_evaluations: usize,
     /// Wall-clock time all fits of one call may take, s.
     pub time_s: f64,
@@ -65,6 +67,17 @@ pub struct BudgetUsed {
     pub exhausted: bool,
     /// The candidates whose fit the budget stopped.
     pub cut_short: Vec<String>,
+    /// Where the evaluations and the time went, by stage of the search, in the order
+    /// the stages first ran (a stage that runs again adds to its entry).
+    pub stages: Vec<StageUse>,
+}
+
+/// One stage's share of a [`BudgetUsed`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StageUse {
+    pub stage: String,
+    pub evaluations: usize,
+    pub elapsed_s: f64,
 }
 
 /// A [`Budget`] running: the deadline and the evaluations over all fits.
@@ -72,6 +85,8 @@ pub(crate) struct Meter {
     pub(crate) budget: Budget,
     pub(crate) start: std::time::Instant,
     pub(crate) evaluations: std::sync::atomic::AtomicUsize,
+    /// The stages closed so far and where the last one ended (evaluations, s).
+    stages: std::sync::Mutex<(Vec<StageUse>, usize, f64)>,
 }
 
 impl Meter {
@@ -80,7 +95,41 @@ impl Meter {
             budget,
             start: std::time::Instant::now(),
             evaluations: std::sync::atomic::AtomicUsize::new(0),
+            stages: std::sync::Mutex::new((Vec::new(), 0, 0.0)),
         }
+    }
+
+    /// Books the evaluations and time since the last stage ended to `stage`.
+    pub(crate) fn close_stage(&self, stage: &str) {
+        let (total, now) = (self.total(), self.elapsed_s());
+        let mut guard = self
+            .stages
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let (list, evals, secs) = &mut *guard;
+        let (de, ds) = (total - *evals, now - *secs);
+        *evals = total;
+        *secs = now;
+        match list.iter_mut().find(|s| s.stage == stage) {
+            Some(s) => {
+                s.evaluations += de;
+                s.elapsed_s += ds;
+            }
+            None => list.push(StageUse {
+                stage: stage.to_string(),
+                evaluations: de,
+                elapsed_s: ds,
+            }),
+        }
+    }
+
+    /// The stages closed so far.
+    pub(crate) fn stages(&self) -> Vec<StageUse> {
+        self.stages
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .0
+            .clone()
     }
 
     pub(crate) fn elapsed_s(&self) -> f64 {
@@ -573,6 +622,16 @@ pub(crate) fn term_shifts_g(
     let mut built: Vec<Built> = Vec::new();
     let n = table.conditions.len();
     let mut out = vec![vec![0.0; n]; terms.len()];
+    /// The effects of a whole prediction, for the rows that need one.
+    struct ComposedBuilt<'a> {
+        passport: usize,
+        acts: Vec<bool>,
+        sensor: Vec<bool>,
+        model: &'a Vec<toml::Table>,
+        all: Vec<Box<dyn vibro_effects::Effect>>,
+        slot: Vec<Option<usize>>,
+    }
+    let mut composed_built: Vec<ComposedBuilt> = Vec::new();
     for (i, c) in table.conditions.iter().enumerate() {
         let k = match built.iter().position(|(r, _)| *r == c.passport_ref) {
             Some(k) => k,
@@ -611,46 +670,86 @@ pub(crate) fn term_shifts_g(
             .zip(&acts)
             .map(|(e, a)| *a && e.iter().any(|x| x.on_vibration_path()))
             .collect();
-        if sensor.iter().chain(&path).any(|s| *s) {
+        // A clip (saturation) clips the other effects' output terms too
+        // (`predict::effect_shifts_g`): its share depends on them.
+        let clips = built[k]
+            .1
+            .iter()
+            .zip(&acts)
+            .any(|(e, a)| *a && e.iter().any(|x| x.clips_output()));
+        let composed =
+            clips && (acts.iter().filter(|a| **a).count() > 1 || !prep.model_tables[i].is_empty());
+        if composed || sensor.iter().chain(&path).any(|s| *s) {
             // A sensor effect changes the vibration every effect sees, one on the
-            // vibration path what every effect after it sees: the whole prediction
-            // with the model's effects and these, each effect's share its own entry
-            // (what is left, the base's change, to the first such effect).
-            let mut all = build_effects(&prep.model_tables[i], &c.passport)?;
-            let mut slot: Vec<Option<usize>> = vec![None; terms.len()];
-            let probe =
-                predict::true_vibration(&[], &c.passport, c.a_l_g, &c.vibration(), &c.psd())
+            // vibration path what every effect after it sees, a clip what the others
+            // output: the whole prediction with the model's effects and these, each
+            // effect's share its own entry (what is left, the base's change, to the
+            // first sensor or path effect).
+            // Built once per passport, model and mask of the terms that act (rows
+            // share them): building parses each effect's table, and a filter's band
+            // integrals are kept per instance (`vibro_effects`' caches).
+            let at = composed_built.iter().position(|b| {
+                b.passport == k
+                    && b.acts == acts
+                    && b.sensor == sensor
+                    && *b.model == prep.model_tables[i]
+            });
+            let at = match at {
+                Some(at) => at,
+                None => {
+                    let mut all = build_effects(&prep.model_tables[i], &c.passport)?;
+                    let mut slot: Vec<Option<usize>> = vec![None; terms.len()];
+                    let probe = predict::true_vibration(
+                        &[],
+                        &c.passport,
+                        c.a_l_g,
+                        &c.vibration(),
+                        &c.psd(),
+                    )
                     .map_err(|e| row(terms[0].kind, e))?;
-            let ctx = vibro_effects::MeanContext {
-                unit: 0,
-                passport: &c.passport,
-                a_l_unit_g: c.a_l_g,
-                vibration_unit: &probe.vibration,
-                psd_unit: &probe.psd,
-                internal_rate_hz: predict::INTERNAL_RATE_HZ,
-                duration_s: f64::INFINITY,
+                    let ctx = vibro_effects::MeanContext {
+                        unit: 0,
+                        passport: &c.passport,
+                        a_l_unit_g: c.a_l_g,
+                        vibration_unit: &probe.vibration,
+                        psd_unit: &probe.psd,
+                        internal_rate_hz: predict::INTERNAL_RATE_HZ,
+                        duration_s: f64::INFINITY,
+                    };
+                    // As `effect_shifts_g` tells them apart: its entries skip these.
+                    let is_sensor =
+                        |e: &dyn vibro_effects::Effect| e.sensor_rms_factor(&ctx).is_some();
+                    let mut entry = all.iter().filter(|e| !is_sensor(e.as_ref())).count();
+                    for (t, tab) in tables.iter().enumerate() {
+                        if !acts[t] {
+                            continue;
+                        }
+                        let mut one = build_effects(std::slice::from_ref(tab), &c.passport)?;
+                        if !sensor[t] {
+                            slot[t] = Some(entry);
+                            entry += one.iter().filter(|e| !is_sensor(e.as_ref())).count();
+                        }
+                        all.append(&mut one);
+                    }
+                    composed_built.push(ComposedBuilt {
+                        passport: k,
+                        acts: acts.clone(),
+                        sensor: sensor.clone(),
+                        model: &prep.model_tables[i],
+                        all,
+                        slot,
+                    });
+                    composed_built.len() - 1
+                }
             };
-            // As `effect_shifts_g` tells them apart: its entries skip these.
-            let is_sensor = |e: &dyn vibro_effects::Effect| e.sensor_rms_factor(&ctx).is_some();
-            let mut entry = all.iter().filter(|e| !is_sensor(e.as_ref())).count();
-            for (t, tab) in tables.iter().enumerate() {
-                if !acts[t] {
-                    continue;
-                }
-                let mut one = build_effects(std::slice::from_ref(tab), &c.passport)?;
-                if !sensor[t] {
-                    slot[t] = Some(entry);
-                    entry += one.iter().filter(|e| !is_sensor(e.as_ref())).count();
-                }
-                all.append(&mut one);
-            }
+            let (all, slot) = (&composed_built[at].all, &composed_built[at].slot);
             let first = (0..terms.len())
                 .find(|&t| sensor[t])
                 .or_else(|| (0..terms.len()).find(|&t| path[t]))
                 .unwrap_or(0);
             let pred = predict::predict_ve(
                 model.mode,
-                &all,
+                all,
                 &c.passport,
                 c.a_l_g,
                 &c.vibration(),
@@ -920,7 +1019,9 @@ impl<'a> Problem<'a> {
     /// solved by SVD with the columns scaled to unit norm (a column of zeros, an
     /// effect that acts on no row, keeps its value). A parameter that enters only
     /// nearly linearly (a sensor gain) gets Gauss-Newton steps, at most 3, each kept
-    /// only when it lowers the cost. So a weak effect's linear parameters never stay
+    /// only when it lowers the cost; when the cost after a step is the one the
+    /// linear model predicted (to 1e-9), the parameters enter linearly and the step
+    /// was the solution. So a weak effect's linear parameters never stay
     /// at their start beside a strong effect already at its minimum.
     fn solve_linear(&mut self, theta: &mut [f64]) -> Result<DVector<f64>> {
         let lin: Vec<usize> = (0..theta.len()).filter(|&k| self.linear[k]).collect();
@@ -955,7 +1056,7 @@ impl<'a> Problem<'a> {
             if !b.iter().all(|x| x.is_finite()) {
                 break;
             }
-            let svd = b.svd(true, true);
+            let svd = b.clone().svd(true, true);
             let smax = svd.singular_values.max();
             if smax <= 0.0 {
                 break;
@@ -963,6 +1064,8 @@ impl<'a> Problem<'a> {
             let Ok(step) = svd.solve(&(-&r), 1e-12 * smax) else {
                 break;
             };
+            // The cost the step gives if the parameters enter linearly.
+            let predicted = (&r + &b * &step).norm_squared();
             let before: Vec<f64> = lin.iter().map(|&k| theta[k]).collect();
             for (c, &k) in lin.iter().enumerate() {
                 let d = if norms[c] > 0.0 {
@@ -991,9 +1094,13 @@ impl<'a> Problem<'a> {
                 break;
             }
             let rel = (cost - cn) / cost.max(1e-300);
+            // The cost came out as the linear model said: the parameters enter
+            // linearly here, the step solved them, and another costs evaluations
+            // for nothing.
+            let linear_here = (cn - predicted).abs() <= 1e-9 * cost.max(1e-300);
             r = rn;
             cost = cn;
-            if rel < 1e-9 {
+            if rel < 1e-9 || linear_here {
                 break;
             }
         }
@@ -1093,11 +1200,14 @@ impl<'a> Problem<'a> {
                 let cn = rn.norm_squared();
                 if cn < cost {
                     let rel = (cost - cn) / cost.max(1e-300);
+                    // Converged when chi2 falls by less than 1e-10 of itself or by
+                    // less than `CHI2_STILL` (a parameter move of a hundredth of its
+                    // sigma or less: nothing a test or an interval can see).
+                    improved = rel > 1e-10 && cost - cn > CHI2_STILL;
                     theta = next;
                     r = rn;
                     cost = cn;
                     lambda = (lambda / 3.0).max(1e-12);
-                    improved = rel > 1e-10;
                     break;
                 }
                 lambda *= 4.0;
@@ -1109,6 +1219,11 @@ impl<'a> Problem<'a> {
         Ok((theta, cost))
     }
 }
+
+/// The fall of chi2 below which a Levenberg-Marquardt step counts as converged: a
+/// parameter moved by `d` sigma lowers chi2 by about `d^2`, so 1e-4 is a hundredth of
+/// a sigma, far inside every interval and test.
+const CHI2_STILL: f64 = 1e-4;
 
 /// Fits `cand` to the residual of `model` on `table`.
 pub fn fit_candidate(
@@ -1448,24 +1563,34 @@ fn fit_joint_inner(
     }
     let partly_known =
         searched.iter().any(|h| !*h) && searched.iter().zip(&linear).any(|(h, l)| *h && !*l);
-    let mut best: Option<(Vec<f64>, f64)> = None;
     let screening = screen && searched.iter().any(|s| !*s);
-    for (mut theta, _) in scored.into_iter().take(3) {
+    // The three best starts refined side by side, each on its own problem (the same
+    // computation as one after the other: the same fit).
+    let tops: Vec<Vec<f64>> = scored.into_iter().take(3).map(|(t, _)| t).collect();
+    let refined = crate::parallel::in_parallel(&tops, crate::parallel::available(), |_, start| {
+        let mut own = Problem::new(model, table, prep, terms, what.clone(), meter, project);
+        let mut theta = start.clone();
         let c = if screening {
-            let (t, c) = pb.minimise_reduced(theta, &searched, 30)?;
+            let (t, c) = own.minimise_reduced(theta, &searched, 30)?;
             theta = t;
             c
         } else {
             if any_linear && any_nonlinear {
                 if partly_known {
-                    theta = pb.minimise_reduced(theta, &searched, 30)?.0;
+                    theta = own.minimise_reduced(theta, &searched, 30)?.0;
                 }
-                theta = pb.minimise_reduced(theta, &all, 60)?.0;
+                theta = own.minimise_reduced(theta, &all, 60)?.0;
             }
-            let (t, c) = pb.minimise(theta, &all, 60)?;
+            let (t, c) = own.minimise(theta, &all, 60)?;
             theta = t;
             c
         };
+        Ok::<_, Error>((theta, c, own.evaluations))
+    });
+    let mut best: Option<(Vec<f64>, f64)> = None;
+    for r in refined {
+        let (theta, c, evaluations) = r?;
+        pb.evaluations += evaluations;
         if best.as_ref().is_none_or(|b| c < b.1) {
             best = Some((theta, c));
         }

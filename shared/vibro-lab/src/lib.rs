@@ -37,6 +37,7 @@ pub mod fit;
 pub mod flight;
 pub mod library;
 pub mod log_table;
+mod parallel;
 pub mod report;
 /// The spectrum behind an estimate's band powers (moved to `vibro_effects`, shared with the
 /// compensator).

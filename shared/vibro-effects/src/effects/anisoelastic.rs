@@ -17,7 +17,7 @@
 //! alone is `k_ae E[v1 v2]`.
 
 use super::{EffectInfo, ParamInfo, Params, Scope};
-use crate::effect::{BlockCtx, Effect, MeanContext};
+use crate::effect::{BlockCtx, Effect, MeanContext, OutputTerms};
 use crate::Result;
 
 const KIND: &str = "anisoelastic";
@@ -77,6 +77,13 @@ impl Effect for Anisoelastic {
             })
             .sum();
         Ok(self.k_ae_per_g * (a1 * a2 + tones + vib.covariance_g2[0][1]))
+    }
+
+    fn output_terms(&self, _ctx: &MeanContext<'_>) -> Option<OutputTerms> {
+        Some(OutputTerms {
+            a1_a2_per_g: self.k_ae_per_g,
+            ..OutputTerms::default()
+        })
     }
 }
 

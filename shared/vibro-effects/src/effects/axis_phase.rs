@@ -14,13 +14,19 @@
 //! the exact mean without. Only the cross terms move:
 //! `sum_tones 0.5 m31 aB3 aB1 (cos(phi3 - phi1 + d3 - d1) - cos(phi3 - phi1))` and the
 //! same with m32 and axis 2 (MODEL.md section 6, cross terms).
+//!
+//! In a prediction with other effects the offsets are on the vibration path
+//! ([`Effect::on_vibration_path`]): every other effect's mean is taken under the
+//! shifted phases, as in the simulator, where the samples every hook sees are drawn
+//! after the shift (the anisoelastic product `k_ae a1 a2` then rectifies
+//! `0.5 k_ae aB1 aB2 cos(phi1 - phi2 + d1 - d2)` per tone).
 
 use super::spectral::exact_shift;
 use super::{EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{Effect, MeanContext};
 use crate::Result;
 use vibro_physics::triad::TriadAxes;
-use vibro_physics::vibration::Vibration;
+use vibro_physics::vibration::{PsdBand, Vibration};
 
 const KIND: &str = "axis_phase";
 const RULE: &str = "must be finite and -360 <= phase <= 360 deg";
@@ -100,8 +106,27 @@ impl Effect for AxisPhase {
     }
 
     fn mean_shift_g(&self, ctx: &MeanContext<'_>) -> Result<f64> {
+        exact_shift(ctx, &self.shifted(ctx)?)
+    }
+
+    /// The shifted phases are what every other effect of the unit sees (the
+    /// simulator draws the samples after [`Effect::adjust_body_vibration`]): the
+    /// vibropendulous and anisoelastic products and the saturation take them.
+    fn on_vibration_path(&self) -> bool {
+        true
+    }
+
+    fn transmitted(&self, ctx: &MeanContext<'_>) -> Option<Result<(Vibration, Vec<PsdBand>)>> {
+        Some(self.shifted(ctx).map(|v| (v, ctx.psd_unit.to_vec())))
+    }
+}
+
+impl AxisPhase {
+    /// The unit's vibration with each tone's unit-axis phases moved by the offsets of
+    /// the body axes the unit's axes lie on (the random part unchanged).
+    fn shifted(&self, ctx: &MeanContext<'_>) -> Result<Vibration> {
         let Some(axes) = self.triad.units.get(ctx.unit) else {
-            return Ok(0.0);
+            return Ok(*ctx.vibration_unit);
         };
         let body_index = [axes.oa.body_index, axes.pa.body_index, axes.ia.body_index];
         let mut shifted = *ctx.vibration_unit;
@@ -113,7 +138,7 @@ impl Effect for AxisPhase {
             }
             shifted.push_tone(t2)?;
         }
-        exact_shift(ctx, &shifted)
+        Ok(shifted)
     }
 }
 

@@ -20,7 +20,7 @@
 //! `c P (1 - tau/T (1 - e^{-T/tau}))`.
 
 use super::{EffectInfo, ParamInfo, Params, Scope};
-use crate::effect::{BlockCtx, Effect, MeanContext};
+use crate::effect::{BlockCtx, Effect, MeanContext, OutputTerms};
 use crate::{Error, Result};
 
 const KIND: &str = "heating";
@@ -137,6 +137,16 @@ impl Effect for Heating {
         // 1 - (1 - e^{-x})/x, written with exp_m1 for long and short runs alike.
         let warm_fraction = 1.0 + (-x).exp_m1() / x;
         Ok(self.c_g_per_g2 * power * warm_fraction)
+    }
+
+    /// The bias as a constant at its mean over the run (its slow rise inside a clip
+    /// changes the clipped mean by about its variance over the run times the output
+    /// density at the range: negligible for a time constant short against the run).
+    fn output_terms(&self, ctx: &MeanContext<'_>) -> Option<OutputTerms> {
+        self.mean_shift_g(ctx).ok().map(|bias_g| OutputTerms {
+            bias_g,
+            ..OutputTerms::default()
+        })
     }
 }
 

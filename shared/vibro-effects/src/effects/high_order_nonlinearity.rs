@@ -16,7 +16,7 @@
 //! ([`ScaleMixture::for_kurtosis`]; `15 sigma^6` when Gaussian); odd moments are 0.
 
 use super::{EffectInfo, ParamInfo, Params, Scope};
-use crate::effect::{BlockCtx, Effect, MeanContext};
+use crate::effect::{BlockCtx, Effect, MeanContext, OutputTerms};
 use crate::Result;
 use vibro_physics::abs_mean::ScaleMixture;
 use vibro_physics::vibration::Vibration;
@@ -102,6 +102,14 @@ impl Effect for HighOrder {
                 .sum()
         };
         Ok(self.k6_per_g5 * raw(6) + self.k7_per_g6 * raw(7))
+    }
+
+    fn output_terms(&self, _ctx: &MeanContext<'_>) -> Option<OutputTerms> {
+        Some(OutputTerms {
+            a3_pow6_per_g5: self.k6_per_g5,
+            a3_pow7_per_g6: self.k7_per_g6,
+            ..OutputTerms::default()
+        })
     }
 }
 

@@ -336,6 +336,32 @@ impl Effect for OnUnits {
         }
     }
 
+    fn clips_output(&self) -> bool {
+        self.inner.clips_output()
+    }
+
+    fn output_terms(&self, ctx: &MeanContext<'_>) -> Option<crate::effect::OutputTerms> {
+        let terms = self.inner.output_terms(ctx);
+        if self.applies(ctx.unit) {
+            terms
+        } else {
+            terms.map(|_| crate::effect::OutputTerms::default())
+        }
+    }
+
+    fn mean_shift_over_g(
+        &self,
+        ctx: &MeanContext<'_>,
+        others: &crate::effect::OutputTerms,
+    ) -> Option<Result<f64>> {
+        let shift = self.inner.mean_shift_over_g(ctx, others);
+        if self.applies(ctx.unit) {
+            shift
+        } else {
+            shift.map(|_| Ok(0.0))
+        }
+    }
+
     fn sensor_rms_factor(&self, ctx: &MeanContext<'_>) -> Option<f64> {
         let factor = self.inner.sensor_rms_factor(ctx);
         if self.applies(ctx.unit) {

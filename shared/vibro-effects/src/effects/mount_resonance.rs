@@ -19,7 +19,7 @@
 
 use super::filter::{Analog, Biquad, BiquadState};
 use super::spectral::{
-    check_rate, exact_shift, filtered_psd, filtered_vibration, Panels, SeenCache,
+    check_rate, exact_shift, filtered_psd, filtered_vibration, BandMemo, Panels, SeenCache,
 };
 use super::{unit_axes_param, EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
@@ -78,6 +78,7 @@ fn build(p: &mut Params<'_>) -> Result<Box<dyn Effect>> {
         filter: Biquad::IDENTITY,
         state: Default::default(),
         seen: SeenCache::default(),
+        bands: BandMemo::default(),
     }))
 }
 
@@ -93,6 +94,8 @@ struct MountResonance {
     state: [[BiquadState; 3]; 3],
     /// What the filter last passed ([`SeenCache`]).
     seen: SeenCache,
+    /// The filter's integrals over the bands seen so far ([`BandMemo`]).
+    bands: BandMemo,
 }
 
 impl Effect for MountResonance {
@@ -159,8 +162,16 @@ impl MountResonance {
             self.axes,
             |_, f| filter.response(f, rate),
             panels,
+            Some(&self.bands),
+            rate,
         )?;
-        let psd = filtered_psd(ctx.psd_unit, self.axes, |_, f| filter.response(f, rate));
+        let psd = filtered_psd(
+            ctx.psd_unit,
+            self.axes,
+            |_, f| filter.response(f, rate),
+            Some(&self.bands),
+            rate,
+        );
         Ok((transmitted, psd))
     }
 }

@@ -108,6 +108,11 @@ pub(crate) fn no_spectrum(kind: &str, what: String) -> Error {
 
 /// The vibration after per-axis filters: `filtered[i]` says whether axis `i` (0 = OA,
 /// 1 = PA, 2 = IA) passes `gain(i, f)`; the other axes are unchanged.
+///
+/// `memo` keeps each band's integral for the next call with the same band
+/// ([`BandMemo`]; `rate_hz` is part of its key, `gain` must not change between calls
+/// with one memo).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn filtered_vibration(
     kind: &str,
     vib: &Vibration,
@@ -115,6 +120,8 @@ pub(crate) fn filtered_vibration(
     filtered: [bool; 3],
     gain: impl Fn(usize, f64) -> Complex<f64>,
     panels: Panels,
+    memo: Option<&BandMemo>,
+    rate_hz: f64,
 ) -> Result<Vibration> {
     let gain = |i: usize, f: f64| {
         if filtered[i] {
@@ -140,12 +147,31 @@ pub(crate) fn filtered_vibration(
             if !(filtered[i] || filtered[j]) || c[i][j] == 0.0 {
                 continue;
             }
-            let (num, den) = band_integral(
-                psd,
-                |b| cross_weight(b, i, j),
-                |f| (gain(i, f) * gain(j, f).conj()).re,
-                panels,
-            );
+            // `band_integral`'s sums, each band's integral kept in `memo`.
+            let (mut num, mut den) = (0.0, 0.0);
+            for b in psd {
+                let w = cross_weight(b, i, j);
+                let df = b.f_hi_hz - b.f_lo_hz;
+                if w == 0.0 || df.is_nan() || df <= 0.0 {
+                    continue;
+                }
+                let integrate = || {
+                    let mut f = |f: f64| {
+                        if i == j {
+                            gain(i, f).norm_sqr()
+                        } else {
+                            (gain(i, f) * gain(j, f).conj()).re
+                        }
+                    };
+                    panels.integrate(&mut f, b.f_lo_hz, b.f_hi_hz)
+                };
+                let integral = match memo {
+                    Some(m) => m.integral(b, rate_hz, i, j, integrate),
+                    None => integrate(),
+                };
+                num += w * integral;
+                den += w * df;
+            }
             if den.is_nan() || den <= 0.0 {
                 let what = if i == j {
                     format!("sigma{}^2 = {} g^2", i + 1, c[i][i])
@@ -159,6 +185,68 @@ pub(crate) fn filtered_vibration(
         }
     }
     Ok(out)
+}
+
+/// Most entries a [`BandMemo`] keeps before it starts again (a long-lived effect fed
+/// ever new bands stays bounded).
+const MAX_MEMO_ENTRIES: usize = 4096;
+
+type BandKey = (u64, u64, u64);
+
+/// A filter's integrals over bands, kept per effect instance (one parameter set) and
+/// keyed by the band's edges and the rate, bit for bit: the rows of a table share a
+/// few bands, so one evaluation of a fit integrates each band once instead of once
+/// per row (the quadrature over a band was most of a `mount_resonance` evaluation).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct BandMemo {
+    integrals: RefCell<std::collections::HashMap<(BandKey, usize, usize), f64>>,
+    pieces: RefCell<std::collections::HashMap<BandKey, Vec<[f64; 3]>>>,
+}
+
+impl BandMemo {
+    fn key(b: &PsdBand, rate_hz: f64) -> BandKey {
+        (b.f_lo_hz.to_bits(), b.f_hi_hz.to_bits(), rate_hz.to_bits())
+    }
+
+    fn integral(
+        &self,
+        b: &PsdBand,
+        rate_hz: f64,
+        i: usize,
+        j: usize,
+        compute: impl FnOnce() -> f64,
+    ) -> f64 {
+        let key = (Self::key(b, rate_hz), i, j);
+        if let Some(v) = self.integrals.borrow().get(&key) {
+            return *v;
+        }
+        let v = compute();
+        let mut map = self.integrals.borrow_mut();
+        if map.len() >= MAX_MEMO_ENTRIES {
+            map.clear();
+        }
+        map.insert(key, v);
+        v
+    }
+
+    fn pieces(
+        &self,
+        b: &PsdBand,
+        rate_hz: f64,
+        compute: impl FnOnce() -> Vec<[f64; 3]>,
+    ) -> Vec<[f64; 3]> {
+        let key = Self::key(b, rate_hz);
+        if let Some(v) = self.pieces.borrow().get(&key) {
+            return v.clone();
+        }
+        let v = compute();
+        let mut map = self.pieces.borrow_mut();
+        if map.len() >= MAX_MEMO_ENTRIES {
+            map.clear();
+        }
+        map.insert(key, v.clone());
+        v
+    }
 }
 
 /// A filtering effect's last input and what it passed: `(vibration, band PSD, rate)`
@@ -201,10 +289,14 @@ const PSD_PIECES: usize = 16;
 /// each piece's PSD times the mean of `|gain|^2` over it (4-point midpoint rule). A
 /// filter after this one then sees the spectrum's shape to within a piece's width;
 /// the variance this one passes is `filtered_vibration`'s exact quadrature.
+///
+/// `memo` keeps each band's pieces' gains for the next call with the same band.
 pub(crate) fn filtered_psd(
     psd: &[PsdBand],
     filtered: [bool; 3],
     gain: impl Fn(usize, f64) -> Complex<f64>,
+    memo: Option<&BandMemo>,
+    rate_hz: f64,
 ) -> Vec<PsdBand> {
     if !filtered.iter().any(|f| *f) {
         return psd.to_vec();
@@ -223,20 +315,36 @@ pub(crate) fn filtered_psd(
                 lo + (hi - lo) * x
             }
         };
-        for k in 0..PSD_PIECES {
-            let (a, z) = (edge(k), edge(k + 1));
+        let factors = || {
+            (0..PSD_PIECES)
+                .map(|k| {
+                    let (a, z) = (edge(k), edge(k + 1));
+                    std::array::from_fn(|i| {
+                        if filtered[i] {
+                            (0..4)
+                                .map(|j| gain(i, a + (z - a) * (j as f64 + 0.5) / 4.0).norm_sqr())
+                                .sum::<f64>()
+                                / 4.0
+                        } else {
+                            1.0
+                        }
+                    })
+                })
+                .collect::<Vec<[f64; 3]>>()
+        };
+        let factors = match memo {
+            Some(m) => m.pieces(b, rate_hz, factors),
+            None => factors(),
+        };
+        for (k, m) in factors.iter().enumerate() {
             let mut piece = PsdBand {
-                f_lo_hz: a,
-                f_hi_hz: z,
+                f_lo_hz: edge(k),
+                f_hi_hz: edge(k + 1),
                 psd_g2_per_hz: b.psd_g2_per_hz,
             };
             for i in 0..3 {
                 if filtered[i] {
-                    let m = (0..4)
-                        .map(|j| gain(i, a + (z - a) * (j as f64 + 0.5) / 4.0).norm_sqr())
-                        .sum::<f64>()
-                        / 4.0;
-                    piece.psd_g2_per_hz[i] *= m;
+                    piece.psd_g2_per_hz[i] *= m[i];
                 }
             }
             out.push(piece);
@@ -271,6 +379,67 @@ mod tests {
     use super::*;
     use vibro_physics::vibration::Tone;
 
+    /// One memo over rows that share a band and rows that do not: every answer bit for
+    /// bit what the quadrature gives without it, the shared band integrated once.
+    #[test]
+    fn the_band_memo_answers_only_for_its_own_band() {
+        let memo = BandMemo::default();
+        let calls = std::cell::Cell::new(0usize);
+        let gain = |_: usize, f: f64| {
+            calls.set(calls.get() + 1);
+            Complex::new(1.0, 0.0) / Complex::new(1.0 - (f / 150.0).powi(2), f / 150.0 / 2.5)
+        };
+        let row = |lo: f64, hi: f64, level: f64| {
+            let psd = vec![PsdBand {
+                f_lo_hz: lo,
+                f_hi_hz: hi,
+                psd_g2_per_hz: [0.0, 0.0, level],
+            }];
+            let mut v = Vibration::none();
+            v.set_random_from_psd(&psd);
+            (v, psd)
+        };
+        let panels = Panels::Graded {
+            centre_hz: 150.0,
+            finest_hz: 7.5,
+        };
+        let mut calls_without = Vec::new();
+        for (lo, hi, level) in [
+            (20.0, 2000.0, 1e-3),
+            (20.0, 2000.0, 4e-4),
+            (20.0, 500.0, 1e-3),
+        ] {
+            let (v, psd) = row(lo, hi, level);
+            calls.set(0);
+            let plain =
+                filtered_vibration("t", &v, &psd, [false, false, true], gain, panels, None, 1e4)
+                    .unwrap();
+            let plain_psd = filtered_psd(&psd, [false, false, true], gain, None, 1e4);
+            calls_without.push(calls.get());
+            calls.set(0);
+            let kept = filtered_vibration(
+                "t",
+                &v,
+                &psd,
+                [false, false, true],
+                gain,
+                panels,
+                Some(&memo),
+                1e4,
+            )
+            .unwrap();
+            let kept_psd = filtered_psd(&psd, [false, false, true], gain, Some(&memo), 1e4);
+            assert_eq!(plain, kept);
+            assert_eq!(plain_psd, kept_psd);
+            // The second row's band is the first's: nothing integrated again.
+            if level == 4e-4 {
+                assert_eq!(calls.get(), 0);
+            } else {
+                assert_eq!(calls.get(), calls_without[calls_without.len() - 1]);
+            }
+        }
+    }
+
     #[test]
     fn tones_and_bands_pass_the_gain() {
         let mut v = Vibration::none();
@@ -296,6 +465,8 @@ mod tests {
             [false, false, true],
             |_, f| Complex::new(1.0, f),
             Panels::Uniform(0.1),
+            None,
+            1000.0,
         )
         .unwrap();
         let t = out.tones()[0];
@@ -312,6 +483,8 @@ mod tests {
             [true; 3],
             |_, _| Complex::new(1.0, 0.0),
             Panels::Uniform(1.0),
+            None,
+            1000.0,
         )
         .unwrap_err()
         .to_string();

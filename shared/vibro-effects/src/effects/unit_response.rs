@@ -17,7 +17,7 @@
 
 use super::filter::{Analog, Biquad, BiquadState};
 use super::spectral::{
-    check_rate, exact_shift, filtered_psd, filtered_vibration, Panels, SeenCache,
+    check_rate, exact_shift, filtered_psd, filtered_vibration, BandMemo, Panels, SeenCache,
 };
 use super::{EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
@@ -71,6 +71,7 @@ fn build(p: &mut Params<'_>) -> Result<Box<dyn Effect>> {
         filter: Biquad::IDENTITY,
         state: Default::default(),
         seen: SeenCache::default(),
+        bands: BandMemo::default(),
     }))
 }
 
@@ -85,6 +86,8 @@ struct UnitResponse {
     state: [BiquadState; 3],
     /// What the filter last passed ([`SeenCache`]).
     seen: SeenCache,
+    /// The filter's integrals over the bands seen so far ([`BandMemo`]).
+    bands: BandMemo,
 }
 
 impl Effect for UnitResponse {
@@ -147,10 +150,16 @@ impl UnitResponse {
             [false, false, true],
             |_, f| filter.response(f, rate),
             panels,
+            Some(&self.bands),
+            rate,
         )?;
-        let psd = filtered_psd(ctx.psd_unit, [false, false, true], |_, f| {
-            filter.response(f, rate)
-        });
+        let psd = filtered_psd(
+            ctx.psd_unit,
+            [false, false, true],
+            |_, f| filter.response(f, rate),
+            Some(&self.bands),
+            rate,
+        );
         Ok((seen, psd))
     }
 }
