@@ -69,8 +69,10 @@ pub struct MeanContext<'a> {
 }
 
 /// Output terms that are memoryless functions of the unit's total acceleration (or
-/// constant over a run), `bias + c12 a1 a2 + k6 a3^6 + k7 a3^7`, g: what an effect
-/// that clips the whole output ([`Effect::mean_shift_over_g`]) must clip with the FP.
+/// constant over a run), `bias + c12 a1 a2 + k6 a3^6 + k7 a3^7`, g, and a product
+/// `h a2` with `h` a linear filter of the IA acceleration (the vibropendulous term
+/// `c HP[a3] a2`): what an effect that clips the whole output
+/// ([`Effect::mean_shift_over_g`]) must clip with the FP.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct OutputTerms {
     /// Constant over the run, g.
@@ -81,24 +83,44 @@ pub struct OutputTerms {
     pub a3_pow6_per_g5: f64,
     /// Coefficient of `a3^7`, 1/g^6.
     pub a3_pow7_per_g6: f64,
+    /// `h = sum_k Re(G_k e^(j (theta_k + phi3_k))) ...`: per tone of the context's
+    /// vibration (in its order), the complex gain `G_k` (1/g) from the tone's IA part
+    /// to `h` (for `c HP[a3] a2`: `c HP(f_k)`), so that a tone adds
+    /// `A3_k |G_k| sin(theta_k + phi3_k + arg G_k)` to `h`.
+    pub ia_filter_tone_gain: [(f64, f64); vibro_physics::vibration::MAX_TONES],
+    /// The random part's `h` per unit of the IA random acceleration (its regression:
+    /// `cov(h, x3) / sigma3^2`), 1/g.
+    pub ia_filter_random_gain: f64,
 }
 
 impl OutputTerms {
-    /// The terms at the total acceleration `a_g` (unit axes), g.
+    /// The terms at the total acceleration `a_g` (unit axes) and the filtered IA
+    /// acceleration `h` there, g.
     #[inline]
-    pub fn at(&self, a_g: [f64; 3]) -> f64 {
+    pub fn at(&self, a_g: [f64; 3], h: f64) -> f64 {
         let a3_6 = a_g[2].powi(6);
         self.bias_g
             + self.a1_a2_per_g * a_g[0] * a_g[1]
             + a3_6 * (self.a3_pow6_per_g5 + self.a3_pow7_per_g6 * a_g[2])
+            + h * a_g[1]
     }
 
-    /// An upper bound of `|terms|` over `|a_i| <= reach_g[i]`.
-    pub fn bound_g(&self, reach_g: [f64; 3]) -> f64 {
+    /// Whether an IA filter term (`h a2`) is present.
+    pub fn has_ia_filter(&self) -> bool {
+        self.ia_filter_random_gain != 0.0
+            || self
+                .ia_filter_tone_gain
+                .iter()
+                .any(|g| g.0 != 0.0 || g.1 != 0.0)
+    }
+
+    /// An upper bound of `|terms|` over `|a_i| <= reach_g[i]` and `|h| <= h_reach`.
+    pub fn bound_g(&self, reach_g: [f64; 3], h_reach: f64) -> f64 {
         let a3_6 = reach_g[2].powi(6);
         self.bias_g.abs()
             + self.a1_a2_per_g.abs() * reach_g[0] * reach_g[1]
             + a3_6 * (self.a3_pow6_per_g5.abs() + self.a3_pow7_per_g6.abs() * reach_g[2])
+            + h_reach * reach_g[1]
     }
 
     /// Whether every term is zero.
@@ -113,6 +135,13 @@ impl OutputTerms {
             a1_a2_per_g: self.a1_a2_per_g + o.a1_a2_per_g,
             a3_pow6_per_g5: self.a3_pow6_per_g5 + o.a3_pow6_per_g5,
             a3_pow7_per_g6: self.a3_pow7_per_g6 + o.a3_pow7_per_g6,
+            ia_filter_tone_gain: std::array::from_fn(|k| {
+                (
+                    self.ia_filter_tone_gain[k].0 + o.ia_filter_tone_gain[k].0,
+                    self.ia_filter_tone_gain[k].1 + o.ia_filter_tone_gain[k].1,
+                )
+            }),
+            ia_filter_random_gain: self.ia_filter_random_gain + o.ia_filter_random_gain,
         }
     }
 }

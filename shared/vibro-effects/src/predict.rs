@@ -21,11 +21,12 @@
 //! - an effect that clips the whole output (`saturation`,
 //!   `Effect::mean_shift_over_g`) clips the FP plus the memoryless output terms of the
 //!   unit's other effects (`Effect::output_terms`: k6/k7, anisoelastic, heating's
-//!   mean bias), whatever their order, as the servo's range bounds everything the
-//!   unit outputs; its `m_e` is `E[clip(y) - y]` with that `y`, so that the total is
-//!   `E[clip(y)] - E[FP]`. Filtered terms (vibropendulous, scale_factor_frequency)
-//!   stay outside the clip: a departure from the simulator, which clips whatever is
-//!   listed before `saturation`.
+//!   mean bias, vibropendulous's `c HP[a3] a2` with `HP[a3]` per tone exactly and
+//!   its random part by its regression on IA's), whatever their order, as the servo's
+//!   range bounds everything the unit outputs; its `m_e` is `E[clip(y) - y]` with that
+//!   `y`, so that the total is `E[clip(y)] - E[FP]`. `scale_factor_frequency` stays
+//!   outside the clip: a departure from the simulator, which clips whatever is listed
+//!   before `saturation`.
 
 use crate::effect::OutputTerms;
 use crate::model::BaseMode;
@@ -492,6 +493,65 @@ mod tests {
                 "{order:?}: {clip} vs {want_clip}"
             );
         }
+    }
+
+    /// saturation clips the vibropendulous term too: `y = FP(a) + c HP[a3] a2` on a
+    /// tone, HP the bilinear image of `s tau / (1 + s tau)` at the internal rate, by its
+    /// closed form `H = j K tau / (1 + j K tau)`, `K = 2 fs tan(pi f / fs)`, against
+    /// the phase average of `clip(y) - y` over 200,000 phases.
+    #[test]
+    fn saturation_clips_the_vibropendulous_term() {
+        let p = al15();
+        let (a_l, r) = ([0.0, 0.5, 1.0], 3.99);
+        let (f, amp2, amp3, phi2) = (40.0, 2.0, 3.0, 0.4);
+        let (c, tau) = (0.01, 0.002);
+        let mut vib = Vibration::none();
+        vib.push_tone(vibro_physics::vibration::Tone {
+            freq_hz: f,
+            amplitude_g: [0.0, amp2, amp3],
+            phase_rad: [0.0, phi2, 0.0],
+        })
+        .unwrap();
+        let k = 2.0 * INTERNAL_RATE_HZ * (std::f64::consts::PI * f / INTERNAL_RATE_HZ).tan();
+        let (re, im) = {
+            // j k tau / (1 + j k tau) = (k tau)^2 / (1 + (k tau)^2) + j k tau / (1 + (k tau)^2)
+            let x = k * tau;
+            (x * x / (1.0 + x * x), x / (1.0 + x * x))
+        };
+        let n = 200_000;
+        let mean = |with_vp: bool| {
+            (0..n)
+                .map(|i| {
+                    let th = std::f64::consts::TAU * (i as f64 + 0.5) / n as f64;
+                    let a2 = a_l[1] + amp2 * (th + phi2).sin();
+                    let a3 = a_l[2] + amp3 * th.sin();
+                    let h = amp3 * (re * th.sin() + im * th.cos());
+                    let y = vibro_physics::fp::output_g(&p, 0.0, a2, a3)
+                        + if with_vp { c * h * a2 } else { 0.0 };
+                    y.clamp(-r, r) - y
+                })
+                .sum::<f64>()
+                / n as f64
+        };
+        let (want, without) = (mean(true), mean(false));
+        assert!(
+            (want - without).abs() > 1e-4 * want.abs(),
+            "{want} vs {without}"
+        );
+        let sat = format!("kind = \"saturation\"\nrange_g = {r}");
+        let vp = format!("kind = \"vibropendulous\"\nc_rad_per_g = {c}\ntau_s = {tau}");
+        let effects = build_effects(&[table(&vp), table(&sat)], &p).unwrap();
+        let got = predict_ve(BaseMode::Exact, &effects, &p, a_l, &vib, &[], 300.0).unwrap();
+        let clip = got
+            .effects
+            .iter()
+            .find(|(k, _)| k == "saturation")
+            .map(|(_, s)| *s)
+            .unwrap();
+        assert!(
+            (clip - want).abs() < 1e-6 * want.abs(),
+            "{clip} vs {want} (without the term {without})"
+        );
     }
 
     /// A sensor gain error `g` makes the sensors read `(1 + g)` times the vibration:

@@ -1730,25 +1730,37 @@ pub fn ladder_from(
         Some(d) => d.clone(),
         None => diagnose(model, table, opts)?,
     };
-    let base = model.effect_kinds();
-    let mut steps: Vec<LadderStep> = d
-        .steps
-        .iter()
-        .map(|s| LadderStep {
-            effects: base.iter().chain(&s.effects).cloned().collect(),
-            rms_residual_g: s.rms_residual_g,
-            chi2_per_dof: s.chi2_per_dof,
-        })
-        .collect();
+    let steps = ladder_steps(&d.steps, &model.effect_kinds(), max_steps);
     let mut kinds = next_effects(&d);
     kinds.truncate(max_steps);
-    steps.truncate(max_steps + 1);
     if kinds.is_empty() {
         return Ok((steps, model.clone()));
     }
     let refs: Vec<&str> = kinds.iter().map(String::as_str).collect();
     let (m, _) = add_effects(model, table, &refs, true)?;
     Ok((steps, m))
+}
+
+/// The ladder of a search's steps after the model's own effects `base`: every step up
+/// to the `max_steps`-th addition, and the replacements and removals after it (a
+/// search whose last step removes an effect ends on the set it found, not on the one
+/// before the removal).
+fn ladder_steps(steps: &[Step], base: &[String], max_steps: usize) -> Vec<LadderStep> {
+    let mut adds = 0;
+    steps
+        .iter()
+        .take_while(|s| {
+            if s.action.starts_with("add ") {
+                adds += 1;
+            }
+            adds <= max_steps
+        })
+        .map(|s| LadderStep {
+            effects: base.iter().chain(&s.effects).cloned().collect(),
+            rms_residual_g: s.rms_residual_g,
+            chi2_per_dof: s.chi2_per_dof,
+        })
+        .collect()
 }
 
 /// [`ladder_from`]'s steps.
@@ -1759,4 +1771,51 @@ pub fn error_ladder(
     max_steps: usize,
 ) -> Result<Vec<LadderStep>> {
     Ok(ladder_from(model, table, opts, max_steps, None)?.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn step(action: &str, effects: &[&str], chi2_per_dof: f64) -> Step {
+        Step {
+            action: action.into(),
+            effects: effects.iter().map(|e| e.to_string()).collect(),
+            delta_bic: 0.0,
+            bic: 0.0,
+            chi2: 0.0,
+            chi2_per_dof,
+            p_value: 0.0,
+            rms_residual_g: 0.0,
+            runners_up: Vec::new(),
+        }
+    }
+
+    /// A search that adds three effects, replaces one and removes another ends its
+    /// ladder on the set it found (the report's ladder stopped before the removal,
+    /// at a set with a lower chi2 than the one written to the model); a bound on the
+    /// additions still cuts at the addition past it.
+    #[test]
+    fn the_ladder_ends_on_the_set_found() {
+        let steps = [
+            step("model as is", &[], 1e9),
+            step("add heating", &["heating"], 8e8),
+            step("add unit_response", &["heating", "unit_response"], 3e8),
+            step("add k6", &["heating", "unit_response", "k6"], 4e5),
+            step(
+                "replace unit_response by mount",
+                &["heating", "mount", "k6"],
+                0.993,
+            ),
+            step("remove heating", &["mount", "k6"], 0.994),
+        ];
+        let base = vec!["sensor_error".to_string()];
+        let all = ladder_steps(&steps, &base, 4);
+        assert_eq!(all.len(), 6);
+        assert_eq!(all[5].effects, ["sensor_error", "mount", "k6"]);
+        assert_eq!(all[5].chi2_per_dof, 0.994);
+        let two = ladder_steps(&steps, &base, 2);
+        assert_eq!(two.len(), 3);
+        assert_eq!(two[2].effects, ["sensor_error", "heating", "unit_response"]);
+    }
 }

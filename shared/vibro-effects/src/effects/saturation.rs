@@ -174,7 +174,28 @@ fn clip_mean_shift(ctx: &MeanContext<'_>, r: f64, others: &OutputTerms) -> f64 {
         };
         a_l[i].abs() + tones.iter().map(|t| t.amplitude_g[i].abs()).sum::<f64>() + random_g
     });
-    if output_bound_g(p, reach_g) + others.bound_g(reach_g) < r {
+    // The IA filter term's `h` (a vibropendulous `c HP[a3]`): per tone the gain
+    // rotated by the tone's IA phase, `G_k e^(j phi3_k)`.
+    let h_gain: Vec<(f64, f64)> = tones
+        .iter()
+        .zip(&others.ia_filter_tone_gain)
+        .map(|(t, &(gr, gi))| {
+            let (s3, c3) = t.phase_rad[2].sin_cos();
+            (gr * c3 - gi * s3, gr * s3 + gi * c3)
+        })
+        .collect();
+    let h_random = others.ia_filter_random_gain;
+    let h_reach = tones
+        .iter()
+        .zip(&h_gain)
+        .map(|(t, g)| t.amplitude_g[2].abs() * g.0.hypot(g.1))
+        .sum::<f64>()
+        + if random {
+            h_random.abs() * Z_MAX * sigma3 * widest
+        } else {
+            0.0
+        };
+    if output_bound_g(p, reach_g) + others.bound_g(reach_g, h_reach) < r {
         return 0.0;
     }
     // Each tone's phases as (cos, sin) per axis, once.
@@ -182,19 +203,28 @@ fn clip_mean_shift(ctx: &MeanContext<'_>, r: f64, others: &OutputTerms) -> f64 {
         .iter()
         .map(|t| std::array::from_fn(|i| (t.phase_rad[i].cos(), t.phase_rad[i].sin())))
         .collect();
-    // The base acceleration at the outer tones' phases (sin theta_k, cos theta_k).
+    // The base acceleration at the outer tones' phases (sin theta_k, cos theta_k),
+    // with the IA filter term's `h` there as a fourth entry (HP(0) = 0: no static part).
     let base_at = |sines: &[f64], cosines: &[f64]| {
-        let mut base = a_l;
-        for (((t, cs), s), c) in tones.iter().zip(&phase_cs).zip(sines).zip(cosines) {
-            for (i, b) in base.iter_mut().enumerate() {
+        let mut base = [a_l[0], a_l[1], a_l[2], 0.0];
+        for ((((t, cs), g), s), c) in tones
+            .iter()
+            .zip(&phase_cs)
+            .zip(&h_gain)
+            .zip(sines)
+            .zip(cosines)
+        {
+            for (i, b) in base.iter_mut().take(3).enumerate() {
                 // aB sin(theta + phi) = aB (sin theta cos phi + cos theta sin phi).
                 *b += t.amplitude_g[i] * (s * cs[i].0 + c * cs[i].1);
             }
+            // A3 |G| sin(theta + phi3 + arg G) = A3 Im(G e^(j phi3) e^(j theta)).
+            base[3] += t.amplitude_g[2] * (s * g.0 + c * g.1);
         }
         base
     };
     let mut breaks = Vec::new();
-    let mut inner = |base: [f64; 3]| {
+    let mut inner = |base: [f64; 4]| {
         if random {
             let mut sum = 0.0;
             for &(prob, w) in components.iter().filter(|(prob, _)| *prob > 0.0) {
@@ -204,6 +234,7 @@ fn clip_mean_shift(ctx: &MeanContext<'_>, r: f64, others: &OutputTerms) -> f64 {
                         base[0] + beta[0] * s * z,
                         base[1] + beta[1] * s * z,
                         base[2] + s * z,
+                        base[3] + h_random * s * z,
                     ]
                 };
                 sum += prob
@@ -220,11 +251,15 @@ fn clip_mean_shift(ctx: &MeanContext<'_>, r: f64, others: &OutputTerms) -> f64 {
                     );
             }
             sum
-        } else if let Some(last) = tones.last() {
+        } else if let (Some(last), Some(g)) = (tones.last(), h_gain.last()) {
             let path = |th: f64| {
-                std::array::from_fn(|i| {
-                    base[i] + last.amplitude_g[i] * (th + last.phase_rad[i]).sin()
-                })
+                let (s, c) = th.sin_cos();
+                [
+                    base[0] + last.amplitude_g[0] * (th + last.phase_rad[0]).sin(),
+                    base[1] + last.amplitude_g[1] * (th + last.phase_rad[1]).sin(),
+                    base[2] + last.amplitude_g[2] * (th + last.phase_rad[2]).sin(),
+                    base[3] + last.amplitude_g[2] * (s * g.0 + c * g.1),
+                ]
             };
             clipped_integral(
                 p,
@@ -238,7 +273,8 @@ fn clip_mean_shift(ctx: &MeanContext<'_>, r: f64, others: &OutputTerms) -> f64 {
                 |_| 1.0 / TAU,
             )
         } else {
-            let f = output_g(p, base[0], base[1], base[2]) + others.at(base);
+            let f = output_g(p, base[0], base[1], base[2])
+                + others.at([base[0], base[1], base[2]], base[3]);
             f.clamp(-r, r) - f
         }
     };
@@ -295,7 +331,8 @@ fn output_bound_g(p: &Passport, reach_g: [f64; 3]) -> f64 {
         + a3 * (p.m31_per_g.abs() * a1 + p.m32_per_g.abs() * a2)
 }
 
-/// `int_lo^hi (clip(y) - y) density(x) dx`, `y = FP(path(x)) + others(path(x))`, with
+/// `int_lo^hi (clip(y) - y) density(x) dx`, `y = FP(a) + others(a, h)` with
+/// `(a, h) = path(x)` (`h` the IA filter term's filtered acceleration), with
 /// the points where `y = +-r` along the path as panel edges; pieces where nothing is clipped are
 /// skipped (the integrand is zero on them).
 #[allow(clippy::too_many_arguments)]
@@ -303,7 +340,7 @@ fn clipped_integral(
     p: &Passport,
     others: &OutputTerms,
     r: f64,
-    path: &impl Fn(f64) -> [f64; 3],
+    path: &impl Fn(f64) -> [f64; 4],
     lo: f64,
     hi: f64,
     max_panel: f64,
@@ -312,7 +349,7 @@ fn clipped_integral(
 ) -> f64 {
     let fp = |x: f64| {
         let a = path(x);
-        output_g(p, a[0], a[1], a[2]) + others.at(a)
+        output_g(p, a[0], a[1], a[2]) + others.at([a[0], a[1], a[2]], a[3])
     };
     breaks.clear();
     crossings(&mut |x| fp(x) - r, lo, hi, CELLS, breaks);

@@ -26,7 +26,7 @@
 use super::filter::{Analog, Biquad, BiquadState};
 use super::spectral::{band_integral, check_rate, cross_weight, no_spectrum, Panels};
 use super::{EffectInfo, ParamInfo, Params, Scope};
-use crate::effect::{BlockCtx, Effect, MeanContext};
+use crate::effect::{BlockCtx, Effect, MeanContext, OutputTerms};
 use crate::Result;
 use realfft::num_complex::Complex;
 use std::f64::consts::PI;
@@ -147,6 +147,38 @@ impl Effect for Vibropendulous {
             sum += cov32 * num / den;
         }
         Ok(self.c_rad_per_g * sum)
+    }
+
+    /// `c HP[a3] a2` for a clip: per tone `c HP(f)`, and for the random part the
+    /// regression of `c HP[x3]` on `x3`, `c int Re HP S33 df / int S33 df` (None when
+    /// the rate or the spectrum the mean formula needs is missing).
+    fn output_terms(&self, ctx: &MeanContext<'_>) -> Option<OutputTerms> {
+        let rate = ctx.internal_rate_hz;
+        check_rate(KIND, rate).ok()?;
+        let hp = self.high_pass(rate);
+        let vib = ctx.vibration_unit;
+        let mut terms = OutputTerms::default();
+        for (g, t) in terms.ia_filter_tone_gain.iter_mut().zip(vib.tones()) {
+            let h = hp.response(t.freq_hz, rate) * self.c_rad_per_g;
+            *g = (h.re, h.im);
+        }
+        if vib.covariance_g2[2][2] > 0.0 {
+            let panels = Panels::Graded {
+                centre_hz: 0.0,
+                finest_hz: (0.25 / (2.0 * PI * self.tau_s)).max(1e-3),
+            };
+            let (num, den) = band_integral(
+                ctx.psd_unit,
+                |b| cross_weight(b, 2, 2),
+                |f| hp.response(f, rate).re,
+                panels,
+            );
+            if den.is_nan() || den <= 0.0 {
+                return None;
+            }
+            terms.ia_filter_random_gain = self.c_rad_per_g * num / den;
+        }
+        Some(terms)
     }
 }
 
