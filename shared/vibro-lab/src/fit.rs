@@ -1523,16 +1523,38 @@ fn fit_joint_inner(
     // Each start scored with its linear parameters solved (variable projection).
     let any_linear = linear.iter().any(|l| *l);
     let any_nonlinear = linear.iter().any(|l| !*l);
+    // Many starts (a set refitted from every start of its effects' grids) are scored
+    // side by side, in contiguous chunks each on its own problem; the scores come
+    // back in the starts' order, so the fit is the same as one after the other.
+    let threads = if all_starts.len() >= 16 {
+        crate::parallel::available()
+    } else {
+        1
+    };
+    let chunk = all_starts.len().div_ceil(threads.max(1)).max(1);
+    let chunks: Vec<Vec<Vec<f64>>> = all_starts.chunks(chunk).map(<[_]>::to_vec).collect();
+    let results = crate::parallel::in_parallel(&chunks, threads, |_, starts| {
+        let mut own = Problem::new(model, table, prep, terms, what.clone(), meter, project);
+        let out: Vec<(Vec<f64>, Result<f64>)> = starts
+            .iter()
+            .map(|s| {
+                let mut s = s.clone();
+                let c = own.eval(&mut s, any_linear).map(|r| r.norm_squared());
+                (s, c)
+            })
+            .collect();
+        (out, own.evaluations)
+    });
     let mut scored = Vec::new();
     let mut last_error = None;
-    for mut s in all_starts {
-        match pb.eval(&mut s, any_linear) {
-            Ok(r) => {
-                let c = r.norm_squared();
-                scored.push((s, c));
+    for (out, evaluations) in results {
+        pb.evaluations += evaluations;
+        for (s, c) in out {
+            match c {
+                Ok(c) => scored.push((s, c)),
+                Err(e @ Error::Budget { .. }) => return Err(e),
+                Err(e) => last_error = Some(e),
             }
-            Err(e @ Error::Budget { .. }) => return Err(e),
-            Err(e) => last_error = Some(e),
         }
     }
     if scored.is_empty() {
