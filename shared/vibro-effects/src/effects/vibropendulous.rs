@@ -89,6 +89,26 @@ struct Vibropendulous {
 }
 
 impl Vibropendulous {
+    /// `int Re HP S_3j df / int S_3j df` over the context's bands (the cross-spectral
+    /// weight of IA and axis `j`), None without a spectrum there.
+    fn band_mean_re_hp(&self, ctx: &MeanContext<'_>, hp: &Biquad, j: usize) -> Option<f64> {
+        let rate = ctx.internal_rate_hz;
+        // Panels a quarter of the corner frequency wide resolve Re HP's transition; a
+        // first-order response's pole is at `i f_c`, so above the corner the panels
+        // may grow with the frequency.
+        let panels = Panels::Graded {
+            centre_hz: 0.0,
+            finest_hz: (0.25 / (2.0 * PI * self.tau_s)).max(1e-3),
+        };
+        let (num, den) = band_integral(
+            ctx.psd_unit,
+            |b| cross_weight(b, 2, j),
+            |f| hp.response(f, rate).re,
+            panels,
+        );
+        (!den.is_nan() && den > 0.0).then(|| num / den)
+    }
+
     fn high_pass(&self, rate_hz: f64) -> Biquad {
         // Plain bilinear: the corner 1/(2 pi tau) may lie above Nyquist for a fast loop.
         Biquad::bilinear(&self.analog, rate_hz, 0.0)
@@ -128,23 +148,10 @@ impl Effect for Vibropendulous {
         }
         let cov32 = vib.covariance_g2[2][1];
         if cov32 != 0.0 {
-            // Panels a quarter of the corner frequency wide resolve Re HP's transition;
-            // a first-order response's pole is at `i f_c`, so above the corner the
-            // panels may grow with the frequency.
-            let panels = Panels::Graded {
-                centre_hz: 0.0,
-                finest_hz: (0.25 / (2.0 * PI * self.tau_s)).max(1e-3),
-            };
-            let (num, den) = band_integral(
-                ctx.psd_unit,
-                |b| cross_weight(b, 2, 1),
-                |f| hp.response(f, rate).re,
-                panels,
-            );
-            if den.is_nan() || den <= 0.0 {
+            let Some(mean_re) = self.band_mean_re_hp(ctx, &hp, 1) else {
                 return Err(no_spectrum(KIND, format!("cov32 = {cov32} g^2")));
-            }
-            sum += cov32 * num / den;
+            };
+            sum += cov32 * mean_re;
         }
         Ok(self.c_rad_per_g * sum)
     }
@@ -163,20 +170,7 @@ impl Effect for Vibropendulous {
             *g = (h.re, h.im);
         }
         if vib.covariance_g2[2][2] > 0.0 {
-            let panels = Panels::Graded {
-                centre_hz: 0.0,
-                finest_hz: (0.25 / (2.0 * PI * self.tau_s)).max(1e-3),
-            };
-            let (num, den) = band_integral(
-                ctx.psd_unit,
-                |b| cross_weight(b, 2, 2),
-                |f| hp.response(f, rate).re,
-                panels,
-            );
-            if den.is_nan() || den <= 0.0 {
-                return None;
-            }
-            terms.ia_filter_random_gain = self.c_rad_per_g * num / den;
+            terms.ia_filter_random_gain = self.c_rad_per_g * self.band_mean_re_hp(ctx, &hp, 2)?;
         }
         Some(terms)
     }
