@@ -123,11 +123,6 @@ impl OutputTerms {
             + h_reach * reach_g[1]
     }
 
-    /// Whether every term is zero.
-    pub fn is_zero(&self) -> bool {
-        *self == Self::default()
-    }
-
     /// The sum of two sets of terms.
     pub fn plus(self, o: Self) -> Self {
         Self {

@@ -221,7 +221,12 @@ pub fn effect_shifts_g(
             .filter_map(|(_, e)| e.output_terms(ctx))
             .fold(OutputTerms::default(), OutputTerms::plus)
     };
-    let (terms_on, terms_off) = (terms(&on), terms(&off));
+    // Only a clip reads them (a vibropendulous term's integrates over the bands).
+    let (terms_on, terms_off) = if effects.iter().any(|e| e.clips_output()) {
+        (terms(&on), terms(&off))
+    } else {
+        Default::default()
+    };
     let mut out = Vec::new();
     for (k, e) in effects.iter().enumerate() {
         if e.sensor_rms_factor(&on).is_some() {
@@ -367,6 +372,15 @@ mod tests {
         toml::from_str(text).unwrap()
     }
 
+    /// The VE change of the effect `kind` in a prediction.
+    fn share(p: &Prediction, kind: &str) -> f64 {
+        p.effects
+            .iter()
+            .find(|(k, _)| k == kind)
+            .map(|(_, s)| *s)
+            .unwrap()
+    }
+
     /// anisoelastic: `k_ae E[v1 v2]` with `E[v1 v2] = 0.5 aB1 aB2 cos(phi1 - phi2) +
     /// cov12` (docs/effects.md); its static `k_ae aL1 aL2` cancels.
     #[test]
@@ -429,13 +443,7 @@ mod tests {
         for order in [[ae.as_str(), phase], [phase, ae.as_str()]] {
             let effects = build_effects(&[table(order[0]), table(order[1])], &p).unwrap();
             let got = predict_ve(BaseMode::Exact, &effects, &p, a_l, &vib, &[], 300.0).unwrap();
-            let by_kind = |k: &str| {
-                got.effects
-                    .iter()
-                    .find(|(kind, _)| kind == k)
-                    .map(|(_, s)| *s)
-                    .unwrap()
-            };
+            let by_kind = |k: &str| share(&got, k);
             assert!(
                 (by_kind("anisoelastic") - want_ae).abs() < 1e-18,
                 "{order:?}: {} vs {want_ae}",
@@ -482,12 +490,7 @@ mod tests {
         for order in [[sat.as_str(), high.as_str()], [high.as_str(), sat.as_str()]] {
             let effects = build_effects(&[table(order[0]), table(order[1])], &p).unwrap();
             let got = predict_ve(BaseMode::Exact, &effects, &p, a_l, &vib, &[], 300.0).unwrap();
-            let clip = got
-                .effects
-                .iter()
-                .find(|(k, _)| k == "saturation")
-                .map(|(_, s)| *s)
-                .unwrap();
+            let clip = share(&got, "saturation");
             assert!(
                 (clip - want_clip).abs() < 1e-7 * want_clip.abs(),
                 "{order:?}: {clip} vs {want_clip}"
@@ -542,12 +545,7 @@ mod tests {
         let vp = format!("kind = \"vibropendulous\"\nc_rad_per_g = {c}\ntau_s = {tau}");
         let effects = build_effects(&[table(&vp), table(&sat)], &p).unwrap();
         let got = predict_ve(BaseMode::Exact, &effects, &p, a_l, &vib, &[], 300.0).unwrap();
-        let clip = got
-            .effects
-            .iter()
-            .find(|(k, _)| k == "saturation")
-            .map(|(_, s)| *s)
-            .unwrap();
+        let clip = share(&got, "saturation");
         assert!(
             (clip - want).abs() < 1e-6 * want.abs(),
             "{clip} vs {want} (without the term {without})"
