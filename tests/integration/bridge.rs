@@ -310,16 +310,7 @@ fn remote_accel_publisher(
     endpoint: &str,
     key_prefix: &str,
 ) -> (zenoh::Session, zenoh::pubsub::Publisher<'static>) {
-    let mut zc = zenoh::Config::default();
-    zc.insert_json5("mode", "\"peer\"").unwrap();
-    zc.insert_json5("connect/endpoints", &format!("[{endpoint:?}]"))
-        .unwrap();
-    zc.insert_json5("connect/timeout_ms", "10000").unwrap();
-    zc.insert_json5("connect/exit_on_failure", "true").unwrap();
-    zc.insert_json5("listen/endpoints", "[]").unwrap();
-    zc.insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    let session = zenoh::open(zc).wait().unwrap();
+    let session = remote_session(endpoint);
     let publisher = session
         .declare_publisher(format!("{key_prefix}/accel"))
         .encoding(vibro_bridge::encoding_of(
@@ -454,6 +445,154 @@ fn a_seq_jump_from_the_network_is_counted_as_a_jump_never_as_a_loss() {
     assert_eq!(s["out_of_order"], 0, "{b}");
     assert_eq!(s["forwarded"], seqs.len() as u64, "{b}");
     assert_eq!(b["lost"], gaps, "{b}");
+}
+
+/// A Zenoh peer connected to the bridge listening on `endpoint`, with nothing declared.
+fn remote_session(endpoint: &str) -> zenoh::Session {
+    let mut zc = zenoh::Config::default();
+    zc.insert_json5("mode", "\"peer\"").unwrap();
+    zc.insert_json5("connect/endpoints", &format!("[{endpoint:?}]"))
+        .unwrap();
+    zc.insert_json5("connect/timeout_ms", "10000").unwrap();
+    zc.insert_json5("connect/exit_on_failure", "true").unwrap();
+    zc.insert_json5("listen/endpoints", "[]").unwrap();
+    zc.insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    zenoh::open(zc).wait().unwrap()
+}
+
+fn heartbeat(service: ServiceId, seq: u64) -> vibro_msgs::Heartbeat {
+    vibro_msgs::Heartbeat {
+        seq,
+        publish_ns: vibro_ipc::now_ns(),
+        uptime_ns: seq * 1_000_000_000,
+        received: 10 * seq,
+        service: service.code(),
+        ..vibro_msgs::Heartbeat::ZEROED
+    }
+}
+
+/// CI (after 1656 s, `latency --hosts 2` under load): the compute host's bridge counted
+/// a heartbeat of each service as lost, taken before the rig host's bridge came up a
+/// second later. A heartbeat is its service's whole state (cumulative counters): the
+/// newest one waits for the other side and is sent when it comes; the ones it replaced
+/// are `superseded`, not lost. The reference is what this test published: heartbeats 0,
+/// 1, 2 with nobody on the other side, then a peer subscribes and must get heartbeat 2
+/// (before the fix it got none, and the bridge counted 3 lost). The other way, a peer
+/// puts heartbeats 0, 1, 4, 5: all forwarded, 2 superseded, none lost.
+#[test]
+fn heartbeats_taken_before_the_other_side_came_up_wait_for_it_and_are_not_lost() {
+    let dir = Dir::new("state");
+    let prefix = prefix("s");
+    let (config, endpoint, key_prefix) = listening_config(
+        &dir,
+        &prefix,
+        "state",
+        "[export]\nstreams = [\"heartbeat/compensator\"]\n[import]\nstreams = [\"heartbeat/estimator\"]\n",
+    );
+    let names = ServiceNames::new(&prefix).unwrap();
+    let node = create_node("vcb-state").unwrap();
+    let mut hb_out = StreamPublisher::<vibro_msgs::Heartbeat>::open(
+        &node,
+        &names,
+        Stream::Heartbeat(ServiceId::Compensator),
+    )
+    .unwrap();
+    let hb_in = StreamSubscriber::<vibro_msgs::Heartbeat>::open(
+        &node,
+        &names,
+        Stream::Heartbeat(ServiceId::Estimator),
+    )
+    .unwrap();
+    let br = bridge(&config, &dir);
+    wait_until(
+        "the bridge's iceoryx2 subscriber",
+        Duration::from_secs(20),
+        || hb_out.subscriber_count() >= 1,
+    );
+    for seq in 0..3 {
+        hb_out
+            .publish(&heartbeat(ServiceId::Compensator, seq))
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    // Taken by the bridge while no peer was there.
+    std::thread::sleep(Duration::from_millis(500));
+    let session = remote_session(&endpoint);
+    let got = std::sync::Arc::new(std::sync::Mutex::new(Vec::<u64>::new()));
+    let _sub = session
+        .declare_subscriber(format!("{key_prefix}/heartbeat/compensator"))
+        .callback({
+            let got = std::sync::Arc::clone(&got);
+            move |s| {
+                let bytes = s.payload().to_bytes();
+                if let Some(h) = vibro_msgs::Heartbeat::from_wire_bytes(&bytes) {
+                    got.lock().unwrap().push(h.seq);
+                }
+            }
+        })
+        .wait()
+        .unwrap();
+    wait_until("heartbeat 2 at the peer", Duration::from_secs(10), || {
+        got.lock().unwrap().contains(&2)
+    });
+    let publisher = session
+        .declare_publisher(format!("{key_prefix}/heartbeat/estimator"))
+        .encoding(vibro_bridge::encoding_of(
+            vibro_msgs::MessageKind::Heartbeat,
+        ))
+        .congestion_control(zenoh::qos::CongestionControl::Block)
+        .wait()
+        .unwrap();
+    wait_until(
+        "the bridge's Zenoh subscriber",
+        Duration::from_secs(10),
+        || publisher.matching_status().wait().unwrap().matching(),
+    );
+    let sent = [0u64, 1, 4, 5];
+    for seq in sent {
+        publisher
+            .put(heartbeat(ServiceId::Estimator, seq).bytes())
+            .wait()
+            .unwrap();
+    }
+    let mut local = Vec::new();
+    wait_until(
+        "the heartbeats in iceoryx2",
+        Duration::from_secs(10),
+        || {
+            while let Some(h) = hb_in.receive().unwrap() {
+                local.push(h.seq);
+            }
+            local.len() >= sent.len()
+        },
+    );
+    assert_eq!(local, sent);
+    drop(publisher);
+    drop(_sub);
+    session.close().wait().unwrap();
+    let b = br.summary();
+    let stream = |name: &str| {
+        b["streams"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["stream"] == name)
+            .unwrap_or_else(|| panic!("{name} in {b}"))
+            .clone()
+    };
+    let out = stream("heartbeat/compensator");
+    let received = got.lock().unwrap().clone();
+    // What the peer got: the newest heartbeat taken before it came, nothing older.
+    assert_eq!(received, [2], "{b}");
+    assert_eq!(out["unmatched"], 0, "{b}");
+    assert_eq!(out["forwarded"], 1, "{b}");
+    assert_eq!(out["superseded"], 2, "{b}");
+    let inn = stream("heartbeat/estimator");
+    assert_eq!(inn["forwarded"], sent.len() as u64, "{b}");
+    assert_eq!(inn["superseded"], 2, "{b}");
+    assert_eq!(inn["gap_messages"], 0, "{b}");
+    assert_eq!(b["lost"], 0, "{b}");
 }
 
 /// The uid and gid the intruder runs as (`nobody` on Debian and most distributions).

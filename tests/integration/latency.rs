@@ -30,6 +30,7 @@ fn latency_reports_every_hop_of_three_pipelines_without_loss() {
         assert_eq!(r["vib_blocks_sent"], 100, "{r}");
         assert_eq!(r["compensated_received"], 50, "{r}");
         assert_eq!(r["lost_samples"], 0, "{r}");
+        assert_eq!(r["losses"], serde_json::json!([]), "{r}");
         for hop in [
             "rig_to_service",
             "processing",
@@ -99,6 +100,7 @@ fn latency_with_a_connected_viewer_reports_what_the_viewer_got() {
     );
     assert_eq!(r["compensated_received"], 50, "{r}");
     assert_eq!(r["lost_samples"], 0, "{r}");
+    assert_eq!(r["losses"], serde_json::json!([]), "{r}");
     let view = &r["view"];
     let units = vibro_view::UNIT_NAMES.len() as u64;
     assert_eq!(
@@ -159,6 +161,7 @@ fn latency_across_two_hosts_answers_every_block_through_the_bridges() {
         assert_eq!(r["accel_blocks_sent"], 25, "{r}");
         assert_eq!(r["compensated_received"], 25, "{r}");
         assert_eq!(r["lost_samples"], 0, "{r}");
+        assert_eq!(r["losses"], serde_json::json!([]), "{r}");
         assert_eq!(r["end_to_end"]["count"], 20, "{r}");
     }
     // The bridged pipeline's processes: the services and a bridge on each host.

@@ -33,7 +33,7 @@ use vibro_system::Role;
 use crate::cpu::Cpu;
 use crate::histogram::Stamps;
 use crate::peers::{spawn_peer, KillOnDrop};
-use crate::pipelines::{losses, spec_for, summarize, PipelineRun};
+use crate::pipelines::{bridge_losses, service_losses, spec_for, summarize, PipelineRun};
 use crate::rig::{pace, run_iceoryx, RigStream};
 use crate::Options;
 
@@ -100,10 +100,10 @@ pub(crate) fn run_bridged(
         let e = est.stop(timeout)?.summary()?;
         let ba = bridge_a.stop(timeout)?.summary()?;
         let bb = bridge_b.stop(timeout)?.summary()?;
-        let lost = losses(&c, "accel")
-            + losses(&e, "vib")
-            + ba["lost"].as_u64().unwrap_or(0)
-            + bb["lost"].as_u64().unwrap_or(0);
+        let mut lost = service_losses("compensator", &c, "accel");
+        lost.extend(service_losses("estimator", &e, "vib"));
+        lost.extend(bridge_losses("bridge A", &ba));
+        lost.extend(bridge_losses("bridge B", &bb));
         summarize(
             "vibrocomp, 2 hosts (iceoryx2 + Zenoh bridges over a Unix socket)",
             opts,
@@ -295,7 +295,7 @@ pub(crate) fn run_bare_zenoh(
         "bare Zenoh (2 processes, loopback TCP)",
         opts,
         (ka, kv, &stamps),
-        0,
+        Vec::new(),
         cpu,
     )
 }

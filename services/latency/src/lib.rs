@@ -74,7 +74,7 @@ pub use histogram::{BucketRow, EndToEndHistogram, HopUs, PercentileRow};
 pub use load::LoadReport;
 pub use memory::{MemorySummary, MEMORY_FLAT_BOUND_KIB};
 pub use peers::{run_peer, PeerCommand};
-pub use pipelines::{LatencyReport, PipelineRun, Ratios};
+pub use pipelines::{LatencyReport, Loss, PipelineRun, Ratios};
 pub use soak::{AccelCheck, ServiceCounts, SoakReport};
 pub use view::ViewLoad;
 

@@ -30,9 +30,11 @@ pub struct PipelineRun {
     pub accel_blocks_sent: u64,
     pub vib_blocks_sent: u64,
     pub compensated_received: u64,
-    /// Accelerometer samples without a compensated output, plus the services' own
-    /// loss counters (must be 0).
+    /// Accelerometer samples without a compensated output (must be 0).
     pub lost_samples: u64,
+    /// Every loss counter of the pipeline's processes that was not 0 at the end of
+    /// the run, named by process and counter (must be empty).
+    pub losses: Vec<Loss>,
     pub rig_to_service: HopUs,
     pub processing: HopUs,
     pub service_to_subscriber: HopUs,
@@ -42,6 +44,72 @@ pub struct PipelineRun {
     /// With `--view`: the live view and its client over the run.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub view: Option<ViewLoad>,
+}
+
+/// A loss counter that was not 0 when a process stopped: which process, which
+/// counter (its path in the process's JSON summary) and how many, in the counter's
+/// own unit (messages, samples or blocks, as its name says).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Loss {
+    pub process: String,
+    pub counter: String,
+    pub count: u64,
+}
+
+/// A service's loss counters on its input `stream` and its undelivered outputs.
+pub(crate) fn service_losses(
+    process: &str,
+    summary: &serde_json::Value,
+    stream: &str,
+) -> Vec<Loss> {
+    let counters = [
+        (
+            format!("{stream}.lost_messages"),
+            &summary[stream]["lost_messages"],
+        ),
+        (
+            format!("{stream}.lost_samples"),
+            &summary[stream]["lost_samples"],
+        ),
+        ("undelivered".to_string(), &summary["undelivered"]),
+    ];
+    nonzero(process, counters)
+}
+
+/// A bridge's loss counters, stream by stream (`StreamReport::lost`'s terms).
+pub(crate) fn bridge_losses(process: &str, summary: &serde_json::Value) -> Vec<Loss> {
+    let mut out = Vec::new();
+    for s in summary["streams"].as_array().into_iter().flatten() {
+        let name = s["stream"].as_str().unwrap_or("?");
+        let dir = s["direction"].as_str().unwrap_or("?");
+        let counters = [
+            "unmatched",
+            "gap_messages",
+            "queue_dropped",
+            "refused",
+            "undelivered",
+        ]
+        .map(|k| (format!("{name} ({dir}).{k}"), &s[k]));
+        out.extend(nonzero(process, counters));
+    }
+    out
+}
+
+fn nonzero<'a>(
+    process: &str,
+    counters: impl IntoIterator<Item = (String, &'a serde_json::Value)>,
+) -> Vec<Loss> {
+    counters
+        .into_iter()
+        .filter_map(|(counter, v)| {
+            let count = v.as_u64().unwrap_or(0);
+            (count > 0).then(|| Loss {
+                process: process.to_string(),
+                counter,
+                count,
+            })
+        })
+        .collect()
 }
 
 /// The vibrocomp pipeline against the baselines, end to end.
@@ -129,7 +197,7 @@ pub(crate) fn summarize(
     pipeline: &'static str,
     opts: &Options,
     (ka, kv, stamps): (u64, u64, &[Stamps]),
-    extra_lost: u64,
+    losses: Vec<Loss>,
     cpu_percent: Vec<(String, f64)>,
 ) -> anyhow::Result<PipelineRun> {
     let mut h = Histograms::new()?;
@@ -144,7 +212,8 @@ pub(crate) fn summarize(
         accel_blocks_sent: ka,
         vib_blocks_sent: kv,
         compensated_received: stamps.len() as u64,
-        lost_samples: sent.saturating_sub(received) + extra_lost,
+        lost_samples: sent.saturating_sub(received),
+        losses,
         rig_to_service: hop(&h.rig_to_service),
         processing: hop(&h.processing),
         service_to_subscriber: hop(&h.service_to_subscriber),
@@ -246,7 +315,8 @@ pub(crate) fn run_vibrocomp(
     };
     let c = comp.stop(Duration::from_secs(10))?.summary()?;
     let e = est.stop(Duration::from_secs(10))?.summary()?;
-    let lost = losses(&c, "accel") + losses(&e, "vib");
+    let mut lost = service_losses("compensator", &c, "accel");
+    lost.extend(service_losses("estimator", &e, "vib"));
     let name = if view.is_some() {
         "vibrocomp (iceoryx2), live view + 1 client"
     } else {
@@ -294,7 +364,7 @@ fn run_bare(opts: &Options, k1: [f64; 3], log: &Path) -> anyhow::Result<Pipeline
     let cpu = cpu.finish();
     drop(sink);
     drop(forwarder);
-    summarize("bare iceoryx2", opts, (ka, kv, &stamps), 0, cpu)
+    summarize("bare iceoryx2", opts, (ka, kv, &stamps), Vec::new(), cpu)
 }
 
 fn connect(path: &Path) -> anyhow::Result<UnixStream> {
@@ -362,5 +432,5 @@ fn run_uds(
     let cpu = cpu.finish();
     drop(guard);
     let _ = std::fs::remove_dir_all(&dir);
-    summarize("Unix sockets", opts, (ka, kv, &stamps), 0, cpu)
+    summarize("Unix sockets", opts, (ka, kv, &stamps), Vec::new(), cpu)
 }

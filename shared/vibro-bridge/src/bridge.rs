@@ -50,6 +50,17 @@ pub struct StreamStats {
     /// Import: messages iceoryx2 could not deliver to a subscriber (back-pressure
     /// timeout); export: Zenoh put errors.
     pub undelivered: AtomicU64,
+    /// A state stream's messages (a heartbeat: the service's whole state, its
+    /// counters cumulative) replaced by a newer one before they were sent (export,
+    /// nobody matched yet) or missing by `seq` (import): not lost, the newer one says
+    /// all they said ([`is_state`]).
+    pub superseded: AtomicU64,
+}
+
+/// A stream whose every message carries its producer's whole state, so that only the
+/// newest one matters: heartbeats (docs/bridge.md, "How a loss shows").
+pub fn is_state(stream: Stream) -> bool {
+    matches!(stream, Stream::Heartbeat(_))
 }
 
 impl StreamStats {
@@ -85,11 +96,13 @@ pub struct StreamReport {
     pub queue_dropped: u64,
     pub refused: u64,
     pub undelivered: u64,
+    pub superseded: u64,
 }
 
 impl StreamReport {
     /// Messages this stream lost or refused, whatever the cause (a `seq` jump is none:
-    /// what it skipped is unknown).
+    /// what it skipped is unknown; a superseded state message is none: a newer one
+    /// carries all it said).
     pub fn lost(&self) -> u64 {
         [
             self.unmatched,
@@ -132,7 +145,7 @@ impl BridgeSummary {
             }
             let _ = write!(
                 s,
-                "{{\"stream\":\"{}\",\"direction\":\"{}\",\"key\":\"{}\",\"forwarded\":{},\"unmatched\":{},\"gap_messages\":{},\"out_of_order\":{},\"producer_restarts\":{},\"seq_jumps\":{},\"queue_dropped\":{},\"refused\":{},\"undelivered\":{},\"lost\":{}}}",
+                "{{\"stream\":\"{}\",\"direction\":\"{}\",\"key\":\"{}\",\"forwarded\":{},\"unmatched\":{},\"gap_messages\":{},\"out_of_order\":{},\"producer_restarts\":{},\"seq_jumps\":{},\"queue_dropped\":{},\"refused\":{},\"undelivered\":{},\"superseded\":{},\"lost\":{}}}",
                 r.stream,
                 match r.direction {
                     Direction::Export => "export",
@@ -148,6 +161,7 @@ impl BridgeSummary {
                 r.queue_dropped,
                 r.refused,
                 r.undelivered,
+                r.superseded,
                 r.lost()
             );
         }
@@ -285,6 +299,7 @@ pub fn run_on(
         queue_dropped: StreamStats::get(&st.queue_dropped),
         refused: StreamStats::get(&st.refused),
         undelivered: StreamStats::get(&st.undelivered),
+        superseded: StreamStats::get(&st.superseded),
     };
     let mut streams: Vec<StreamReport> = config
         .export
@@ -371,10 +386,13 @@ struct Exporter<T: WireMessage> {
     /// Copies (a subscriber may borrow only 2 samples from shared memory at a time).
     held: std::cell::RefCell<Vec<T>>,
     /// A stream with a history for late subscribers (`estimate` 1, `log/*` 32,
-    /// `vibro_ipc::stream_config`): the last that many messages taken while nobody on
-    /// the other side was matched, sent when somebody is (as iceoryx2 would to a late
-    /// subscriber); older ones are counted `unmatched`.
+    /// `vibro_ipc::stream_config`; a state stream 1): the last that many messages
+    /// taken while nobody on the other side was matched, sent when somebody is (as
+    /// iceoryx2 would to a late subscriber); older ones are counted `unmatched`, or
+    /// `superseded` on a state stream.
     history: usize,
+    /// [`is_state`].
+    state: bool,
     pending: std::cell::RefCell<std::collections::VecDeque<T>>,
     publisher: zenoh::pubsub::Publisher<'static>,
     matched: Arc<AtomicBool>,
@@ -425,11 +443,19 @@ impl<T: WireMessage> Exporter<T> {
                 reason: e.to_string(),
             })?;
         let deferred = matches!(stream, Stream::Progress(_));
-        let history = vibro_ipc::stream_config(stream).history;
+        let state = is_state(stream);
+        // A heartbeat taken before the other side's bridge came up (its host started
+        // later) waits for it instead of being lost: the newest one, sent on matching.
+        let history = if state {
+            1
+        } else {
+            vibro_ipc::stream_config(stream).history
+        };
         Ok(Self {
             sub,
             deferred,
             history,
+            state,
             pending: std::cell::RefCell::new(std::collections::VecDeque::with_capacity(history)),
             held: std::cell::RefCell::new(Vec::with_capacity(if deferred { HOLD_MAX } else { 0 })),
             publisher,
@@ -493,7 +519,14 @@ impl<T: WireMessage> ExportPort for Exporter<T> {
                 let mut pending = self.pending.borrow_mut();
                 if pending.len() == self.history {
                     pending.pop_front();
-                    StreamStats::add(&self.stats.unmatched, 1);
+                    StreamStats::add(
+                        if self.state {
+                            &self.stats.superseded
+                        } else {
+                            &self.stats.unmatched
+                        },
+                        1,
+                    );
                 }
                 pending.push_back(*sample);
                 continue;
@@ -578,6 +611,14 @@ fn export_loop(
         }
     }
     drop(guards);
+    // What the producers published before the stop and this loop has not taken yet:
+    // sent (or counted), never dropped silently.
+    for p in &ports {
+        p.hold()?;
+    }
+    for p in &ports {
+        p.drain()?;
+    }
     for p in &ports {
         p.finish();
     }
@@ -643,6 +684,8 @@ struct Importer<T: WireMessage> {
     /// The wire bytes of one message, gathered from Zenoh's slices (allocated once).
     scratch: Vec<u8>,
     seq: SeqCheck,
+    /// [`is_state`].
+    state: bool,
     /// Of `stats.queue_dropped`, the drops already matched with a gap in `seq`.
     drops_seen: u64,
     refused_logged: bool,
@@ -666,6 +709,7 @@ impl<T: WireMessage> Importer<T> {
             encoding: encoding_of(T::KIND),
             scratch: Vec::with_capacity(T::KIND.size_bytes()),
             seq: SeqCheck::default(),
+            state: is_state(stream),
             drops_seen: 0,
             refused_logged: false,
             gap_logged: false,
@@ -718,8 +762,14 @@ impl<T: WireMessage> ImportPort for Importer<T> {
                 let explained = missing.min(dropped_here.saturating_sub(self.drops_seen));
                 self.drops_seen += explained;
                 let lost = missing - explained;
-                StreamStats::add(&self.stats.gap_messages, lost);
-                if lost > 0 && !self.gap_logged {
+                if self.state {
+                    // Heartbeats the other side replaced before sending, or lost on
+                    // the way: this one says all they said.
+                    StreamStats::add(&self.stats.superseded, lost);
+                } else {
+                    StreamStats::add(&self.stats.gap_messages, lost);
+                }
+                if lost > 0 && !self.state && !self.gap_logged {
                     self.gap_logged = true;
                     warn!(key = %self.key, missing, got = seq, "messages lost on the network (further gaps counted)");
                 }
@@ -805,6 +855,12 @@ fn import_loop(
     for s in subscribers {
         if let Err(e) = s.undeclare().wait() {
             debug!("undeclaring a subscriber: {e}");
+        }
+    }
+    // What Zenoh handed over before the stop: forwarded, never dropped silently.
+    while let Ok((i, sample)) = rx.try_recv() {
+        if let Some(p) = ports.get_mut(i) {
+            p.forward(&sample);
         }
     }
     Ok(())
@@ -906,8 +962,17 @@ mod tests {
             queue_dropped: 0,
             refused: 0,
             undelivered: 0,
+            superseded: 0,
         };
         assert_eq!(r.lost(), u64::MAX);
+        // Superseded heartbeats are not lost.
+        let replaced = StreamReport {
+            unmatched: 0,
+            gap_messages: 0,
+            superseded: 5,
+            ..r.clone()
+        };
+        assert_eq!(replaced.lost(), 0);
         let s = BridgeSummary {
             zenoh_id: String::new(),
             streams: vec![r.clone(), r],

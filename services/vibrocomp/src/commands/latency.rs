@@ -180,6 +180,9 @@ fn print_latency(options: &Options, report: &LatencyReport) -> anyhow::Result<()
                 .collect::<Vec<_>>()
                 .join(", ")
         )?;
+        for l in &r.losses {
+            outln!("  lost: {} {} = {}", l.process, l.counter, l.count)?;
+        }
         print_hops(r)?;
         if let Some(v) = &r.view {
             outln!(
