@@ -7,7 +7,7 @@ scipy; nothing of vibrocomp's Rust code (vibro-physics, vibro-sim, vibro-effects
 used or transcribed. The passport is read from config/accelerometers/al-15.toml.
 
     python3 tests/python/lab_battery.py selfcheck [--bin PATH] [--mc-samples N] [--json FILE]
-    python3 tests/python/lab_battery.py battery --out DIR --seed N [--members all|ci] [--rows R]
+    python3 tests/python/lab_battery.py battery --out DIR --seed N [--members all|ci] [--rows R] [--only NAMES]
 
 What it computes
 ----------------
@@ -1605,14 +1605,19 @@ def cmd_battery(args):
              "composition": args.composition,
              "passport": P.id, "filter_rate_hz": FILTER_RATE_HZ, "dropped_effects": DROPPED, "members": []}
     specs = [("effect", s) for s in sets] + [("confounded", "mount-vs-sensor"), ("confounded", "vp-vs-phase")]
+    only = set(args.only.split(",")) if args.only else None
     for m, (expect, what) in enumerate(specs):
         rng = np.random.default_rng([args.seed, m])
         t1 = time.time()
         if expect == "effect":
             name = f"{m + 1:02d}-" + "+".join(SHORT[k] for k in what)
-            rows, tab, eff, u, joint, info = draw_member(P, list(what), rng, n_rows, name)
         else:
             name = f"{m + 1:02d}-confounded-{what}"
+        if only is not None and name not in only:
+            continue
+        if expect == "effect":
+            rows, tab, eff, u, joint, info = draw_member(P, list(what), rng, n_rows, name)
+        else:
             rows, tab, eff, u, joint, info = confounded_member(P, what, rng, max(24, n_rows // 4))
         joint, additive = joint
         truth_ve = joint if args.composition == "physical" else additive
@@ -1672,6 +1677,8 @@ def main(argv=None):
     b.add_argument("--members", choices=("all", "ci"), default="ci")
     b.add_argument("--rows", type=int, default=0, help="rows per member (default 140 ci, 400 all)")
     b.add_argument("--include-dropped", action="store_true", help="also the effects DROPPED lists")
+    b.add_argument("--only", help="comma-separated member names (e.g. 18-sat+sensor): only these, "
+                   "drawn as in the whole set")
     b.add_argument("--composition", choices=("physical", "lab"), default="physical",
                    help="the measured VE from the effects composed as docs/effects.md's physics "
                         "(default) or added as docs/lab.md's prediction does (module doc, ambiguity 4)")

@@ -592,7 +592,8 @@ const FULL_REFITS: usize = 3;
 /// Every candidate of `cands` fitted jointly with the `chosen` effects, `threads` at
 /// once. With effects chosen, each candidate is screened first ([`fit_screen`]: the
 /// chosen effects' nonlinear parameters held at their values, every linear one
-/// solved), and the [`FULL_REFITS`] best by BIC are refitted with every parameter
+/// solved), and the [`FULL_REFITS`] best by BIC and every candidate that acts on the
+/// others' inputs (`Candidate::acts_on_inputs`) are refitted with every parameter
 /// free from there: the others' screening fits stand (their BIC an upper bound).
 #[allow(clippy::too_many_arguments)]
 fn fit_round(
@@ -619,7 +620,15 @@ fn fit_round(
             .map_or(f64::INFINITY, |f| f.bic_after)
     };
     order.sort_by(|a, b| bic(*a).total_cmp(&bic(*b)));
-    order.truncate(FULL_REFITS);
+    // The best by screening, and every candidate that changes what the chosen
+    // effects see: its screening (their nonlinear parameters held) understates it.
+    // Seen on a saturation + sensor gain member: the sensor ranked fifth by
+    // screening, k6, a unit response and more were added and removed first (40 s).
+    let mut k = 0;
+    order.retain(|&i| {
+        k += 1;
+        k <= FULL_REFITS || screened[i].0.acts_on_inputs
+    });
     let refits = crate::parallel::in_parallel(&order, threads, |_, &i| {
         let f = screened[i].1.as_ref().ok()?;
         let terms: Vec<&'static Candidate> = f

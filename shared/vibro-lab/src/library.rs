@@ -64,6 +64,12 @@ pub struct Candidate {
     /// `mean_shift_g` fails on a random part without `psd_unit`): such a candidate can
     /// be fitted only on the rows that are tone-only or carry a spectrum.
     pub needs_spectrum: bool,
+    /// Whether it changes what every other effect sees (the vibration through a mount
+    /// or a servo loop, the phases between axes, the sensor's reading): beside chosen
+    /// effects, their nonlinear parameters must move with it (a saturation's range
+    /// with a sensor's gain), so a screening that holds them cannot show what it
+    /// explains (`diagnose`'s rounds refit it with every parameter free).
+    pub acts_on_inputs: bool,
 }
 
 /// A frequency's start grid: 12 values log-spaced from half the lowest tested tone
@@ -111,6 +117,7 @@ pub static LIBRARY: &[Candidate] = &[
         ],
         fixed: "",
         needs_spectrum: true,
+        acts_on_inputs: true,
     },
     Candidate {
         kind: "axis_phase",
@@ -132,6 +139,7 @@ pub static LIBRARY: &[Candidate] = &[
         ],
         fixed: "",
         needs_spectrum: false,
+        acts_on_inputs: true,
     },
     Candidate {
         kind: "vibropendulous",
@@ -153,6 +161,7 @@ pub static LIBRARY: &[Candidate] = &[
         ],
         fixed: "",
         needs_spectrum: true,
+        acts_on_inputs: false,
     },
     Candidate {
         kind: "anisoelastic",
@@ -166,6 +175,7 @@ pub static LIBRARY: &[Candidate] = &[
         }],
         fixed: "",
         needs_spectrum: false,
+        acts_on_inputs: false,
     },
     Candidate {
         kind: "saturation",
@@ -179,6 +189,7 @@ pub static LIBRARY: &[Candidate] = &[
         }],
         fixed: "",
         needs_spectrum: false,
+        acts_on_inputs: false,
     },
     Candidate {
         kind: "high_order_nonlinearity",
@@ -200,6 +211,7 @@ pub static LIBRARY: &[Candidate] = &[
         ],
         fixed: "",
         needs_spectrum: false,
+        acts_on_inputs: false,
     },
     Candidate {
         kind: "heating",
@@ -215,6 +227,7 @@ pub static LIBRARY: &[Candidate] = &[
         // steady-state coefficient (tau much shorter than the records).
         fixed: "tau_s = 1e-6",
         needs_spectrum: false,
+        acts_on_inputs: false,
     },
     Candidate {
         kind: "sensor_error",
@@ -228,6 +241,7 @@ pub static LIBRARY: &[Candidate] = &[
         }],
         fixed: "",
         needs_spectrum: false,
+        acts_on_inputs: true,
     },
     Candidate {
         kind: "unit_response",
@@ -249,6 +263,7 @@ pub static LIBRARY: &[Candidate] = &[
         ],
         fixed: "",
         needs_spectrum: true,
+        acts_on_inputs: true,
     },
     Candidate {
         kind: "non_gaussian",
@@ -266,6 +281,7 @@ pub static LIBRARY: &[Candidate] = &[
         // cannot separate from the measured covariances; `kurtosis_x`..`_z` stay unset.
         fixed: "",
         needs_spectrum: false,
+        acts_on_inputs: false,
     },
     Candidate {
         kind: "scale_factor_frequency",
@@ -290,6 +306,7 @@ pub static LIBRARY: &[Candidate] = &[
         ],
         fixed: "",
         needs_spectrum: true,
+        acts_on_inputs: false,
     },
 ];
 
@@ -393,6 +410,23 @@ mod tests {
                 "{}: {with:?}",
                 c.kind
             );
+        }
+    }
+
+    /// `acts_on_inputs` is exactly the effects on the vibration path
+    /// (`Effect::on_vibration_path`) and those of the vibration sensor (`at_sensor`).
+    #[test]
+    fn acts_on_inputs_marks_the_path_and_sensor_effects() {
+        let p = al15();
+        for c in LIBRARY {
+            let values: Vec<f64> = c.params.iter().map(representative).collect();
+            let e = build_effects(&[table(c, &values)], &p).unwrap();
+            let info = vibro_effects::catalogue()
+                .iter()
+                .find(|i| i.kind == c.kind)
+                .unwrap();
+            let path = e.iter().any(|e| e.on_vibration_path()) || info.hooks.contains("at_sensor");
+            assert_eq!(c.acts_on_inputs, path, "{}", c.kind);
         }
     }
 
