@@ -311,11 +311,23 @@ fn remote_accel_publisher(
     key_prefix: &str,
 ) -> (zenoh::Session, zenoh::pubsub::Publisher<'static>) {
     let session = remote_session(endpoint);
+    let publisher = matched_publisher(
+        &session,
+        format!("{key_prefix}/accel"),
+        vibro_msgs::MessageKind::AccelBlock,
+    );
+    (session, publisher)
+}
+
+/// A publisher of `kind` on `key` in `session`, once the bridge's subscriber matched it.
+fn matched_publisher(
+    session: &zenoh::Session,
+    key: String,
+    kind: vibro_msgs::MessageKind,
+) -> zenoh::pubsub::Publisher<'static> {
     let publisher = session
-        .declare_publisher(format!("{key_prefix}/accel"))
-        .encoding(vibro_bridge::encoding_of(
-            vibro_msgs::MessageKind::AccelBlock,
-        ))
+        .declare_publisher(key)
+        .encoding(vibro_bridge::encoding_of(kind))
         .congestion_control(zenoh::qos::CongestionControl::Block)
         .wait()
         .unwrap();
@@ -324,7 +336,7 @@ fn remote_accel_publisher(
         Duration::from_secs(10),
         || publisher.matching_status().wait().unwrap().matching(),
     );
-    (session, publisher)
+    publisher
 }
 
 /// This test stands for a remote bridge: it puts accelerometer blocks 0..=9 into Zenoh
@@ -536,18 +548,10 @@ fn heartbeats_taken_before_the_other_side_came_up_wait_for_it_and_are_not_lost()
     wait_until("heartbeat 2 at the peer", Duration::from_secs(10), || {
         got.lock().unwrap().contains(&2)
     });
-    let publisher = session
-        .declare_publisher(format!("{key_prefix}/heartbeat/estimator"))
-        .encoding(vibro_bridge::encoding_of(
-            vibro_msgs::MessageKind::Heartbeat,
-        ))
-        .congestion_control(zenoh::qos::CongestionControl::Block)
-        .wait()
-        .unwrap();
-    wait_until(
-        "the bridge's Zenoh subscriber",
-        Duration::from_secs(10),
-        || publisher.matching_status().wait().unwrap().matching(),
+    let publisher = matched_publisher(
+        &session,
+        format!("{key_prefix}/heartbeat/estimator"),
+        vibro_msgs::MessageKind::Heartbeat,
     );
     let sent = [0u64, 1, 4, 5];
     for seq in sent {

@@ -28,6 +28,25 @@ use std::time::Instant;
 /// `VIBROCOMP_LAB_BATTERY_SEED` overrides it.
 const SEED: &str = "32004";
 
+/// The battery generator's members of `selection` (its `battery` flags) written to
+/// `out`.
+fn generate(out: &Path, selection: &[&str]) {
+    let gen = Command::new("python3")
+        .arg(repo_path("tests/python/lab_battery.py"))
+        .arg("battery")
+        .args(selection)
+        .args(["--quiet", "--out"])
+        .arg(out)
+        .env("PYTHONDONTWRITEBYTECODE", "1")
+        .output()
+        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
+    assert!(
+        gen.status.success(),
+        "the battery generator failed:\n{}",
+        String::from_utf8_lossy(&gen.stderr)
+    );
+}
+
 fn read_json(path: &Path) -> Value {
     let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
@@ -340,26 +359,7 @@ fn the_lab_finds_the_hidden_effects_of_the_independent_battery() {
     let seed = std::env::var("VIBROCOMP_LAB_BATTERY_SEED").unwrap_or_else(|_| SEED.into());
     let dir = TempDir::new("lab-battery", &set);
     let out = dir.0.join("battery");
-    let gen = Command::new("python3")
-        .arg(repo_path("tests/python/lab_battery.py"))
-        .args([
-            "battery",
-            "--members",
-            &set,
-            "--seed",
-            &seed,
-            "--quiet",
-            "--out",
-        ])
-        .arg(&out)
-        .env("PYTHONDONTWRITEBYTECODE", "1")
-        .output()
-        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
-    assert!(
-        gen.status.success(),
-        "the battery generator failed:\n{}",
-        String::from_utf8_lossy(&gen.stderr)
-    );
+    generate(&out, &["--members", &set, "--seed", &seed]);
     let index = read_json(&out.join("battery.json"));
     let members = index["members"].as_array().expect("members");
     assert!(members.len() >= 12, "{index}");
@@ -492,28 +492,7 @@ fn a_sensor_gain_beside_a_saturation_is_found_without_detours() {
     let dir = TempDir::new("lab-battery", "sat-sensor");
     let out = dir.0.join("battery");
     let member = "18-sat+sensor";
-    let gen = Command::new("python3")
-        .arg(repo_path("tests/python/lab_battery.py"))
-        .args([
-            "battery",
-            "--members",
-            "all",
-            "--seed",
-            "1",
-            "--only",
-            member,
-            "--quiet",
-            "--out",
-        ])
-        .arg(&out)
-        .env("PYTHONDONTWRITEBYTECODE", "1")
-        .output()
-        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
-    assert!(
-        gen.status.success(),
-        "the battery generator failed:\n{}",
-        String::from_utf8_lossy(&gen.stderr)
-    );
+    generate(&out, &["--members", "all", "--seed", "1", "--only", member]);
     let mdir = out.join(member);
     let truth = read_json(&mdir.join("truth.json"));
     let start = Instant::now();
