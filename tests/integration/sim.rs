@@ -3,7 +3,7 @@
 //! and pass the independent Python MCAP reader; campaigns reproduce the paper's
 //! compensation experiment.
 
-use crate::common::{bin, num, repo_path, run_failing, run_json};
+use crate::common::{bin, num, repo_path, run_failing, run_json, TempDir};
 use std::path::PathBuf;
 use std::process::Command;
 use vibro_effects::{build_for_rig, EffectSpec, Rig};
@@ -240,20 +240,15 @@ fn every_effect_moves_the_simulated_mean_by_its_formula() {
     println!("{}", report.join("\n"));
 }
 
-fn tmp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("vibrocomp-it-sim-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir.join(name)
-}
-
 /// A flight log: counts as the simulator says, bit-identical for the same seed,
 /// different for another, and every message of every channel decoded by the Python
 /// `mcap` reader with its protobuf decoder, chunk CRCs checked.
 #[test]
 fn flight_logs_are_reproducible_and_readable_by_python_mcap() {
-    let a = tmp("a.mcap");
-    let b = tmp("b.mcap");
-    let c = tmp("c.mcap");
+    let dir = TempDir::new("sim", "flight-logs");
+    let a = dir.0.join("a.mcap");
+    let b = dir.0.join("b.mcap");
+    let c = dir.0.join("c.mcap");
     let args = |out: &PathBuf, seed: &str| {
         vec![
             "sim".to_string(),
@@ -318,11 +313,6 @@ fn flight_logs_are_reproducible_and_readable_by_python_mcap() {
         n += 1;
     }
     assert_eq!(n, 75 + 38 + 38);
-    // Only this test's files: the folder is shared with the other tests of this
-    // module running beside it (removing it once deleted the live test's log mid-run).
-    for f in [&a, &b, &c] {
-        let _ = std::fs::remove_file(f);
-    }
 }
 
 /// MODEL.md section 7's experiment, through the command line: gravity along IA, 2 g
@@ -419,7 +409,8 @@ fn live_publishing_delivers_every_block_in_order() {
         &config,
     )
     .expect("truth subscriber");
-    let log = tmp("live.mcap");
+    let dir = TempDir::new("sim", "live");
+    let log = dir.0.join("live.mcap");
     let log_arg = log.display().to_string();
     let mut child = bin()
         .args([
@@ -488,7 +479,6 @@ fn live_publishing_delivers_every_block_in_order() {
         "monotonic stamp: {}",
         live.publish_ns
     );
-    let _ = std::fs::remove_file(&log);
 }
 
 /// `vibrocomp sim` on the 20 s Cyclone-4 flight: with no effect the simulated mean
