@@ -412,33 +412,20 @@ mod tests {
     use super::*;
     use vibro_dsp::{EstimatorConfig, EstimatorConfigRaw};
 
-    /// A file of the test's own in a folder of its own, both removed when dropped.
-    struct Scratch(std::path::PathBuf);
-
-    impl std::ops::Deref for Scratch {
-        type Target = std::path::Path;
-        fn deref(&self) -> &std::path::Path {
-            &self.0
-        }
-    }
-
-    impl Drop for Scratch {
-        fn drop(&mut self) {
-            if let Some(dir) = self.0.parent() {
-                let _ = std::fs::remove_dir_all(dir);
-            }
-        }
-    }
-
-    fn file(name: &str, text: &str) -> Scratch {
-        static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-        let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let dir =
-            std::env::temp_dir().join(format!("vibro-log-samples-{}-{n}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join(name);
-        std::fs::write(&path, text).unwrap();
-        Scratch(path)
+    /// A file named like `name` holding `text`, removed when dropped.
+    fn file(name: &str, text: &str) -> tempfile::TempPath {
+        let name = std::path::Path::new(name);
+        let mut f = tempfile::Builder::new()
+            .prefix(&name.file_stem().unwrap_or_default())
+            .suffix(
+                &name
+                    .extension()
+                    .map_or(String::new(), |e| format!(".{}", e.to_string_lossy())),
+            )
+            .tempfile()
+            .unwrap();
+        std::io::Write::write_all(&mut f, text.as_bytes()).unwrap();
+        f.into_temp_path()
     }
 
     #[test]
