@@ -175,21 +175,7 @@ pub fn recover_log(damaged: &Path, out: &Path, force: bool) -> Result<RecoverOut
 mod tests {
     use super::*;
 
-    /// A file named like `name` holding `bytes`, removed when dropped.
-    fn file(name: &str, bytes: &[u8]) -> tempfile::TempPath {
-        let name = std::path::Path::new(name);
-        let mut f = tempfile::Builder::new()
-            .prefix(&name.file_stem().unwrap_or_default())
-            .suffix(
-                &name
-                    .extension()
-                    .map_or(String::new(), |e| format!(".{}", e.to_string_lossy())),
-            )
-            .tempfile()
-            .unwrap();
-        std::io::Write::write_all(&mut f, bytes).unwrap();
-        f.into_temp_path()
-    }
+    use crate::test_file as file;
 
     #[test]
     fn what_is_not_a_log_is_named() {

@@ -373,6 +373,23 @@ pub(crate) fn io_cause<'a>(e: &'a (dyn std::error::Error + 'static)) -> Option<&
 }
 
 #[cfg(test)]
+/// For the tests: a file named like `name` holding `bytes`, removed when dropped.
+pub(crate) fn test_file(name: &str, bytes: &[u8]) -> tempfile::TempPath {
+    let name = std::path::Path::new(name);
+    let mut f = tempfile::Builder::new()
+        .prefix(&name.file_stem().unwrap_or_default())
+        .suffix(
+            &name
+                .extension()
+                .map_or(String::new(), |e| format!(".{}", e.to_string_lossy())),
+        )
+        .tempfile()
+        .unwrap();
+    std::io::Write::write_all(&mut f, bytes).unwrap();
+    f.into_temp_path()
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
 

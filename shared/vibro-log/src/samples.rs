@@ -412,20 +412,8 @@ mod tests {
     use super::*;
     use vibro_dsp::{EstimatorConfig, EstimatorConfigRaw};
 
-    /// A file named like `name` holding `text`, removed when dropped.
     fn file(name: &str, text: &str) -> tempfile::TempPath {
-        let name = std::path::Path::new(name);
-        let mut f = tempfile::Builder::new()
-            .prefix(&name.file_stem().unwrap_or_default())
-            .suffix(
-                &name
-                    .extension()
-                    .map_or(String::new(), |e| format!(".{}", e.to_string_lossy())),
-            )
-            .tempfile()
-            .unwrap();
-        std::io::Write::write_all(&mut f, text.as_bytes()).unwrap();
-        f.into_temp_path()
+        crate::test_file(name, text.as_bytes())
     }
 
     #[test]
