@@ -5,17 +5,13 @@
 //! `vibro_physics::vibration::rules` (what `Vibration::validate` applies to a file), a
 //! scenario's length `vibro_sim::scenario::Rates::length_problem`, a paced replay's
 //! rate `vibro_log::Pace::rate_problem`, a duration `vibro_service::check_seconds` (the
-//! rule of every duration in the services' configuration files). Only the flight
-//! acceleration's bound is kept here, with a pointer to its source.
+//! rule of every duration in the services' configuration files), a flight acceleration
+//! `rules::flight_accel_g` (a scenario profile's rule).
 
 use crate::output::fmt_num;
 use std::fmt::Display;
 use std::time::Duration;
 use vibro_physics::vibration::rules;
-
-/// A flight acceleration's bound, g: a scenario profile's `accel_g` rule
-/// (shared/vibro-sim/src/scenario/validate.rs, `validate_flight`).
-pub const ACCEL_LIMIT_G: f64 = 1000.0;
 
 /// The problems of a command line's values.
 #[derive(Debug, Default)]
@@ -37,14 +33,9 @@ impl FlagProblems {
         self.0.push(format!("{flag} = {}: {rule}", fmt_num(value)));
     }
 
-    /// A flight acceleration: finite and within +-[`ACCEL_LIMIT_G`].
+    /// A flight acceleration: the physics' rule.
     pub fn accel_g(&mut self, flag: &str, value_g: f64) {
-        self.check(
-            flag,
-            value_g,
-            value_g.is_finite() && value_g.abs() <= ACCEL_LIMIT_G,
-            "must be finite and within +-1000 g",
-        );
+        self.rule(flag, value_g, rules::flight_accel_g(value_g));
     }
 
     /// Records `--flag = value: rule` when a library's rule function found one.

@@ -139,64 +139,20 @@ pub fn error_json(e: &anyhow::Error) -> serde_json::Value {
 }
 
 /// The file, line and key of an error, from the first cause in its chain whose
-/// library error type carries them (a configuration's TOML errors, a scenario, an
-/// extended model, a campaign table).
+/// library error type carries them: the libraries' inputs (`vibro_lab::errors`) and
+/// the bridge's file.
 pub fn error_location(e: &anyhow::Error) -> Option<vibro_toml::Location> {
     e.chain().find_map(|cause| {
-        if let Some(x) = cause.downcast_ref::<vibro_toml::Error>() {
-            return Some(x.location());
-        }
-        if let Some(x) = cause.downcast_ref::<vibro_config::ConfigError>() {
-            return x.location();
-        }
-        if let Some(x) = cause.downcast_ref::<vibro_service::ConfigError>() {
-            return Some(x.location());
-        }
         // The bridge's file: at load, or its socket directory found wrong at start.
-        if let Some(vibro_bridge::Error::Config(x)) = cause.downcast_ref::<vibro_bridge::Error>() {
-            return Some(x.location());
+        match cause.downcast_ref::<vibro_bridge::Error>() {
+            Some(vibro_bridge::Error::Config(x)) => return Some(x.location()),
+            Some(
+                vibro_bridge::Error::Open { file, .. }
+                | vibro_bridge::Error::ZenohConfig { file, .. },
+            ) => return Some(vibro_lab::errors::file_only(file.clone())),
+            _ => {}
         }
-        if let Some(x) = cause.downcast_ref::<vibro_sim::Error>() {
-            return x.location();
-        }
-        // A simulated flight's errors from the simulator (`vibro_log::flight`).
-        if let Some(vibro_log::Error::Sim(x)) = cause.downcast_ref::<vibro_log::Error>() {
-            return x.location();
-        }
-        if let Some(x) = cause.downcast_ref::<vibro_effects::Error>() {
-            return x.location();
-        }
-        if let Some(
-            vibro_bridge::Error::Open { file, .. } | vibro_bridge::Error::ZenohConfig { file, .. },
-        ) = cause.downcast_ref::<vibro_bridge::Error>()
-        {
-            return Some(vibro_toml::Location {
-                file: file.clone(),
-                ..Default::default()
-            });
-        }
-        // A file of `identify` (a table, a rig's record, a reference not covering it).
-        if let Some(file) = cause
-            .downcast_ref::<vibro_ident::Error>()
-            .and_then(|x| x.file())
-        {
-            return Some(vibro_toml::Location {
-                file: file.to_string(),
-                ..Default::default()
-            });
-        }
-        match cause.downcast_ref::<vibro_lab::Error>()? {
-            vibro_lab::Error::Effects(x) => x.location(),
-            // A log's attached passport (`vibro_lab::log_table`).
-            vibro_lab::Error::Config(x) => x.location(),
-            vibro_lab::Error::Table { path, .. } | vibro_lab::Error::Io { path, .. } => {
-                Some(vibro_toml::Location {
-                    file: path.clone(),
-                    ..Default::default()
-                })
-            }
-            _ => None,
-        }
+        vibro_lab::errors::cause_location(cause)
     })
 }
 

@@ -43,12 +43,23 @@ pub fn extended_ve(
     psd: &[PsdBand],
 ) -> Result<ExtendedVeReport> {
     let model = LabModel::load(path)?;
+    extended_ve_of(&model, &path.display().to_string(), p, a_l, (vib, psd))
+}
+
+/// [`extended_ve`] of a model already read; `name` names it in the report.
+pub fn extended_ve_of(
+    model: &LabModel,
+    name: &str,
+    p: &Passport,
+    a_l: [f64; 3],
+    (vib, psd): (&Vibration, &[PsdBand]),
+) -> Result<ExtendedVeReport> {
     let flat = predict::flat_passport(p)?;
     let effects = model.build_effects(&flat)?;
     let pred = crate::predict_ve(model.mode, &effects, &flat, a_l, vib, psd, f64::INFINITY)?;
     Ok(ExtendedVeReport {
         passport: p.id().to_string(),
-        model: path.display().to_string(),
+        model: name.to_string(),
         mode: model.mode.name(),
         a_l_g: a_l,
         base_ve_g: pred.base_ve_g,
@@ -102,6 +113,23 @@ pub fn extended_compensate(
     cross_g: [f64; 2],
 ) -> Result<ExtendedCompensateReport> {
     let lab = LabModel::load(path)?;
+    extended_compensate_of(
+        &lab,
+        &path.display().to_string(),
+        p,
+        (vib, psd),
+        (reading_g, cross_g),
+    )
+}
+
+/// [`extended_compensate`] of a model already read; `name` names it in the report.
+pub fn extended_compensate_of(
+    lab: &LabModel,
+    name: &str,
+    p: Passport,
+    (vib, psd): (&Vibration, &[PsdBand]),
+    (reading_g, cross_g): (f64, [f64; 2]),
+) -> Result<ExtendedCompensateReport> {
     let mode = compensation_mode(lab.mode);
     let flat = predict::flat_passport(&p)?;
     let effects = lab.build_effects(&flat)?;
@@ -123,7 +151,7 @@ pub fn extended_compensate(
     let total: f64 = parts.iter().map(|(_, v)| v).sum();
     Ok(ExtendedCompensateReport {
         passport: p.id().to_string(),
-        model: path.display().to_string(),
+        model: name.to_string(),
         mode: mode.name(),
         reading_g,
         stages,

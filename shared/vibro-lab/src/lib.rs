@@ -30,11 +30,14 @@
 // Per-axis and per-row index loops mirror the formulas' subscripts.
 #![allow(clippy::needless_range_loop)]
 
+pub mod add;
 pub mod campaign;
 pub mod diagnose;
 pub mod empirical;
+pub mod errors;
 pub mod fit;
 pub mod flight;
+pub mod inputs;
 pub mod library;
 pub mod log_table;
 mod parallel;

@@ -90,7 +90,7 @@ pub use info::{
     info, info_from_reader, AttachmentInfo, ChannelInfo, InputGap, LogInfo, MetadataInfo,
     MAX_LOST_MESSAGES,
 };
-pub use reader::{Reader, Record};
+pub use reader::{RawRecord, Reader, Record};
 pub use recorder::{
     ChannelId, Compression, Recorder, RecorderOptions, RecorderStats, RecordingSummary,
     ViewChannelId,
@@ -149,6 +149,9 @@ pub enum Error {
         "{path}: {what} (the file was not finished); `vibro_mcap::recover` rewrites it with one"
     )]
     NotFinished { path: PathBuf, what: &'static str },
+    /// A topic asked for that the log has no channel on.
+    #[error("{path}: no channel on topic {topic:?} (`vibrocomp log info` lists the log's topics)")]
+    NoSuchTopic { path: PathBuf, topic: String },
     /// A message's counts exceed its arrays.
     #[error("invalid message: {0}")]
     Invalid(#[source] vibro_msgs::Error),

@@ -76,6 +76,25 @@ struct ChannelEntry {
     kind: MessageKind,
 }
 
+/// One message of a selected channel as its bytes, undecoded: a view channel's
+/// (`vibrocomp.view.v1`, `foxglove.Log`), whose types are not wire types, or a wire
+/// channel's read by [`Reader::next_raw`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct RawRecord {
+    /// The channel's topic.
+    pub topic: Arc<str>,
+    /// The channel's schema name (`vibrocomp.v1.AccelBlock`, `vibrocomp.view.v1.UnitStages`).
+    pub schema: Arc<str>,
+    /// The publisher's sequence number (32 bits in MCAP).
+    pub sequence: u32,
+    /// When the message was received (the order of iteration).
+    pub log_time_ns: u64,
+    /// When the message was published.
+    pub publish_time_ns: u64,
+    /// The message's protobuf bytes.
+    pub data: Vec<u8>,
+}
+
 /// Iterates over the messages of a finished MCAP file in log-time order (ties in file
 /// order), decoded into [`Message`]s. Channels whose schema is not a `vibrocomp.v1`
 /// message are skipped (see [`Reader::foreign_topics`]).
@@ -84,6 +103,10 @@ pub struct Reader {
     file: Box<dyn Source>,
     file_bytes: u64,
     channels: HashMap<u16, ChannelEntry>,
+    /// The view channels by ID: topic and schema name, read raw once selected.
+    views: HashMap<u16, (Arc<str>, Arc<str>)>,
+    /// The channels [`Reader::select_topics`] kept (`None`: every wire channel).
+    selected: Option<std::collections::HashSet<u16>>,
     foreign_topics: Vec<String>,
     view_topics: Vec<String>,
     chunks: Vec<ChunkIndex>,
@@ -131,6 +154,7 @@ impl Reader {
             });
         }
         let mut channels = HashMap::new();
+        let mut views = HashMap::new();
         let mut foreign_topics = Vec::new();
         let mut view_topics = Vec::new();
         for (&id, channel) in &summary.channels {
@@ -155,6 +179,8 @@ impl Reader {
                     .as_ref()
                     .is_some_and(|s| is_view_schema(&s.name)) =>
                 {
+                    let schema = channel.schema.as_ref().map_or("", |s| s.name.as_str());
+                    views.insert(id, (Arc::from(channel.topic.as_str()), Arc::from(schema)));
                     view_topics.push(channel.topic.clone())
                 }
                 None => foreign_topics.push(channel.topic.clone()),
@@ -169,6 +195,8 @@ impl Reader {
             file,
             file_bytes,
             channels,
+            views,
+            selected: None,
             foreign_topics,
             view_topics,
             chunks,
@@ -187,6 +215,80 @@ impl Reader {
         &self.path
     }
 
+    /// Reads only the channels on `topics` (wire or view channels) from here on: the
+    /// other channels' messages are neither decoded nor queued, and a chunk whose index
+    /// lists none of the selected channels is not read at all. A topic the log does not
+    /// have is [`Error::NoSuchTopic`]. Call it before the first message is read.
+    pub fn select_topics(&mut self, topics: &[&str]) -> Result<()> {
+        let mut ids = std::collections::HashSet::new();
+        for topic in topics {
+            let wire = self.channels.iter().map(|(id, c)| (id, &c.topic));
+            let view = self.views.iter().map(|(id, (t, _))| (id, t));
+            let found: Vec<u16> = wire
+                .chain(view)
+                .filter(|(_, t)| &***t == *topic)
+                .map(|(id, _)| *id)
+                .collect();
+            if found.is_empty() {
+                return Err(Error::NoSuchTopic {
+                    path: self.path.clone(),
+                    topic: (*topic).to_string(),
+                });
+            }
+            ids.extend(found);
+        }
+        // A chunk index lists the channels its chunk holds (its message index offsets);
+        // one that lists none at all says nothing and is read.
+        self.chunks.retain(|c| {
+            c.message_index_offsets.is_empty()
+                || c.message_index_offsets.keys().any(|id| ids.contains(id))
+        });
+        self.selected = Some(ids);
+        Ok(())
+    }
+
+    /// The next message of a selected channel in log-time order, undecoded (view
+    /// channels too). After an error it returns `None`.
+    pub fn next_raw(&mut self) -> Option<Result<RawRecord>> {
+        if self.failed {
+            return None;
+        }
+        match self.next_pending() {
+            Ok(None) => None,
+            Ok(Some(p)) => {
+                let (topic, schema) = match (
+                    self.channels.get(&p.channel_id),
+                    self.views.get(&p.channel_id),
+                ) {
+                    (Some(c), _) => (Arc::clone(&c.topic), Arc::from(crate::schema(c.kind).name)),
+                    (None, Some((t, s))) => (Arc::clone(t), Arc::clone(s)),
+                    (None, None) => unreachable!("only known channels are queued"),
+                };
+                Some(Ok(RawRecord {
+                    topic,
+                    schema,
+                    sequence: p.sequence,
+                    log_time_ns: p.log_time_ns,
+                    publish_time_ns: p.publish_time_ns,
+                    data: p.data,
+                }))
+            }
+            Err(e) => {
+                self.failed = true;
+                Some(Err(e))
+            }
+        }
+    }
+
+    /// Whether messages of channel `id` are queued: a selected channel, or without a
+    /// selection every wire channel.
+    fn queued(&self, id: u16) -> bool {
+        match &self.selected {
+            Some(ids) => ids.contains(&id),
+            None => self.channels.contains_key(&id),
+        }
+    }
+
     /// `(topic, message kind)` of every channel that will be decoded, sorted by topic.
     pub fn channels(&self) -> Vec<(String, MessageKind)> {
         let mut out: Vec<_> = self
@@ -196,6 +298,19 @@ impl Reader {
             .collect();
         out.sort();
         out
+    }
+
+    /// `(topic, schema name)` of every channel in the summary (foreign ones too), in
+    /// channel ID order; a channel without a schema has an empty name.
+    pub fn topics(&self) -> Vec<(String, String)> {
+        self.summary
+            .channels
+            .values()
+            .map(|c| {
+                let schema = c.schema.as_ref().map_or("", |s| s.name.as_str());
+                (c.topic.clone(), schema.to_string())
+            })
+            .collect()
     }
 
     /// Topics of channels that are not `vibrocomp.v1` messages; their messages are skipped.
@@ -220,6 +335,15 @@ impl Reader {
             .attachment_indexes
             .iter()
             .map(|a| a.name.clone())
+            .collect()
+    }
+
+    /// `(name, media type)` of every attachment, in file order.
+    pub fn attachment_types(&self) -> Vec<(String, String)> {
+        self.summary
+            .attachment_indexes
+            .iter()
+            .map(|a| (a.name.clone(), a.media_type.clone()))
             .collect()
     }
 
@@ -327,7 +451,7 @@ impl Reader {
                 continue;
             }
             if let McapRecord::Message { header, data } = guard::parse(&path, opcode, body)? {
-                if self.channels.contains_key(&header.channel_id) {
+                if self.queued(header.channel_id) {
                     messages.push((header, data.into_owned()));
                 }
             }
@@ -347,7 +471,8 @@ impl Reader {
         Ok(())
     }
 
-    fn next_record(&mut self) -> Result<Option<Record>> {
+    /// The next queued message in log-time order, loading chunks as needed.
+    fn next_pending(&mut self) -> Result<Option<Pending>> {
         loop {
             let next_chunk_start = self
                 .chunks
@@ -364,10 +489,13 @@ impl Reader {
                 self.load_next_chunk()?;
                 continue;
             }
-            let Some(Reverse(p)) = self.pending.pop() else {
-                return Ok(None);
-            };
-            // Only channels in `self.channels` were queued.
+            return Ok(self.pending.pop().map(|Reverse(p)| p));
+        }
+    }
+
+    fn next_record(&mut self) -> Result<Option<Record>> {
+        // Selected view channels are queued too; the decoded iteration skips them.
+        while let Some(p) = self.next_pending()? {
             let Some(channel) = self.channels.get(&p.channel_id) else {
                 continue;
             };
@@ -380,6 +508,7 @@ impl Reader {
                 message: Message::decode(channel.kind, &p.data)?,
             }));
         }
+        Ok(None)
     }
 }
 
@@ -544,5 +673,120 @@ mod tests {
             op::CHUNK,
         );
         assert_eq!(body.unwrap().len(), 81);
+    }
+
+    /// A recording in a temporary file with one message per chunk: accelerometer
+    /// blocks on `/accel`, heartbeats on `/heartbeat` and a view message on `/view/x`.
+    fn three_channel_log() -> tempfile::TempPath {
+        let path = tempfile::NamedTempFile::new()
+            .expect("temp file")
+            .into_temp_path();
+        let options = crate::RecorderOptions {
+            chunk_size_bytes: 1,
+            ..Default::default()
+        };
+        let mut rec = crate::Recorder::create(&path, options).expect("create");
+        rec.add_channel("/accel", MessageKind::AccelBlock)
+            .expect("channel");
+        rec.add_channel("/heartbeat", MessageKind::Heartbeat)
+            .expect("channel");
+        let view = rec
+            .add_view_channel("/view/x", crate::schema::VIEW_UNIT_STAGES)
+            .expect("view channel");
+        for i in 0..4u32 {
+            let block = vibro_msgs::AccelBlock {
+                seq: u64::from(i),
+                count: 1,
+                ..Default::default()
+            };
+            let t = u64::from(i) * 10;
+            rec.write("/accel", t, t, i, &block).expect("accel");
+            let beat = vibro_msgs::Heartbeat {
+                seq: u64::from(i),
+                ..Default::default()
+            };
+            rec.write("/heartbeat", t + 1, t + 1, i, &beat)
+                .expect("heartbeat");
+        }
+        rec.write_view(&view, 5, 5, 0, vec![0x10, 0x07])
+            .expect("view");
+        rec.finish().expect("finish");
+        path
+    }
+
+    #[test]
+    fn a_selected_topic_reads_only_its_chunks_and_view_channels_come_raw() {
+        let path = three_channel_log();
+        let all: Vec<Record> = Reader::open(&path).unwrap().map(Result::unwrap).collect();
+        assert_eq!(all.len(), 8, "the view message is not decoded");
+        // Corrupt every chunk that holds no accelerometer block: reading everything
+        // fails, reading `/accel` alone never touches them.
+        let reader = Reader::open(&path).unwrap();
+        let accel_id = reader
+            .channels
+            .iter()
+            .find(|(_, c)| &*c.topic == "/accel")
+            .map(|(id, _)| *id)
+            .unwrap();
+        let others: Vec<(u64, u64)> = reader
+            .chunks
+            .iter()
+            .filter(|c| !c.message_index_offsets.is_empty())
+            .filter(|c| !c.message_index_offsets.contains_key(&accel_id))
+            .map(|c| (c.chunk_start_offset, c.chunk_length))
+            .collect();
+        assert_eq!(others.len(), 5, "4 heartbeat chunks and 1 view chunk");
+        let mut bytes = std::fs::read(&path).unwrap();
+        for (start, len) in &others {
+            let last = usize::try_from(start + len - 1).unwrap();
+            bytes[last] ^= 0xFF;
+        }
+        std::fs::write(&path, &bytes).unwrap();
+        assert!(Reader::open(&path).unwrap().any(|r| r.is_err()));
+        let mut accel = Reader::open(&path).unwrap();
+        accel.select_topics(&["/accel"]).unwrap();
+        let got: Vec<Record> = accel.map(Result::unwrap).collect();
+        let want: Vec<&Record> = all.iter().filter(|r| &*r.topic == "/accel").collect();
+        assert_eq!(got.iter().collect::<Vec<_>>(), want);
+        // Raw reading of the same channel gives its bytes and schema.
+        let mut raw = Reader::open(&path).unwrap();
+        raw.select_topics(&["/accel"]).unwrap();
+        let first = raw.next_raw().unwrap().unwrap();
+        assert_eq!(&*first.schema, "vibrocomp.v1.AccelBlock");
+        assert_eq!(
+            Message::decode(MessageKind::AccelBlock, &first.data).unwrap(),
+            want[0].message
+        );
+        let e = Reader::open(&path)
+            .unwrap()
+            .select_topics(&["/nope"])
+            .unwrap_err();
+        assert!(matches!(e, Error::NoSuchTopic { .. }), "{e}");
+    }
+
+    #[test]
+    fn a_view_channel_is_read_raw_and_skipped_by_the_decoded_iteration() {
+        let path = three_channel_log();
+        let mut reader = Reader::open(&path).unwrap();
+        reader.select_topics(&["/view/x", "/heartbeat"]).unwrap();
+        let raw: Vec<RawRecord> = std::iter::from_fn(|| reader.next_raw())
+            .map(Result::unwrap)
+            .collect();
+        let topics: Vec<&str> = raw.iter().map(|r| &*r.topic).collect();
+        assert_eq!(
+            topics,
+            [
+                "/heartbeat",
+                "/view/x",
+                "/heartbeat",
+                "/heartbeat",
+                "/heartbeat"
+            ]
+        );
+        assert_eq!(raw[1].schema.as_ref(), "vibrocomp.view.v1.UnitStages");
+        assert_eq!(raw[1].data, [0x10, 0x07]);
+        let mut decoded = Reader::open(&path).unwrap();
+        decoded.select_topics(&["/view/x", "/heartbeat"]).unwrap();
+        assert_eq!(decoded.map(Result::unwrap).count(), 4);
     }
 }

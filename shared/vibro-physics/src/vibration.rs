@@ -304,6 +304,16 @@ pub mod rules {
     /// Kurtosis range (Gaussian: 3).
     pub const KURTOSIS_RANGE: std::ops::RangeInclusive<f64> = 1.0..=30.0;
 
+    /// Largest flight acceleration along an axis, g (a scenario's profile, the
+    /// command line's and the Python package's flight accelerations).
+    pub const MAX_FLIGHT_ACCEL_G: f64 = 1e3;
+
+    /// A flight acceleration along one axis, g.
+    pub fn flight_accel_g(a_g: f64) -> Option<&'static str> {
+        (!(a_g.is_finite() && a_g.abs() <= MAX_FLIGHT_ACCEL_G))
+            .then_some("must be finite and within +-1000 g")
+    }
+
     /// A tone's frequency, Hz.
     pub fn freq_hz(f_hz: f64) -> Option<&'static str> {
         (!(f_hz.is_finite() && f_hz >= 0.0)).then_some("must be finite and >= 0")

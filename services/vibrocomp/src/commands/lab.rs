@@ -1,7 +1,7 @@
 //! `vibrocomp lab`: compare the VE model with a campaign, find the missing physical
 //! effect, fit it and add it to the model (`vibro_lab`, docs/lab.md).
 
-use super::lab_log::{table_from_log, LogArgs};
+use super::lab_log::LogArgs;
 use crate::output::{print_json, print_text};
 use anyhow::Context;
 use clap::{Args, Subcommand};
@@ -176,26 +176,26 @@ fn load(
         Some(p) => LabModel::load(p)?,
         None => LabModel::base(mode),
     };
-    let mut tables = Vec::with_capacity(inputs.len());
-    let mut logs = Vec::new();
-    for input in inputs {
-        let is_mcap = input
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
-        // A `.toml`, or a CSV opening with `# vibrocomp-campaign/1`; other CSVs are tables.
-        let is_manifest = !is_mcap && vibro_lab::campaign::is_manifest(input);
-        if is_mcap {
-            let (table, summary) = table_from_log(input, &model, log_args)?;
-            tables.push(table);
-            logs.push(summary);
-        } else if is_manifest {
-            let result = super::lab_log::table_from_manifest(input, &log_args.estimator()?)?;
-            tables.push(result.table);
-        } else {
-            tables.push(CampaignTable::load(input, &model)?);
-        }
-    }
-    let table = CampaignTable::joined(tables)?;
+    let inputs: Vec<vibro_lab::inputs::Input> = inputs
+        .iter()
+        .cloned()
+        .map(vibro_lab::inputs::Input::Path)
+        .collect();
+    let bar = crate::output::progress_bar(
+        0,
+        "measuring runs {bar:30} {pos}/{len} (reference, VE, estimator)",
+    );
+    let loaded = vibro_lab::inputs::load(
+        &inputs,
+        &model,
+        &mut || log_args.options(),
+        &mut |done, of| {
+            bar.set_length(of as u64);
+            bar.set_position(done as u64)
+        },
+    );
+    bar.finish_and_clear();
+    let vibro_lab::inputs::Loaded { table, logs } = loaded?;
     if let Some(out) = &log_args.table_out {
         let mut bytes = Vec::new();
         table.write_csv(&mut bytes).context("--table-out")?;
@@ -310,50 +310,27 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
     inputs.extend(a.model.as_deref());
     crate::files::check(&a.out, &inputs, a.force)?;
     let Loaded { model, table, log } = load(&a.from, a.model.as_deref(), BaseMode::Exact, &a.log)?;
-    let kinds: Vec<String> = if a.diagnosed {
-        let (bar, progress) = fit_progress();
-        let opts = DiagnoseOptions {
-            progress,
-            ..DiagnoseOptions::default()
-        };
-        let d = vibro_lab::diagnose(&model, &table, &opts);
-        bar.finish_and_clear();
-        let d = d?;
-        let kinds = vibro_lab::diagnose::next_effects(&d);
-        anyhow::ensure!(
-            !kinds.is_empty(),
-            "--diagnosed: the diagnosis of {} found no effect to add ({})",
-            table.path.display(),
-            text::verdict_line(&d.verdict)
-        );
-        kinds
+    let effects = if a.diagnosed {
+        vibro_lab::add::Effects::Diagnosed
     } else {
-        a.effects.clone()
+        vibro_lab::add::Effects::Kinds(a.effects.clone())
     };
-    let empirical = kinds.iter().any(|k| k == vibro_effects::empirical::KIND);
-    anyhow::ensure!(
-        !empirical || (kinds.len() == 1 && !a.freeze),
-        "`empirical` is added alone and refits the model's effects beside it (no \
-         --freeze): first add the physical effects, then `lab add empirical`"
-    );
-    let (extended, fit, correction) = if empirical {
-        let Some((extended, e)) = vibro_lab::add_empirical(&model, &table)? else {
-            anyhow::bail!(
-                "{}: no empirical correction: no smooth function of the vibration and the \
-                 flight acceleration predicts the residual out of sample (no set of terms, \
-                 each lowering the leave-one-out chi-square by {}, brings it below {} of its \
-                 value); nothing written",
-                table.path.display(),
-                vibro_lab::empirical::CV_SUPPORT,
-                vibro_lab::empirical::OFFER_FRACTION
-            );
-        };
-        (extended, None, Some(e))
+    let (bar, progress) = if a.diagnosed {
+        fit_progress()
     } else {
-        let refs: Vec<&str> = kinds.iter().map(String::as_str).collect();
-        let (extended, fit) = vibro_lab::add_effects(&model, &table, &refs, a.freeze)?;
-        (extended, Some(fit), None)
+        (ProgressBar::hidden(), Progress::default())
     };
+    let opts = DiagnoseOptions {
+        progress,
+        ..DiagnoseOptions::default()
+    };
+    let added = vibro_lab::add::add(&model, &table, &effects, a.freeze, &opts);
+    bar.finish_and_clear();
+    let vibro_lab::add::Added {
+        model: extended,
+        fit,
+        empirical: correction,
+    } = added?;
     crate::files::write_with(&a.out, a.force, |tmp| {
         extended
             .save(tmp)

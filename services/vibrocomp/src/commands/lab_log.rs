@@ -5,8 +5,7 @@
 use anyhow::Context;
 use clap::Args;
 use std::path::{Path, PathBuf};
-use vibro_lab::log_table::{LogOptions, LogTableSummary};
-use vibro_lab::{CampaignTable, LabModel};
+use vibro_lab::log_table::LogOptions;
 use vibro_service::ServiceConfig;
 
 /// Options of the lab's commands that apply to an MCAP log.
@@ -55,7 +54,7 @@ impl LogArgs {
     }
 
     /// The triad and the estimator's configuration the flags name, resolved.
-    fn options(&self) -> anyhow::Result<LogOptions> {
+    pub fn options(&self) -> anyhow::Result<LogOptions> {
         let triad = vibro_config::resolve_triad(&self.triad)
             .with_context(|| format!("--triad {}", self.triad))?;
         let estimator = self.estimator()?;
@@ -67,19 +66,6 @@ impl LogArgs {
             pool_windows: self.pool_windows,
         })
     }
-}
-
-/// Reads the log at `path` into the lab's table (`vibro_lab::log_table`).
-pub fn table_from_log(
-    path: &Path,
-    model: &LabModel,
-    args: &LogArgs,
-) -> anyhow::Result<(CampaignTable, LogTableSummary)> {
-    Ok(vibro_lab::log_table::table_from_log(
-        path,
-        model,
-        &args.options()?,
-    )?)
 }
 
 /// Measures the shake-table campaign a manifest lists into the lab's table

@@ -276,12 +276,8 @@ fn validate_flight(
             previous_t = pt.t_s;
         }
         for (a, v) in pt.accel_body_g.iter().enumerate() {
-            if !(v.is_finite() && v.abs() <= 1e3) {
-                p.push(
-                    format!("{key}.accel_body_g[{a}]"),
-                    v,
-                    "must be finite and within +-1000 g",
-                );
+            if let Some(rule) = vibro_physics::vibration::rules::flight_accel_g(*v) {
+                p.push(format!("{key}.accel_body_g[{a}]"), v, rule);
             }
         }
     }

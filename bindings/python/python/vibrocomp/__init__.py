@@ -1,0 +1,53 @@
+"""vibrocomp from Python: the vibration-error model, the model lab and the logs.
+
+    import vibrocomp as vc
+    p = vc.Passport.load("AL-15")
+    v = vc.ve(p, al3_g=[0.0, 1.0, 2.0], ab3_g=0.42, freq_hz=40.0)   # arrays in and out
+    d = vc.lab.diagnose("campaign.csv")                            # the lab, typed results
+    log = vc.Log("vibrocomp-demo/session.mcap")                    # a log, stream by stream
+    accel = log.stream("/accel").samples                           # numpy arrays
+
+The numbers are the command line's (the same libraries); errors are
+`vibrocomp.VibrocompError` with the command line's message, file, line and key.
+"""
+
+from ._vibrocomp import __version__
+from .errors import VibrocompError
+from .model import (
+    ExtendedStages,
+    ExtendedVe,
+    Passport,
+    Requirement,
+    Requirements,
+    Stages,
+    Triad,
+    TriadUnit,
+    VeComponents,
+    compensate,
+    require,
+    ve,
+)
+from . import lab
+from .lab import Model
+from .logs import Log, Stream
+
+__all__ = [
+    "__version__",
+    "VibrocompError",
+    "Passport",
+    "Triad",
+    "TriadUnit",
+    "VeComponents",
+    "ExtendedVe",
+    "Stages",
+    "ExtendedStages",
+    "Requirement",
+    "Requirements",
+    "ve",
+    "compensate",
+    "require",
+    "lab",
+    "Model",
+    "Log",
+    "Stream",
+]

@@ -1,0 +1,307 @@
+//! The model lab (`vibro_lab`, docs/lab.md): `compare`, `diagnose` and `add` on
+//! campaign tables (files or CSV text), shake-table manifests and logs with a
+//! reference, each result as the JSON `vibrocomp lab ... --json` prints.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::Context;
+use pyo3::prelude::*;
+use serde::Serialize;
+use vibro_lab::diagnose::Progress;
+use vibro_lab::inputs::{Input, Loaded};
+use vibro_lab::log_table::{LogOptions, LogTableSummary};
+use vibro_lab::{BaseMode, DiagnoseOptions, LabModel};
+use vibro_service::ServiceConfig;
+
+use crate::errors::IntoPy;
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(read_model, m)?)?;
+    m.add_function(wrap_pyfunction!(model_effects, m)?)?;
+    m.add_function(wrap_pyfunction!(lab_table, m)?)?;
+    m.add_function(wrap_pyfunction!(lab_compare, m)?)?;
+    m.add_function(wrap_pyfunction!(lab_diagnose, m)?)?;
+    m.add_function(wrap_pyfunction!(lab_add, m)?)?;
+    Ok(())
+}
+
+/// The options of a log input (the command line's `--triad`, `--estimator-config`,
+/// `--batches`, `--max-al-span-g`, `--pool-windows`).
+#[derive(FromPyObject)]
+#[pyo3(from_item_all)]
+struct LogArgs {
+    triad: String,
+    estimator_config: Option<PathBuf>,
+    batches: usize,
+    max_al_span_g: f64,
+    pool_windows: usize,
+}
+
+impl LogArgs {
+    fn options(&self) -> anyhow::Result<LogOptions> {
+        let triad = vibro_config::resolve_triad(&self.triad)
+            .with_context(|| format!("triad={}", self.triad))?;
+        let estimator = match &self.estimator_config {
+            Some(p) => vibro_estimator::Config::load(p)?,
+            None => vibro_estimator::Config::shipped()?,
+        }
+        .estimator;
+        Ok(LogOptions {
+            triad,
+            estimator,
+            batches: self.batches,
+            max_al_span_g: self.max_al_span_g,
+            pool_windows: self.pool_windows,
+        })
+    }
+}
+
+/// One input from Python: `("path", path)` or `("table", csv_text, name, dir)`.
+#[derive(FromPyObject)]
+enum PyInput {
+    Path((String, PathBuf)),
+    Table((String, String, String, PathBuf)),
+}
+
+impl PyInput {
+    fn into_input(self) -> Input {
+        match self {
+            PyInput::Path((_, path)) => Input::Path(path),
+            PyInput::Table((_, text, name, dir)) => Input::Table { text, name, dir },
+        }
+    }
+}
+
+/// The model to compare: an extended model's TOML text and the name it is known by,
+/// or the base model in `mode`.
+fn lab_model(model: Option<(String, String)>, mode: &str) -> anyhow::Result<LabModel> {
+    Ok(match model {
+        Some((text, name)) => LabModel::parse(&text, &name)?,
+        None => LabModel::base(match mode {
+            "exact" => BaseMode::Exact,
+            "paper" => BaseMode::Paper,
+            "as-published" => BaseMode::AsPublished,
+            other => {
+                anyhow::bail!("mode = {other:?}: must be \"exact\", \"paper\" or \"as-published\"")
+            }
+        }),
+    })
+}
+
+/// An extended model file's text, checked, and the name it is known by (its path).
+#[pyfunction]
+fn read_model(path: PathBuf) -> PyResult<(String, String)> {
+    let run = || -> anyhow::Result<(String, String)> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(&path).map_err(|source| vibro_lab::Error::Io {
+            path: name.clone(),
+            source,
+        })?;
+        LabModel::parse(&text, &name)?;
+        Ok((text, name))
+    };
+    run().py_err()
+}
+
+/// An extended model's base mode and effect kinds.
+#[pyfunction]
+fn model_effects(text: &str, name: &str) -> PyResult<(String, Vec<String>)> {
+    let m = LabModel::parse(text, name)
+        .map_err(anyhow::Error::from)
+        .py_err()?;
+    Ok((m.mode.name().to_string(), m.effect_kinds()))
+}
+
+/// A Python callable `progress(done, of, what)` as the lab's progress.
+fn progress(callback: Option<Py<PyAny>>) -> Progress {
+    Progress(callback.map(|f| {
+        let f = Arc::new(f);
+        Arc::new(move |done: usize, of: usize, what: &str| {
+            Python::attach(|py| {
+                // A failing callback must not stop the fit: its error is shown, as
+                // Python shows an exception it cannot raise.
+                if let Err(e) = f.call1(py, (done, of, what)) {
+                    e.write_unraisable(py, None);
+                }
+            });
+        }) as Arc<vibro_lab::diagnose::ProgressFn>
+    }))
+}
+
+/// Reads the inputs for `model` (the GIL released), the command's name leading the
+/// errors as on the command line.
+fn load(
+    inputs: Vec<PyInput>,
+    model: &LabModel,
+    log: &LogArgs,
+    progress: &Progress,
+) -> anyhow::Result<Loaded> {
+    let inputs: Vec<Input> = inputs.into_iter().map(PyInput::into_input).collect();
+    vibro_lab::inputs::load(&inputs, model, &mut || log.options(), &mut |done, of| {
+        if let Some(f) = &progress.0 {
+            f(done, of, "run measured");
+        }
+    })
+}
+
+/// A result's JSON with the logs' summaries beside it, as the command line prints it
+/// (`log`: the one log's, `logs`: every log's when there are several).
+fn with_logs<T: Serialize>(inner: &T, logs: &[LogTableSummary]) -> anyhow::Result<String> {
+    let mut v = serde_json::to_value(inner)?;
+    if let Some(map) = v.as_object_mut() {
+        match logs {
+            [] => {}
+            [one] => {
+                map.insert("log".into(), serde_json::to_value(one)?);
+            }
+            many => {
+                map.insert("logs".into(), serde_json::to_value(many)?);
+            }
+        }
+    }
+    Ok(serde_json::to_string(&v)?)
+}
+
+/// Runs `command` on the loaded inputs with the GIL released; its errors lead with
+/// `lab NAME`, as the command line's do.
+fn with_loaded<T: Send>(
+    py: Python<'_>,
+    name: &str,
+    (inputs, model, mode, log): (Vec<PyInput>, Option<(String, String)>, &str, LogArgs),
+    progress: Option<Py<PyAny>>,
+    command: impl FnOnce(&LabModel, Loaded, &Progress) -> anyhow::Result<T> + Send,
+) -> PyResult<T> {
+    let p = self::progress(progress);
+    let run = || -> anyhow::Result<T> {
+        let model = lab_model(model, mode)?;
+        let loaded = load(inputs, &model, &log, &p)?;
+        command(&model, loaded, &p)
+    };
+    py.detach(|| run().with_context(|| format!("lab {name}")))
+        .py_err()
+}
+
+/// `lab --table-out`: the inputs as the lab's CSV table.
+#[pyfunction]
+#[pyo3(signature = (inputs, model, mode, log, progress=None))]
+fn lab_table(
+    py: Python<'_>,
+    inputs: Vec<PyInput>,
+    model: Option<(String, String)>,
+    mode: &str,
+    log: LogArgs,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<String> {
+    with_loaded(
+        py,
+        "table",
+        (inputs, model, mode, log),
+        progress,
+        |_, loaded, _| {
+            let mut bytes = Vec::new();
+            loaded.table.write_csv(&mut bytes)?;
+            Ok(String::from_utf8(bytes)?)
+        },
+    )
+}
+
+/// `lab compare --json`.
+#[pyfunction]
+#[pyo3(signature = (inputs, model, mode, log, progress=None))]
+fn lab_compare(
+    py: Python<'_>,
+    inputs: Vec<PyInput>,
+    model: Option<(String, String)>,
+    mode: &str,
+    log: LogArgs,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<String> {
+    with_loaded(
+        py,
+        "compare",
+        (inputs, model, mode, log),
+        progress,
+        |model, loaded, _| with_logs(&vibro_lab::compare(model, &loaded.table)?, &loaded.logs),
+    )
+}
+
+/// `lab diagnose --json`: only the `effects` candidates when given, at most
+/// `max_effects` added by the stepwise search.
+#[pyfunction]
+#[pyo3(signature = (inputs, model, mode, log, effects, max_effects, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn lab_diagnose(
+    py: Python<'_>,
+    inputs: Vec<PyInput>,
+    model: Option<(String, String)>,
+    mode: &str,
+    log: LogArgs,
+    effects: Vec<String>,
+    max_effects: usize,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<String> {
+    with_loaded(
+        py,
+        "diagnose",
+        (inputs, model, mode, log),
+        progress,
+        |model, loaded, p| {
+            let opts = DiagnoseOptions {
+                candidates: effects,
+                max_effects,
+                progress: p.clone(),
+                ..DiagnoseOptions::default()
+            };
+            let d = vibro_lab::diagnose(model, &loaded.table, &opts)?;
+            with_logs(&d, &loaded.logs)
+        },
+    )
+}
+
+/// What `lab add --json` prints, but the file written (`out`): the Python package
+/// writes the model where and when asked.
+#[derive(Serialize)]
+struct AddReport<'a> {
+    effects: Vec<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    fit: Option<&'a vibro_lab::EffectFit>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    empirical: Option<&'a vibro_lab::EmpiricalFit>,
+}
+
+/// `lab add --json` (`effects` named, or `diagnosed`): the report's JSON and the
+/// extended model's TOML text.
+#[pyfunction]
+#[pyo3(signature = (inputs, model, log, effects, diagnosed, freeze, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn lab_add(
+    py: Python<'_>,
+    inputs: Vec<PyInput>,
+    model: Option<(String, String)>,
+    log: LogArgs,
+    effects: Vec<String>,
+    diagnosed: bool,
+    freeze: bool,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<(String, String)> {
+    let setup = (inputs, model, "exact", log);
+    with_loaded(py, "add", setup, progress, |model, loaded, p| {
+        let request = if diagnosed {
+            vibro_lab::add::Effects::Diagnosed
+        } else {
+            vibro_lab::add::Effects::Kinds(effects)
+        };
+        let opts = DiagnoseOptions {
+            progress: p.clone(),
+            ..DiagnoseOptions::default()
+        };
+        let added = vibro_lab::add::add(model, &loaded.table, &request, freeze, &opts)?;
+        let report = AddReport {
+            effects: added.model.effect_kinds(),
+            fit: added.fit.as_ref(),
+            empirical: added.empirical.as_ref(),
+        };
+        Ok((with_logs(&report, &loaded.logs)?, added.model.to_toml()))
+    })
+}
