@@ -10,6 +10,7 @@
 //! - [`errors`]: every failure as `vibrocomp.errors.VibrocompError`, with the command
 //!   line's message, file, line and key.
 
+mod arrays;
 mod errors;
 mod lab;
 mod logs;

@@ -9,7 +9,6 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use numpy::{IntoPyArray, PyArrayMethods};
 use prost::Message as _;
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
@@ -106,6 +105,21 @@ impl Cols {
 
     /// The message's MCAP header fields: the data time (`log_time_ns`), the receive
     /// time (`publish_time_ns`) and the publisher's 32-bit counter.
+    /// Room for `rows` more rows in every column (each row `shape` values).
+    fn reserve(&mut self, rows: usize) {
+        for (_, shape, data) in &mut self.cols {
+            let n = rows.saturating_mul(shape.iter().product::<usize>());
+            match data {
+                Data::F64(v) => v.reserve(n),
+                Data::U64(v) => v.reserve(n),
+                Data::I64(v) => v.reserve(n),
+                Data::U32(v) => v.reserve(n),
+                Data::Bool(v) => v.reserve(n),
+                Data::Str(v) => v.reserve(n),
+            }
+        }
+    }
+
     fn header(&mut self, r: &RawRecord) {
         self.u64("log_time_ns", r.log_time_ns);
         self.u64("publish_time_ns", r.publish_time_ns);
@@ -118,11 +132,11 @@ impl Cols {
             let mut dims = vec![self.rows];
             dims.extend(&shape);
             let array = match data {
-                Data::F64(v) => v.into_pyarray(py).reshape(dims)?.into_any(),
-                Data::U64(v) => v.into_pyarray(py).reshape(dims)?.into_any(),
-                Data::I64(v) => v.into_pyarray(py).reshape(dims)?.into_any(),
-                Data::U32(v) => v.into_pyarray(py).reshape(dims)?.into_any(),
-                Data::Bool(v) => v.into_pyarray(py).reshape(dims)?.into_any(),
+                Data::F64(v) => crate::arrays::out(py, &v, dims)?,
+                Data::U64(v) => crate::arrays::out(py, &v, dims)?,
+                Data::I64(v) => crate::arrays::out(py, &v, dims)?,
+                Data::U32(v) => crate::arrays::out(py, &v, dims)?,
+                Data::Bool(v) => crate::arrays::out(py, &v, dims)?,
                 Data::Str(v) => v.into_pyobject(py)?.into_any(),
             };
             d.set_item(name, array)?;
@@ -518,6 +532,10 @@ fn push_wire(s: &mut BlockStream, m: &Message, r: &RawRecord) {
     }
 }
 
+/// The most messages a stream's columns are sized for ahead of reading them (the
+/// statistics' count; beyond, the columns grow as they are read).
+const MAX_RESERVED_MESSAGES: u64 = 1 << 20;
+
 /// What one stream read into: its kind and its columns.
 struct Stream {
     kind: String,
@@ -534,11 +552,17 @@ fn read_stream(path: &std::path::Path, topic: &str) -> anyhow::Result<Stream> {
         .find(|(t, _)| t == topic)
         .map(|(_, k)| k);
     reader.select_topics(&[topic])?;
+    // The statistics' count of messages sizes the columns once the first message
+    // shows their shapes (capped: a forged count must not become an allocation).
+    let expected = reader.topic_message_count(topic).map_or(0, |n| {
+        usize::try_from(n.min(MAX_RESERVED_MESSAGES)).unwrap_or(0)
+    });
     let mut data = BlockStream::default();
     let mut kind = None;
     while let Some(r) = reader.next_raw() {
         let r = r?;
-        if kind.is_none() {
+        let first = kind.is_none();
+        if first {
             kind = Some(r.schema.to_string());
         }
         match wire {
@@ -548,6 +572,11 @@ fn read_stream(path: &std::path::Path, topic: &str) -> anyhow::Result<Stream> {
                 push_wire(&mut data, &m, &r);
             }
             None => push_view(&mut data.blocks, &r)?,
+        }
+        if first {
+            let more = expected.saturating_sub(1);
+            data.blocks.reserve(more);
+            data.samples.reserve(more.saturating_mul(data.samples.rows));
         }
     }
     let kind = match (kind, wire) {

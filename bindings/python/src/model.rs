@@ -8,9 +8,8 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use anyhow::Context;
-use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyBytes, PyDict};
 use vibro_effects::report::{extended_compensate_of, extended_ve_of};
 use vibro_lab::LabModel;
 use vibro_physics::compensation::{Mode, UnitCompensator};
@@ -79,9 +78,9 @@ pub fn parse_mode(name: &str) -> anyhow::Result<Mode> {
 }
 
 /// The columns of one call, all of length `n`, by name.
-struct Columns<'a> {
+struct Columns {
     n: usize,
-    cols: HashMap<String, &'a [f64]>,
+    cols: HashMap<String, Vec<f64>>,
 }
 
 /// The rule each known column obeys.
@@ -100,15 +99,13 @@ fn rule_of(name: &str) -> Option<fn(f64) -> Option<&'static str>> {
     })
 }
 
-impl<'a> Columns<'a> {
-    fn new(arrays: &'a HashMap<String, PyReadonlyArray1<'_, f64>>) -> anyhow::Result<Self> {
+impl Columns {
+    fn new(arrays: &HashMap<String, Bound<'_, PyBytes>>) -> anyhow::Result<Self> {
         let mut cols = HashMap::new();
         let mut n = None;
         for (name, array) in arrays {
             anyhow::ensure!(rule_of(name).is_some(), "unknown column {name:?}");
-            let slice = array
-                .as_slice()
-                .with_context(|| format!("{name}: not a contiguous array"))?;
+            let slice = crate::arrays::f64s(array).with_context(|| format!("column {name}"))?;
             match n {
                 None => n = Some(slice.len()),
                 Some(len) => anyhow::ensure!(
@@ -220,11 +217,13 @@ impl Out {
     fn into_dict(self, py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
         let d = PyDict::new(py);
         for (name, values) in self.columns {
-            d.set_item(name, values.into_pyarray(py))?;
+            let n = values.len();
+            d.set_item(name, crate::arrays::out(py, &values, vec![n])?)?;
         }
         let effects = PyDict::new(py);
         for (kind, values) in self.effects {
-            effects.set_item(kind, values.into_pyarray(py))?;
+            let n = values.len();
+            effects.set_item(kind, crate::arrays::out(py, &values, vec![n])?)?;
         }
         d.set_item("effects", effects)?;
         Ok(d)
@@ -277,7 +276,7 @@ fn spectrum_hint(vib: &Vibration, psd: Option<&[PsdBand]>) -> &'static str {
     }
 }
 
-fn ve_rows(s: &Setup, c: &Columns<'_>) -> anyhow::Result<Out> {
+fn ve_rows(s: &Setup, c: &Columns) -> anyhow::Result<Out> {
     let mut out = Out::default();
     let psd = s.psd.as_deref();
     for i in 0..c.n {
@@ -315,7 +314,7 @@ fn ve_rows(s: &Setup, c: &Columns<'_>) -> anyhow::Result<Out> {
     Ok(out)
 }
 
-fn compensate_rows(s: &Setup, c: &Columns<'_>) -> anyhow::Result<Out> {
+fn compensate_rows(s: &Setup, c: &Columns) -> anyhow::Result<Out> {
     let mut out = Out::default();
     let psd = s.psd.as_deref();
     for i in 0..c.n {
@@ -364,8 +363,8 @@ fn compensate_rows(s: &Setup, c: &Columns<'_>) -> anyhow::Result<Out> {
 fn per_condition<'py>(
     py: Python<'py>,
     (passport, mode, model, psd): (&str, &str, Option<(String, String)>, Option<&str>),
-    columns: &HashMap<String, PyReadonlyArray1<'py, f64>>,
-    rows: fn(&Setup, &Columns<'_>) -> anyhow::Result<Out>,
+    columns: &HashMap<String, Bound<'py, PyBytes>>,
+    rows: fn(&Setup, &Columns) -> anyhow::Result<Out>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let s = setup(passport, mode, model, psd).py_err()?;
     let c = Columns::new(columns).py_err()?;
@@ -379,7 +378,7 @@ fn per_condition<'py>(
 fn ve<'py>(
     py: Python<'py>,
     passport: &str,
-    columns: HashMap<String, PyReadonlyArray1<'py, f64>>,
+    columns: HashMap<String, Bound<'py, PyBytes>>,
     mode: &str,
     model: Option<(String, String)>,
     psd: Option<&str>,
@@ -393,7 +392,7 @@ fn ve<'py>(
 fn compensate<'py>(
     py: Python<'py>,
     passport: &str,
-    columns: HashMap<String, PyReadonlyArray1<'py, f64>>,
+    columns: HashMap<String, Bound<'py, PyBytes>>,
     mode: &str,
     model: Option<(String, String)>,
     psd: Option<&str>,

@@ -253,30 +253,31 @@ impl Reader {
         if self.failed {
             return None;
         }
-        match self.next_pending() {
-            Ok(None) => None,
-            Ok(Some(p)) => {
-                let (topic, schema) = match (
-                    self.channels.get(&p.channel_id),
-                    self.views.get(&p.channel_id),
-                ) {
-                    (Some(c), _) => (Arc::clone(&c.topic), Arc::from(crate::schema(c.kind).name)),
-                    (None, Some((t, s))) => (Arc::clone(t), Arc::clone(s)),
-                    (None, None) => unreachable!("only known channels are queued"),
-                };
-                Some(Ok(RawRecord {
-                    topic,
-                    schema,
-                    sequence: p.sequence,
-                    log_time_ns: p.log_time_ns,
-                    publish_time_ns: p.publish_time_ns,
-                    data: p.data,
-                }))
-            }
-            Err(e) => {
-                self.failed = true;
-                Some(Err(e))
-            }
+        loop {
+            let p = match self.next_pending() {
+                Ok(p) => p?,
+                Err(e) => {
+                    self.failed = true;
+                    return Some(Err(e));
+                }
+            };
+            // Only known channels are queued (`queued`).
+            let (topic, schema) = match (
+                self.channels.get(&p.channel_id),
+                self.views.get(&p.channel_id),
+            ) {
+                (Some(c), _) => (Arc::clone(&c.topic), Arc::from(crate::schema(c.kind).name)),
+                (None, Some((t, s))) => (Arc::clone(t), Arc::clone(s)),
+                (None, None) => continue,
+            };
+            return Some(Ok(RawRecord {
+                topic,
+                schema,
+                sequence: p.sequence,
+                log_time_ns: p.log_time_ns,
+                publish_time_ns: p.publish_time_ns,
+                data: p.data,
+            }));
         }
     }
 
@@ -322,6 +323,22 @@ impl Reader {
     /// from the wire streams to be plotted, skipped like foreign ones.
     pub fn view_topics(&self) -> &[String] {
         &self.view_topics
+    }
+
+    /// Messages on `topic` according to the file's statistics record, if it has one.
+    pub fn topic_message_count(&self, topic: &str) -> Option<u64> {
+        let stats = self.summary.stats.as_ref()?;
+        let ids = self.summary.channels.values().filter(|c| c.topic == topic);
+        Some(
+            ids.map(|c| {
+                stats
+                    .channel_message_counts
+                    .get(&c.id)
+                    .copied()
+                    .unwrap_or(0)
+            })
+            .sum(),
+        )
     }
 
     /// Messages in the file according to its statistics record, if it has one.

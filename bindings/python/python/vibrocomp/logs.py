@@ -26,6 +26,7 @@ from typing import Dict, List, Optional, Union
 import numpy as np
 
 from . import _vibrocomp as _native
+from ._arrays import arrays as _arrays
 
 
 @dataclass(frozen=True)
@@ -135,7 +136,12 @@ class Log:
     def stream(self, topic: str) -> Stream:
         """The stream on `topic`, read now (only its channel's messages are decoded)."""
         kind, samples, rows = self._native.read(topic)
-        return Stream(topic=topic, kind=kind, samples=samples, rows=rows)
+        return Stream(
+            topic=topic,
+            kind=kind,
+            samples=None if samples is None else _arrays(samples),
+            rows=_arrays(rows),
+        )
 
     def streams(self) -> List[str]:
         """The topics, in the log's order."""

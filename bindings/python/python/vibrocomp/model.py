@@ -18,6 +18,8 @@ from typing import Dict, List, Optional, Tuple, Union
 import numpy as np
 
 from . import _vibrocomp as _native
+from ._arrays import array as _array
+from ._arrays import column_bytes as _column_bytes
 
 ArrayLike = Union[float, int, "np.ndarray", List[float]]
 
@@ -95,19 +97,17 @@ class Triad:
         return cls(id=d["id"], units=units)  # type: ignore[arg-type]
 
 
-def _columns(named: Dict[str, Optional[ArrayLike]]) -> Tuple[Dict[str, np.ndarray], tuple]:
-    """The given values broadcast together, flattened to float64 columns, and their
-    common shape."""
+def _columns(named: Dict[str, Optional[ArrayLike]]) -> Tuple[Dict[str, bytes], tuple]:
+    """The given values broadcast together, flattened to float64 columns (as bytes for
+    the native half), and their common shape."""
     given = {k: np.asarray(v, dtype=np.float64) for k, v in named.items() if v is not None}
     shape = np.broadcast_shapes(*(a.shape for a in given.values())) if given else ()
-    cols = {
-        k: np.ascontiguousarray(np.broadcast_to(a, shape).reshape(-1)) for k, a in given.items()
-    }
+    cols = {k: _column_bytes(np.broadcast_to(a, shape).reshape(-1)) for k, a in given.items()}
     return cols, shape
 
 
-def _shaped(values: np.ndarray, shape: tuple):
-    a = np.asarray(values).reshape(shape)
+def _shaped(values, shape: tuple):
+    a = _array(values).reshape(shape)
     return float(a) if shape == () else a
 
 
