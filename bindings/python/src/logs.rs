@@ -328,63 +328,28 @@ fn push_view(c: &mut Cols, r: &RawRecord) -> anyhow::Result<()> {
             c.u32("unit_index", m.unit_index);
             c.u32("samples", m.samples);
             c.u64("first_sample_index", m.first_sample_index);
-            let stages: [([&'static str; 3], Option<&Stage>); 7] = [
-                (
-                    [
-                        "uncompensated_g_mean",
-                        "uncompensated_g_min",
-                        "uncompensated_g_max",
-                    ],
-                    m.uncompensated_g.as_ref(),
-                ),
-                (
-                    [
-                        "main_removed_g_mean",
-                        "main_removed_g_min",
-                        "main_removed_g_max",
-                    ],
-                    m.main_removed_g.as_ref(),
-                ),
-                (
-                    [
-                        "compensated_g_mean",
-                        "compensated_g_min",
-                        "compensated_g_max",
-                    ],
-                    m.compensated_g.as_ref(),
-                ),
-                (
-                    ["reference_g_mean", "reference_g_min", "reference_g_max"],
-                    m.reference_g.as_ref(),
-                ),
-                (
-                    [
-                        "uncompensated_error_g_mean",
-                        "uncompensated_error_g_min",
-                        "uncompensated_error_g_max",
-                    ],
-                    m.uncompensated_error_g.as_ref(),
-                ),
-                (
-                    [
-                        "main_removed_error_g_mean",
-                        "main_removed_error_g_min",
-                        "main_removed_error_g_max",
-                    ],
-                    m.main_removed_error_g.as_ref(),
-                ),
-                (
-                    [
-                        "compensated_error_g_mean",
-                        "compensated_error_g_min",
-                        "compensated_error_g_max",
-                    ],
-                    m.compensated_error_g.as_ref(),
-                ),
-            ];
-            for (names, stage) in stages {
-                push_stage(c, names, stage);
+            // Each stage's mean, min and max as `<stage>_mean`, `_min`, `_max`.
+            macro_rules! stages {
+                ($($field:ident),*) => {
+                    $(
+                        let names = [
+                            concat!(stringify!($field), "_mean"),
+                            concat!(stringify!($field), "_min"),
+                            concat!(stringify!($field), "_max"),
+                        ];
+                        push_stage(c, names, m.$field.as_ref());
+                    )*
+                };
             }
+            stages!(
+                uncompensated_g,
+                main_removed_g,
+                compensated_g,
+                reference_g,
+                uncompensated_error_g,
+                main_removed_error_g,
+                compensated_error_g
+            );
             c.u32("flags", m.flags);
         }
         "vibrocomp.view.v1.VibrationAxis" => {
