@@ -9,9 +9,10 @@
 //! | function | feeds the bytes to | checks |
 //! |---|---|---|
 //! | [`mcap_read`] | `vibro_mcap::{Reader, info, recover, Message::decode}` as an MCAP file | no panic; a recovered file reads back whole |
+//! | [`mcap_recover`] | damage operations (flipped bits, zeroed or filled runs, a cut) on a small valid file ([`recovery::fixture`]) to `vibro_mcap::recover` | no panic, no read outside the file; every message whose bytes are intact kept, every message kept one of the original's ([`recovery`]) |
 //! | [`csv_import`] | `vibro_log::import`'s two passes over a CSV file (`vibrocomp log import`) | no panic; blocks valid and in order; errors name the file |
 //! | [`config_parse`] | every TOML parser: estimator, compensator, passport, triad, scenario, and the PSD table (CSV) | no panic; errors name the file |
-//! | [`lab_table`] | UTF-8 text as a campaign table (`vibro_lab::CampaignTable::parse`), then `compare` and a `diagnose` of two candidates on a small budget | no panic, no hang; an error from the table names the file; a fit returned is finite |
+//! | [`lab_table`] | bytes in any encoding as a campaign table (`vibro_lab::CampaignTable::read`, the reader of every lab command and the Python package), then `compare` and a `diagnose` of two candidates on a small budget | no panic, no hang; no more read than the cap on a line allows; a refusal names the file first and is short (at most 20 problems listed, each under 1 KiB); a fit returned is finite |
 //! | [`message_validate`] | every wire type of `vibro-msgs` from raw bytes, and protobuf through `vibro_mcap` | no panic; what validates survives the protobuf round trip bit for bit |
 //! | [`stream_sequence`] | an adversarial input sequence (`vibro_service::adversary`) to the compensator's and the estimator's cores | no input silences them: the real stream is taken again within 4 messages, never dropped after, and estimated again within a window; no jump or fake step counted as a loss |
 //!
@@ -26,6 +27,10 @@
 //!
 //! `fuzz/README.md` says how to run the targets, for how long they ran and what they
 //! found.
+
+pub mod recovery;
+
+pub use recovery::mcap_recover;
 
 use std::fmt::Display;
 use std::io::Cursor;
@@ -44,8 +49,9 @@ use vibro_msgs::{
 pub type Target = fn(&[u8]);
 
 /// The targets by name, as in `fuzz/Cargo.toml` and the corpus folders.
-pub const TARGETS: [(&str, Target); 6] = [
+pub const TARGETS: [(&str, Target); 7] = [
     ("mcap_read", mcap_read),
+    ("mcap_recover", mcap_recover),
     ("lab_table", lab_table),
     ("csv_import", csv_import),
     ("config_parse", config_parse),
@@ -644,29 +650,70 @@ impl Normalise for Heartbeat {
 // ---------------------------------------------------------------------------------
 // Lab campaign table
 
+/// Where the first line longer than `cap` bytes starts (any line ending ends a line).
+fn first_long_line(data: &[u8], cap: usize) -> Option<usize> {
+    let mut start = 0;
+    for line in data.split(|&b| b == b'\n' || b == b'\r') {
+        if line.len() > cap {
+            return Some(start);
+        }
+        start += line.len() + 1;
+    }
+    None
+}
+
 /// Rows a [`lab_table`] input may have for its fits to run (more: parsed only).
 const LAB_MAX_FIT_ROWS: usize = 16;
 
-/// UTF-8 text as a campaign table (`vibrocomp lab`, docs/lab.md), named `fuzz.csv`:
-/// parsed with the base model (exact mode, no default passport); a table that parses
-/// is compared, and when it has at most [`LAB_MAX_FIT_ROWS`] rows diagnosed with two
-/// candidates (`mount_resonance`, `sensor_error`) on one thread and a small budget
-/// (200 evaluations per fit, 5 s), which keeps a run fast. Checks: no panic (nalgebra's
-/// SVD panics on NaN: the lab must not hand it one); a table error names the file;
-/// every fit returned is finite; the budget's report adds up.
+/// Bytes as a campaign table (`vibrocomp lab`, docs/lab.md), named `fuzz.csv`, in
+/// whatever encoding they are (UTF-8, Latin-1 bytes, UTF-16, NUL bytes, any line
+/// ending): read by `CampaignTable::read` with the base model (exact mode, no default
+/// passport); a table that reads is compared, and when it has at most
+/// [`LAB_MAX_FIT_ROWS`] rows diagnosed with two candidates (`mount_resonance`,
+/// `sensor_error`) on one thread and a small budget (200 evaluations per fit, 5 s),
+/// which keeps a run fast. Checks: no panic (nalgebra's SVD panics on NaN: the lab
+/// must not hand it one); no more of the input read than up to the cap on a line and a
+/// buffer past the first line over it (memory bounded); a refusal names the file first
+/// and is short (at most 20 problems listed and a count, each under 1 KiB: hostile
+/// input is quoted by its excerpt); every fit returned is finite; the budget's report
+/// adds up. (`shared/vibro-lab/tests/table_reader.rs` draws tables of every shape
+/// and damage for the same properties on stable.)
 pub fn lab_table(data: &[u8]) {
-    let Ok(text) = std::str::from_utf8(data) else {
-        return;
-    };
+    use vibro_lab::table_input::{MAX_LINE_BYTES, MAX_LISTED_PROBLEMS};
     let model = vibro_lab::LabModel::base(vibro_lab::BaseMode::Exact);
-    let table = match vibro_lab::CampaignTable::parse(
-        text,
+    let mut input = Cursor::new(data);
+    let read = vibro_lab::CampaignTable::read(
+        &mut input,
         Path::new("fuzz.csv"),
         Path::new("/nonexistent-fuzz-dir"),
         &model,
-    ) {
+    );
+    if let Some(start) = first_long_line(data, MAX_LINE_BYTES) {
+        // The reader's buffer is 64 KiB; a byte order mark is read before it.
+        let bound = start + MAX_LINE_BYTES + 2 * (1 << 16) + 3;
+        assert!(
+            input.position() as usize <= bound,
+            "lab table: {} bytes read, the first line over the cap starts at {start}",
+            input.position()
+        );
+        assert!(read.is_err(), "lab table: a line over the cap was read");
+    }
+    let table = match read {
         Ok(t) => t,
-        Err(e) => return check_error_names("lab table", &e, "fuzz.csv"),
+        Err(e) => {
+            let text = e.to_string();
+            assert!(text.starts_with("fuzz.csv"), "lab table: {text}");
+            let problems: Vec<&str> = text.split("\n  ").collect();
+            assert!(
+                problems.len() <= MAX_LISTED_PROBLEMS + 1,
+                "lab table: {} problems listed",
+                problems.len()
+            );
+            for p in problems {
+                assert!(p.len() < 1024, "lab table: a problem of {} bytes: {p}", p.len());
+            }
+            return;
+        }
     };
     match vibro_lab::compare(&model, &table) {
         Ok(c) => assert_eq!(c.rows.len(), table.conditions.len(), "compare: rows lost"),
@@ -767,6 +814,9 @@ mod tests {
         }
         for (name, data) in seeds::mcap_files() {
             write("mcap_read", &name, &data);
+        }
+        for (name, data) in seeds::recover_damage() {
+            write("mcap_recover", name, &data);
         }
         for (name, data) in seeds::csv_files() {
             write("csv_import", name, &data);
@@ -892,6 +942,21 @@ mod tests {
                 out.push((format!("{name}.mcap"), bytes));
             }
             out
+        }
+
+        /// `mcap_recover` inputs: no damage, one operation of each kind, three at once.
+        pub fn recover_damage() -> Vec<(&'static str, Vec<u8>)> {
+            vec![
+                ("none", vec![]),
+                ("flip", vec![0, 0x04, 0x00, 0xFF]),
+                ("zeros", vec![1, 0x02, 0x00, 15]),
+                ("fill", vec![2, 0x06, 0x00, 0x06]),
+                ("cut", vec![3, 0x08, 0x00, 0]),
+                (
+                    "three",
+                    vec![0, 0x00, 0x30, 0x80, 1, 0x03, 0x10, 40, 3, 0x0A, 0x00, 0],
+                ),
+            ]
         }
 
         /// `stream_sequence` inputs: issue 31 (a real stream of 11 messages, one fake

@@ -1553,3 +1553,50 @@ fn a_tls_bridge_takes_only_the_clients_its_configuration_names() {
     let b = br.summary();
     assert_eq!(b["streams"][0]["forwarded"], 3, "{b}");
 }
+
+/// Issue 46, item 6: a peer sends accelerometer blocks 0..=10, a forged 500,000, then
+/// 11..=60. Before, the bridge counted 499,989 messages lost on the network. By the
+/// services' rule (vibro_msgs::continuity) the forged step's loss is taken back when
+/// the stream resumes: nothing lost, one resync, 11..=13 out of order (forwarded all
+/// the same: the service behind applies the rule itself). The reference is the list of
+/// `seq`s this test put: every real block 0..=60 sent, none missing.
+#[test]
+fn a_forged_seq_ahead_from_the_network_is_taken_back_not_lost() {
+    let dir = Dir::new("forged");
+    let prefix = prefix("f");
+    let (config, endpoint, key_prefix) =
+        listening_config(&dir, &prefix, "forged", "[import]\nstreams = [\"accel\"]\n");
+    let names = ServiceNames::new(&prefix).unwrap();
+    let node = create_node("vcb-forged").unwrap();
+    let local = StreamSubscriber::<AccelBlock>::open(&node, &names, Stream::Accel).unwrap();
+    let br = bridge(&config, &dir);
+    let (session, publisher) = remote_accel_publisher(&endpoint, &key_prefix);
+    let seqs: Vec<u64> = (0..=10).chain([500_000]).chain(11..=60).collect();
+    for &seq in &seqs {
+        // The forged one carries block 11's samples.
+        let mut b = accel_block(seq.min(11));
+        b.seq = seq;
+        publisher.put(b.bytes()).wait().unwrap();
+    }
+    let mut got = Vec::new();
+    wait_until("the blocks in iceoryx2", Duration::from_secs(10), || {
+        while let Some(b) = local.receive().unwrap() {
+            got.push(b.seq);
+        }
+        got.len() >= seqs.len()
+    });
+    assert_eq!(got, seqs, "the bridge forwards every block");
+    drop(publisher);
+    session.close().wait().unwrap();
+    let b = br.summary();
+    let s = &b["streams"][0];
+    // Every real block was sent: none lost on the network.
+    assert_eq!(s["gap_messages"], 0, "{b}");
+    assert_eq!(s["retracted"], 499_989, "{b}");
+    assert_eq!(s["resyncs"], 1, "{b}");
+    assert_eq!(s["out_of_order"], 3, "{b}");
+    assert_eq!(s["seq_jumps"], 0, "{b}");
+    assert_eq!(s["forwarded"], seqs.len() as u64, "{b}");
+    assert_eq!(b["lost"], 0, "{b}");
+    eprintln!("FIGURES bridge-forged-seq: {s}");
+}

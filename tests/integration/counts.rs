@@ -124,7 +124,7 @@ fn a_compensator_restart_shows_as_lost_blocks_in_log_info() {
     let info = log_info_json(&session);
     let c = channel(&info, "/compensated");
     assert_eq!(c["inputs_without_output"], unanswered, "{c}");
-    assert_eq!(c["out_of_order"], 1, "its seq restarted once: {c}");
+    assert_eq!(c["restarts"], 1, "its seq restarted once: {c}");
     assert_eq!(info["inputs_without_output"], unanswered, "{info}");
     let by_sequence: u64 = info["channels"]
         .as_array()
@@ -136,15 +136,15 @@ fn a_compensator_restart_shows_as_lost_blocks_in_log_info() {
     // The text names it.
     let out = bin().args(["log", "info"]).arg(&session).output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
-    let gap = &c["input_gaps"][0];
+    let gap = &c["unanswered"]["listed"][0];
     let want = format!(
-        "{unanswered} accelerometer blocks without compensated output (input_seq {} -> {} on /compensated",
-        gap["from"], gap["to"]
+        "{unanswered} accelerometer blocks without compensated output on /compensated (seq {}..={}",
+        gap["first"], gap["last"]
     );
     assert!(text.contains(&want), "{want:?} not in\n{text}");
     eprintln!(
-        "FIGURES counts-restart: {unanswered} accel blocks without output, input_seq {} -> {}",
-        gap["from"], gap["to"]
+        "FIGURES counts-restart: {unanswered} accel blocks without output, seq {}..={}",
+        gap["first"], gap["last"]
     );
 }
 
@@ -352,5 +352,168 @@ fn one_forged_block_time_does_not_move_the_recordings_timeline() {
         max_ns as f64 * 1e-9,
         latest_ns as f64 * 1e-9,
         channel(&info, "/accel")
+    );
+}
+
+/// `log` rewritten to `out` with its accelerometer blocks numbered 0..=10, then a
+/// forged copy of block 11 numbered 500,000 (issue 46, item 6), then 11..=60 (the later
+/// ones left out); the rest as it was.
+fn forged_seq_log(log: &Path, out: &Path) {
+    let mut w = Recorder::create(out, RecorderOptions::default()).unwrap();
+    let mut channels = std::collections::HashMap::new();
+    for r in Reader::open(log).unwrap() {
+        let r = r.unwrap();
+        let kind = r.message.kind();
+        let ch = channels
+            .entry(r.topic.to_string())
+            .or_insert_with(|| w.add_channel(&r.topic, kind).unwrap())
+            .clone();
+        let put = |sequence: u32, m: Message| {
+            while let Err(e) = w.write_to(&ch, r.log_time_ns, r.publish_time_ns, sequence, m) {
+                assert!(matches!(e, vibro_mcap::Error::QueueFull { .. }), "{e}");
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        };
+        match r.message {
+            Message::AccelBlock(b) if b.seq > 60 => {}
+            Message::AccelBlock(b) if b.seq == 11 => {
+                let mut forged = b;
+                forged.seq = 500_000;
+                put(500_000, Message::AccelBlock(forged));
+                put(r.sequence, r.message);
+            }
+            m => put(r.sequence, m),
+        }
+    }
+    w.finish().unwrap();
+}
+
+/// Issue 46, item 6: accelerometer blocks 0..=10, a forged 500,000, then 11..=60 into
+/// `up --record`. Before: the recorder said `/accel lost 499989` with `seq_jumps=0`,
+/// `log info` 499,989 lost and its JSON `lost` 999,978 (counted twice), and blocks
+/// 11..=13 (which the compensator drops while it takes the stream up again) were
+/// reported nowhere. Now the recorder, `log info` and its JSON count the forged step as
+/// a loss taken back (no loss), add each loss once, and list 11..=13; the reference is
+/// an independent count in Python from the recording against the published log.
+#[test]
+fn a_forged_seq_counts_no_loss_and_the_blocks_without_output_are_listed() {
+    let dir = Dir::new("cnf");
+    let log = flight_log(&dir, "4");
+    let crafted = dir.path("forged-seq.mcap");
+    forged_seq_log(&log, &crafted);
+    let session = dir.path("session.mcap");
+    let (_, err) = replay_recorded(&prefix("cf"), &crafted, &session);
+
+    // The reference: tests/python/loss_reference.py, from the files alone.
+    let out = std::process::Command::new("python3")
+        .arg(repo_path("tests/python/loss_reference.py"))
+        .arg(&session)
+        .arg("--published")
+        .arg(&crafted)
+        .env("PYTHONDONTWRITEBYTECODE", "1")
+        .output()
+        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
+    assert!(
+        out.status.success(),
+        "loss_reference.py failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let reference: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // The compensator dropped 11..=13 (out of order behind the forged block, until the
+    // fourth of them resynced its stream: vibro_msgs::continuity) and answered the rest.
+    assert_eq!(
+        reference["unanswered"]["ranges"],
+        serde_json::json!([[11, 13]]),
+        "{reference}"
+    );
+    assert_eq!(
+        field(&err, "compensator stopped", "out_of_order"),
+        3,
+        "{err}"
+    );
+    let total = reference["lost"].as_u64().unwrap();
+
+    // The recorder's summary (on up's stderr): what it lost (the blocks without an
+    // output are listed apart: it has them).
+    let line = |key| field(&err, "recording finished", key);
+    let recorder_lost = reference["accel"]["lost"].as_u64().unwrap()
+        + reference["compensated"]["lost"].as_u64().unwrap();
+    assert_eq!(line("lost"), recorder_lost, "{err}");
+    assert_eq!(line("seq_jumps"), 0, "{err}");
+    assert_eq!(line("resyncs"), 1, "{err}");
+    assert_eq!(line("retracted"), 499_989, "{err}");
+    assert_eq!(line("inputs_without_output"), 3, "{err}");
+    let text = strip_ansi(&err);
+    let accel_line = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("/accel "))
+        .unwrap_or_else(|| panic!("no /accel line in\n{text}"));
+    assert!(
+        accel_line.contains(&format!(
+            "lost {:>4}",
+            reference["accel"]["lost"].as_u64().unwrap()
+        )) && accel_line.contains("resyncs 1 (499989 taken back)"),
+        "{accel_line}"
+    );
+    assert!(
+        text.contains("3 accelerometer blocks without compensated output: seq 11..=13"),
+        "{text}"
+    );
+
+    // log info --json: each loss once, the top-level total the sum over the channels.
+    let info = log_info_json(&session);
+    let a = channel(&info, "/accel");
+    assert_eq!(a["lost"], reference["accel"]["lost"], "{a}");
+    assert_eq!(
+        (
+            &a["resyncs"],
+            &a["retracted"],
+            &a["jumps"],
+            &a["out_of_order"]
+        ),
+        (&1.into(), &499_989.into(), &0.into(), &3.into()),
+        "{a}"
+    );
+    let c = channel(&info, "/compensated");
+    assert_eq!(c["lost"], reference["compensated"]["lost"], "{c}");
+    assert_eq!(c["inputs_without_output"], 3, "{c}");
+    assert_eq!(
+        c["unanswered"]["listed"],
+        serde_json::json!([{"first": 11, "last": 13}]),
+        "{c}"
+    );
+    let by_channel: u64 = info["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["lost"].as_u64().unwrap() + c["inputs_without_output"].as_u64().unwrap())
+        .sum();
+    assert_eq!(info["lost"], total, "{info}");
+    assert_eq!(by_channel, total, "{info}");
+    // The text lists them.
+    let out = bin().args(["log", "info"]).arg(&session).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains(
+            "3 accelerometer blocks without compensated output on /compensated (seq 11..=13 on /accel)"
+        ),
+        "{text}"
+    );
+    assert!(
+        text.contains("1 resyncs, 499989 counted lost at a seq ahead of its stream and taken back"),
+        "{text}"
+    );
+    eprintln!(
+        "FIGURES counts-forged-seq: reference {reference}; recorder lost={} resyncs={} retracted={} \
+         inputs_without_output={}; info lost {} (/accel lost {} retracted {}; /compensated {} without output {})",
+        line("lost"),
+        line("resyncs"),
+        line("retracted"),
+        line("inputs_without_output"),
+        info["lost"],
+        a["lost"],
+        a["retracted"],
+        c["inputs_without_output"],
+        c["unanswered"]["listed"]
     );
 }

@@ -416,8 +416,8 @@ fn a_killed_estimator_turns_the_compensation_stale_until_up_restarts_it() {
     assert_eq!(seqs, (0..accel_sent).collect::<Vec<_>>());
     let info = vibro_mcap::info(&session).unwrap();
     assert_eq!(channel(&info, "/compensated").lost, 0);
-    // The restarted estimator counts its estimates from 0 again.
-    assert_eq!(channel(&info, "/estimate").out_of_order, 1, "{info:?}");
+    // The restarted estimator counts its estimates from 0 again: a restart.
+    assert_eq!(channel(&info, "/estimate").restarts, 1, "{info:?}");
 
     // The kill on the data time base: the last /vib block received before it.
     let kill_data_ns = recs
@@ -590,7 +590,7 @@ fn a_killed_compensator_leaves_a_visible_gap_in_the_recording() {
     );
 
     // What `vibro_mcap::info` says: the inputs are continuous; /compensated restarted
-    // (its `seq` went back to 0: one step back), no forward gap in its own numbering.
+    // (its `seq` went back to 0: a restart), no forward gap in its own numbering.
     let info = vibro_mcap::info(&session).unwrap();
     for (topic, n) in [("/accel", accel_sent), ("/vib", vib_sent)] {
         let c = channel(&info, topic);
@@ -601,9 +601,13 @@ fn a_killed_compensator_leaves_a_visible_gap_in_the_recording() {
         );
     }
     let c = channel(&info, "/compensated");
-    assert_eq!((c.lost, c.gaps, c.out_of_order), (0, 0, 1), "{c:?}");
+    assert_eq!(
+        (c.lost, c.gaps, c.out_of_order, c.restarts),
+        (0, 0, 0, 1),
+        "{c:?}"
+    );
     let hb_channel = channel(&info, "/heartbeat/compensator");
-    assert_eq!(hb_channel.out_of_order, 1, "{hb_channel:?}");
+    assert_eq!(hb_channel.restarts, 1, "{hb_channel:?}");
 
     // The gap itself, by `input_seq`: one jump, the blocks in it have no output.
     let recs = records(&session);
@@ -629,6 +633,16 @@ fn a_killed_compensator_leaves_a_visible_gap_in_the_recording() {
     let missing: Vec<u64> = (last_old.input_seq + 1..first_new.input_seq).collect();
     assert!(!missing.is_empty());
     assert_eq!(comp.len() as u64 + missing.len() as u64, accel_sent);
+    // `log info` counts and lists them (issue 46, item 6).
+    assert_eq!(c.inputs_without_output, missing.len() as u64, "{c:?}");
+    assert_eq!(
+        c.unanswered.listed,
+        [vibro_mcap::SeqRange {
+            first: missing[0],
+            last: missing[missing.len() - 1]
+        }],
+        "{c:?}"
+    );
     // The blocks without output were published between the kill (or just before it,
     // still queued for the dead process) and the new process's subscription.
     let accel_publish_ns = |seq: u64| {

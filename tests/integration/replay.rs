@@ -627,6 +627,67 @@ fn start_view(p: &str) -> (Kid, String) {
     (view, listen)
 }
 
+/// Issue 46, item 8 (and item 3's pings): `vibrocomp view` serves a client offering
+/// `foxglove.websocket.v1` alone (Lichtblick before lichtblick-suite/lichtblick#819,
+/// Foxglove Studio 1.x: today's view answered 400), naming that subprotocol back and
+/// advertising every view channel, and one offering Lichtblick's two names gets
+/// `foxglove.sdk.v1`. The client (`tests/python/foxglove_client.py`, the `websockets`
+/// package) stays 12 s, past the view's 10 s pong timeout: it answers the pings, as a
+/// browser does, and none is counted unanswered.
+#[test]
+fn a_client_offering_foxglove_websocket_v1_is_served_and_answers_the_pings() {
+    let p = prefix("vw1");
+    let (mut view, listen) = start_view(&p);
+    for (offers, chosen, stay_s) in [
+        (
+            &["foxglove.websocket.v1"][..],
+            "foxglove.websocket.v1",
+            "12",
+        ),
+        (
+            &["foxglove.websocket.v1", "foxglove.sdk.v1"][..],
+            "foxglove.sdk.v1",
+            "1",
+        ),
+    ] {
+        let mut cmd = Command::new("python3");
+        cmd.arg(repo_path("tests/python/foxglove_client.py"))
+            .arg(format!("ws://{listen}"))
+            .args(["--max-s", stay_s]);
+        for o in offers {
+            cmd.args(["--subprotocol", o]);
+        }
+        let mut client = Kid::spawn(cmd, "Foxglove client");
+        let (status, out, err) = client.wait(Duration::from_secs(60));
+        assert!(status.success(), "client offering {offers:?}: {err}");
+        let py: serde_json::Value = serde_json::from_str(&out).unwrap();
+        assert_eq!(py["protocol"], chosen, "{py}");
+        let topics: Vec<&str> = py["channels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(|c| c["topic"].as_str())
+            .collect();
+        for (topic, _) in vibro_view::topics(vibro_view::UNIT_NAMES) {
+            assert!(topics.contains(&topic.as_str()), "{topic}: {py}");
+        }
+    }
+    let (status, view_out, view_err) = view.stop(libc::SIGTERM, Duration::from_secs(20));
+    assert!(status.success(), "view: {view_err}");
+    let v: serde_json::Value = serde_json::from_str(&view_out).unwrap();
+    let c = &v["clients"];
+    let count = |k: &str| c[k].as_u64();
+    assert_eq!(
+        (
+            count("served"),
+            count("websocket_v1_requests"),
+            count("unanswered_pings")
+        ),
+        (Some(2), Some(1), Some(0)),
+        "{v}"
+    );
+}
+
 /// A Foxglove client (`tests/python/foxglove_client.py`) subscribed to the view on
 /// `listen` while `log` is replayed at 5x into the system `p`: what it decoded, once
 /// the unit channels have been quiet for 2 s.

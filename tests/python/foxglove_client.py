@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
 """A real client of Foxglove's WebSocket protocol, for the live view's tests.
 
-Connects to a Foxglove WebSocket server with the `foxglove.sdk.v1` subprotocol (the
-`websockets` package), reads `serverInfo` and the advertised channels, subscribes to
+Connects to a Foxglove WebSocket server with the `foxglove.sdk.v1` subprotocol (or
+those given with --subprotocol, in one offer: Lichtblick offers `foxglove.websocket.v1`
+and `foxglove.sdk.v1`, its releases before December 2025 the first alone; the
+`websockets` package, which answers the server's pings as a browser does), reads `serverInfo` and the advertised channels, subscribes to
 every channel whose topic starts with --prefix, decodes each binary `Message Data`
 frame (opcode 1: subscription id u32, log time u64, payload, little-endian) with the
 protobuf schema the server advertised for its channel (a base64 FileDescriptorSet,
@@ -57,7 +59,9 @@ def message_class(schema_name, schema_b64):
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name))
 
 
-async def run(url, prefix, ready, quiet_s, quiet_prefix, max_s, stall_s=0.0, count_only=False):
+async def run(
+    url, prefix, ready, quiet_s, quiet_prefix, max_s, stall_s=0.0, count_only=False, subprotocols=None
+):
     out = {"protocol": None, "server": None, "channels": [], "messages": [], "status": []}
     counts = {}
     classes, topics = {}, {}
@@ -71,7 +75,7 @@ async def run(url, prefix, ready, quiet_s, quiet_prefix, max_s, stall_s=0.0, cou
         sock.connect((host, int(port)))
     async with websockets.connect(
         url,
-        subprotocols=[SUBPROTOCOL],
+        subprotocols=subprotocols or [SUBPROTOCOL],
         max_size=None,
         max_queue=1 if stall_s else 16,
         sock=sock,
@@ -159,9 +163,24 @@ def main():
     p.add_argument(
         "--count-only", action="store_true", help="count the messages per topic, decode none"
     )
+    p.add_argument(
+        "--subprotocol",
+        action="append",
+        help=f"a subprotocol to offer (repeatable; {SUBPROTOCOL} unless given)",
+    )
     a = p.parse_args()
     out = asyncio.run(
-        run(a.url, a.prefix, a.ready, a.quiet_s, a.quiet_prefix, a.max_s, a.stall_s, a.count_only)
+        run(
+            a.url,
+            a.prefix,
+            a.ready,
+            a.quiet_s,
+            a.quiet_prefix,
+            a.max_s,
+            a.stall_s,
+            a.count_only,
+            a.subprotocol,
+        )
     )
     json.dump(out, sys.stdout)
     print()

@@ -18,6 +18,7 @@ use crate::errors::IntoPy;
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_model, m)?)?;
+    m.add_function(wrap_pyfunction!(save_model, m)?)?;
     m.add_function(wrap_pyfunction!(model_effects, m)?)?;
     m.add_function(wrap_pyfunction!(lab_table, m)?)?;
     m.add_function(wrap_pyfunction!(lab_compare, m)?)?;
@@ -102,6 +103,20 @@ fn read_model(path: PathBuf) -> PyResult<(String, String)> {
         Ok((text, name))
     };
     run().py_err()
+}
+
+/// Writes a model's text to `path` by the command line's file rule (README, "Files";
+/// `vibro_files::write_bytes`): complete or not at all, never through a link, into a
+/// FIFO or a device; an existing file only with `overwrite`, else `FileExistsError`.
+#[pyfunction]
+fn save_model(path: PathBuf, text: &str, overwrite: bool) -> PyResult<()> {
+    match vibro_files::write_bytes(&path, overwrite, text.as_bytes()) {
+        Ok(()) => Ok(()),
+        Err(e @ vibro_files::Error::Exists { .. }) => Err(
+            pyo3::exceptions::PyFileExistsError::new_err(format!("{e} (here: overwrite=True)")),
+        ),
+        Err(e) => Err(anyhow::Error::from(e)).py_err(),
+    }
 }
 
 /// An extended model's base mode and effect kinds.

@@ -193,7 +193,7 @@ fn locate(value: &str, base: Option<&Path>) -> (String, Option<PathBuf>) {
 /// Passport files a triad file names (resolved as vibro-config does: from the
 /// working directory), so that hot reload watches them too.
 fn passport_files_of_triad(triad_file: &Path) -> Vec<PathBuf> {
-    let Ok(text) = std::fs::read_to_string(triad_file) else {
+    let Ok(text) = vibro_toml::bounds::read_file(triad_file) else {
         return Vec::new();
     };
     let Ok(table) = toml::from_str::<toml::Table>(&text) else {
@@ -207,6 +207,40 @@ fn passport_files_of_triad(triad_file: &Path) -> Vec<PathBuf> {
         .map(PathBuf::from)
         .filter(|p| p.is_file())
         .collect()
+}
+
+/// Every string and list of the file against its bound: whether all are within, each
+/// one over added to `p`. (`prefix` is bounded by [`check_prefix`]: iceoryx2's
+/// service names.)
+fn check_sizes(raw: &RawConfig, p: &mut Vec<String>) -> bool {
+    use vibro_toml::bounds::{text, texts, MAX_PATH_BYTES};
+    // A mode or a kurtosis use is one word of a few; a triad, passport or model is a
+    // file (a path) or a shipped id.
+    const MAX_WORD_BYTES: usize = 64;
+    let mut ok = text("mode", &raw.mode, MAX_WORD_BYTES, p);
+    ok &= text("triad", &raw.triad, MAX_PATH_BYTES, p);
+    if let Some(list) = &raw.passports {
+        // One per unit; the entries of a longer list are not looked at one by one.
+        if list.len() == 3 {
+            ok &= texts("passports", list, 3, MAX_PATH_BYTES, p);
+        } else {
+            p.push(format!(
+                "passports: {} entries, a triad has exactly 3 units",
+                list.len()
+            ));
+            ok = false;
+        }
+    }
+    if let Some(model) = &raw.model {
+        ok &= text("model", model, MAX_PATH_BYTES, p);
+    }
+    ok &= text(
+        "estimate.kurtosis",
+        &raw.estimate.kurtosis,
+        MAX_WORD_BYTES,
+        p,
+    );
+    ok
 }
 
 impl TryFrom<RawConfig> for Config {
@@ -223,6 +257,11 @@ impl Config {
     /// problem at once (the file is named by the caller).
     pub fn from_raw(raw: RawConfig, base_dir: Option<&Path>) -> Result<Self, ConfigError> {
         let mut problems = Vec::new();
+        // Sizes first: a value over its bound is not looked at further (every such
+        // value at once).
+        if !check_sizes(&raw, &mut problems) {
+            return Err(ConfigError::new("configuration", problems));
+        }
         let mut watched = Vec::new();
         let names = check_prefix("prefix", &raw.prefix, &mut problems);
         let service = raw.service.validate("service", &mut problems);
@@ -249,24 +288,18 @@ impl Config {
             watched.extend(passport_files_of_triad(&file));
             watched.insert(0, file);
         }
+        // Exactly 3 (checked with the sizes).
         if let Some(list) = &raw.passports {
-            if list.len() != 3 {
-                problems.push(format!(
-                    "passports = {list:?}: {} entries, a triad has exactly 3 units",
-                    list.len()
-                ));
-            } else {
-                for (i, value) in list.iter().enumerate() {
-                    let (arg, file) = locate(value, base_dir);
-                    watched.extend(file);
-                    match vibro_config::resolve_passport(&arg) {
-                        Ok(p) => {
-                            if let Some(t) = triad.as_mut() {
-                                t.passports[i] = p;
-                            }
+            for (i, value) in list.iter().enumerate() {
+                let (arg, file) = locate(value, base_dir);
+                watched.extend(file);
+                match vibro_config::resolve_passport(&arg) {
+                    Ok(p) => {
+                        if let Some(t) = triad.as_mut() {
+                            t.passports[i] = p;
                         }
-                        Err(e) => problems.push(format!("passports[{i}] = {value:?}: {e}")),
                     }
+                    Err(e) => problems.push(format!("passports[{i}] = {value:?}: {e}")),
                 }
             }
         }
@@ -486,6 +519,36 @@ mod tests {
         .unwrap();
         assert_eq!(on_disk.model.mode, c.model.mode);
         assert_eq!(on_disk.watched_files.len(), 1);
+    }
+
+    #[test]
+    fn strings_and_lists_over_their_bounds_are_refused_first() {
+        let text = EMBEDDED_CONFIG
+            .replace(
+                "mode = \"exact\"",
+                &format!("mode = \"{}\"", "e".repeat(100_000)),
+            )
+            .replace(
+                "triad = \"default\"",
+                &format!(
+                    "triad = \"{}\"\npassports = [{}]",
+                    "t".repeat(5000),
+                    vec!["\"AL-15\""; 1000].join(", ")
+                ),
+            );
+        let e = Config::parse(&text, ConfigSource::File("c.toml".into())).unwrap_err();
+        let msg = e.to_string();
+        assert!(msg.len() < 1024, "{} bytes: {msg}", msg.len());
+        for needle in [
+            "c.toml: mode = \"eeee",
+            "more bytes cut)\" (100000 bytes): at most 64 bytes",
+            "triad = \"tttt",
+            "(5000 bytes): at most 4095 bytes",
+            "passports: 1000 entries, a triad has exactly 3 units",
+        ] {
+            assert!(msg.contains(needle), "{needle:?} missing from {msg}");
+        }
+        assert_eq!(e.problems.len(), 3, "{msg}");
     }
 
     #[test]

@@ -18,7 +18,8 @@ use vibro_msgs::{
 use vibro_physics::compensation::TriadCompensator;
 use vibro_physics::vibration::{PsdBand, Vibration};
 use vibro_service::{
-    count_first, now_ns, Continuity, DisorderLog, JsonObject, Latency, Quantiles, StreamCounters,
+    count_first, now_ns, Continuity, CountersJson, DisorderLog, JsonObject, Latency, Quantiles,
+    StreamCounters,
 };
 
 /// Readings beyond this magnitude are treated like NaN: no accelerometer measures them,

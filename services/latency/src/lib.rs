@@ -266,8 +266,8 @@ fn estimator_config_for(vib_rate_hz: f64, path: &Path) -> anyhow::Result<Option<
     let default = Path::new(<vibro_estimator::Config as ServiceConfig>::DEFAULT_CONFIG_PATH);
     let (text, source) = if default.is_file() {
         (
-            std::fs::read_to_string(default)
-                .with_context(|| format!("reading {}", default.display()))?,
+            // At most a configuration file's bound, a bigger one refused unread.
+            vibro_service::read_config_file(default)?,
             default.display().to_string(),
         )
     } else {
@@ -284,7 +284,8 @@ fn estimator_config_for(vib_rate_hz: f64, path: &Path) -> anyhow::Result<Option<
         return Ok(None);
     }
     est.insert("sample_rate_hz".into(), toml::Value::Float(vib_rate_hz));
-    std::fs::write(path, toml::to_string(&table)?)
+    // A name in /tmp anyone may guess: never through a planted link (`vibro_files`).
+    vibro_files::write_bytes(path, true, toml::to_string(&table)?.as_bytes())
         .with_context(|| format!("writing {}", path.display()))?;
     <vibro_estimator::Config as ServiceConfig>::load(path).with_context(|| {
         format!("--vib-rate-hz = {vib_rate_hz}: {source} at this sample rate is not valid")

@@ -39,12 +39,7 @@ pub(crate) fn start_load(
         .args(["--jobs", &jobs.to_string()])
         .stdin(std::process::Stdio::null())
         .stdout(std::process::Stdio::piped())
-        .stderr(
-            std::fs::OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(log)?,
-        );
+        .stderr(vibro_files::open_append(log)?);
     vibro_service::supervise::stop_with_parent(&mut c);
     c.spawn().context("starting the background load")
 }
@@ -122,7 +117,11 @@ pub(crate) fn peer_load(input: &Path, jobs: u32) -> anyhow::Result<()> {
                 .arg(input)
                 .stdin(std::process::Stdio::null())
                 .stdout(std::process::Stdio::null())
-                .stderr(std::fs::File::create(&err).with_context(|| err.display().to_string())?);
+                .stderr(
+                    // A name in /tmp anyone may guess: never through a planted link.
+                    vibro_files::create_in_place(&err, true)
+                        .with_context(|| err.display().to_string())?,
+                );
             vibro_service::supervise::stop_with_parent(&mut c);
             let child = c.spawn().with_context(|| {
                 format!("starting `vibrocomp lab diagnose {}`", input.display())

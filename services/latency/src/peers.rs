@@ -106,12 +106,7 @@ pub(crate) fn spawn_peer<S: AsRef<std::ffi::OsStr>>(
         .arg("latency-peer")
         .args(args)
         .stdout(std::process::Stdio::null())
-        .stderr(
-            std::fs::OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(log)?,
-        )
+        .stderr(vibro_files::open_append(log)?)
         .spawn()
         .with_context(|| format!("starting {what}"))
 }

@@ -97,23 +97,26 @@ impl TwoHosts {
         let back = compute_to_rig();
         let make = |name: &str, export: &[Stream], import: &[Stream], ep: (&str, &str)| {
             let dir = base.join(format!("host-{name}"));
-            std::fs::create_dir_all(dir.join("config"))
+            vibro_files::create_dir(&dir.join("config"))
                 .with_context(|| format!("creating {}", dir.display()))?;
             let root = std::env::temp_dir().join(format!("iox2-{tag}-{name}"));
             let iceoryx_config = dir.join("config/iceoryx2.toml");
             let shm_prefix = format!("{tag}{name}_");
-            std::fs::write(
+            vibro_files::write_bytes(
                 &iceoryx_config,
+                true,
                 format!(
                     "[global]\nroot-path = \"{}/\"\nprefix = \"{shm_prefix}\"\n",
                     root.display()
-                ),
+                )
+                .as_bytes(),
             )
             .with_context(|| format!("writing {}", iceoryx_config.display()))?;
             let bridge_config = dir.join("bridge.toml");
-            std::fs::write(
+            vibro_files::write_bytes(
                 &bridge_config,
-                bridge_toml(prefix, &key_prefix, ep, export, import),
+                true,
+                bridge_toml(prefix, &key_prefix, ep, export, import).as_bytes(),
             )
             .with_context(|| format!("writing {}", bridge_config.display()))?;
             anyhow::Ok(Host {

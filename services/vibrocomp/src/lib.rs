@@ -78,7 +78,8 @@ pub enum Command {
 
 /// Runs the command line with the given arguments and returns the process exit code:
 /// 0 on success, 1 on a failed command (the error chain is printed on stderr),
-/// 2 on bad usage (clap's own convention).
+/// 2 on bad usage (clap's own convention), 3 when `log recover` wrote its file but
+/// lost part of the damaged one (`output::ExitStatus`).
 pub fn main_with_args<I, T>(args: I) -> ExitCode
 where
     I: IntoIterator<Item = T>,
@@ -100,6 +101,9 @@ where
     match run(cli).and_then(|()| output::flush_stdout()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) if output::is_stdout_closed(&e) => ExitCode::SUCCESS,
+        Err(e) if output::exit_status(&e).is_some() => {
+            ExitCode::from(output::exit_status(&e).unwrap_or(1))
+        }
         Err(e) => {
             eprintln!("error: {e:#}");
             if json {

@@ -61,6 +61,28 @@ impl std::fmt::Display for StdoutClosed {
 
 impl std::error::Error for StdoutClosed {}
 
+/// A command that did its work and printed its result, but whose exit status must
+/// say that the result is partial (`log recover` with losses: 3). Returned as an error
+/// so that the command stops there; [`crate::main_with_args`] exits with the status
+/// and prints nothing more (the result, text or JSON, already says it).
+#[derive(Debug)]
+pub struct ExitStatus(pub u8);
+
+impl std::fmt::Display for ExitStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "finished with exit status {}", self.0)
+    }
+}
+
+impl std::error::Error for ExitStatus {}
+
+/// The exit status `e` asks for, if it is an [`ExitStatus`].
+pub fn exit_status(e: &anyhow::Error) -> Option<u8> {
+    e.chain()
+        .find_map(|cause| cause.downcast_ref::<ExitStatus>())
+        .map(|s| s.0)
+}
+
 /// Whether `e` (anywhere in its chain) is a closed stdout.
 pub fn is_stdout_closed(e: &anyhow::Error) -> bool {
     e.chain().any(|cause| cause.is::<StdoutClosed>())

@@ -11,8 +11,8 @@ use iceoryx2::prelude::CallbackProgression;
 use tracing::{debug, info, warn};
 use vibro_ipc::{create_node, create_waitset, StreamPublisher, StreamSubscriber};
 use vibro_msgs::{
-    AccelBlock, CompensatedBlock, Heartbeat, LogLine, MessageKind, ServiceNames, Stream,
-    TruthBlock, VibBlock, VibEstimate, WireMessage,
+    AccelBlock, Arrival, CompensatedBlock, Heartbeat, LogLine, MessageKind, SeqTally, ServiceNames,
+    Stream, TruthBlock, VibBlock, VibEstimate, WireMessage,
 };
 use zenoh::bytes::Encoding;
 use zenoh::qos::CongestionControl;
@@ -33,9 +33,12 @@ pub struct StreamStats {
     /// Export: messages sent while no remote subscriber was matched (nobody got them).
     pub unmatched: AtomicU64,
     /// Import: messages missing by the producer's sequence numbers that this bridge
-    /// did not drop itself (lost on the network or on the remote side).
+    /// did not drop itself (lost on the network or on the remote side), by the
+    /// services' rule (`vibro_msgs::continuity`), net of what a resync took back
+    /// ([`Self::retracted`]): it can decrease.
     pub gap_messages: AtomicU64,
-    /// Import: messages whose `seq` was below the next expected one.
+    /// Import: messages the rule puts out of order (a repeat, or behind the stream):
+    /// forwarded all the same (the service behind decides).
     pub out_of_order: AtomicU64,
     /// Import: times the producer's `seq` restarted from 0.
     pub producer_restarts: AtomicU64,
@@ -43,6 +46,13 @@ pub struct StreamStats {
     /// [`vibro_service::MAX_LOST_MESSAGES`] skipped, the services' rule): a corrupt,
     /// crafted or renumbered counter, counted here and never in `gap_messages`.
     pub seq_jumps: AtomicU64,
+    /// Import: times the stream was taken up again after out-of-order messages (the
+    /// services' resync).
+    pub resyncs: AtomicU64,
+    /// Import: messages counted lost (in `gap_messages` or `superseded`, or matched
+    /// with this bridge's drops) and taken back at a resync: what a `seq` ahead of the
+    /// stream had counted (a forged 500,000 after 10: 499,989).
+    pub retracted: AtomicU64,
     /// Import: messages dropped because the queue to iceoryx2 was full.
     pub queue_dropped: AtomicU64,
     /// Messages refused: another type name, size or invalid counts.
@@ -70,6 +80,14 @@ impl StreamStats {
     fn get(c: &AtomicU64) -> u64 {
         c.load(Ordering::Relaxed)
     }
+    fn set(c: &AtomicU64, n: u64) {
+        c.store(n, Ordering::Relaxed);
+    }
+    fn sub(c: &AtomicU64, n: u64) {
+        let _ = c.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |v| {
+            Some(v.saturating_sub(n))
+        });
+    }
 }
 
 /// Which way a stream goes.
@@ -93,6 +111,8 @@ pub struct StreamReport {
     pub out_of_order: u64,
     pub producer_restarts: u64,
     pub seq_jumps: u64,
+    pub resyncs: u64,
+    pub retracted: u64,
     pub queue_dropped: u64,
     pub refused: u64,
     pub undelivered: u64,
@@ -145,7 +165,7 @@ impl BridgeSummary {
             }
             let _ = write!(
                 s,
-                "{{\"stream\":\"{}\",\"direction\":\"{}\",\"key\":\"{}\",\"forwarded\":{},\"unmatched\":{},\"gap_messages\":{},\"out_of_order\":{},\"producer_restarts\":{},\"seq_jumps\":{},\"queue_dropped\":{},\"refused\":{},\"undelivered\":{},\"superseded\":{},\"lost\":{}}}",
+                "{{\"stream\":\"{}\",\"direction\":\"{}\",\"key\":\"{}\",\"forwarded\":{},\"unmatched\":{},\"gap_messages\":{},\"out_of_order\":{},\"producer_restarts\":{},\"seq_jumps\":{},\"resyncs\":{},\"retracted\":{},\"queue_dropped\":{},\"refused\":{},\"undelivered\":{},\"superseded\":{},\"lost\":{}}}",
                 r.stream,
                 match r.direction {
                     Direction::Export => "export",
@@ -158,6 +178,8 @@ impl BridgeSummary {
                 r.out_of_order,
                 r.producer_restarts,
                 r.seq_jumps,
+                r.resyncs,
+                r.retracted,
                 r.queue_dropped,
                 r.refused,
                 r.undelivered,
@@ -296,6 +318,8 @@ pub fn run_on(
         out_of_order: StreamStats::get(&st.out_of_order),
         producer_restarts: StreamStats::get(&st.producer_restarts),
         seq_jumps: StreamStats::get(&st.seq_jumps),
+        resyncs: StreamStats::get(&st.resyncs),
+        retracted: StreamStats::get(&st.retracted),
         queue_dropped: StreamStats::get(&st.queue_dropped),
         refused: StreamStats::get(&st.refused),
         undelivered: StreamStats::get(&st.undelivered),
@@ -629,49 +653,55 @@ trait ImportPort {
     fn forward(&mut self, sample: &Sample);
 }
 
-/// What one imported message's `seq` says about its stream.
+/// The import side's count of one stream's `seq`, by the services' rule
+/// (`vibro_msgs::continuity`, through [`SeqTally`]): a gap is a loss up to
+/// [`vibro_service::MAX_LOST_MESSAGES`], a bigger step a jump, and a loss counted at a
+/// message ahead of the stream (a forged `seq`) is taken back when the stream resumes.
+/// Every message is forwarded whatever it says: the service behind applies the rule
+/// again and drops what it must.
+#[derive(Debug, Clone, Default)]
+struct SeqCount {
+    tally: SeqTally,
+    /// Messages this stream counted lost (into `gap_messages` or `superseded`), net.
+    counted: u64,
+    /// Of this bridge's own queue drops, those matched with a gap (counted there,
+    /// not as lost on the network).
+    drops_seen: u64,
+}
+
+/// What one arrival changes in a stream's loss counts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum SeqStep {
-    /// The first message, or the one expected.
-    InStep,
-    /// This many messages missing before it (at most
-    /// [`vibro_service::MAX_LOST_MESSAGES`]).
-    Gap(u64),
-    /// A forward step too big to be a loss (the services' jump rule, vibro-service's
-    /// `continuity` module): what follows starts a new history.
-    Jump,
-    /// `seq` back to 0: the producer restarted.
-    Restart,
-    /// Below the next expected `seq` (late, or repeated): the expectation stays.
-    Late,
+struct Counted {
+    arrival: Arrival,
+    /// Messages newly counted lost (those that this bridge's drops do not explain).
+    lost: u64,
+    /// Messages counted lost before and taken back now.
+    taken_back: u64,
 }
 
-/// The import side's expectation of a stream's `seq`.
-#[derive(Debug, Clone, Copy, Default)]
-struct SeqCheck {
-    next: Option<u64>,
-}
-
-impl SeqCheck {
-    fn arrive(&mut self, seq: u64) -> SeqStep {
-        let step = match self.next {
-            None => SeqStep::InStep,
-            Some(next) if seq > next => {
-                let missing = seq - next;
-                if missing > vibro_service::MAX_LOST_MESSAGES {
-                    SeqStep::Jump
-                } else {
-                    SeqStep::Gap(missing)
-                }
-            }
-            Some(next) if seq == next => SeqStep::InStep,
-            Some(_) if seq == 0 => SeqStep::Restart,
-            Some(_) => SeqStep::Late,
-        };
-        if step != SeqStep::Late {
-            self.next = Some(seq.wrapping_add(1));
+impl SeqCount {
+    /// The arrival of `seq`; `dropped_here`: this bridge's queue drops of the stream so
+    /// far.
+    fn arrive(&mut self, seq: u64, dropped_here: u64) -> Counted {
+        let arrival = self.tally.seq(seq);
+        let taken_back = arrival.retracted_messages.min(self.counted);
+        self.counted -= taken_back;
+        // What was taken back beyond that was matched with drops: they are free to
+        // explain a later gap.
+        self.drops_seen = self
+            .drops_seen
+            .saturating_sub(arrival.retracted_messages - taken_back);
+        let explained = arrival
+            .lost_messages
+            .min(dropped_here.saturating_sub(self.drops_seen));
+        self.drops_seen += explained;
+        let lost = arrival.lost_messages - explained;
+        self.counted = self.counted.saturating_add(lost);
+        Counted {
+            arrival,
+            lost,
+            taken_back,
         }
-        step
     }
 }
 
@@ -683,11 +713,9 @@ struct Importer<T: WireMessage> {
     encoding: Encoding,
     /// The wire bytes of one message, gathered from Zenoh's slices (allocated once).
     scratch: Vec<u8>,
-    seq: SeqCheck,
+    seq: SeqCount,
     /// [`is_state`].
     state: bool,
-    /// Of `stats.queue_dropped`, the drops already matched with a gap in `seq`.
-    drops_seen: u64,
     refused_logged: bool,
     gap_logged: bool,
     jump_logged: bool,
@@ -708,9 +736,8 @@ impl<T: WireMessage> Importer<T> {
             schema: T::KIND.type_name(),
             encoding: encoding_of(T::KIND),
             scratch: Vec::with_capacity(T::KIND.size_bytes()),
-            seq: SeqCheck::default(),
+            seq: SeqCount::default(),
             state: is_state(stream),
-            drops_seen: 0,
             refused_logged: false,
             gap_logged: false,
             jump_logged: false,
@@ -753,37 +780,36 @@ impl<T: WireMessage> ImportPort for Importer<T> {
             return;
         }
         let seq = msg.seq();
-        match self.seq.arrive(seq) {
-            SeqStep::InStep => {}
-            SeqStep::Gap(missing) => {
-                // Messages this bridge's own queue dropped are counted there already;
-                // the rest of the gap was lost before they reached it.
-                let dropped_here = StreamStats::get(&self.stats.queue_dropped);
-                let explained = missing.min(dropped_here.saturating_sub(self.drops_seen));
-                self.drops_seen += explained;
-                let lost = missing - explained;
-                if self.state {
-                    // Heartbeats the other side replaced before sending, or lost on
-                    // the way: this one says all they said.
-                    StreamStats::add(&self.stats.superseded, lost);
-                } else {
-                    StreamStats::add(&self.stats.gap_messages, lost);
-                }
-                if lost > 0 && !self.state && !self.gap_logged {
-                    self.gap_logged = true;
-                    warn!(key = %self.key, missing, got = seq, "messages lost on the network (further gaps counted)");
-                }
-            }
-            SeqStep::Jump => {
-                StreamStats::add(&self.stats.seq_jumps, 1);
-                if !self.jump_logged {
-                    self.jump_logged = true;
-                    warn!(key = %self.key, got = seq, "seq jumped too far to be a loss (more than {} messages): counted as a jump, not as lost (further jumps counted)", vibro_service::MAX_LOST_MESSAGES);
-                }
-            }
-            SeqStep::Restart => StreamStats::add(&self.stats.producer_restarts, 1),
-            SeqStep::Late => StreamStats::add(&self.stats.out_of_order, 1),
+        let dropped_here = StreamStats::get(&self.stats.queue_dropped);
+        let Counted {
+            arrival: a,
+            lost,
+            taken_back,
+        } = self.seq.arrive(seq, dropped_here);
+        // Heartbeats the other side replaced before sending, or lost on the way: a
+        // newer one says all they said.
+        let lost_counter = if self.state {
+            &self.stats.superseded
+        } else {
+            &self.stats.gap_messages
+        };
+        StreamStats::sub(lost_counter, taken_back);
+        StreamStats::add(lost_counter, lost);
+        if lost > 0 && !self.state && !self.gap_logged {
+            self.gap_logged = true;
+            warn!(key = %self.key, missing = a.lost_messages, got = seq, "messages lost on the network (further gaps counted)");
         }
+        if a.seq_jump && !self.jump_logged {
+            self.jump_logged = true;
+            warn!(key = %self.key, got = seq, "seq jumped too far to be a loss (more than {} messages): counted as a jump, not as lost (further jumps counted)", vibro_service::MAX_LOST_MESSAGES);
+        }
+        // The rule's other counters, this stream's totals (only this thread writes them).
+        let t = &self.seq.tally.totals;
+        StreamStats::set(&self.stats.out_of_order, t.out_of_order);
+        StreamStats::set(&self.stats.producer_restarts, t.restarts);
+        StreamStats::set(&self.stats.seq_jumps, t.seq_jumps);
+        StreamStats::set(&self.stats.resyncs, t.resyncs);
+        StreamStats::set(&self.stats.retracted, self.seq.tally.retracted);
         match self.publisher.publish(&msg) {
             Ok(_) => StreamStats::add(&self.stats.forwarded, 1),
             Err(vibro_ipc::Error::Undelivered { .. }) => {
@@ -871,9 +897,26 @@ mod tests {
     use super::*;
     use vibro_service::MAX_LOST_MESSAGES as MAX;
 
-    fn steps(seqs: &[u64]) -> Vec<SeqStep> {
-        let mut c = SeqCheck::default();
-        seqs.iter().map(|&s| c.arrive(s)).collect()
+    /// The totals of `seqs` through one stream's count (no queue drops): (gap
+    /// messages net, out of order, restarts, jumps, resyncs, taken back).
+    fn counts(seqs: &[u64]) -> (u64, u64, u64, u64, u64, u64) {
+        let mut c = SeqCount::default();
+        let (mut lost, mut back) = (0u64, 0u64);
+        for &s in seqs {
+            let k = c.arrive(s, 0);
+            lost += k.lost;
+            back += k.taken_back;
+        }
+        let t = c.tally.totals;
+        assert_eq!(lost - back, c.counted);
+        (
+            c.counted,
+            t.out_of_order,
+            t.restarts,
+            t.seq_jumps,
+            t.resyncs,
+            back,
+        )
     }
 
     /// The sequence of the integration test (a crafted peer): a gap of 2, one of
@@ -883,36 +926,39 @@ mod tests {
         let s1 = 5 + MAX + 1;
         let s2 = s1 + MAX + 2;
         let s3 = 0xF000_0000_0000_0000u64;
-        use SeqStep::*;
         assert_eq!(
-            steps(&[0, 1, 2, 5, s1, s2, s2 + 1, s3, s3 + 1]),
-            [
-                InStep,
-                InStep,
-                InStep,
-                Gap(2),
-                Gap(MAX),
-                Jump,
-                InStep,
-                Jump,
-                InStep
-            ]
+            counts(&[0, 1, 2, 5, s1, s2, s2 + 1, s3, s3 + 1]),
+            (2 + MAX, 0, 0, 2, 0, 0)
         );
-        // Late, repeated and restarted, as before the jump rule.
+        // Late, repeated and restarted; a jump to u64::MAX, and 0 again.
         assert_eq!(
-            steps(&[10, 12, 11, 12, 13, 0, 1, u64::MAX, 0]),
-            [
-                InStep,
-                Gap(1),
-                Late,
-                Late,
-                InStep,
-                Restart,
-                InStep,
-                Jump,
-                InStep
-            ]
+            counts(&[10, 12, 11, 12, 13, 0, 1, u64::MAX, 0]),
+            (1, 2, 2, 1, 0, 0)
         );
+    }
+
+    /// Issue 46, item 6: seq 0..=10, a forged 500,000, then 11..=60. The bridge counted
+    /// 499,989 messages lost on the network; by the services' rule they are taken back
+    /// when the stream resumes (one resync, 11..=13 out of order: forwarded all the
+    /// same).
+    #[test]
+    fn a_forged_seq_ahead_is_taken_back_when_the_stream_resumes() {
+        let seqs: Vec<u64> = (0..=10).chain([500_000]).chain(11..=60).collect();
+        assert_eq!(counts(&seqs), (0, 3, 0, 0, 1, 499_989));
+        // This bridge's queue dropped the real 11..=15 (5 drops), then the forged one
+        // came: its gap matched the 5 drops, the other 499,984 counted lost. When the
+        // stream resumes (16..=18 out of order, 19 resyncs), all of it is taken back and
+        // the 5 drops explain the 5 the stream really misses: nothing lost on the
+        // network. A later gap (70 -> 77) is lost on the network: 6.
+        let mut c = SeqCount::default();
+        for s in (0..=10).chain([500_000]).chain(16..=70).chain([77]) {
+            let dropped_here = if s > 10 { 5 } else { 0 };
+            c.arrive(s, dropped_here);
+            if s == 19 {
+                assert_eq!((c.counted, c.tally.totals.lost_messages), (0, 5), "{c:?}");
+            }
+        }
+        assert_eq!((c.counted, c.tally.retracted), (6, 499_989), "{c:?}");
     }
 
     /// A xorshift64 generator: the random `seq`s of a crafted peer, reproducibly.
@@ -928,19 +974,11 @@ mod tests {
     /// step is a jump, and nothing overflows in the totals.
     #[test]
     fn random_seqs_are_jumps_and_the_totals_stay_bounded() {
-        let mut c = SeqCheck::default();
         let mut rng = 0x9E37_79B9_7F4A_7C15u64;
-        let (mut lost, mut jumps, mut late) = (0u64, 0u64, 0u64);
         let n = 10_000u64;
-        for _ in 0..n {
-            match c.arrive(xorshift(&mut rng)) {
-                SeqStep::Gap(k) => lost += k,
-                SeqStep::Jump => jumps += 1,
-                SeqStep::Late => late += 1,
-                SeqStep::InStep | SeqStep::Restart => {}
-            }
-        }
-        assert_eq!(lost, 0);
+        let seqs: Vec<u64> = (0..n).map(|_| xorshift(&mut rng)).collect();
+        let (lost, late, restarts, jumps, resyncs, back) = counts(&seqs);
+        assert_eq!((lost, restarts, resyncs, back), (0, 0, 0, 0));
         assert_eq!(jumps + late + 1, n, "{jumps} jumps, {late} late");
         assert!(jumps > 0);
     }
@@ -959,6 +997,8 @@ mod tests {
             out_of_order: 0,
             producer_restarts: 0,
             seq_jumps: 0,
+            resyncs: 0,
+            retracted: 0,
             queue_dropped: 0,
             refused: 0,
             undelivered: 0,

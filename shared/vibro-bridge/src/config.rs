@@ -20,6 +20,34 @@ use vibro_service::{check_prefix, check_seconds, parse_toml, read_config_file, C
 /// Most messages an import queue may hold (each holds one Zenoh sample, up to 12 KB).
 pub const MAX_QUEUE_DEPTH: usize = 65_536;
 
+/// Longest `key_prefix`, in bytes. A key names a site and a rig
+/// (`vibrocomp/site-1/rig-a`, 22 bytes), and Zenoh keeps one routing node per chunk
+/// of every declared key, each holding the whole key up to its chunk, and frees them
+/// by one nested call per chunk: a key of n bytes in c chunks costs about n·c bytes
+/// and c nested calls (a 1 MB key in 10 000 chunks took 5.1 GB, then overflowed the
+/// export thread's stack when its publishers were undeclared).
+pub const MAX_KEY_PREFIX_BYTES: usize = 256;
+/// Most `/`-separated chunks of `key_prefix` (see [`MAX_KEY_PREFIX_BYTES`]): a site
+/// and a rig need two or three. With the stream's one or two, a key is at most 18
+/// routing nodes deep.
+pub const MAX_KEY_PREFIX_CHUNKS: usize = 16;
+/// Most endpoints `zenoh.listen` or `zenoh.connect` may name: a bridge links a few
+/// hosts.
+pub const MAX_ENDPOINTS: usize = 64;
+/// Longest endpoint, in bytes: `tls/` with a DNS name (at most 253 bytes) and a port,
+/// or a Unix socket's path (at most [`MAX_SOCKET_PATH_BYTES`]), with room for Zenoh's
+/// `?metadata#configuration` suffix.
+pub const MAX_ENDPOINT_BYTES: usize = 512;
+/// Most names `[access]` may list in each of its lists: the hosts of one site.
+pub const MAX_ACCESS_NAMES: usize = 64;
+/// Longest certificate common name, in bytes: X.509's `ub-common-name` (RFC 5280).
+pub const MAX_COMMON_NAME_BYTES: usize = 64;
+/// Longest Zenoh id, in bytes: 16 bytes written as 32 hex digits.
+pub const MAX_ZID_BYTES: usize = 32;
+/// Longest stream name in `streams` or word in `mode`, `congestion`: the longest
+/// stream name (`progress/compensator`) is 20 bytes.
+pub const MAX_WORD_BYTES: usize = 64;
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Raw {
@@ -195,12 +223,26 @@ pub fn socket_path(endpoint: &str) -> Option<&Path> {
         .map(Path::new)
 }
 
+/// `endpoint` with a socket named without a folder (`unixsock-stream/rig-a.sock`)
+/// placed in `dir` ([`crate::socket::default_socket_dir`]); any other unchanged.
+pub fn resolve_endpoint(endpoint: &str, dir: &Path) -> String {
+    match endpoint
+        .strip_prefix(UNIXSOCK)
+        .and_then(|rest| rest.strip_prefix('/'))
+    {
+        Some(name) if !name.is_empty() && !name.contains('/') => {
+            format!("{UNIXSOCK}/{}/{name}", dir.display())
+        }
+        _ => endpoint.to_string(),
+    }
+}
+
 /// Why a `unixsock-stream/` endpoint's path cannot be used, if it cannot.
 fn check_socket_path(path: &str) -> Option<String> {
     let p = Path::new(path);
     let dir = p.parent();
     if !p.is_absolute() {
-        Some("must be an absolute path (the bridges of one host may run in different working directories)".into())
+        Some("must be a file name alone (the socket then goes in this user's own folder, docs/bridge.md) or an absolute path (the bridges of one host may run in different working directories)".into())
     } else if path.contains(['?', '#', '\0']) {
         Some("must not contain ?, # or NUL (Zenoh reads ? and # as the start of the endpoint's metadata and configuration)".into())
     } else if path.ends_with('/')
@@ -214,7 +256,7 @@ fn check_socket_path(path: &str) -> Option<String> {
             path.len()
         ))
     } else if dir.is_none_or(|d| d == Path::new("/")) {
-        Some("must be in a directory of the bridge's own, e.g. /tmp/vibrocomp-bridge/rig-a.sock (the directory, not the socket, keeps other users out)".into())
+        Some("must be in a directory of the bridge's own, e.g. /run/user/1000/vibrocomp-bridge/rig-a.sock, or the socket's name alone for this user's own folder (the directory, not the socket, keeps other users out)".into())
     } else {
         None
     }
@@ -239,7 +281,7 @@ fn keyed_endpoints<'a>(
 fn check_endpoint(key: &str, endpoint: &str, tls: bool, problems: &mut Vec<String>) {
     let Some((proto, addr)) = endpoint.split_once('/') else {
         problems.push(format!(
-            "{key} = {endpoint:?}: must be {UNIXSOCK}/PATH (e.g. {UNIXSOCK}//tmp/vibrocomp-bridge/rig-a.sock) or tls/HOST:PORT"
+            "{key} = {endpoint:?}: must be {UNIXSOCK}/NAME (e.g. {UNIXSOCK}/rig-a.sock, in this user's own folder), {UNIXSOCK}/PATH (an absolute path) or tls/HOST:PORT"
         ));
         return;
     };
@@ -309,6 +351,80 @@ fn check_file(key: &str, path: &Path, problems: &mut Vec<String>) {
     }
 }
 
+/// Every string and list of the file against its bound (the constants above, and
+/// `vibro_toml::bounds`): whether all are within, each one over added to `p`.
+fn check_sizes(raw: &Raw, p: &mut Vec<String>) -> bool {
+    use vibro_toml::bounds::{path, text, texts, MAX_PATH_BYTES};
+    let mut ok = true;
+    if let Some(prefix) = &raw.prefix {
+        ok &= text("prefix", prefix, vibro_msgs::MAX_SERVICE_NAME_LEN, p);
+    }
+    ok &= text("key_prefix", &raw.key_prefix, MAX_KEY_PREFIX_BYTES, p);
+    let chunks = raw.key_prefix.split('/').count();
+    if chunks > MAX_KEY_PREFIX_CHUNKS {
+        p.push(format!(
+            "key_prefix = {} ({chunks} '/'-separated chunks): at most {MAX_KEY_PREFIX_CHUNKS} chunks",
+            vibro_toml::bounds::quote(&raw.key_prefix)
+        ));
+        ok = false;
+    }
+    ok &= text("zenoh.mode", &raw.zenoh.mode, MAX_WORD_BYTES, p);
+    let z = &raw.zenoh;
+    ok &= texts(
+        "zenoh.listen",
+        &z.listen,
+        MAX_ENDPOINTS,
+        MAX_ENDPOINT_BYTES,
+        p,
+    );
+    ok &= texts(
+        "zenoh.connect",
+        &z.connect,
+        MAX_ENDPOINTS,
+        MAX_ENDPOINT_BYTES,
+        p,
+    );
+    for (key, d) in [("export", &raw.export), ("import", &raw.import)] {
+        let streams = Stream::all().len();
+        ok &= texts(
+            &format!("{key}.streams"),
+            &d.streams,
+            streams,
+            MAX_WORD_BYTES,
+            p,
+        );
+        if let Some(c) = &d.congestion {
+            ok &= text(&format!("{key}.congestion"), c, MAX_WORD_BYTES, p);
+        }
+    }
+    if let Some(t) = &raw.tls {
+        for (key, v) in [
+            ("tls.root_ca_certificate", &t.root_ca_certificate),
+            ("tls.certificate", &t.certificate),
+            ("tls.private_key", &t.private_key),
+        ] {
+            ok &= path(key, v, MAX_PATH_BYTES, p);
+        }
+    }
+    if let Some(a) = &raw.access {
+        ok &= texts(
+            "access.allow_cert_common_names",
+            &a.allow_cert_common_names,
+            MAX_ACCESS_NAMES,
+            MAX_COMMON_NAME_BYTES,
+            p,
+        );
+        ok &= texts(
+            "access.allow_zids",
+            &a.allow_zids,
+            MAX_ACCESS_NAMES,
+            MAX_ZID_BYTES,
+            p,
+        );
+    }
+    ok
+}
+
 impl BridgeConfig {
     /// The socket paths of the `unixsock-stream/` endpoints, with their keys
     /// (`zenoh.listen[0]`).
@@ -335,9 +451,22 @@ impl BridgeConfig {
     fn validate(text: &str, file: &str, socket_dirs: bool) -> Result<Self, ConfigError> {
         let raw: Raw = parse_toml(text, file)?;
         let mut p = Vec::new();
+        // Sizes first: a value over its bound is not looked at further (every such
+        // value at once).
+        if !check_sizes(&raw, &mut p) {
+            return Err(ConfigError::new(file, p));
+        }
         let prefix = raw.prefix.unwrap_or_else(vibro_service::default_prefix);
         let names = check_prefix("prefix", &prefix, &mut p);
         check_key_prefix(&raw.key_prefix, &mut p);
+        // A socket named without a folder goes in this user's own.
+        let socket_dir = crate::socket::default_socket_dir();
+        let resolve = |list: &[String]| -> Vec<String> {
+            list.iter()
+                .map(|e| resolve_endpoint(e, &socket_dir))
+                .collect()
+        };
+        let (listen, connect) = (resolve(&raw.zenoh.listen), resolve(&raw.zenoh.connect));
         let mode = match raw.zenoh.mode.as_str() {
             "peer" => Some(Mode::Peer),
             "client" => Some(Mode::Client),
@@ -347,16 +476,16 @@ impl BridgeConfig {
             }
         };
         let tls_on = raw.tls.is_some();
-        for (i, e) in raw.zenoh.listen.iter().enumerate() {
+        for (i, e) in listen.iter().enumerate() {
             check_endpoint(&format!("zenoh.listen[{i}]"), e, tls_on, &mut p);
         }
-        for (i, e) in raw.zenoh.connect.iter().enumerate() {
+        for (i, e) in connect.iter().enumerate() {
             check_endpoint(&format!("zenoh.connect[{i}]"), e, tls_on, &mut p);
         }
         if socket_dirs {
             // Each directory once (both sides of one host name the same socket).
             let mut seen: Vec<&Path> = Vec::new();
-            for (key, e) in keyed_endpoints(&raw.zenoh.listen, &raw.zenoh.connect) {
+            for (key, e) in keyed_endpoints(&listen, &connect) {
                 let Some(path) = socket_path(e) else { continue };
                 let Some(dir) = path.parent() else { continue };
                 // A path already refused above, or a directory already looked at.
@@ -369,13 +498,13 @@ impl BridgeConfig {
                 }
             }
         }
-        if raw.zenoh.listen.is_empty() && raw.zenoh.connect.is_empty() {
+        if listen.is_empty() && connect.is_empty() {
             p.push(
                 "zenoh: listen and connect are both empty: name at least one endpoint (multicast scouting is off)"
                     .to_string(),
             );
         }
-        if mode == Some(Mode::Client) && raw.zenoh.connect.is_empty() {
+        if mode == Some(Mode::Client) && connect.is_empty() {
             p.push("zenoh.connect = []: a client must connect to at least one endpoint".into());
         }
         let connect_timeout = check_seconds(
@@ -466,7 +595,7 @@ impl BridgeConfig {
             // A TLS listener that asks for no certificate admits whoever reaches its
             // port (on loopback: every local user).
             if !t.mutual {
-                for (i, e) in raw.zenoh.listen.iter().enumerate() {
+                for (i, e) in listen.iter().enumerate() {
                     if e.starts_with("tls/") {
                         p.push(format!(
                             "tls.mutual = false: zenoh.listen[{i}] = {e:?} would admit any peer that reaches it (on loopback, every local user): the peers must prove who they are with a certificate (mutual = true)"
@@ -477,7 +606,7 @@ impl BridgeConfig {
         }
         // README, "Several hosts": a bridge reachable from other hosts names who may
         // connect, and checks it with certificates. (A Unix socket is this host's.)
-        for (i, e) in raw.zenoh.listen.iter().enumerate() {
+        for (i, e) in listen.iter().enumerate() {
             if is_loopback_endpoint(e) || socket_path(e).is_some() {
                 continue;
             }
@@ -497,8 +626,8 @@ impl BridgeConfig {
                 names,
                 key_prefix: raw.key_prefix,
                 mode,
-                listen: raw.zenoh.listen,
-                connect: raw.zenoh.connect,
+                listen,
+                connect,
                 connect_timeout,
                 export,
                 import,
@@ -742,7 +871,10 @@ queue_depth = 64
     fn socket_paths_are_checked_with_their_rule() {
         let long = format!("/tmp/{}/b.sock", "x".repeat(MAX_SOCKET_PATH_BYTES));
         let cases = [
-            ("tmp/b/b.sock", "must be an absolute path"),
+            (
+                "tmp/b/b.sock",
+                "or an absolute path (the bridges of one host",
+            ),
             ("/b.sock", "in a directory of the bridge's own"),
             ("/tmp/b/b.sock?x=1", "must not contain ?, #"),
             ("/tmp/b/../b.sock", "no trailing /, //, . or .."),
@@ -815,6 +947,187 @@ queue_depth = 0
                 .contains("import.queue_dept: unknown key (did you mean queue_depth?)"),
             "{e}"
         );
+    }
+
+    /// The `key_prefix` of issue 46, item 7: 1 MB in 10 000 chunks. It was accepted,
+    /// and the bridge then took 5.1 GB in 8 s and overflowed its export thread's stack
+    /// (Zenoh keeps a node per chunk holding the key up to it, and frees them by one
+    /// nested call per chunk). Refused at once, with both of its sizes.
+    fn megabyte_key_prefix() -> String {
+        // One chunk of 100 bytes, 9 999 of 99, and 9 999 slashes: 1 000 000 bytes.
+        let chunks: Vec<String> = (0..10_000)
+            .map(|i| "a".repeat(if i == 0 { 100 } else { 99 }))
+            .collect();
+        let key = chunks.join("/");
+        assert_eq!((key.len(), key.split('/').count()), (1_000_000, 10_000));
+        key
+    }
+
+    #[test]
+    fn a_key_prefix_of_a_megabyte_in_ten_thousand_chunks_is_refused_at_once() {
+        let text = GOOD.replace("vibrocomp/site-1/rig-a", &megabyte_key_prefix());
+        let started = std::time::Instant::now();
+        let e = BridgeConfig::parse(&text, "big.toml").unwrap_err();
+        let elapsed = started.elapsed();
+        let msg = e.to_string();
+        assert!(elapsed.as_secs_f64() < 2.0, "{elapsed:?}");
+        assert_eq!(e.problems.len(), 2, "{msg}");
+        assert!(msg.starts_with("big.toml: key_prefix = \"aaaa"), "{msg}");
+        assert!(
+            e.problems[0].ends_with("more bytes cut)\" (1000000 bytes): at most 256 bytes"),
+            "{msg}"
+        );
+        assert!(
+            e.problems[1].ends_with("(10000 '/'-separated chunks): at most 16 chunks"),
+            "{msg}"
+        );
+        assert!(msg.len() < 1024, "{} bytes", msg.len());
+    }
+
+    /// Every string and list of the file has a bound, checked before anything else,
+    /// each value over it reported at once with its key, an excerpt and the rule.
+    #[test]
+    fn every_string_and_list_is_bounded() {
+        let many = |n: usize, item: &str| {
+            let items: Vec<String> = (0..n).map(|_| format!("{item:?}")).collect();
+            format!("[{}]", items.join(", "))
+        };
+        let long_path = format!("/etc/{}", "p".repeat(5000));
+        let text = format!(
+            r#"
+prefix = "{prefix}"
+key_prefix = "{chunks}"
+[zenoh]
+mode = "{mode}"
+listen = {listen}
+connect = ["unixsock-stream//tmp/b/{socket}"]
+connect_timeout_s = 2.0
+[export]
+streams = {streams}
+congestion = "{mode}"
+[import]
+streams = ["vib"]
+[tls]
+root_ca_certificate = "{long_path}"
+certificate = "/etc/b.pem"
+private_key = "/etc/b.key"
+[access]
+allow_cert_common_names = ["{cn}"]
+allow_zids = {zids}
+"#,
+            prefix = "p".repeat(300) + "/",
+            chunks = ["k"; 17].join("/"),
+            mode = "m".repeat(65),
+            listen = many(65, "unixsock-stream//tmp/b/a.sock"),
+            socket = "s".repeat(600),
+            streams = many(100, "vib"),
+            cn = "c".repeat(65),
+            zids = many(65, "1f"),
+        );
+        let e = BridgeConfig::parse(&text, "sizes.toml").unwrap_err();
+        let wanted = [
+            "prefix = \"pppp",
+            "(301 bytes): at most 255 bytes",
+            "key_prefix = \"k/k/k/k/k/k/k/k/k/k/k/k/k/k/k/k/k\" (17 '/'-separated chunks): at most 16 chunks",
+            "zenoh.mode = \"mmmm",
+            "(65 bytes): at most 64 bytes",
+            "zenoh.listen: 65 entries: at most 64",
+            "zenoh.connect[0] = \"unixsock-stream//tmp/b/ssss",
+            "(623 bytes): at most 512 bytes",
+            "export.streams: 100 entries: at most",
+            "export.congestion = \"mmmm",
+            "tls.root_ca_certificate = \"/etc/pppp",
+            "(5005 bytes): at most 4095 bytes",
+            "access.allow_cert_common_names[0] = \"cccc",
+            "access.allow_zids: 65 entries: at most 64",
+        ];
+        let all = e.problems.join("\n");
+        for w in wanted {
+            assert!(all.contains(w), "missing {w:?} in:\n{all}");
+        }
+        assert_eq!(e.problems.len(), 10, "{all}");
+        // Sizes first: nothing else was looked at (the tls files do not exist).
+        assert!(!all.contains("no such file"), "{all}");
+        // The largest key passes.
+        let key = longest_key_prefix();
+        let text = GOOD.replace("vibrocomp/site-1/rig-a", &key);
+        let c = BridgeConfig::parse(&text, "max.toml").unwrap();
+        assert_eq!(c.key_prefix, key);
+    }
+
+    /// The longest `key_prefix` validation lets through: 256 bytes in 16 chunks.
+    fn longest_key_prefix() -> String {
+        let mut chunks = vec!["k".repeat(15); MAX_KEY_PREFIX_CHUNKS];
+        chunks[0].push('k');
+        let key = chunks.join("/");
+        assert_eq!(key.len(), MAX_KEY_PREFIX_BYTES);
+        key
+    }
+
+    /// Whatever passes validation cannot do what the megabyte key did: the longest
+    /// key of every stream is declared, used and undeclared (where Zenoh's nested
+    /// calls ran out of stack) on a thread with an eighth of a thread's default stack.
+    #[test]
+    fn the_longest_key_is_declared_and_undeclared_on_a_small_stack() {
+        use zenoh::Wait;
+        let key_prefix = longest_key_prefix();
+        let config = zenoh::Config::from_json5(
+            r#"{ mode: "peer", listen: { endpoints: [] }, connect: { endpoints: [] },
+                 scouting: { multicast: { enabled: false }, gossip: { enabled: false } } }"#,
+        )
+        .unwrap();
+        let session = zenoh::open(config).wait().unwrap();
+        std::thread::Builder::new()
+            .stack_size(256 << 10)
+            .spawn(move || {
+                for s in Stream::all() {
+                    let key = format!("{key_prefix}/{}", s.suffix());
+                    let publisher = session.declare_publisher(key.clone()).wait().unwrap();
+                    let subscriber = session.declare_subscriber(key).wait().unwrap();
+                    publisher.put(vec![1u8; 8]).wait().unwrap();
+                    publisher.undeclare().wait().unwrap();
+                    subscriber.undeclare().wait().unwrap();
+                }
+                session.close().wait().unwrap();
+            })
+            .unwrap()
+            .join()
+            .unwrap();
+    }
+
+    /// A socket named without a folder goes in this user's own (issue 46, item 8:
+    /// the shared `/tmp/vibrocomp-bridge` let another user lock everybody out); the
+    /// shipped files name theirs so.
+    #[test]
+    fn a_socket_named_alone_goes_in_this_users_folder() {
+        let dir = crate::socket::default_socket_dir();
+        assert_ne!(dir, Path::new("/tmp/vibrocomp-bridge"));
+        for shipped in [
+            include_str!("../../../config/bridge/compute-host.toml"),
+            include_str!("../../../config/bridge/rig-host.toml"),
+        ] {
+            let c = BridgeConfig::parse(shipped, "shipped.toml").unwrap();
+            let sockets = c.sockets();
+            assert_eq!(sockets.len(), 1);
+            assert_eq!(sockets[0].1, dir.join("site-1-rig-a.sock"));
+        }
+        assert_eq!(
+            resolve_endpoint("unixsock-stream/a.sock", Path::new("/run/user/7/vb")),
+            "unixsock-stream//run/user/7/vb/a.sock"
+        );
+        for unchanged in [
+            "unixsock-stream//tmp/b/a.sock",
+            "unixsock-stream/b/a.sock",
+            "tls/h:1",
+        ] {
+            assert_eq!(resolve_endpoint(unchanged, Path::new("/x")), unchanged);
+        }
+        let e = BridgeConfig::parse(
+            &GOOD.replace("/tmp/vibrocomp-bridge/rig-a.sock", "b/rig-a.sock"),
+            "rel.toml",
+        )
+        .unwrap_err();
+        assert!(e.problems[0].contains("must be a file name alone"), "{e}");
     }
 
     #[test]

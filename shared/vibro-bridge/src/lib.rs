@@ -45,8 +45,10 @@ pub use bridge::{
     StreamStats,
 };
 pub use config::{
-    is_loopback_endpoint, socket_path, stream_by_name, Access, BridgeConfig, Congestion, Mode, Tls,
-    MAX_QUEUE_DEPTH, MAX_SOCKET_PATH_BYTES, UNIXSOCK,
+    is_loopback_endpoint, resolve_endpoint, socket_path, stream_by_name, Access, BridgeConfig,
+    Congestion, Mode, Tls, MAX_ACCESS_NAMES, MAX_COMMON_NAME_BYTES, MAX_ENDPOINTS,
+    MAX_ENDPOINT_BYTES, MAX_KEY_PREFIX_BYTES, MAX_KEY_PREFIX_CHUNKS, MAX_QUEUE_DEPTH,
+    MAX_SOCKET_PATH_BYTES, MAX_WORD_BYTES, MAX_ZID_BYTES, UNIXSOCK,
 };
 
 /// Errors of the bridge; each names the file, endpoint or key concerned.

@@ -18,14 +18,54 @@
 //!
 //! What this does not guard against: root, and other processes of the same user
 //! (who own the directory anyway).
+//!
+//! **The default folder.** A socket named without a folder (`unixsock-stream/rig-a.sock`)
+//! goes in this user's own ([`default_socket_dir`]): `$XDG_RUNTIME_DIR/vibrocomp-bridge`
+//! when that variable names a directory of this user's with mode 0700 (systemd's
+//! `/run/user/UID`, which no other user can write in), else
+//! `$TMPDIR/vibrocomp-bridge-UID` (`/tmp/vibrocomp-bridge-0` for root). A folder shared
+//! by every user (`/tmp/vibrocomp-bridge`, the default before) let the first user to
+//! create it lock everybody else out; in `/tmp` another user can still create this
+//! user's folder first on purpose, which the check above refuses naming its owner;
+//! only `$XDG_RUNTIME_DIR` rules that out. The bridges of one host find each other
+//! when they run as the same user with the same `XDG_RUNTIME_DIR` and `TMPDIR`.
 
 use std::os::unix::fs::{DirBuilderExt, MetadataExt, PermissionsExt};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The effective user id of this process.
 pub fn effective_uid() -> u32 {
     // SAFETY: geteuid has no preconditions and cannot fail.
     unsafe { libc::geteuid() }
+}
+
+/// The folder of the sockets named without one (module docs, "The default folder"),
+/// for this process's user and environment.
+pub fn default_socket_dir() -> PathBuf {
+    default_socket_dir_for(
+        std::env::var_os("XDG_RUNTIME_DIR").map(PathBuf::from),
+        effective_uid(),
+        &std::env::temp_dir(),
+    )
+}
+
+/// [`default_socket_dir`] for the user `uid` with `XDG_RUNTIME_DIR` = `runtime_dir`
+/// and the temporary folder `tmp`.
+pub fn default_socket_dir_for(runtime_dir: Option<PathBuf>, uid: u32, tmp: &Path) -> PathBuf {
+    if let Some(run) = runtime_dir.filter(|d| d.is_absolute()) {
+        // Not followed if a link: the folder itself must be this user's alone.
+        let ours = std::fs::symlink_metadata(&run)
+            .is_ok_and(|m| m.is_dir() && m.uid() == uid && m.mode() & 0o077 == 0);
+        if ours {
+            return run.join("vibrocomp-bridge");
+        }
+    }
+    let tmp = if tmp.is_absolute() {
+        tmp
+    } else {
+        Path::new("/tmp")
+    };
+    tmp.join(format!("vibrocomp-bridge-{uid}"))
 }
 
 /// Creates `dir` (mode 0700) if it is missing, then checks it and the directories
@@ -189,6 +229,52 @@ mod tests {
         }
         std::fs::set_permissions(&shared, std::fs::Permissions::from_mode(0o1777)).unwrap();
         secure_dir(&d).unwrap();
+    }
+
+    /// Issue 46, item 8: the default folder is this user's, never the folder every
+    /// user shared (`/tmp/vibrocomp-bridge`): `$XDG_RUNTIME_DIR`'s when it is this
+    /// user's alone, else one named with the uid.
+    #[test]
+    fn the_default_folder_is_this_users_own() {
+        let uid = effective_uid();
+        let here = default_socket_dir();
+        assert_ne!(here, Path::new("/tmp/vibrocomp-bridge"));
+        assert!(
+            here.ends_with(format!("vibrocomp-bridge-{uid}"))
+                || std::env::var_os("XDG_RUNTIME_DIR")
+                    .is_some_and(|x| here == Path::new(&x).join("vibrocomp-bridge")),
+            "{}",
+            here.display()
+        );
+        let t = Tmp::new("xdg");
+        let run = t.0.join("run");
+        std::fs::create_dir(&run).unwrap();
+        std::fs::set_permissions(&run, std::fs::Permissions::from_mode(0o700)).unwrap();
+        let tmp = t.0.join("tmp");
+        let ours = default_socket_dir_for(Some(run.clone()), uid, &tmp);
+        assert_eq!(ours, run.join("vibrocomp-bridge"));
+        let fallback = tmp.join(format!("vibrocomp-bridge-{uid}"));
+        // Unset, relative, missing, or others may enter it: the folder named with the uid.
+        assert_eq!(default_socket_dir_for(None, uid, &tmp), fallback);
+        let relative = Some(PathBuf::from("run"));
+        assert_eq!(default_socket_dir_for(relative, uid, &tmp), fallback);
+        let missing = Some(t.0.join("missing"));
+        assert_eq!(default_socket_dir_for(missing, uid, &tmp), fallback);
+        std::fs::set_permissions(&run, std::fs::Permissions::from_mode(0o755)).unwrap();
+        assert_eq!(
+            default_socket_dir_for(Some(run.clone()), uid, &tmp),
+            fallback
+        );
+        // Another user's runtime folder (as root, uid 65534's).
+        std::fs::set_permissions(&run, std::fs::Permissions::from_mode(0o700)).unwrap();
+        assert_eq!(
+            default_socket_dir_for(Some(run.clone()), uid.wrapping_add(1), &tmp),
+            tmp.join(format!("vibrocomp-bridge-{}", uid.wrapping_add(1)))
+        );
+        assert_eq!(
+            default_socket_dir_for(None, 0, Path::new("relative")),
+            Path::new("/tmp/vibrocomp-bridge-0")
+        );
     }
 
     /// As root: a directory of another user (uid 65534), mode 0700, is refused.

@@ -40,7 +40,10 @@ pub enum ConfigError {
     Toml(#[from] vibro_toml::Error),
     #[error("{file}: {}", problems.join("; "))]
     Invalid { file: String, problems: Vec<String> },
-    #[error("{arg:?} is neither a readable file nor a known {kind} id (known: {known})")]
+    #[error(
+        "{} is neither a readable file nor a known {kind} id (known: {known})",
+        vibro_toml::bounds::quote(arg)
+    )]
     Unknown {
         arg: String,
         kind: &'static str,
@@ -51,8 +54,10 @@ pub enum ConfigError {
 /// Result of configuration loading.
 pub type Result<T> = std::result::Result<T, ConfigError>;
 
+/// Reads a configuration file: at most [`vibro_toml::bounds::MAX_FILE_BYTES`], a bigger
+/// one refused before it is read.
 fn read(path: &std::path::Path) -> Result<String> {
-    std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+    vibro_toml::bounds::read_file(path).map_err(|source| ConfigError::Io {
         file: path.display().to_string(),
         source,
     })

@@ -2,7 +2,11 @@
 
 use crate::{read, ConfigError, Result};
 use std::path::Path;
-use vibro_physics::passport::{Passport, PassportSpec};
+use vibro_physics::passport::{Passport, PassportSpec, MAX_LAMBDA_POINTS};
+
+/// Longest passport id, in bytes: what a [`Passport`] holds (a fixed 32-byte field, so
+/// that a passport is cheap to copy into a real-time kernel).
+const MAX_ID_BYTES: usize = 32;
 
 /// The passports shipped in `config/accelerometers/`: (id, file name, text).
 pub const EMBEDDED_PASSPORTS: [(&str, &str, &str); 3] = [
@@ -26,6 +30,22 @@ pub const EMBEDDED_PASSPORTS: [(&str, &str, &str); 3] = [
 /// Parses and validates a passport from TOML text; `file` names it in errors.
 pub fn parse_passport(text: &str, file: &str) -> Result<Passport> {
     let spec: PassportSpec = vibro_toml::from_str(text, file)?;
+    // Sizes first (the physics' own rules, without quoting a long id whole or
+    // checking a long table point by point).
+    let mut problems = Vec::new();
+    let id_ok = vibro_toml::bounds::text("id", &spec.id, MAX_ID_BYTES, &mut problems);
+    let lambda_ok = vibro_toml::bounds::list(
+        "lambda",
+        spec.lambda.len(),
+        MAX_LAMBDA_POINTS,
+        &mut problems,
+    );
+    if !(id_ok && lambda_ok) {
+        return Err(ConfigError::Invalid {
+            file: file.to_string(),
+            problems,
+        });
+    }
     Passport::try_from_spec(&spec).map_err(|e| match e {
         vibro_physics::Error::InvalidPassport { problems } => ConfigError::Invalid {
             file: file.to_string(),
@@ -70,6 +90,30 @@ pub fn resolve_passport(arg: &str) -> Result<Passport> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 46, item 7: the id and the lambda table are bounded, checked first (a long
+    /// id was quoted whole, a long table checked point by point).
+    #[test]
+    fn an_id_or_a_table_over_its_bound_is_refused_first() {
+        let (_, _, text) = EMBEDDED_PASSPORTS[0];
+        let long = text.replace(
+            "id = \"AL-15\"",
+            &format!("id = \"{}\"", "i".repeat(100_000)),
+        );
+        let point = "[[lambda]]\nfreq_hz = -1.0\nlambda = 0.0\n";
+        let long = format!("{long}\n{}", point.repeat(10_000));
+        let e = parse_passport(&long, "p.toml").unwrap_err();
+        let ConfigError::Invalid { problems, .. } = &e else {
+            panic!("{e}")
+        };
+        assert_eq!(problems.len(), 2, "{e}");
+        assert!(problems[0].starts_with("id = \"iiii"), "{e}");
+        assert!(
+            problems[0].ends_with("(100000 bytes): at most 32 bytes"),
+            "{e}"
+        );
+        assert_eq!(problems[1], "lambda: 10000 entries: at most 32");
+    }
 
     #[test]
     fn shipped_passports_load_and_carry_the_papers_values() {

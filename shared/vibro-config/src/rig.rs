@@ -239,11 +239,62 @@ fn show(d: &Direction) -> String {
     }
 }
 
+/// Most orientations a static reference lists: a multi-position test holds tens (ten
+/// positions, each twice); they are sorted to find overlaps.
+pub const MAX_SEGMENTS: usize = 4096;
+
+/// Every string and list of the file against its bound: whether all are within, each
+/// one over added to `p`.
+fn check_sizes(raw: &RawRig, p: &mut Vec<String>) -> bool {
+    use vibro_toml::bounds::{list, text, texts, MAX_NAME_BYTES, MAX_PATH_BYTES};
+    // A format, a kind or a signed axis: one word.
+    const MAX_WORD_BYTES: usize = 64;
+    let direction = |key: &str, d: &Direction, p: &mut Vec<String>| match d {
+        Direction::Axis(a) => text(key, a, MAX_WORD_BYTES, p),
+        Direction::Vector(v) => list(key, v.len(), 3, p),
+    };
+    let mut ok = text("format", &raw.format, MAX_WORD_BYTES, p);
+    if let Some(t) = &raw.triad {
+        ok &= text("triad", t, MAX_PATH_BYTES, p);
+    }
+    if let OneOrThree::Three(v) = &raw.sensors.sensitivity_v_per_g {
+        ok &= list("sensors.sensitivity_v_per_g", v.len(), 3, p);
+    }
+    let r = &raw.reference;
+    ok &= text("reference.kind", &r.kind, MAX_WORD_BYTES, p);
+    if list("reference.segment", r.segment.len(), MAX_SEGMENTS, p) {
+        for (i, s) in r.segment.iter().enumerate() {
+            ok &= direction(&format!("reference.segment[{i}].up"), &s.up, p);
+        }
+    } else {
+        ok = false;
+    }
+    for (key, d) in [
+        ("reference.up", &r.up),
+        ("reference.toward_centre", &r.toward_centre),
+    ] {
+        if let Some(d) = d {
+            ok &= direction(key, d, p);
+        }
+    }
+    if let Some(c) = &r.columns {
+        ok &= texts("reference.columns", c, 3, MAX_NAME_BYTES, p);
+    }
+    ok
+}
+
 /// Parses and validates a rig file's text; `file` names it in errors and anchors a
 /// relative triad path.
 pub fn parse_rig(text: &str, file: &str) -> Result<RigConfig> {
     let raw: RawRig = vibro_toml::from_str(text, file)?;
     let mut problems = Vec::new();
+    // Sizes first: a value over its bound is not looked at further.
+    if !check_sizes(&raw, &mut problems) {
+        return Err(ConfigError::Invalid {
+            file: file.to_string(),
+            problems,
+        });
+    }
     if raw.format != RIG_FORMAT {
         problems.push(format!("format = {:?}: must be {RIG_FORMAT:?}", raw.format));
     }
@@ -491,6 +542,42 @@ mod tests {
         [reference]\nkind = \"static\"\n\
         [[reference.segment]]\nfrom_s = 0.0\nto_s = 8.0\nup = \"+z\"\n\
         [[reference.segment]]\nfrom_s = 8.0\nto_s = 16.0\nup = [0.6, 0.0, -0.8]\n";
+
+    /// Issue 46, item 7: every string and list is bounded, checked first, every one
+    /// over its bound reported at once.
+    #[test]
+    fn strings_and_lists_over_their_bounds_are_refused_first() {
+        let segment = "[[reference.segment]]\nfrom_s = 0.0\nto_s = 1.0\nup = \"+z\"\n";
+        let text = format!(
+            "format = \"vibrocomp-rig/1\"\ntriad = \"{}\"\n[sensors]\nsensitivity_v_per_g = [{}]\n\
+             [reference]\nkind = \"static\"\n{}",
+            "t".repeat(5000),
+            ["0.1"; 4].join(", "),
+            segment.repeat(MAX_SEGMENTS + 1)
+        );
+        let e = parse_rig(&text, "r.toml").unwrap_err();
+        let ConfigError::Invalid { problems, .. } = &e else {
+            panic!("{e}")
+        };
+        assert_eq!(problems.len(), 3, "{e}");
+        assert!(problems[0].starts_with("triad = \"tttt"), "{e}");
+        assert!(
+            problems[0].ends_with("(5000 bytes): at most 4095 bytes"),
+            "{e}"
+        );
+        assert_eq!(
+            problems[1],
+            "sensors.sensitivity_v_per_g: 4 entries: at most 3"
+        );
+        assert_eq!(problems[2], "reference.segment: 4097 entries: at most 4096");
+        let text = GOOD.replace("up = \"+z\"", &format!("up = \"{}\"", "+".repeat(70)));
+        let e = parse_rig(&text, "r.toml").unwrap_err().to_string();
+        assert!(
+            e.contains("reference.segment[0].up = \"++++")
+                && e.ends_with("(70 bytes): at most 64 bytes"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn a_static_rig_reads_its_orientations() {

@@ -42,6 +42,13 @@ pub struct TriadConfig {
 pub fn parse_triad(text: &str, file: &str) -> Result<TriadConfig> {
     let raw: RawTriad = vibro_toml::from_str(text, file)?;
     let mut problems = Vec::new();
+    // Sizes first: a value over its bound is not looked at further.
+    if !check_sizes(&raw, &mut problems) {
+        return Err(ConfigError::Invalid {
+            file: file.to_string(),
+            problems,
+        });
+    }
     if raw.unit.len() != 3 {
         problems.push(format!(
             "unit: {} entries: a triad has exactly 3 units",
@@ -97,6 +104,35 @@ pub fn parse_triad(text: &str, file: &str) -> Result<TriadConfig> {
     })
 }
 
+/// Every string and list of the file against its bound: whether all are within, each
+/// one over added to `p`.
+fn check_sizes(raw: &RawTriad, p: &mut Vec<String>) -> bool {
+    use vibro_toml::bounds::{text, MAX_NAME_BYTES, MAX_PATH_BYTES};
+    // An axis is a sign and a letter (`-z`); a little room for blanks.
+    const MAX_AXIS_BYTES: usize = 16;
+    let mut ok = text("id", &raw.id, MAX_NAME_BYTES, p);
+    if raw.unit.len() > 3 {
+        p.push(format!(
+            "unit: {} entries: a triad has exactly 3 units",
+            raw.unit.len()
+        ));
+        return false;
+    }
+    for (i, u) in raw.unit.iter().enumerate() {
+        ok &= text(&format!("unit[{i}].name"), &u.name, MAX_NAME_BYTES, p);
+        ok &= text(
+            &format!("unit[{i}].passport"),
+            &u.passport,
+            MAX_PATH_BYTES,
+            p,
+        );
+        for (key, axis) in [("ia", &u.ia), ("oa", &u.oa), ("pa", &u.pa)] {
+            ok &= text(&format!("unit[{i}].{key}"), axis, MAX_AXIS_BYTES, p);
+        }
+    }
+    ok
+}
+
 /// Loads a triad file.
 pub fn load_triad(path: &Path) -> Result<TriadConfig> {
     parse_triad(&read(path)?, &path.display().to_string())
@@ -129,6 +165,32 @@ pub fn resolve_triad(arg: &str) -> Result<TriadConfig> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 46, item 7: every string and list is bounded, checked first.
+    #[test]
+    fn strings_and_lists_over_their_bounds_are_refused_first() {
+        let shipped = EMBEDDED_DEFAULT.1;
+        let long_name = shipped.replacen(
+            "name = \"AK1\"",
+            &format!("name = \"{}\"", "n".repeat(100_000)),
+            1,
+        );
+        assert_ne!(long_name, shipped);
+        let e = parse_triad(&long_name, "t.toml").unwrap_err().to_string();
+        assert!(e.starts_with("t.toml: unit[0].name = \"nnnn"), "{e}");
+        assert!(
+            e.ends_with("(100000 bytes): at most 128 bytes") && e.len() < 400,
+            "{e}"
+        );
+        let unit =
+            "[[unit]]\nname = \"X\"\npassport = \"AL-15\"\nia = \"+x\"\noa = \"+y\"\npa = \"+z\"\n";
+        let many = format!("id = \"m\"\n{}", unit.repeat(10_000));
+        let e = parse_triad(&many, "t.toml").unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "t.toml: unit: 10000 entries: a triad has exactly 3 units"
+        );
+    }
 
     #[test]
     fn shipped_triad_is_the_standard_geometry() {

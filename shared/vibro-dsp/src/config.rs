@@ -32,6 +32,12 @@ pub const DEFAULT_WELCH_SEGMENT_S: f64 = 0.25;
 /// before its estimate is declared insufficient.
 pub const DEFAULT_MAX_INVALID_FRACTION: f64 = 0.25;
 
+/// Most points of the frequency-response table: a calibration sheet gives tens; 1024
+/// holds a swept-sine measurement at 2 Hz steps across the 2 kHz band of interest.
+/// The table is searched per band and per tone; its points' problems are listed
+/// only when it is within this bound.
+pub const MAX_RESPONSE_POINTS: usize = 1024;
+
 /// Smallest window, in samples: below this the spectra have too few bins to find a floor.
 pub const MIN_WINDOW_SAMPLES: usize = 256;
 /// Largest window, in samples (2^24): bounds the memory allocated at build time.
@@ -236,7 +242,20 @@ impl TryFrom<EstimatorConfigRaw> for EstimatorConfig {
                 format!("ac_corner_hz = {fc}: must be finite, > 0 and below the Nyquist frequency {nyquist_hz} Hz"),
             );
         }
-        for (i, p) in raw.response.iter().enumerate() {
+        check(
+            raw.response.len() <= MAX_RESPONSE_POINTS,
+            format!(
+                "response: {} points, at most {MAX_RESPONSE_POINTS} are allowed",
+                raw.response.len()
+            ),
+        );
+        // A table over its bound: its count alone (its points may number 100 000).
+        let response = if raw.response.len() <= MAX_RESPONSE_POINTS {
+            &raw.response[..]
+        } else {
+            &[]
+        };
+        for (i, p) in response.iter().enumerate() {
             check(
                 p.frequency_hz.is_finite() && p.frequency_hz >= 0.0,
                 format!(
@@ -348,8 +367,11 @@ impl TryFrom<EstimatorConfigRaw> for EstimatorConfig {
             );
         };
         check_band("broadband_band_hz".into(), raw.broadband_band_hz);
-        for (i, band) in raw.psd_bands_hz.iter().enumerate() {
-            check_band(format!("psd_bands_hz[{i}]"), *band);
+        // A list over its bound: its count alone (below).
+        if raw.psd_bands_hz.len() <= MAX_BANDS {
+            for (i, band) in raw.psd_bands_hz.iter().enumerate() {
+                check_band(format!("psd_bands_hz[{i}]"), *band);
+            }
         }
         check(
             raw.psd_bands_hz.len() <= MAX_BANDS,
@@ -461,6 +483,41 @@ mod tests {
         raw.tone_band_hz = Some([0.0, 2.0]);
         let e = EstimatorConfig::try_from(raw).unwrap_err().to_string();
         assert!(e.contains("holds no resolvable frequency"), "{e}");
+    }
+
+    /// Issue 46, item 7: the lists of the estimator's configuration are bounded, and a
+    /// list over its bound is reported by its count alone, not point by point.
+    #[test]
+    fn a_list_over_its_bound_is_refused_by_its_count() {
+        let mut raw = EstimatorConfigRaw::new(25_600.0, [1.0; 3]);
+        raw.response = vec![
+            ResponsePoint {
+                frequency_hz: -1.0,
+                gain: [1.0; 3],
+                phase_rad: [0.0; 3],
+            };
+            100_000
+        ];
+        raw.psd_bands_hz = vec![[-1.0, 0.0]; 100_000];
+        let Err(Error::InvalidConfig { problems }) = EstimatorConfig::try_from(raw) else {
+            panic!("accepted")
+        };
+        assert_eq!(
+            problems,
+            [
+                "response: 100000 points, at most 1024 are allowed",
+                "psd_bands_hz: 100000 bands, at most 16 are allowed",
+            ]
+        );
+        let mut raw = EstimatorConfigRaw::new(25_600.0, [1.0; 3]);
+        raw.response = (0..MAX_RESPONSE_POINTS)
+            .map(|i| ResponsePoint {
+                frequency_hz: i as f64,
+                gain: [1.0; 3],
+                phase_rad: [0.0; 3],
+            })
+            .collect();
+        EstimatorConfig::try_from(raw).unwrap();
     }
 
     #[test]

@@ -8,8 +8,13 @@
 /// writing and using an extended model file.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// An effect parameter (or an input of a mean formula) breaks its rule.
-    #[error("{key} = {value}: {rule}")]
+    /// An effect parameter (or an input of a mean formula) breaks its rule. The key
+    /// and the value are quoted by their excerpt: either can be as long as the file.
+    #[error(
+        "{} = {}: {rule}",
+        vibro_toml::echo::excerpt(key),
+        vibro_toml::echo::excerpt(value)
+    )]
     Invalid {
         key: String,
         value: String,
@@ -28,6 +33,10 @@ pub enum Error {
     /// A model file that does not parse, or has unknown keys (every one of them).
     #[error(transparent)]
     Toml(#[from] vibro_toml::Error),
+    /// A model file refused by the file rule, or that cannot be written
+    /// ([`LabModel::save`](crate::LabModel::save)).
+    #[error(transparent)]
+    Files(#[from] vibro_files::Error),
     /// Reading or writing a model file.
     #[error("{path}: {source}")]
     Io {

@@ -75,7 +75,7 @@ pub mod spectrum;
 pub use effect::{BlockCtx, Effect, MeanContext};
 pub use effects::{
     build, build_for_rig, campaign_axes, catalogue, listing, EffectInfo, EffectListing, EffectSpec,
-    ParamInfo, Rig, Scope,
+    ParamInfo, Rig, Scope, MAX_EFFECT_PARAMS,
 };
 pub use error::{Error, Result};
 pub use model::{BaseMode, FitRecord, LabModel};

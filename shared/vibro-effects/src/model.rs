@@ -126,7 +126,7 @@ impl LabModel {
 
     /// Loads and validates a model file (see [`LabModel::parse`]).
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+        let text = vibro_toml::bounds::read_file(path).map_err(|source| Error::Io {
             path: path.display().to_string(),
             source,
         })?;
@@ -143,6 +143,10 @@ impl LabModel {
         };
         let raw: RawModel = vibro_toml::from_str(text, file)?;
         let mut problems = Vec::new();
+        // Sizes first: a value over its bound is not looked at further.
+        if !check_sizes(&raw, &mut problems) {
+            return Err(bad(problems));
+        }
         if let Some(f) = &raw.format {
             if f != FORMAT {
                 problems.push(format!("format = {f:?}: must be {FORMAT:?}"));
@@ -195,15 +199,15 @@ impl LabModel {
         )
     }
 
-    /// Writes the model atomically (a temporary file beside it, then a rename).
-    pub fn save(&self, path: &Path) -> Result<()> {
-        let io = |source| Error::Io {
-            path: path.display().to_string(),
-            source,
-        };
-        let tmp = path.with_extension("toml.tmp");
-        std::fs::write(&tmp, self.to_toml()).map_err(io)?;
-        std::fs::rename(&tmp, path).map_err(io)
+    /// Writes the model by the file rule (README, "Files"; `vibro_files::write_bytes`):
+    /// complete or not at all (an unpredictable temporary file beside it, then a
+    /// rename), an existing file only with `force`, never a link, a FIFO or a device.
+    pub fn save(&self, path: &Path, force: bool) -> Result<()> {
+        Ok(vibro_files::write_bytes(
+            path,
+            force,
+            self.to_toml().as_bytes(),
+        )?)
     }
 
     /// The kinds of the effects, in order.
@@ -264,6 +268,64 @@ fn build_one(t: &toml::Table, rig: &Rig) -> std::result::Result<Box<dyn Effect>,
     effect_spec(t).and_then(|s| build_for_rig(&s, rig).map_err(|e| e.to_string()))
 }
 
+/// Most `[[effect]]` tables of a model, and `[[fit]]` records: the catalogue has
+/// eleven kinds, each may be given per unit, and `lab add` writes one record per
+/// effect it adds.
+pub const MAX_MODEL_EFFECTS: usize = 64;
+
+/// Every string and list of a model file against its bound: whether all are within,
+/// each one over added to `p`.
+fn check_sizes(raw: &RawModel, p: &mut Vec<String>) -> bool {
+    use vibro_toml::bounds::{list, text, MAX_PATH_BYTES};
+    // A format, a mode, a kind or a parameter's name: one word.
+    const MAX_WORD_BYTES: usize = 64;
+    // An effect's table: its parameters, and `kind`, `enabled`, `units`.
+    const MAX_TABLE_ENTRIES: usize = crate::MAX_EFFECT_PARAMS + 3;
+    let mut ok = true;
+    for (key, v) in [("format", &raw.format), ("mode", &raw.mode)] {
+        if let Some(v) = v {
+            ok &= text(key, v, MAX_WORD_BYTES, p);
+        }
+    }
+    if let Some(v) = &raw.passport {
+        ok &= text("passport", v, MAX_PATH_BYTES, p);
+    }
+    if list("effect", raw.effect.len(), MAX_MODEL_EFFECTS, p) {
+        for (i, t) in raw.effect.iter().enumerate() {
+            ok &= list(&format!("effect[{i}]"), t.len(), MAX_TABLE_ENTRIES, p);
+        }
+    } else {
+        ok = false;
+    }
+    if list("fit", raw.fit.len(), MAX_MODEL_EFFECTS, p) {
+        for (i, f) in raw.fit.iter().enumerate() {
+            let key = format!("fit[{i}]");
+            ok &= text(&format!("{key}.kind"), &f.kind, MAX_WORD_BYTES, p);
+            ok &= text(&format!("{key}.table"), &f.table, MAX_PATH_BYTES, p);
+            let names = |map: &str, keys: Vec<&String>, p: &mut Vec<String>| {
+                let key = format!("{key}.{map}");
+                if !list(&key, keys.len(), crate::MAX_EFFECT_PARAMS, p) {
+                    return false;
+                }
+                // The name itself is what is too long: quoted as the value.
+                let name_key = format!("{key} (a parameter's name)");
+                // Every name over its bound, not the first alone.
+                let mut all = true;
+                for k in keys {
+                    all &= text(&name_key, k, MAX_WORD_BYTES, p);
+                }
+                all
+            };
+            ok &= names("params", f.params.keys().collect(), p);
+            ok &= names("sigma", f.sigma.keys().collect(), p);
+            ok &= names("interval", f.interval.keys().collect(), p);
+        }
+    } else {
+        ok = false;
+    }
+    ok
+}
+
 /// An `[[effect]]` table as the simulator's [`EffectSpec`].
 pub fn effect_spec(t: &toml::Table) -> std::result::Result<EffectSpec, String> {
     EffectSpec::deserialize(toml::Value::Table(t.clone())).map_err(|e| e.to_string())
@@ -305,6 +367,49 @@ mod tests {
         assert_eq!(m.effect_kinds(), ["anisoelastic"]);
         let back = LabModel::parse(&m.to_toml(), "back.toml").unwrap();
         assert_eq!(back, m);
+    }
+
+    /// Issue 46, item 7: every string and list of a model file is bounded, checked
+    /// first, each one over its bound reported at once.
+    #[test]
+    fn strings_and_lists_over_their_bounds_are_refused_first() {
+        let fit = |name: &str| {
+            format!(
+                "[[fit]]\nkind = \"anisoelastic\"\ntable = \"t.csv\"\nparams = {{ {name} = 1.0 }}\n\
+                 sigma = {{}}\nrms_residual_before_g = 1e-4\nrms_residual_after_g = 1e-6\n\
+                 delta_bic = -3.0\n"
+            )
+        };
+        let text = format!(
+            "mode = \"{}\"\n[[effect]]\nkind = \"anisoelastic\"\n{}\n{}",
+            "m".repeat(100_000),
+            (0..40).map(|i| format!("p{i} = 1.0\n")).collect::<String>(),
+            fit(&"n".repeat(5000))
+        );
+        let e = LabModel::parse(&text, "m.toml").unwrap_err().to_string();
+        assert!(e.len() < 1024, "{} bytes: {e}", e.len());
+        for needle in [
+            "m.toml: mode = \"mmmm",
+            "(100000 bytes): at most 64 bytes",
+            "effect[0]: 41 entries: at most 35",
+            "fit[0].params (a parameter's name) = \"nnnn",
+            "(5000 bytes): at most 64 bytes",
+        ] {
+            assert!(e.contains(needle), "{needle:?} missing from {e}");
+        }
+        let e = LabModel::parse(&fit("k").repeat(65), "m.toml").unwrap_err();
+        assert_eq!(e.to_string(), "m.toml: fit: 65 entries: at most 64");
+        // An effect's unknown parameter with a huge value is quoted by its excerpt.
+        let text = format!(
+            "[[effect]]\nkind = \"anisoelastic\"\nk_ae_per_g = 1e-5\nwarp = \"{}\"\n",
+            "w".repeat(100_000)
+        );
+        let e = LabModel::parse(&text, "m.toml").unwrap_err().to_string();
+        assert!(
+            e.len() < 1024 && e.contains("more bytes cut"),
+            "{} bytes: {e}",
+            e.len()
+        );
     }
 
     #[test]

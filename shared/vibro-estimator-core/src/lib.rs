@@ -31,7 +31,8 @@ use vibro_dsp::{Estimate, Estimator, EstimatorConfig, SampleBlock};
 use vibro_ipc::StreamPublisher;
 use vibro_msgs::{estimate_flags, vib_flags, VibBlock, VibEstimate, WireMessage};
 use vibro_service::{
-    count_first, now_ns, Continuity, DisorderLog, JsonObject, Latency, Quantiles, StreamCounters,
+    count_first, now_ns, Continuity, CountersJson, DisorderLog, JsonObject, Latency, Quantiles,
+    StreamCounters,
 };
 
 /// What the estimator did, returned by the service's `run` when it stops (and printed

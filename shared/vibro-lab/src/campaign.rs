@@ -75,6 +75,7 @@
 
 use crate::flight::{self, WindowInput, WindowVe};
 use crate::spectrum::{sensor_spectrum, unit_bands, SpectrumSolver};
+use crate::table_input::quote;
 use crate::{CampaignTable, Condition, Error, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -90,6 +91,7 @@ use vibro_msgs::{estimate_flags, VibEstimate};
 use vibro_physics::passport::Passport;
 use vibro_physics::triad::SignedAxis;
 use vibro_physics::vibration::{PsdBand, Vibration};
+use vibro_toml::echo::excerpt;
 
 /// The manifest's `format`.
 pub const FORMAT: &str = "vibrocomp-campaign/1";
@@ -256,7 +258,18 @@ impl Manifest {
     /// Reads and validates a manifest: every problem at once (key, value, rule), the
     /// files each run names checked to exist before anything is read.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+        // A TOML manifest is a configuration file: read up to its bound
+        // (`vibro_toml::bounds::MAX_FILE_BYTES`), a bigger one refused unread.
+        let toml = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+        let read = if toml {
+            vibro_toml::bounds::read_file(path)
+        } else {
+            // A CSV manifest: the runs' table, within its bound.
+            crate::table_input::read_text(path, crate::table_input::MAX_RUNS_CSV_BYTES)
+        };
+        let text = read.map_err(|source| Error::Io {
             path: path.display().to_string(),
             source,
         })?;
@@ -291,6 +304,13 @@ impl Manifest {
         };
         let dir = path.parent().unwrap_or(Path::new("."));
         let mut problems = Vec::new();
+        // Sizes first: a value over its bound is not looked at further.
+        if !check_sizes(&raw, &mut problems) {
+            return Err(Error::Table {
+                path: name,
+                problems,
+            });
+        }
         if raw.format != FORMAT {
             problems.push(format!("format = {:?}: must be {FORMAT:?}", raw.format));
         }
@@ -350,7 +370,10 @@ impl Manifest {
             }
             (false, Some(file)) => {
                 let csv_path = dir.join(file);
-                match std::fs::read_to_string(&csv_path) {
+                match crate::table_input::read_text(
+                    &csv_path,
+                    crate::table_input::MAX_RUNS_CSV_BYTES,
+                ) {
                     Ok(csv_text) => runs_from_csv(
                         &csv_text,
                         &csv_path,
@@ -388,6 +411,42 @@ impl Manifest {
             }),
         }
     }
+}
+
+/// Every string and list of a TOML manifest against its bound: whether all are
+/// within, each one over added to `p`.
+fn check_sizes(raw: &RawManifest, p: &mut Vec<String>) -> bool {
+    use vibro_toml::bounds::{list, path, text, texts, MAX_NAME_BYTES, MAX_PATH_BYTES};
+    // A format or a signed axis: one word.
+    const MAX_WORD_BYTES: usize = 64;
+    let mut ok = text("format", &raw.format, MAX_WORD_BYTES, p);
+    ok &= text("triad", &raw.triad, MAX_PATH_BYTES, p);
+    // One column per unit, or per body axis.
+    ok &= texts("unit_columns", &raw.unit_columns, 3, MAX_NAME_BYTES, p);
+    ok &= texts(
+        "reference_columns",
+        &raw.reference_columns,
+        3,
+        MAX_NAME_BYTES,
+        p,
+    );
+    if let Some(runs) = &raw.runs {
+        ok &= path("runs", runs, MAX_PATH_BYTES, p);
+    }
+    if !list("run", raw.run.len(), MAX_RUNS, p) {
+        return false;
+    }
+    for (i, r) in raw.run.iter().enumerate() {
+        let key = format!("run[{i}]");
+        ok &= text(&format!("{key}.id"), &r.id, MAX_NAME_BYTES, p);
+        ok &= path(&format!("{key}.accel"), &r.accel, MAX_PATH_BYTES, p);
+        ok &= path(&format!("{key}.reference"), &r.reference, MAX_PATH_BYTES, p);
+        ok &= match &r.up {
+            Up::Axis(a) => text(&format!("{key}.up"), a, MAX_WORD_BYTES, p),
+            Up::Vector(v) => list(&format!("{key}.up"), v.len(), 3, p),
+        };
+    }
+    ok
 }
 
 /// The runs of a TOML manifest's `[[run]]` blocks; `windows` is its `[segments]`. Each
@@ -565,7 +624,7 @@ fn runs_from_csv(
     let mut named = std::collections::BTreeSet::new();
     for h in header.iter().filter(|h| !h.is_empty()) {
         if !named.insert(h.as_str()) {
-            header_problems.push(format!("{prefix}header: column {h:?} appears twice"));
+            header_problems.push(format!("{prefix}header: column {} appears twice", quote(h)));
         }
     }
     let files = match (has("accel"), has("reference"), has("folder")) {
@@ -690,8 +749,9 @@ fn runs_from_csv(
         if let Some(id) = id {
             if let Some(first) = ids.get(id) {
                 problems.push(format!(
-                    "{} = {id:?}: must be unique (line {first} has it)",
-                    at(id_column)
+                    "{} = {}: must be unique (line {first} has it)",
+                    at(id_column),
+                    quote(id)
                 ));
             } else {
                 ids.insert(id.to_string(), line);
@@ -710,9 +770,10 @@ fn runs_from_csv(
                             paths.push(full);
                         } else {
                             problems.push(format!(
-                                "{} = {file:?}: no such file ({})",
+                                "{} = {}: no such file ({})",
                                 at(c),
-                                full.display()
+                                quote(file),
+                                excerpt(&full.display().to_string())
                             ));
                         }
                     }
@@ -729,9 +790,10 @@ fn runs_from_csv(
                     let found = full.is_dir();
                     if !found {
                         problems.push(format!(
-                            "{} = {folder:?}: no such folder ({})",
+                            "{} = {}: no such folder ({})",
                             at("folder"),
-                            full.display()
+                            quote(folder),
+                            excerpt(&full.display().to_string())
                         ));
                     }
                     found
@@ -743,9 +805,10 @@ fn runs_from_csv(
                             paths.push(full);
                         } else {
                             problems.push(format!(
-                                "{} = {folder:?}: no {file} in it ({} does not exist)",
+                                "{} = {}: no {file} in it ({} does not exist)",
                                 at("folder"),
-                                full.display()
+                                quote(folder),
+                                excerpt(&full.display().to_string())
                             ));
                         }
                     }
@@ -761,9 +824,9 @@ fn runs_from_csv(
                     Some(Ok(value)) if value.is_finite() => *x = value,
                     Some(_) => {
                         problems.push(format!(
-                            "{} = {:?}: must be a finite number (a component of up)",
+                            "{} = {}: must be a finite number (a component of up)",
                             at(c),
-                            cell(c)
+                            quote(cell(c))
                         ));
                         parsed = false;
                     }
@@ -791,7 +854,7 @@ fn runs_from_csv(
                 match vibro_ident::rig::parse_body_direction(text) {
                     Ok(up) => Some(up),
                     Err(rule) => {
-                        problems.push(format!("{} = {text:?}: {rule}", at("up")));
+                        problems.push(format!("{} = {}: {rule}", at("up"), quote(text)));
                         None
                     }
                 }
@@ -821,8 +884,9 @@ fn runs_from_csv(
                     *slot = window;
                 } else {
                     problems.push(format!(
-                        "{} = {text:?}: must be a window FROM..TO in s, such as 8.2..15.9",
-                        at(c)
+                        "{} = {}: must be a window FROM..TO in s, such as 8.2..15.9",
+                        at(c),
+                        quote(text)
                     ));
                 }
             }
@@ -1328,6 +1392,39 @@ run_id,repeat,folder,orientation,gx,gy,gz,tone_hz,amp_x_g,amp_y_g,amp_z_g,phase_
             problems.iter().any(|p| parts.iter().all(|n| p.contains(n))),
             "no problem with {parts:?} in:\n{}",
             problems.join("\n")
+        );
+    }
+
+    /// Issue 46, item 7: every string and list of a TOML manifest is bounded, checked
+    /// first, each one over its bound reported at once.
+    #[test]
+    fn strings_and_lists_over_their_bounds_are_refused_first() {
+        let dir = Dir::new("sizes");
+        let run = |id: &str| {
+            format!(
+                "[[run]]\nid = \"{id}\"\naccel = \"a.csv\"\nreference = \"r.csv\"\nup = [1.0, 0.0, 0.0, 0.0]\n"
+            )
+        };
+        let text = format!(
+            "format = \"vibrocomp-campaign/1\"\nunit_columns = [\"a\", \"b\", \"c\", \"d\"]\n{SEGMENTS}\n{}",
+            run(&"i".repeat(100_000))
+        );
+        let p = problems(manifest(&dir, "m.toml", &text));
+        assert_eq!(p.len(), 3, "{p:?}");
+        assert_eq!(p[0], "unit_columns: 4 entries: at most 3");
+        assert!(p[1].starts_with("run[0].id = \"iiii"), "{p:?}");
+        assert!(p[1].ends_with("(100000 bytes): at most 128 bytes"), "{p:?}");
+        assert_eq!(p[2], "run[0].up: 4 entries: at most 3");
+        // A manifest bigger than a configuration file may be: refused by its size.
+        let big = dir.0.join("big.toml");
+        std::fs::File::create(&big)
+            .unwrap()
+            .set_len(2 << 30)
+            .unwrap();
+        let e = Manifest::load(&big).unwrap_err().to_string();
+        assert!(
+            e.contains("2147483648 bytes: a configuration file holds at most"),
+            "{e}"
         );
     }
 

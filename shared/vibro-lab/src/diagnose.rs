@@ -128,6 +128,10 @@ pub struct RowComparison {
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
     pub n: usize,
+    /// How many distinct conditions the `n` rows hold (a condition repeated is one):
+    /// the model and each effect fitted are evaluated once per distinct condition
+    /// (`fit::Prepared`), the statistics are the rows'.
+    pub distinct_conditions: usize,
     pub rms_residual_g: f64,
     pub max_abs_residual_g: f64,
     pub rms_measured_g: f64,
@@ -352,19 +356,15 @@ fn groups_of(rows: &[RowComparison], keys: &[String]) -> Vec<Group> {
 /// Compares `model` with `table`.
 pub fn compare(model: &LabModel, table: &CampaignTable) -> Result<Comparison> {
     let prep = Prepared::new(model, table)?;
-    let mut c = comparison_of(model, table, &prep.predicted_g, &prep.uncertainty_g);
+    let mut c = comparison_of(model, table, &prep);
     c.residual_scales = prep.scales;
     Ok(c)
 }
 
 /// The comparison; `u_g` the rows' standard uncertainties of the residual (the
 /// measured VE's with the stated vibration's propagated through the model).
-fn comparison_of(
-    model: &LabModel,
-    table: &CampaignTable,
-    predicted_g: &[f64],
-    u_g: &[f64],
-) -> Comparison {
+fn comparison_of(model: &LabModel, table: &CampaignTable, prep: &Prepared) -> Comparison {
+    let (predicted_g, u_g) = (&prep.predicted_g, &prep.uncertainty_g);
     let rows: Vec<RowComparison> = table
         .conditions
         .iter()
@@ -387,6 +387,7 @@ fn comparison_of(
     let chi2: f64 = rows.iter().map(|r| r.z * r.z).sum();
     let summary = Summary {
         n,
+        distinct_conditions: prep.classes(),
         rms_residual_g: rms(rows.iter().map(|r| r.residual_g)),
         max_abs_residual_g: rows.iter().map(|r| r.residual_g.abs()).fold(0.0, f64::max),
         rms_measured_g: rms(rows.iter().map(|r| r.measured_g)),
@@ -978,7 +979,7 @@ pub fn diagnose(
 ) -> Result<Diagnosis> {
     let cands = selected(opts)?;
     let mut prep = Prepared::new(model, table)?;
-    let comparison = comparison_of(model, table, &prep.predicted_g, &prep.uncertainty_g);
+    let comparison = comparison_of(model, table, &prep);
     let residual_g = prep.residual_g();
     let trends_before = trends(table, &residual_g, &prep.uncertainty_g);
     let lack_of_fit = lack_of_fit(table, &residual_g, &prep.uncertainty_g);

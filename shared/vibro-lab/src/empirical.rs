@@ -219,8 +219,11 @@ fn design(model: &LabModel, table: &CampaignTable, found: &[toml::Table]) -> Res
     let phi = table
         .conditions
         .iter()
-        .zip(&prep.seen)
-        .map(|(c, (vib, _))| TERMS.iter().map(|t| (t.value)(vib, c.a_l_g)).collect())
+        .enumerate()
+        .map(|(i, c)| {
+            let (vib, _) = prep.seen_of(i);
+            TERMS.iter().map(|t| (t.value)(vib, c.a_l_g)).collect()
+        })
         .collect();
     Ok(Design {
         residual_g: prep.residual_g(),

@@ -285,24 +285,64 @@ impl EffectFit {
 
 /// What a fit needs per condition, computed once: the model's prediction and the
 /// true vibration under the model's own sensor effects.
+///
+/// Rows of one condition (equal [`crate::table::Condition::prediction_key`] and
+/// passport: a campaign's repeats, a table of a million identical rows) are one
+/// *class*: the model and every effect fitted give them the same VE, so it is computed
+/// once per class (here, in [`term_shifts_g`] at each of a fit's evaluations, in
+/// [`Prepared::reweight`]) and copied to its rows. Each row keeps its own measured VE
+/// and uncertainty, so the fits, their chi2 and every statistic are those of the rows,
+/// bit for bit: only the work and the memory of the predictions scale with the classes
+/// instead of the rows.
 pub(crate) struct Prepared {
     pub(crate) measured_g: Vec<f64>,
     pub(crate) uncertainty_g: Vec<f64>,
     pub(crate) predicted_g: Vec<f64>,
+    /// Per row, its class (an index into the per-class vectors below).
+    pub(crate) class: Vec<usize>,
+    /// Per class, the first of its rows (the one it is evaluated on and errors name).
+    pub(crate) first_row: Vec<usize>,
+    /// Per class, the true vibration under the model's sensor effects.
     truth: Vec<predict::TrueVibration>,
-    /// Per row, the vibration and band PSD reaching the unit: the truth through the
+    /// Per class, the vibration and band PSD reaching the unit: the truth through the
     /// model's effects on the vibration path (what a new effect off that path sees).
-    pub(crate) seen: Vec<(
+    seen: Vec<(
         vibro_physics::vibration::Vibration,
         Vec<vibro_physics::vibration::PsdBand>,
     )>,
-    /// Per row, the model's effect tables that act there.
+    /// Per class, the model's effect tables that act there.
     model_tables: Vec<Vec<toml::Table>>,
     /// The model's effects that could not act on some rows.
     pub(crate) skipped: Vec<NotApplicable>,
     /// The logs' scales per unit under the weights as they are
     /// ([`crate::flight::data_scales`]).
     pub(crate) scales: Vec<crate::flight::GroupScale>,
+}
+
+/// Each row's class ([`Prepared`]) and each class's first row.
+fn classes(table: &CampaignTable) -> (Vec<usize>, Vec<usize>) {
+    let mut index: std::collections::HashMap<crate::table::PredictionKey, usize> =
+        std::collections::HashMap::new();
+    let mut class = Vec::with_capacity(table.conditions.len());
+    let mut first_row: Vec<usize> = Vec::new();
+    for (i, c) in table.conditions.iter().enumerate() {
+        let key = c.prediction_key();
+        let k = match index.get(&key) {
+            // The passport as resolved too (two tables' `my.toml` may differ).
+            Some(&k) if table.conditions[first_row[k]].passport == c.passport => k,
+            Some(_) => {
+                first_row.push(i);
+                first_row.len() - 1
+            }
+            None => {
+                first_row.push(i);
+                index.insert(key, first_row.len() - 1);
+                first_row.len() - 1
+            }
+        };
+        class.push(k);
+    }
+    (class, first_row)
 }
 
 /// Adds `(line, run_id)` to the rows `kind` skipped.
@@ -324,26 +364,46 @@ fn kind_of(t: &toml::Table) -> &str {
 
 impl Prepared {
     pub(crate) fn new(model: &LabModel, table: &CampaignTable) -> Result<Self> {
+        Self::with_classes(model, table, classes(table))
+    }
+
+    /// Without pooling: every row its own class (the tests hold the pooled fits
+    /// against it).
+    #[cfg(test)]
+    pub(crate) fn one_class_per_row(model: &LabModel, table: &CampaignTable) -> Result<Self> {
+        let rows: Vec<usize> = (0..table.conditions.len()).collect();
+        Self::with_classes(model, table, (rows.clone(), rows))
+    }
+
+    fn with_classes(
+        model: &LabModel,
+        table: &CampaignTable,
+        (class, first_row): (Vec<usize>, Vec<usize>),
+    ) -> Result<Self> {
         let mut p = Prepared {
-            measured_g: Vec::new(),
-            uncertainty_g: Vec::new(),
-            predicted_g: Vec::new(),
+            measured_g: Vec::with_capacity(class.len()),
+            uncertainty_g: Vec::with_capacity(class.len()),
+            predicted_g: Vec::with_capacity(class.len()),
+            class,
+            first_row,
             truth: Vec::new(),
             seen: Vec::new(),
             model_tables: Vec::new(),
             skipped: Vec::new(),
             scales: Vec::new(),
         };
-        let mut row_effects = Vec::with_capacity(table.conditions.len());
-        for c in &table.conditions {
-            let mut tables = Vec::with_capacity(model.effects.len());
-            for t in &model.effects {
-                if applies(kind_of(t), c) {
-                    tables.push(t.clone());
-                } else {
-                    note_skipped(&mut p.skipped, kind_of(t), c);
-                }
-            }
+        // Per class: the prediction, and the stated vibration's variance terms
+        // (`vibration_var_terms_g2`), which read the condition only.
+        let mut class_pred_g = Vec::with_capacity(p.first_row.len());
+        let mut class_var_terms = Vec::with_capacity(p.first_row.len());
+        for &i in &p.first_row {
+            let c = &table.conditions[i];
+            let tables: Vec<toml::Table> = model
+                .effects
+                .iter()
+                .filter(|t| applies(kind_of(t), c))
+                .cloned()
+                .collect();
             let effects = build_effects(&tables, &c.passport)?;
             let row = |e: vibro_effects::Error| Error::Predict {
                 what: format!("{} (line {}, {})", table.path.display(), c.line, c.run_id),
@@ -361,8 +421,7 @@ impl Prepared {
                 c.vibrating_s(),
             )
             .map_err(row)?;
-            p.measured_g.push(c.ve_measured_g);
-            p.predicted_g.push(pred.ve_g);
+            class_pred_g.push(pred.ve_g);
             p.seen.push(
                 predict::unit_vibration(
                     &effects,
@@ -375,18 +434,27 @@ impl Prepared {
             );
             p.truth.push(truth);
             p.model_tables.push(tables);
-            row_effects.push(effects);
+            class_var_terms.push(vibration_var_terms_g2(model.mode, &effects, c)?);
         }
-        let stated_u_g = table
+        for (c, &k) in table.conditions.iter().zip(&p.class) {
+            for t in &model.effects {
+                if !applies(kind_of(t), c) {
+                    note_skipped(&mut p.skipped, kind_of(t), c);
+                }
+            }
+            p.measured_g.push(c.ve_measured_g);
+            p.predicted_g.push(class_pred_g[k]);
+        }
+        let stated: Vec<f64> = table
             .conditions
             .iter()
-            .zip(&row_effects)
-            .map(|(c, effects)| effective_u_g(model.mode, effects, c))
-            .collect::<Result<Vec<f64>>>()?;
+            .zip(&p.class)
+            .map(|(c, &k)| stated_u_g(c, &class_var_terms[k]))
+            .collect();
         let (factor, scales) =
-            crate::flight::data_scales(&table.conditions, &p.residual_g(), &stated_u_g);
+            crate::flight::data_scales(&table.conditions, &p.residual_g(), &stated);
         p.scales = scales;
-        for ((c, u0_g), f) in table.conditions.iter().zip(&stated_u_g).zip(&factor) {
+        for ((c, u0_g), f) in table.conditions.iter().zip(&stated).zip(&factor) {
             let u_g = f * u0_g;
             let i = p.uncertainty_g.len();
             // Residuals and weights must stay finite: `(r/u)^2` summed over the
@@ -408,51 +476,82 @@ impl Prepared {
         Ok(p)
     }
 
+    /// How many classes (distinct conditions) the rows fall into.
+    pub(crate) fn classes(&self) -> usize {
+        self.first_row.len()
+    }
+
+    /// The vibration and band PSD reaching the unit on row `i` (`seen`, per class).
+    pub(crate) fn seen_of(
+        &self,
+        i: usize,
+    ) -> &(
+        vibro_physics::vibration::Vibration,
+        Vec<vibro_physics::vibration::PsdBand>,
+    ) {
+        &self.seen[self.class[i]]
+    }
+
     /// The rows' uncertainties again with `extra` (fitted effects) added to `model`:
     /// the stated vibration's propagated through it, and a log's scale from the
     /// residuals against it ([`crate::flight::data_scales`]): the weights of the next
-    /// fits.
+    /// fits. The effects and the stated vibration's terms are evaluated once per class.
     pub(crate) fn reweight(
         &mut self,
         model: &LabModel,
         table: &CampaignTable,
         extra: &[toml::Table],
     ) -> Result<()> {
-        let mut row_effects = Vec::with_capacity(table.conditions.len());
-        let mut residual_g = Vec::with_capacity(table.conditions.len());
-        for (i, c) in table.conditions.iter().enumerate() {
-            if !(c.states_vibration_u() || c.scale_group.is_some()) {
-                row_effects.push(None);
-                residual_g.push(self.measured_g[i] - self.predicted_g[i]);
+        let moves = |c: &crate::table::Condition| c.states_vibration_u() || c.scale_group.is_some();
+        // Which classes hold rows whose weights move, and rows of a log (whose scale
+        // needs the VE the extended model predicts); a log's window and a table's row
+        // may be one class, the scale group being no part of the condition.
+        let mut needs = vec![(false, false); self.classes()];
+        for (c, &k) in table.conditions.iter().zip(&self.class) {
+            needs[k].0 |= moves(c);
+            needs[k].1 |= c.scale_group.is_some();
+        }
+        // Per such class: the stated vibration's variance terms, and the VE.
+        let mut per_class: Vec<Option<(Vec<f64>, Option<f64>)>> = vec![None; self.classes()];
+        for (k, &i) in self.first_row.iter().enumerate() {
+            let (weights_move, log_row) = needs[k];
+            if !weights_move {
                 continue;
             }
-            let mut tables = self.model_tables[i].clone();
+            let c = &table.conditions[i];
+            let mut tables = self.model_tables[k].clone();
             tables.extend(extra.iter().filter(|t| applies(kind_of(t), c)).cloned());
             let effects = build_effects(&tables, &c.passport)?;
-            residual_g.push(if c.scale_group.is_some() {
-                c.ve_measured_g - row_ve_g(model.mode, &effects, c, c)?
+            let ve_g = if log_row {
+                Some(row_ve_g(model.mode, &effects, c, c)?)
             } else {
-                self.measured_g[i] - self.predicted_g[i]
-            });
-            row_effects.push(Some(effects));
+                None
+            };
+            per_class[k] = Some((vibration_var_terms_g2(model.mode, &effects, c)?, ve_g));
         }
-        // Rows whose weights do not move keep theirs (a scale of 1: no group).
-        let stated_u_g = table
-            .conditions
-            .iter()
-            .zip(&row_effects)
-            .enumerate()
-            .map(|(i, (c, effects))| match effects {
-                Some(effects) => effective_u_g(model.mode, effects, c),
-                None => Ok(self.uncertainty_g[i]),
-            })
-            .collect::<Result<Vec<f64>>>()?;
-        let (factor, scales) =
-            crate::flight::data_scales(&table.conditions, &residual_g, &stated_u_g);
+        let mut residual_g = Vec::with_capacity(table.conditions.len());
+        let mut stated = Vec::with_capacity(table.conditions.len());
+        for (i, c) in table.conditions.iter().enumerate() {
+            // Rows whose weights do not move keep theirs (a scale of 1: no group).
+            match &per_class[self.class[i]] {
+                Some((terms, ve_g)) if moves(c) => {
+                    residual_g.push(match (ve_g, c.scale_group) {
+                        (Some(ve_g), Some(_)) => c.ve_measured_g - ve_g,
+                        _ => self.measured_g[i] - self.predicted_g[i],
+                    });
+                    stated.push(stated_u_g(c, terms));
+                }
+                _ => {
+                    residual_g.push(self.measured_g[i] - self.predicted_g[i]);
+                    stated.push(self.uncertainty_g[i]);
+                }
+            }
+        }
+        let (factor, scales) = crate::flight::data_scales(&table.conditions, &residual_g, &stated);
         self.scales = scales;
-        for (i, effects) in row_effects.iter().enumerate() {
-            if effects.is_some() {
-                self.uncertainty_g[i] = factor[i] * stated_u_g[i];
+        for (i, c) in table.conditions.iter().enumerate() {
+            if moves(c) {
+                self.uncertainty_g[i] = factor[i] * stated[i];
             }
         }
         Ok(())
@@ -504,13 +603,38 @@ fn row_ve_g(
 /// and the spectrum a window states come from the same realised vibration, so every
 /// part of it overlaps the measured VE's scatter (a mount's band term left unscaled
 /// put chi2/dof at 0.54 with the generator's true mount on its rig logs).
+// The one-call form, which the tests check; the fits use its two parts, the second
+// once per class (`Prepared`).
+#[cfg_attr(not(test), allow(dead_code))]
 pub(crate) fn effective_u_g(
     mode: vibro_effects::model::BaseMode,
     effects: &[Box<dyn vibro_effects::Effect>],
     c: &crate::table::Condition,
 ) -> Result<f64> {
-    let (ua_g, us_g) = c.ia_u_g();
+    Ok(stated_u_g(c, &vibration_var_terms_g2(mode, effects, c)?))
+}
+
+/// [`effective_u_g`] from the row's stated VE uncertainty and the terms of its stated
+/// vibration's variance ([`vibration_var_terms_g2`]), added in order.
+fn stated_u_g(c: &crate::table::Condition, terms_g2: &[f64]) -> f64 {
     let mut var = c.ve_uncertainty_g.powi(2);
+    for t in terms_g2 {
+        var += t;
+    }
+    var.sqrt()
+}
+
+/// The terms [`effective_u_g`] adds to the measured VE's variance, in order: the
+/// stated IA amplitude's, the stated IA RMS's and each stated band PSD's through the
+/// model (g^2). They read the row's condition only (not its measured VE or its
+/// uncertainty): one computation serves every row of a class ([`Prepared`]).
+fn vibration_var_terms_g2(
+    mode: vibro_effects::model::BaseMode,
+    effects: &[Box<dyn vibro_effects::Effect>],
+    c: &crate::table::Condition,
+) -> Result<Vec<f64>> {
+    let (ua_g, us_g) = c.ia_u_g();
+    let mut terms = Vec::new();
     let ve = |row: &crate::table::Condition| row_ve_g(mode, effects, row, c);
     if let (Some(t), true) = (c.tone, ua_g > 0.0) {
         let h = 1e-3 * t.a_b_g[2].abs().max(ua_g);
@@ -522,7 +646,7 @@ pub(crate) fn effective_u_g(
         }
         let span = up.tone.map_or(0.0, |t| t.a_b_g[2]) - down.tone.map_or(0.0, |t| t.a_b_g[2]);
         let d = (ve(&up)? - ve(&down)?) / span;
-        var += (d * ua_g).powi(2);
+        terms.push((d * ua_g).powi(2));
     }
     if let (Some(r), true) = (c.random, us_g > 0.0) {
         let s3 = r.sigma_g[2];
@@ -541,7 +665,7 @@ pub(crate) fn effective_u_g(
                 row
             };
             let d = (ve(&scaled(1.0 + k))? - ve(&scaled(1.0 - k))?) / (2.0 * k * s3);
-            var += (d * us_g).powi(2);
+            terms.push((d * us_g).powi(2));
         }
     }
     // The stated band PSDs' uncertainties (a flight window's), each band and axis on
@@ -566,11 +690,11 @@ pub(crate) fn effective_u_g(
                 };
                 let span = (s + h) - (s - h).max(0.0);
                 let d = (ve(&with(h))? - ve(&with(-h))?) / span;
-                var += (d * u).powi(2);
+                terms.push((d * u).powi(2));
             }
         }
     }
-    Ok(var.sqrt())
+    Ok(terms)
 }
 
 /// The effect table of `cand` with parameter values `theta`.
@@ -620,7 +744,8 @@ pub(crate) fn term_shifts_g(
     // once per row: building parses and validates each effect's table.
     type Built<'a> = (&'a str, Vec<Vec<Box<dyn vibro_effects::Effect>>>);
     let mut built: Vec<Built> = Vec::new();
-    let n = table.conditions.len();
+    // Per class ([`Prepared`]): evaluated on its first row, copied to the others.
+    let n = prep.classes();
     let mut out = vec![vec![0.0; n]; terms.len()];
     /// The effects of a whole prediction, for the rows that need one.
     struct ComposedBuilt<'a> {
@@ -632,7 +757,8 @@ pub(crate) fn term_shifts_g(
         slot: Vec<Option<usize>>,
     }
     let mut composed_built: Vec<ComposedBuilt> = Vec::new();
-    for (i, c) in table.conditions.iter().enumerate() {
+    for (i, &row_i) in prep.first_row.iter().enumerate() {
+        let c = &table.conditions[row_i];
         let k = match built.iter().position(|(r, _)| *r == c.passport_ref) {
             Some(k) => k,
             None => {
@@ -764,7 +890,7 @@ pub(crate) fn term_shifts_g(
                     assigned += sh.1;
                 }
             }
-            out[first][i] += pred.ve_g - prep.predicted_g[i] - assigned;
+            out[first][i] += pred.ve_g - prep.predicted_g[row_i] - assigned;
             continue;
         }
         let seen = &prep.seen[i];
@@ -779,7 +905,11 @@ pub(crate) fn term_shifts_g(
                 .sum();
         }
     }
-    Ok(out)
+    // Each row the value of its class.
+    Ok(out
+        .iter()
+        .map(|per_class| prep.class.iter().map(|&k| per_class[k]).collect())
+        .collect())
 }
 
 /// The starting points of a candidate's search.
@@ -1895,6 +2025,68 @@ mod tests {
 
     fn cand(kind: &str) -> &'static Candidate {
         crate::library::candidate(kind).expect("a candidate of the library")
+    }
+
+    /// The walkthrough's 14 conditions, each measured three times (other VEs, other
+    /// uncertainties), every other one stating its IA amplitude's uncertainty (whose
+    /// weight follows the model: the reweighted fits).
+    fn repeated() -> (LabModel, CampaignTable) {
+        let (model, t) = table();
+        let mut conditions = Vec::new();
+        for (k, c) in t.conditions.iter().enumerate() {
+            for r in 0..3 {
+                let mut c = c.clone();
+                c.run_id = format!("{}-{r}", c.run_id);
+                c.line = conditions.len() + 2;
+                c.ve_measured_g *= 1.0 + 1e-3 * (r as f64 - 1.0);
+                c.ve_uncertainty_g *= 1.0 + 0.5 * r as f64;
+                let u = if k % 2 == 0 { 1e-3 } else { f64::NAN };
+                c.extra.insert(crate::table::A_B3_U_COLUMN.into(), u);
+                conditions.push(c);
+            }
+        }
+        let mut extra_columns = t.extra_columns.clone();
+        extra_columns.push(crate::table::A_B3_U_COLUMN.into());
+        let t = CampaignTable {
+            path: t.path.clone(),
+            conditions,
+            extra_columns,
+        };
+        (model, t)
+    }
+
+    /// Pooling (`Prepared`'s classes) changes the work, not one bit of a result: the
+    /// predictions, the weights, every fit and its reweighting are those of the rows
+    /// evaluated one by one.
+    #[test]
+    fn rows_pooled_by_condition_fit_bit_for_bit_as_one_by_one() {
+        let (model, t) = repeated();
+        let mut pooled = Prepared::new(&model, &t).unwrap();
+        let mut single = Prepared::one_class_per_row(&model, &t).unwrap();
+        assert_eq!((pooled.classes(), single.classes()), (14, 42));
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&pooled.predicted_g), bits(&single.predicted_g));
+        assert_eq!(bits(&pooled.uncertainty_g), bits(&single.uncertainty_g));
+        for kind in ["mount_resonance", "heating", "sensor_error", "saturation"] {
+            let meter = Meter::new(Budget::default());
+            let a = fit_prepared(&model, &t, &pooled, cand(kind), &meter).unwrap();
+            let b = fit_prepared(&model, &t, &single, cand(kind), &meter).unwrap();
+            assert_eq!(a.chi2_after.to_bits(), b.chi2_after.to_bits(), "{kind}");
+            let values =
+                |f: &EffectFit| bits(&f.params.iter().map(|p| p.value).collect::<Vec<_>>());
+            assert_eq!(values(&a), values(&b), "{kind}");
+            assert_eq!(bits(&a.shift_g), bits(&b.shift_g), "{kind}");
+            assert_eq!(a.evaluations, b.evaluations, "{kind}");
+            assert!(a.evaluations > 0 && a.n == 42, "{kind}: {}", a.evaluations);
+            if kind == "mount_resonance" {
+                let terms = [cand(kind)];
+                let a = fit_reweighted(&model, &t, &mut pooled, &terms, a, &meter).unwrap();
+                let b = fit_reweighted(&model, &t, &mut single, &terms, b, &meter).unwrap();
+                assert_eq!(bits(&pooled.uncertainty_g), bits(&single.uncertainty_g));
+                assert_eq!(a.chi2_after.to_bits(), b.chi2_after.to_bits());
+                assert_eq!(values(&a), values(&b));
+            }
+        }
     }
 
     fn problem<'a>(

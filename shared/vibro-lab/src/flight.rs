@@ -660,7 +660,7 @@ pub fn condition(w: WindowInput) -> Condition {
         run_id: w.run_id,
         line: w.line,
         passport_ref: w.passport_ref,
-        passport: w.passport,
+        passport: std::sync::Arc::new(w.passport),
         a_l_g: w.measured.a_l_unit_g,
         tone,
         more_tones,

@@ -5,7 +5,8 @@
 //! fails, find which physical effect of MODEL.md section 11 is missing, fit it, and add
 //! it to an extended model file that the rest of vibrocomp reads.
 //!
-//! - [`table`]: the campaign table (CSV, one row per test condition, docs/lab.md).
+//! - [`table`]: the campaign table (CSV, one row per test condition, docs/lab.md),
+//!   read within bounds by [`table_input`] (a line's length, columns, rows, encoding).
 //! - [`flight`]: conditions from a record with a reference (a flight cut into
 //!   windows): the VE measured per window, the prediction's uncertainty.
 //! - [`library`]: the candidate effects the lab can fit.
@@ -46,6 +47,7 @@ pub mod report;
 /// compensator).
 pub use vibro_effects::spectrum;
 pub mod table;
+pub mod table_input;
 pub mod text;
 
 pub use diagnose::{

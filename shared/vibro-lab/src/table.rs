@@ -12,14 +12,17 @@
 //! `band_lo_hz`, `band_hi_hz` (the random part as a flat band, which the filtering
 //! effects need). Lines starting with `#` are comments.
 
+use crate::table_input::{quote, Problems, TableReader, MAX_PASSPORT_BYTES, MAX_TEXT_CELL_BYTES};
 use crate::{Error, Result};
 use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use vibro_effects::model::LabModel;
 use vibro_effects::predict::flat_passport;
 use vibro_physics::passport::Passport;
 use vibro_physics::vibration::{PsdBand, Tone, Vibration};
+use vibro_toml::echo::excerpt;
 
 /// The columns every table must have, in the documented order.
 pub const REQUIRED_COLUMNS: [&str; 19] = [
@@ -92,6 +95,37 @@ pub const SIGMA3_U_COLUMN: &str = "sigma3_u_g";
 /// papers' 5 minutes (MODEL.md section 8), s.
 pub const DEFAULT_VIBRATING_S: f64 = 300.0;
 
+/// The variables of every row ([`Condition::variables`]), before its extra columns.
+const BASE_VARIABLES: [&str; 13] = [
+    "aL1_g",
+    "aL2_g",
+    "aL3_g",
+    "freq_hz",
+    "aB1_g",
+    "aB2_g",
+    "aB3_g",
+    "phase31_deg",
+    "phase32_deg",
+    "sigma1_g",
+    "sigma2_g",
+    "sigma3_g",
+    "kurtosis3",
+];
+
+/// Whether extra column `name` is a condition variable: the stated uncertainties are
+/// not.
+fn is_condition_variable(name: &str) -> bool {
+    name != A_B3_U_COLUMN && name != SIGMA3_U_COLUMN
+}
+
+/// [`Condition::prediction_key`]: the text parts (passport cell, extra columns' names)
+/// and the numbers' bits.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub(crate) struct PredictionKey {
+    names: String,
+    bits: Vec<u64>,
+}
+
 /// The deterministic part of a condition.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ToneCondition {
@@ -137,9 +171,10 @@ pub struct Condition {
     pub line: usize,
     /// The passport cell as written (the model's default when it was empty).
     pub passport_ref: String,
-    /// The resolved passport, `lambda(w)` dropped (`predict::flat_passport`).
+    /// The resolved passport, `lambda(w)` dropped (`predict::flat_passport`); shared
+    /// by the rows that name it (a passport is 680 bytes, most of a row's memory).
     #[serde(skip)]
-    pub passport: Passport,
+    pub passport: Arc<Passport>,
     /// `[aL1, aL2, aL3]`, g.
     pub a_l_g: [f64; 3],
     pub tone: Option<ToneCondition>,
@@ -265,31 +300,93 @@ impl Condition {
     /// The condition variables the lab looks at the residual against, by name (NaN
     /// where a variable does not apply).
     pub fn variables(&self) -> Vec<(String, f64)> {
+        let names = self.variable_names();
+        let mut values = Vec::with_capacity(names.len());
+        self.variable_values(&mut values);
+        names.into_iter().zip(values).collect()
+    }
+
+    /// The names of [`Self::variables`], in order.
+    fn variable_names(&self) -> Vec<String> {
+        let mut names: Vec<String> = BASE_VARIABLES.iter().map(|n| n.to_string()).collect();
+        names.extend(
+            self.extra
+                .keys()
+                .filter(|k| is_condition_variable(k))
+                .cloned(),
+        );
+        names
+    }
+
+    /// The values of [`Self::variables`], in order, into `out` (cleared first): no
+    /// allocation per row when `out` is reused.
+    fn variable_values(&self, out: &mut Vec<f64>) {
         let nan = f64::NAN;
         let t = self.tone;
         let r = self.random;
-        let mut v = vec![
-            ("aL1_g".to_string(), self.a_l_g[0]),
-            ("aL2_g".to_string(), self.a_l_g[1]),
-            ("aL3_g".to_string(), self.a_l_g[2]),
-            ("freq_hz".to_string(), t.map_or(nan, |t| t.freq_hz)),
-            ("aB1_g".to_string(), t.map_or(nan, |t| t.a_b_g[0])),
-            ("aB2_g".to_string(), t.map_or(nan, |t| t.a_b_g[1])),
-            ("aB3_g".to_string(), t.map_or(nan, |t| t.a_b_g[2])),
-            ("phase31_deg".to_string(), t.map_or(nan, |t| t.phase31_deg)),
-            ("phase32_deg".to_string(), t.map_or(nan, |t| t.phase32_deg)),
-            ("sigma1_g".to_string(), r.map_or(nan, |r| r.sigma_g[0])),
-            ("sigma2_g".to_string(), r.map_or(nan, |r| r.sigma_g[1])),
-            ("sigma3_g".to_string(), r.map_or(nan, |r| r.sigma_g[2])),
-            ("kurtosis3".to_string(), r.map_or(nan, |r| r.kurtosis3)),
-        ];
-        for (k, x) in &self.extra {
-            // The stated uncertainties are not conditions.
-            if k != A_B3_U_COLUMN && k != SIGMA3_U_COLUMN {
-                v.push((k.clone(), *x));
+        out.clear();
+        out.extend([
+            self.a_l_g[0],
+            self.a_l_g[1],
+            self.a_l_g[2],
+            t.map_or(nan, |t| t.freq_hz),
+            t.map_or(nan, |t| t.a_b_g[0]),
+            t.map_or(nan, |t| t.a_b_g[1]),
+            t.map_or(nan, |t| t.a_b_g[2]),
+            t.map_or(nan, |t| t.phase31_deg),
+            t.map_or(nan, |t| t.phase32_deg),
+            r.map_or(nan, |r| r.sigma_g[0]),
+            r.map_or(nan, |r| r.sigma_g[1]),
+            r.map_or(nan, |r| r.sigma_g[2]),
+            r.map_or(nan, |r| r.kurtosis3),
+        ]);
+        out.extend(
+            self.extra
+                .iter()
+                .filter(|(k, _)| is_condition_variable(k))
+                .map(|(_, x)| *x),
+        );
+    }
+
+    /// The key of everything a prediction reads from the row (the passport named,
+    /// acceleration, vibration, spectrum, extra columns; not its name, line, measured
+    /// VE, uncertainty or scale group), numbers by their bits: rows with equal keys and
+    /// equal passports are one condition, which the fits evaluate once
+    /// (`crate::fit::Prepared`).
+    pub(crate) fn prediction_key(&self) -> PredictionKey {
+        let mut bits = Vec::with_capacity(32 + self.extra.len());
+        bits.extend(self.a_l_g.map(f64::to_bits));
+        for t in self.tone.iter().chain(&self.more_tones) {
+            bits.push(u64::MAX);
+            bits.push(t.freq_hz.to_bits());
+            bits.extend(t.a_b_g.map(f64::to_bits));
+            bits.push(t.phase31_deg.to_bits());
+            bits.push(t.phase32_deg.to_bits());
+        }
+        // Marks between the groups: a tone's count, a random part's presence.
+        bits.push(self.more_tones.len() as u64);
+        if let Some(r) = &self.random {
+            bits.push(1);
+            bits.extend(r.sigma_g.map(f64::to_bits));
+            bits.extend([r.cov31_g2, r.cov32_g2, r.cov12_g2, r.kurtosis3].map(f64::to_bits));
+        } else {
+            bits.push(0);
+        }
+        for bands in [&self.bands, &self.bands_u] {
+            bits.push(bands.len() as u64);
+            for b in bands {
+                bits.push(b.f_lo_hz.to_bits());
+                bits.push(b.f_hi_hz.to_bits());
+                bits.extend(b.psd_g2_per_hz.map(f64::to_bits));
             }
         }
-        v
+        let mut names = self.passport_ref.clone();
+        for (k, x) in &self.extra {
+            names.push('\0');
+            names.push_str(k);
+            bits.push(x.to_bits());
+        }
+        PredictionKey { names, bits }
     }
 
     /// The standard uncertainties of the stated IA tone amplitude and IA RMS, g (0
@@ -337,70 +434,100 @@ impl CampaignTable {
     /// Every condition variable ([`Condition::variables`]) as a column over the
     /// conditions, in the variables' order (NaN where one does not apply).
     pub fn variable_columns(&self) -> Vec<(String, Vec<f64>)> {
-        let rows: Vec<Vec<(String, f64)>> =
-            self.conditions.iter().map(Condition::variables).collect();
-        let Some(first) = rows.first() else {
+        let Some(first) = self.conditions.first() else {
             return Vec::new();
         };
-        first
+        let names = first.variable_names();
+        let mut columns: Vec<Vec<f64>> = names
             .iter()
-            .enumerate()
-            .map(|(j, (name, _))| (name.clone(), rows.iter().map(|r| r[j].1).collect()))
-            .collect()
+            .map(|_| Vec::with_capacity(self.conditions.len()))
+            .collect();
+        let mut values = Vec::with_capacity(names.len());
+        for c in &self.conditions {
+            c.variable_values(&mut values);
+            for (j, column) in columns.iter_mut().enumerate() {
+                column.push(values.get(j).copied().unwrap_or(f64::NAN));
+            }
+        }
+        names.into_iter().zip(columns).collect()
     }
 
     /// The column of variable `name`, if the table has it.
     pub fn variable_column(&self, name: &str) -> Option<Vec<f64>> {
-        self.variable_columns()
-            .into_iter()
-            .find(|(n, _)| n == name)
-            .map(|(_, xs)| xs)
+        let j = self
+            .conditions
+            .first()?
+            .variable_names()
+            .iter()
+            .position(|n| n == name)?;
+        let mut values = Vec::new();
+        Some(
+            self.conditions
+                .iter()
+                .map(|c| {
+                    c.variable_values(&mut values);
+                    values.get(j).copied().unwrap_or(f64::NAN)
+                })
+                .collect(),
+        )
     }
 
     /// Reads and validates a table; rows with an empty passport take `model.passport`.
+    /// The file is read through a fixed buffer within [`crate::table_input`]'s bounds:
+    /// `/dev/zero` or a file without a line ending is refused at the cap on a line.
     pub fn load(path: &Path, model: &LabModel) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+        let file = std::fs::File::open(path).map_err(|source| Error::Io {
             path: path.display().to_string(),
             source,
         })?;
         let dir = path.parent().unwrap_or(Path::new("."));
-        Self::parse(&text, path, dir, model)
+        Self::read(file, path, dir, model)
     }
 
     /// Parses table text; `path` names it in errors, `dir` resolves passport files.
     pub fn parse(text: &str, path: &Path, dir: &Path, model: &LabModel) -> Result<Self> {
+        Self::read(text.as_bytes(), path, dir, model)
+    }
+
+    /// Reads a table from `input` ([`Self::parse`]), within the bounds of
+    /// [`crate::table_input`]: a line's length, the columns, the rows, UTF-8. Every
+    /// problem of the rows is listed (the first
+    /// [`crate::table_input::MAX_LISTED_PROBLEMS`], the others
+    /// counted); a refusal of the reader (a line too long, too many rows) stops it.
+    pub fn read<R: std::io::Read>(
+        input: R,
+        path: &Path,
+        dir: &Path,
+        model: &LabModel,
+    ) -> Result<Self> {
         let name = path.display().to_string();
-        let fail = |problems: Vec<String>| Error::Table {
+        let fail = |problems: Problems| Error::Table {
             path: name.clone(),
-            problems,
+            problems: problems.into_lines(),
         };
-        let mut reader = csv::ReaderBuilder::new()
-            .comment(Some(b'#'))
-            .trim(csv::Trim::All)
-            .flexible(false)
-            .from_reader(text.as_bytes());
-        let header: Vec<String> = reader
-            .headers()
-            .map_err(|e| fail(vec![format!("header: {e}")]))?
-            .iter()
-            .map(str::to_string)
-            .collect();
+        let one = |problem: String| {
+            let mut p = Problems::new();
+            p.push(problem);
+            fail(p)
+        };
+        let mut reader = TableReader::new(input, &name)?;
+        let header = reader.header()?;
         let missing: Vec<&str> = REQUIRED_COLUMNS
             .iter()
             .copied()
             .filter(|c| !header.iter().any(|h| h == c))
             .collect();
         if !missing.is_empty() {
-            return Err(fail(vec![format!(
+            return Err(one(format!(
                 "missing required column(s) {}; a table needs {}",
                 missing.join(", "),
                 REQUIRED_COLUMNS.join(", ")
-            )]));
+            )));
         }
         let mut seen = HashMap::new();
         for h in &header {
             if seen.insert(h.as_str(), ()).is_some() {
-                return Err(fail(vec![format!("column {h:?} appears twice")]));
+                return Err(one(format!("column {} appears twice", quote(h))));
             }
         }
         let col = |n: &str| header.iter().position(|h| h == n).unwrap_or(usize::MAX);
@@ -409,21 +536,21 @@ impl CampaignTable {
             .filter(|h| !REQUIRED_COLUMNS.contains(&h.as_str()))
             .cloned()
             .collect();
-        let mut passports: HashMap<String, std::result::Result<Passport, String>> = HashMap::new();
-        let mut problems = Vec::new();
+        let mut passports: HashMap<String, std::result::Result<Arc<Passport>, String>> =
+            HashMap::new();
+        let mut problems = Problems::new();
         let mut conditions = Vec::new();
-        for record in reader.records() {
-            let record = match record {
+        while let Some(row) = reader.next_row()? {
+            let record = match row {
                 Ok(r) => r,
                 Err(e) => {
-                    problems.push(e.to_string());
+                    problems.push(e);
                     continue;
                 }
             };
-            let line = record.position().map_or(0, |p| p.line() as usize);
-            let before = problems.len();
-            let cell = |n: &str| record.get(col(n)).unwrap_or("");
-            let num = |n: &str, problems: &mut Vec<String>| -> Option<f64> {
+            let line = record.line;
+            let cell = |n: &str| record.cells.get(col(n)).map_or("", String::as_str);
+            let num = |n: &str, problems: &mut Problems| -> Option<f64> {
                 let s = cell(n);
                 if s.is_empty() {
                     return None;
@@ -432,13 +559,14 @@ impl CampaignTable {
                     Ok(x) if x.is_finite() => Some(x),
                     _ => {
                         problems.push(format!(
-                            "line {line}, column {n} = {s:?}: must be a finite number"
+                            "line {line}, column {n} = {}: must be a finite number",
+                            quote(s)
                         ));
                         None
                     }
                 }
             };
-            let required = |n: &str, problems: &mut Vec<String>| -> f64 {
+            let required = |n: &str, problems: &mut Problems| -> f64 {
                 if cell(n).is_empty() {
                     problems.push(format!(
                         "line {line}, column {n}: empty; a value is required"
@@ -449,11 +577,11 @@ impl CampaignTable {
             };
             // Physical range of a parsed value: `ok` false names line, column, the
             // cell as written, and the rule.
-            let range = |n: &str, x: f64, ok: bool, rule: &str, problems: &mut Vec<String>| {
+            let range = |n: &str, x: f64, ok: bool, rule: &str, problems: &mut Problems| {
                 if x.is_finite() && !ok {
                     problems.push(format!(
                         "line {line}, column {n} = {}: must be {rule}",
-                        cell(n)
+                        excerpt(cell(n))
                     ));
                 }
             };
@@ -461,6 +589,13 @@ impl CampaignTable {
             if run_id.is_empty() {
                 problems.push(format!(
                     "line {line}, column run_id: empty; a value is required"
+                ));
+            } else if run_id.len() > MAX_TEXT_CELL_BYTES {
+                problems.push(format!(
+                    "line {line}, column run_id = {} ({} bytes): at most \
+                     {MAX_TEXT_CELL_BYTES} bytes (a condition's name)",
+                    quote(&run_id),
+                    run_id.len()
                 ));
             }
             let a_l_g = [
@@ -654,6 +789,14 @@ impl CampaignTable {
             };
             let passport = if passport_ref.is_empty() {
                 None
+            } else if passport_ref.len() > MAX_PASSPORT_BYTES {
+                problems.push(format!(
+                    "line {line}, column passport = {} ({} bytes): at most \
+                     {MAX_PASSPORT_BYTES} bytes (a passport id or a path)",
+                    quote(&passport_ref),
+                    passport_ref.len()
+                ));
+                None
             } else {
                 let resolved = passports.entry(passport_ref.clone()).or_insert_with(|| {
                     let file = dir.join(&passport_ref);
@@ -665,18 +808,23 @@ impl CampaignTable {
                     vibro_config::resolve_passport(&arg)
                         .map_err(|e| e.to_string())
                         .and_then(|p| flat_passport(&p).map_err(|e| e.to_string()))
+                        .map(Arc::new)
                 });
                 match resolved {
-                    Ok(p) => Some(*p),
+                    Ok(p) => Some(Arc::clone(p)),
                     Err(e) => {
                         problems.push(format!(
-                            "line {line}, column passport = {passport_ref:?}: {e}"
+                            "line {line}, column passport = {}: {e}",
+                            quote(&passport_ref)
                         ));
                         None
                     }
                 }
             };
-            if problems.len() > before {
+            // Once a row has a problem the table is refused: the rows after it are
+            // checked (their problems listed or counted), not kept.
+            if !problems.is_empty() {
+                conditions = Vec::new();
                 continue;
             }
             let Some(passport) = passport else { continue };
@@ -706,7 +854,7 @@ impl CampaignTable {
             return Err(fail(problems));
         }
         if conditions.is_empty() {
-            return Err(fail(vec!["no condition rows".into()]));
+            return Err(one("no condition rows".into()));
         }
         Ok(Self {
             path: path.to_path_buf(),
@@ -854,6 +1002,7 @@ impl CampaignTable {
             let passport = vibro_config::resolve_passport(&s.passport_id)
                 .map_err(|e| e.to_string())
                 .and_then(|p| flat_passport(&p).map_err(|e| e.to_string()))
+                .map(Arc::new)
                 .map_err(|e| Error::Invalid(format!("condition {}: passport: {e}", c.id)))?;
             let mut row = Condition {
                 run_id: c.id.clone(),

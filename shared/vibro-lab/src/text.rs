@@ -59,6 +59,15 @@ fn g(x: f64) -> String {
     format!("{x:>11.3e}")
 }
 
+/// `N conditions`, and how many are distinct when some repeat.
+fn conditions(s: &crate::diagnose::Summary) -> String {
+    if s.distinct_conditions < s.n {
+        format!("{} conditions ({} distinct)", s.n, s.distinct_conditions)
+    } else {
+        format!("{} conditions", s.n)
+    }
+}
+
 pub fn write_comparison(o: &mut String, c: &Comparison, all: bool) {
     let s = &c.summary;
     let effects = if c.effects.is_empty() {
@@ -68,9 +77,9 @@ pub fn write_comparison(o: &mut String, c: &Comparison, all: bool) {
     };
     p!(
         o,
-        "{}: {} conditions; model {} mode, effects: {}",
+        "{}: {}; model {} mode, effects: {}",
         c.table,
-        s.n,
+        conditions(s),
         c.mode,
         effects
     );
@@ -172,8 +181,8 @@ pub fn write_diagnosis(o: &mut String, d: &Diagnosis) {
     let s = &d.comparison.summary;
     p!(
             o,
-        "{}: {} conditions; residual RMS {:.3e} g against a noise floor of {:.3e} g; chi2 per dof {:.4}, p = {:.3e}",
-        d.comparison.table, s.n, s.rms_residual_g, s.noise_floor_g, s.chi2_per_dof, s.p_value
+        "{}: {}; residual RMS {:.3e} g against a noise floor of {:.3e} g; chi2 per dof {:.4}, p = {:.3e}",
+        d.comparison.table, conditions(s), s.rms_residual_g, s.noise_floor_g, s.chi2_per_dof, s.p_value
     );
     p!(
         o,

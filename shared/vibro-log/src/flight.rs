@@ -160,7 +160,7 @@ pub fn simulate_flight(
     let total = sim.total_samples();
     let mut packetizer = Packetizer::new(rates.sensor_hz, rates.output_hz, 512, 32, 1);
     // Written under a temporary name, renamed to `out` once finished (README, "Files").
-    let part = out.map(crate::output::PartFile::beside);
+    let part = out.map(crate::output::PartFile::beside).transpose()?;
     let recorder = match (&part, out) {
         (Some(part), Some(path)) => Some(open_log(part.path(), path, scenario, &effects_text)?),
         _ => None,
@@ -211,14 +211,9 @@ pub fn simulate_flight(
     let n = stats.samples();
     // Finished, also when interrupted: a valid log of what was generated.
     if let (Some(part), Some(path)) = (part, out) {
-        if !force && std::fs::symlink_metadata(path).is_ok() {
-            return Err(Error::OutputFile {
-                path: path.to_path_buf(),
-                problem: "appeared while the flight was simulated; pass --force to overwrite it"
-                    .into(),
-            });
-        }
-        part.commit(path)?;
+        // Without `force`, an output that appeared while the flight was simulated is
+        // refused, not replaced.
+        part.commit(path, force)?;
     }
     if let Some(signal) = interrupted {
         let log = match (&finished, out) {

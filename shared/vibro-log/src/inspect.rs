@@ -25,6 +25,12 @@ fn not_a_log(path: &Path, problem: String) -> Error {
 /// Refuses what is not an MCAP log at all (a missing file, a folder, an empty or
 /// foreign file) with the reason; returns the file's size in bytes.
 pub fn check_mcap_file(path: &Path) -> Result<u64> {
+    check_log_file(path, true)
+}
+
+/// [`check_mcap_file`]; without `require_magic`, a file that does not start with the
+/// MCAP magic passes (`log recover`: a garbled magic may precede intact chunks).
+fn check_log_file(path: &Path, require_magic: bool) -> Result<u64> {
     let read_error = |action: &str| {
         let path = path.to_path_buf();
         let action = action.to_string();
@@ -48,7 +54,7 @@ pub fn check_mcap_file(path: &Path) -> Result<u64> {
     std::fs::File::open(path)
         .and_then(|f| f.take(MCAP_MAGIC.len() as u64).read_to_end(&mut head))
         .map_err(read_error("cannot read it"))?;
-    if !MCAP_MAGIC.starts_with(&head) {
+    if require_magic && !MCAP_MAGIC.starts_with(&head) {
         return Err(not_a_log(
             path,
             "not an MCAP log: it does not start with the MCAP magic bytes 89 4D 43 41 50 30 0D 0A"
@@ -71,7 +77,7 @@ pub(crate) fn read_error(path: &Path, e: vibro_mcap::Error) -> Error {
     let p = path.display();
     if let vibro_mcap::Error::Unfinished { chunks, .. } = e {
         let keep = if chunks == 0 {
-            format!("no complete chunk: `vibrocomp log recover {p} OUT.mcap` keeps only what precedes the first chunk, if anything")
+            format!("no complete chunk before the damage; `vibrocomp log recover {p} OUT.mcap` looks for intact chunks after it and says so if there is nothing to keep")
         } else {
             format!("{chunks} complete chunk(s) readable; recover them with: vibrocomp log recover {p} OUT.mcap")
         };
@@ -118,15 +124,59 @@ pub struct RecoverOutput {
     /// file, whose summary section is rebuilt).
     pub lost_bytes: u64,
     pub channels: Vec<KeptChannel>,
+    /// What the recovery comes to, in one line (the last of `log recover`'s report).
+    pub result: String,
+    /// `log recover`'s exit status: 0, or [`EXIT_RECOVERED_WITH_LOSSES`] when
+    /// something the damaged file holds is not in the new one
+    /// (`vibro_mcap::RecoverReport::losses`).
+    pub exit_code: u8,
+}
+
+/// `log recover`'s exit status when it wrote the new file but lost some of the damaged
+/// one (a skipped chunk, a damaged region, messages without their channel): neither
+/// success (0) nor failure (1, nothing written), so that a script can tell them apart.
+pub const EXIT_RECOVERED_WITH_LOSSES: u8 = 3;
+
+/// The one-line verdict of a recovery.
+fn recovery_result(r: &RecoverReport, lost_bytes: u64) -> String {
+    let kept = match r.expected {
+        Some(e) => format!("{} of {} messages kept", r.messages_recovered, e.messages),
+        None => format!("{} messages kept", r.messages_recovered),
+    };
+    if !r.losses {
+        return if r.cut_short && lost_bytes > 0 {
+            format!(
+                "recovered: {kept}; nothing lost but the record the file ends inside, cut short (what a crash leaves: its last {lost_bytes} bytes)"
+            )
+        } else {
+            format!("recovered, nothing lost: {kept}")
+        };
+    }
+    let dropped = if r.messages_dropped_exact {
+        format!(
+            "{} messages dropped (counted by the input's statistics)",
+            r.messages_dropped
+        )
+    } else if r.messages_dropped > 0 {
+        format!("at least {} messages dropped", r.messages_dropped)
+    } else {
+        "an unknown number of messages dropped".to_string()
+    };
+    let regions = r.damage.len();
+    format!(
+        "recovered with losses (exit status {EXIT_RECOVERED_WITH_LOSSES}): {kept}, {dropped}; {} chunk(s) skipped, {regions} region(s) of the input not copied, {} bytes in all",
+        r.chunks_skipped, r.bytes_skipped
+    )
 }
 
 /// Rewrites the log `damaged` (a crash: no summary, a truncated last chunk) into `out`
 /// up to its last complete chunk (`vibro_mcap::recover`), `out` appearing only when
 /// complete (an existing file only with `force`); reads the result back.
 pub fn recover_log(damaged: &Path, out: &Path, force: bool) -> Result<RecoverOutput> {
-    let input_bytes = check_mcap_file(damaged).map_err(|e| Error::RecoverInput(Box::new(e)))?;
+    let input_bytes =
+        check_log_file(damaged, false).map_err(|e| Error::RecoverInput(Box::new(e)))?;
     check_output(out, &[damaged], force)?;
-    let part = PartFile::beside(out);
+    let part = PartFile::beside(out)?;
     let mut report = match vibro_mcap::recover(damaged, part.path()) {
         Ok(report) => report,
         // Without a complete header there is no profile, schema or chunk to keep.
@@ -136,6 +186,9 @@ pub fn recover_log(damaged: &Path, out: &Path, force: bool) -> Result<RecoverOut
                 format!("nothing to recover: it ends before its MCAP header record is complete ({input_bytes} bytes)"),
             ))
         }
+        // Nothing intact: the library says why, once (its error has no source to
+        // repeat it).
+        Err(vibro_mcap::Error::Malformed { reason, .. }) => return Err(not_a_log(damaged, reason)),
         Err(source) => {
             return Err(Error::ReadLog {
                 context: format!("recovering {}", damaged.display()),
@@ -143,16 +196,23 @@ pub fn recover_log(damaged: &Path, out: &Path, force: bool) -> Result<RecoverOut
             })
         }
     };
-    part.commit(out)?;
+    part.commit(out, force)?;
     report.output = out.to_path_buf();
     let kept = read_info(out).map_err(|e| Error::ReadBack(Box::new(e)))?;
+    // After a complete file's data-end record come its summary and footer, which the
+    // new file has its own of: nothing is lost there.
+    let lost_bytes = if report.input_complete {
+        0
+    } else {
+        report.input_bytes.saturating_sub(report.valid_prefix_bytes)
+    };
     Ok(RecoverOutput {
-        // After a complete file's data-end record come its summary and footer, which
-        // the new file has its own of: nothing is lost there.
-        lost_bytes: if report.input_complete {
-            0
+        lost_bytes,
+        result: recovery_result(&report, lost_bytes),
+        exit_code: if report.losses {
+            EXIT_RECOVERED_WITH_LOSSES
         } else {
-            report.input_bytes.saturating_sub(report.valid_prefix_bytes)
+            0
         },
         channels: kept
             .channels

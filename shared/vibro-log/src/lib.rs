@@ -295,12 +295,10 @@ pub enum Error {
     /// An input file that cannot be imported as a whole.
     #[error("{path}: {problem}")]
     Input { path: PathBuf, problem: String },
-    /// An output file refused before anything is written.
-    #[error("output {path}: {problem}")]
-    OutputFile { path: PathBuf, problem: String },
-    /// An output file that is one of the inputs.
-    #[error("output {out} is the input {input}: write to another file (the input is read while the output is written)")]
-    OutputIsInput { out: PathBuf, input: PathBuf },
+    /// An output refused by the file rule (README, "Files"), or that cannot be
+    /// written ([`vibro_files`]).
+    #[error(transparent)]
+    Files(#[from] vibro_files::Error),
     /// A log that cannot be created.
     #[error("{path}: cannot create the log")]
     CreateLog {
@@ -316,13 +314,6 @@ pub enum Error {
     /// A log that cannot be finished.
     #[error("finishing the log")]
     FinishLog(#[source] vibro_mcap::Error),
-    /// A complete file that cannot take its final name.
-    #[error("cannot rename {from} to {to}")]
-    Rename {
-        from: PathBuf,
-        to: PathBuf,
-        source: std::io::Error,
-    },
     /// An attachment that should be text and is not.
     #[error("attachment {name}: not UTF-8 text")]
     AttachmentText {

@@ -12,10 +12,12 @@ use tracing::{info, warn};
 use vibro_ipc::{
     cleanup_dead_nodes, create_node, create_waitset, now_ns, Ipc, StreamPublisher, StreamSubscriber,
 };
-use vibro_mcap::{ChannelId, Message, Recorder, RecorderOptions, ViewChannelId};
+use vibro_mcap::{
+    Answers, ChannelId, Message, Recorder, RecorderOptions, SeqRanges, ViewChannelId,
+};
 use vibro_msgs::{
-    AccelBlock, CompensatedBlock, Heartbeat, LogLine, ServiceId, ServiceNames, ServiceState,
-    Stream, TruthBlock, VibBlock, VibEstimate, WireMessage,
+    AccelBlock, Arrival, CompensatedBlock, Heartbeat, LogLine, SeqTally, ServiceId, ServiceNames,
+    ServiceState, Stream, TruthBlock, VibBlock, VibEstimate, WireMessage,
 };
 use vibro_view::{ViewBuilder, ViewMessage, UNIT_NAMES};
 
@@ -38,6 +40,9 @@ pub struct RecordOptions {
     pub heartbeat_period: Duration,
     /// Longest sleep before the stop flag is looked at.
     pub stop_poll: Duration,
+    /// Replace the file if it exists (a regular file only: `vibro_files`); without it
+    /// an existing file is refused. Default off.
+    pub force: bool,
 }
 
 impl RecordOptions {
@@ -50,6 +55,7 @@ impl RecordOptions {
             view: true,
             heartbeat_period: Duration::from_secs(1),
             stop_poll: Duration::from_millis(100),
+            force: false,
         }
     }
 }
@@ -61,14 +67,25 @@ pub struct TopicCounts {
     pub received: u64,
     /// Messages written to the log.
     pub recorded: u64,
-    /// Messages missing by the producer's `seq` (a forward step of `n` counts `n - 1`,
-    /// up to [`MAX_LOST_MESSAGES`]).
+    /// Messages missing by the producer's `seq`, by the services' rule
+    /// (`vibro_msgs::continuity`, as `log info` counts them): a forward step of `n`
+    /// counts `n - 1`, up to [`MAX_LOST_MESSAGES`]; net of what a resync took back
+    /// ([`Self::retracted`]).
     pub lost: u64,
     /// Forward `seq` steps that skip more than [`MAX_LOST_MESSAGES`]: a corrupt or
     /// renumbered counter, not a loss (not in `lost`); counting goes on from the new `seq`.
     pub jumps: u64,
-    /// Messages whose `seq` did not advance (a producer restart counts here).
+    /// Messages the rule puts out of order (a repeat, or behind the stream): recorded
+    /// all the same.
     pub out_of_order: u64,
+    /// Times the producer's `seq` went back to 0.
+    pub restarts: u64,
+    /// Times the stream was taken up again after out-of-order messages (the rule's
+    /// resync).
+    pub resyncs: u64,
+    /// Messages counted lost, then taken back at a resync: what a `seq` ahead of the
+    /// stream counted (a forged 500,000 after 10: 499,989). Not in `lost`.
+    pub retracted: u64,
     /// Messages whose counts exceed their arrays: not recorded (their `seq` then shows
     /// as missing in the log).
     pub malformed: u64,
@@ -81,9 +98,9 @@ pub struct TopicCounts {
 }
 
 // The most messages one forward `seq` step counts as lost; a bigger step is a jump
-// (the rule of `vibro_service::continuity`, which `log info` applies too: one
-// constant, `vibro_mcap::MAX_LOST_MESSAGES`).
-use vibro_mcap::MAX_LOST_MESSAGES;
+// (the rule of `vibro_msgs::continuity`, which the services and `log info` apply too).
+#[cfg(any(test, doc))]
+use vibro_msgs::MAX_LOST_MESSAGES;
 
 /// What a recording holds, returned when it stops.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -95,9 +112,25 @@ pub struct RecordSummary {
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub view: BTreeMap<String, u64>,
     pub messages: u64,
+    /// Messages the recorder lost: the sum of every topic's [`TopicCounts::lost`]
+    /// (each net of what was taken back). The blocks without an output
+    /// ([`Self::inputs_without_output`]) are not in it: the recorder has them, and the
+    /// compensator's own counters say why it gave none (a block it never received is
+    /// in its `lost_messages`, which `demo` adds to this: counted once). `log info`,
+    /// which has only the file, adds them to its `lost`.
     pub lost: u64,
     /// `seq` jumps over all topics ([`TopicCounts::jumps`]).
     pub jumps: u64,
+    /// Resyncs over all topics ([`TopicCounts::resyncs`]).
+    pub resyncs: u64,
+    /// Losses taken back over all topics ([`TopicCounts::retracted`]; not in `lost`).
+    pub retracted: u64,
+    /// Accelerometer blocks recorded that got no compensated output in the recording
+    /// (`vibro_mcap::Answers`, as `log info` counts them; blocks before the first one
+    /// answered and after the last are not counted). Not in `lost`.
+    pub inputs_without_output: u64,
+    /// Those blocks, as ranges of `seq` (the first 16 listed).
+    pub unanswered: SeqRanges,
     /// Messages off the data timeline over all topics ([`TopicCounts::off_timeline`]).
     pub off_timeline: u64,
     /// Times the timeline moved to where the data went ([`Timeline`]).
@@ -117,7 +150,7 @@ struct Channel<T: WireMessage> {
 struct State {
     topic: String,
     counts: TopicCounts,
-    next_seq: Option<u64>,
+    tally: SeqTally,
 }
 
 /// The most a message's data time may differ from the recording's timeline and still
@@ -331,13 +364,15 @@ impl View {
 trait Drain {
     fn listener(&self) -> &iceoryx2::port::listener::Listener<Ipc>;
     fn clear_events(&self);
-    /// Records every message waiting (and makes its view messages); returns how many.
+    /// Records every message waiting (and makes its view messages, and matches
+    /// accelerometer blocks with their outputs); returns how many.
     fn drain(
         &self,
         recorder: &Recorder,
         st: &mut State,
         clock: &mut DataClock,
         view: &mut Option<View>,
+        answers: &mut Answers,
     ) -> Result<u64>;
     /// Publishers of the stream now.
     fn publishers(&self) -> usize;
@@ -362,6 +397,7 @@ impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
         st: &mut State,
         clock: &mut DataClock,
         view: &mut Option<View>,
+        answers: &mut Answers,
     ) -> Result<u64> {
         let mut n = 0;
         while let Some(sample) = self.subscriber.receive()? {
@@ -371,7 +407,7 @@ impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
             n += 1;
             st.counts.received += 1;
             let seq = message.seq();
-            count_seq(&mut st.counts, &mut st.next_seq, seq);
+            let arrival = count_seq(&mut st.counts, &mut st.tally, seq);
             if let Err(e) = message.validate() {
                 st.counts.malformed += 1;
                 if st.counts.malformed == 1 {
@@ -381,6 +417,14 @@ impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
             }
             let wire: Message = message.into();
             st.counts.recorded += 1;
+            // Blocks without an output, as `log info` finds them in the file.
+            match &wire {
+                Message::AccelBlock(b) => answers.input(b.seq),
+                Message::CompensatedBlock(b) => {
+                    answers.output(b.input_seq, arrival.lost_messages);
+                }
+                _ => {}
+            }
             let started = clock.timeline.now_ns().is_some();
             let (log_time_ns, on_timeline) = match wire.data_ns() {
                 Some(t) => match clock.timeline.place(t) {
@@ -446,21 +490,20 @@ impl<T: WireMessage + Into<Message>> Drain for Channel<T> {
     }
 }
 
-/// Counts the arrival of `seq` when `next` was expected: a loss, a jump (more than
-/// [`MAX_LOST_MESSAGES`] skipped) or a step back.
-fn count_seq(counts: &mut TopicCounts, next: &mut Option<u64>, seq: u64) {
-    match *next {
-        Some(n) if seq > n => {
-            if seq - n > MAX_LOST_MESSAGES {
-                counts.jumps += 1;
-            } else {
-                counts.lost += seq - n;
-            }
-        }
-        Some(n) if seq < n => counts.out_of_order += 1,
-        _ => {}
-    }
-    *next = Some(seq.wrapping_add(1));
+/// Counts the arrival of `seq` on a topic by the services' rule
+/// (`vibro_msgs::continuity`): a loss, a jump (more than [`MAX_LOST_MESSAGES`]
+/// skipped), out of order, a restart, a resync that takes back a loss counted at a
+/// message ahead of the stream. Every message is recorded whatever it says.
+fn count_seq(counts: &mut TopicCounts, tally: &mut SeqTally, seq: u64) -> Arrival {
+    let a = tally.seq(seq);
+    let t = &tally.totals;
+    counts.lost = t.lost_messages;
+    counts.jumps = t.seq_jumps;
+    counts.out_of_order = t.out_of_order;
+    counts.restarts = t.restarts;
+    counts.resyncs = t.resyncs;
+    counts.retracted = tally.retracted;
+    a
 }
 
 fn open<T: WireMessage + Into<Message>>(
@@ -480,7 +523,7 @@ fn open<T: WireMessage + Into<Message>>(
         State {
             topic,
             counts: TopicCounts::default(),
-            next_seq: None,
+            tally: SeqTally::new(),
         },
     ))
 }
@@ -602,34 +645,52 @@ pub fn record(
     ready: impl FnOnce(),
 ) -> Result<RecordSummary> {
     let started_ns = now_ns();
-    let mut recorder = Recorder::create(path, options.recorder.clone())
-        .map_err(|e| output_error("create", path, e, None))?;
-    let (states, view, timeline_resyncs) =
-        match record_into(&mut recorder, path, options, stop, ready, started_ns) {
-            Ok(x) => x,
-            Err(e) => {
-                // The loop only sees that the writer thread stopped; `finish` says why.
-                let stopped = matches!(e, Error::Mcap(vibro_mcap::Error::RecorderStopped { .. }));
-                let written = recorder.stats().written;
-                return Err(match recorder.finish() {
-                    Err(cause) if stopped => output_error("write", path, cause, Some(written)),
-                    _ => e,
-                });
-            }
-        };
+    // The file rule (README, "Files"): never through a link, into a FIFO or device;
+    // an existing file only with `force`.
+    let recorder = if options.force {
+        Recorder::create(path, options.recorder.clone())
+    } else {
+        Recorder::create_new(path, options.recorder.clone())
+    };
+    let mut recorder = recorder.map_err(|e| output_error("create", path, e, None))?;
+    let Recorded {
+        states,
+        view,
+        timeline_resyncs,
+        answers,
+    } = match record_into(&mut recorder, path, options, stop, ready, started_ns) {
+        Ok(x) => x,
+        Err(e) => {
+            // The loop only sees that the writer thread stopped; `finish` says why.
+            let stopped = matches!(e, Error::Mcap(vibro_mcap::Error::RecorderStopped { .. }));
+            let written = recorder.stats().written;
+            return Err(match recorder.finish() {
+                Err(cause) if stopped => output_error("write", path, cause, Some(written)),
+                _ => e,
+            });
+        }
+    };
     let topics: BTreeMap<String, TopicCounts> =
         states.into_iter().map(|c| (c.topic, c.counts)).collect();
     let written = recorder.stats().written;
     let finished = recorder
         .finish()
         .map_err(|e| output_error("write", path, e, Some(written)))?;
+    let unanswered = answers.unanswered().clone();
     let summary = RecordSummary {
         path: path.to_path_buf(),
         prefix: options.names.prefix().to_string(),
         view,
         messages: finished.messages,
-        lost: topics.values().map(|t| t.lost).sum(),
+        lost: topics.values().map(|t| t.lost).fold(0, u64::saturating_add),
         jumps: topics.values().map(|t| t.jumps).sum(),
+        resyncs: topics.values().map(|t| t.resyncs).sum(),
+        retracted: topics
+            .values()
+            .map(|t| t.retracted)
+            .fold(0, u64::saturating_add),
+        inputs_without_output: unanswered.count,
+        unanswered,
         off_timeline: topics.values().map(|t| t.off_timeline).sum(),
         timeline_resyncs,
         topics,
@@ -641,6 +702,9 @@ pub fn record(
         messages = summary.messages,
         lost = summary.lost,
         seq_jumps = summary.jumps,
+        resyncs = summary.resyncs,
+        retracted = summary.retracted,
+        inputs_without_output = summary.inputs_without_output,
         off_timeline = summary.off_timeline,
         timeline_resyncs = summary.timeline_resyncs,
         bytes = summary.bytes,
@@ -676,6 +740,16 @@ fn output_error(
     }
 }
 
+/// What [`record_into`] counted.
+struct Recorded {
+    states: Vec<State>,
+    /// View messages written per view topic.
+    view: BTreeMap<String, u64>,
+    timeline_resyncs: u64,
+    /// Accelerometer blocks against their outputs.
+    answers: Answers,
+}
+
 /// Subscribes, writes the header records and records until `stop`; returns the
 /// counters. Every port is released when it returns, whatever the outcome.
 fn record_into(
@@ -685,7 +759,7 @@ fn record_into(
     stop: &AtomicBool,
     ready: impl FnOnce(),
     started_ns: u64,
-) -> Result<(Vec<State>, BTreeMap<String, u64>, u64)> {
+) -> Result<Recorded> {
     let node = create_node("vibrocomp-recorder")?;
     let cleaned = cleanup_dead_nodes(&node);
     if cleaned > 0 {
@@ -749,6 +823,7 @@ fn record_into(
         "recording"
     );
     let mut clock = DataClock::new();
+    let mut answers = Answers::new();
     status.heartbeat(&Totals::default(), ServiceState::Starting);
     ready();
     let heartbeat_ns = options.heartbeat_period.as_nanos() as u64;
@@ -779,7 +854,7 @@ fn record_into(
         }
         let mut taken = 0;
         for (c, st) in channels.iter().zip(&mut states) {
-            taken += c.drain(recorder, st, &mut clock, &mut view)?;
+            taken += c.drain(recorder, st, &mut clock, &mut view, &mut answers)?;
         }
         let totals = Totals::of(&states, &clock);
         if taken > 0 {
@@ -819,7 +894,12 @@ fn record_into(
     status.heartbeat(&Totals::of(&states, &clock), ServiceState::Stopping);
     drop(guards);
     drop(channels);
-    Ok((states, view_written, clock.timeline.resyncs))
+    Ok(Recorded {
+        states,
+        view: view_written,
+        timeline_resyncs: clock.timeline.resyncs,
+        answers,
+    })
 }
 
 #[cfg(test)]
@@ -828,7 +908,7 @@ mod tests {
 
     #[test]
     fn random_seqs_are_jumps_and_a_real_gap_is_a_loss() {
-        let (mut counts, mut next) = (TopicCounts::default(), None);
+        let (mut counts, mut tally) = (TopicCounts::default(), SeqTally::new());
         // 7 lost (11..=17), then the limit exactly, then one beyond it.
         for seq in [
             10u64,
@@ -836,20 +916,42 @@ mod tests {
             19 + MAX_LOST_MESSAGES,
             21 + 2 * MAX_LOST_MESSAGES,
         ] {
-            count_seq(&mut counts, &mut next, seq);
+            count_seq(&mut counts, &mut tally, seq);
         }
         assert_eq!((counts.lost, counts.jumps), (7 + MAX_LOST_MESSAGES, 1));
         // Random u64 seqs (the probe that printed lost_blocks=18366207225729211778).
-        let (mut counts, mut next) = (TopicCounts::default(), None);
+        let (mut counts, mut tally) = (TopicCounts::default(), SeqTally::new());
         let mut x = 0x2545_F491_4F6C_DD1Du64;
         for _ in 0..1000 {
             x ^= x << 13;
             x ^= x >> 7;
             x ^= x << 17;
-            count_seq(&mut counts, &mut next, x);
+            count_seq(&mut counts, &mut tally, x);
         }
         assert_eq!(counts.lost, 0, "{counts:?}");
         assert_eq!(counts.jumps + counts.out_of_order, 999, "{counts:?}");
+    }
+
+    /// Issue 46, item 6: seq 0..=10, a forged 500,000, then 11..=60 counted 499,989
+    /// lost and no jump. By the services' rule: none lost once the stream resumed,
+    /// 499,989 taken back at one resync, 11..=13 out of order (recorded all the same).
+    #[test]
+    fn a_forged_seq_ahead_is_taken_back_when_the_stream_resumes() {
+        let (mut counts, mut tally) = (TopicCounts::default(), SeqTally::new());
+        for seq in (0..=10).chain([500_000]).chain(11..=60) {
+            count_seq(&mut counts, &mut tally, seq);
+        }
+        assert_eq!(
+            (
+                counts.lost,
+                counts.jumps,
+                counts.out_of_order,
+                counts.resyncs,
+                counts.retracted
+            ),
+            (0, 0, 3, 1, 499_989),
+            "{counts:?}"
+        );
     }
 
     /// Issue 31's probe: one block with `t0_ns = u64::MAX` stamped every later heartbeat

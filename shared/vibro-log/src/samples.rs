@@ -16,6 +16,7 @@ use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 
 use vibro_dsp::{Estimate, Estimator, ResponsePoint, SampleBlock};
+use vibro_toml::echo::excerpt;
 
 use crate::import::LineReader;
 use crate::{Error, Result};
@@ -181,7 +182,8 @@ pub fn estimate_stream_csv(
                     "line {}: header has {} columns ({}); expected 3, one per axis (x, y, z){}",
                     first.number,
                     first_cells.len(),
-                    first_cells.join(", "),
+                    // A line is up to 64 KiB (a CR-only file is one line): a line's worth.
+                    excerpt(&first_cells.join(", ")),
                     if time_column { ", after time_s" } else { "" }
                 ),
             ));
@@ -256,11 +258,11 @@ pub fn estimate_stream_csv(
                 match cell.parse::<f64>() {
                     Ok(v) => sample[i] = v,
                     Err(_) => problems.push(format!(
-                        "line {}, column {} ({:?}): {:?}: {}",
+                        "line {}, column {} (\"{}\"): \"{}\": {}",
                         line.number,
                         i + 1 + usize::from(time_column),
-                        columns[i],
-                        cell,
+                        excerpt(&columns[i]),
+                        excerpt(cell),
                         if cell.is_empty() {
                             "empty cell; every row needs a number per axis"
                         } else {
@@ -327,7 +329,8 @@ fn check_time(
         Ok(t) if t.is_finite() && (0.0..1.8e10).contains(&t) => t,
         _ => {
             return Err(format!(
-                "line {line}, column 1 (\"time_s\"): {cell:?}: must be a time 0 <= t < 1.8e10 s"
+                "line {line}, column 1 (\"time_s\"): \"{}\": must be a time 0 <= t < 1.8e10 s",
+                excerpt(cell)
             ))
         }
     };
@@ -335,9 +338,10 @@ fn check_time(
         let step = t - prev;
         if (step - period_s).abs() > TIME_STEP_TOLERANCE * period_s {
             return Err(format!(
-                "line {line}, column 1 (\"time_s\"): {cell:?}: {step} s after line {prev_line}'s \
+                "line {line}, column 1 (\"time_s\"): \"{}\": {step} s after line {prev_line}'s \
                  {prev}: rows must be one sample period ({period_s} s at the configured rate) \
                  apart, within {} %",
+                excerpt(cell),
                 100.0 * TIME_STEP_TOLERANCE
             ));
         }
@@ -360,9 +364,9 @@ pub fn read_response_table(file: &Path) -> Result<Vec<ResponsePoint>> {
         return Err(input(
             file,
             format!(
-                "line {}: header {:?}; expected {}",
+                "line {}: header \"{}\"; expected {}",
                 header.number,
-                header.text,
+                excerpt(&header.text),
                 COLUMNS.join(", ")
             ),
         ));
@@ -385,10 +389,11 @@ pub fn read_response_table(file: &Path) -> Result<Vec<ResponsePoint>> {
             match cell.parse::<f64>() {
                 Ok(x) => v[i] = x,
                 Err(_) => problems.push(format!(
-                    "line {}, column {} ({}): {cell:?}: not a number",
+                    "line {}, column {} ({}): \"{}\": not a number",
                     line.number,
                     i + 1,
-                    COLUMNS[i]
+                    COLUMNS[i],
+                    excerpt(cell)
                 )),
             }
         }

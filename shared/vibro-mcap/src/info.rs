@@ -1,25 +1,28 @@
 //! What a recording holds: one pass over every record, chunk CRCs checked.
 //!
-//! **Losses.** Each channel's MCAP sequence numbers give the messages the recorder
-//! missed; a forward step that skips more than [`MAX_LOST_MESSAGES`] (2^20, the rule of
-//! `vibro_service::continuity`: hours of any vibrocomp stream, while a subscriber loses
-//! at most its buffer at a time) is a *jump* (a corrupt, crafted or renumbered counter),
-//! counted apart and never summed into `lost`. On a `CompensatedBlock` channel the
-//! `input_seq` of each message (the accelerometer block it answers, read from the
-//! message) tells the accelerometer blocks that got no compensated output, even across
-//! a restart of the compensator (whose own `seq` starts again at 0): they count as lost.
+//! **Losses** (`crate::losses`), each counted once, by the services' rule
+//! (`vibro_msgs::continuity`). Each channel's MCAP sequence numbers give the messages
+//! the recorder missed; a forward step that skips more than
+//! [`MAX_LOST_MESSAGES`](crate::MAX_LOST_MESSAGES) (2^20: hours of any vibrocomp
+//! stream, while a subscriber loses at most its buffer at a time) is a *jump* (a
+//! corrupt, crafted or renumbered counter), counted apart and never summed into
+//! `lost`; a loss counted at a message ahead of its stream (a forged `seq`) is taken
+//! back when the stream resumes. On a `CompensatedBlock` channel, the `input_seq` of
+//! each output against the `seq` of each block of the accelerometer channel beside it
+//! (`P/accel` for `P/compensated`) tells the blocks in the file that got no output,
+//! even across a restart of the compensator (whose own `seq` starts again at 0):
+//! counted (as lost for the compensated stream) and listed as ranges of `seq`.
 
 use crate::guard;
+use crate::losses::ChannelLosses;
 use crate::schema::{kind_of_schema, MESSAGE_ENCODING};
 use crate::{Error, Result};
 use mcap::records::{op, Record as McapRecord};
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
-use prost::Message as _;
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
-use vibro_msgs::MessageKind;
 
 /// One channel of a recording.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -49,47 +52,45 @@ pub struct ChannelInfo {
     /// First and last sequence number, in file order.
     pub first_sequence: Option<u32>,
     pub last_sequence: Option<u32>,
-    /// Messages missing according to the sequence numbers: the sum of `step - 1` over
-    /// every forward step of 2 to [`MAX_LOST_MESSAGES`] + 1 (with 32-bit wrap-around).
+    /// Messages missing according to the sequence numbers, by the services' rule
+    /// (`vibro_msgs::continuity`; 32-bit sequence numbers unwrapped by
+    /// [`crate::unwrap_sequence`]): `step - 1` for a forward step of up to
+    /// [`MAX_LOST_MESSAGES`](crate::MAX_LOST_MESSAGES) + 1, net of what was taken back
+    /// ([`Self::retracted`]).
     pub lost: u64,
-    /// Number of those forward steps (gaps).
+    /// Forward steps counted as losses when they came (some perhaps taken back since).
     pub gaps: u64,
-    /// Forward steps that skip more than [`MAX_LOST_MESSAGES`]: not losses (not in
-    /// `lost`), a corrupt or renumbered sequence.
+    /// Forward steps that skip more than
+    /// [`MAX_LOST_MESSAGES`](crate::MAX_LOST_MESSAGES): not losses (not in `lost`), a
+    /// corrupt or renumbered sequence.
     pub jumps: u64,
-    /// Messages whose sequence did not advance (repeated or went back).
+    /// Messages the rule puts out of order (repeated, or behind the stream), recorded
+    /// all the same.
     pub out_of_order: u64,
-    /// `CompensatedBlock` channels: accelerometer blocks without a compensated output,
-    /// by `input_seq` in file order: a forward step of `k` (from 2 to
-    /// [`MAX_LOST_MESSAGES`] plus one) counts `k - 1`. Blocks before the channel's first
-    /// output or after its last are not counted (the channel does not see them); `input_seq` going back (the
-    /// accelerometer's producer restarted) starts the count afresh. 0 on other channels.
+    /// Times the sequence went back to 0 (its producer restarted).
+    pub restarts: u64,
+    /// Times the stream was taken up again after out-of-order messages, or back where
+    /// it was before a discontinuity (the rule's resync).
+    pub resyncs: u64,
+    /// Messages counted lost and then taken back at a resync: what a `seq` ahead of the
+    /// stream (a forged one, 500,000 after 10) had counted. Not in `lost`.
+    pub retracted: u64,
+    /// `CompensatedBlock` channels: accelerometer blocks in the file (on
+    /// [`Self::inputs_topic`]) without a compensated output here, `unanswered.count`.
+    /// Not counted: blocks before the first one answered or after the last (the
+    /// compensator not yet running, or stopped), and blocks whose output the log lost
+    /// (this channel's `lost` counts those). 0 on other channels.
     pub inputs_without_output: u64,
-    /// The forward `input_seq` steps counted in `inputs_without_output`, the first
-    /// [`MAX_LISTED_INPUT_GAPS`] of them.
-    pub input_gaps: Vec<InputGap>,
-    /// `input_seq` steps that skip more than [`MAX_LOST_MESSAGES`]: not counted.
-    pub input_jumps: u64,
-    /// `CompensatedBlock` messages whose `input_seq` could not be decoded: not tracked.
+    /// Those blocks, as ranges of `seq` (the first
+    /// [`MAX_LISTED_UNANSWERED`](crate::MAX_LISTED_UNANSWERED) listed, all counted).
+    pub unanswered: crate::SeqRanges,
+    /// `CompensatedBlock` channels: the accelerometer channel whose blocks were matched
+    /// (`P/accel` for `P/compensated`); none: none in the file, nothing matched.
+    pub inputs_topic: Option<String>,
+    /// Messages of an accelerometer or a compensated channel whose `seq` or
+    /// `input_seq` could not be decoded: not matched.
     pub undecodable: u64,
 }
-
-/// Accelerometer blocks without compensated output: `input_seq` stepped from `from`
-/// to `to` between two consecutive messages of a `CompensatedBlock` channel.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-pub struct InputGap {
-    pub from: u64,
-    pub to: u64,
-    /// `to - from - 1`.
-    pub missing: u64,
-}
-
-/// The most messages one forward step of a sequence counts as lost; a bigger step is a
-/// jump (see the module doc).
-pub const MAX_LOST_MESSAGES: u64 = 1 << 20;
-
-/// How many [`InputGap`]s a channel lists (all are counted).
-pub const MAX_LISTED_INPUT_GAPS: usize = 16;
 
 /// One metadata record.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -129,76 +130,29 @@ pub struct LogInfo {
     pub first_publish_time_ns: Option<u64>,
     pub last_publish_time_ns: Option<u64>,
     pub publish_span_s: f64,
-    /// Messages lost over all channels: the sum of [`ChannelInfo::lost`] and of
-    /// [`ChannelInfo::inputs_without_output`] (accelerometer blocks that reached the
-    /// recorder but no compensator: lost for the compensated stream).
+    /// Messages lost over all channels, each once: the sum of [`ChannelInfo::lost`]
+    /// and of [`ChannelInfo::inputs_without_output`] (accelerometer blocks that reached
+    /// the recorder but got no compensated output: lost for the compensated stream; a
+    /// block the recorder missed is in `/accel`'s `lost` only, an output it missed in
+    /// `/compensated`'s only).
     pub lost: u64,
     /// Accelerometer blocks without compensated output, over all channels (sum of
     /// [`ChannelInfo::inputs_without_output`], included in `lost`).
     pub inputs_without_output: u64,
     /// Sequence jumps too big to be losses, over all channels (sum of
-    /// [`ChannelInfo::jumps`] and [`ChannelInfo::input_jumps`]; not in `lost`).
+    /// [`ChannelInfo::jumps`]; not in `lost`).
     pub jumps: u64,
+    /// Losses taken back over all channels (sum of [`ChannelInfo::retracted`]; not in
+    /// `lost`).
+    pub retracted: u64,
     /// Channels, by ID.
     pub channels: Vec<ChannelInfo>,
     pub metadata: Vec<MetadataInfo>,
     pub attachments: Vec<AttachmentInfo>,
-}
-
-/// Sequence numbers advance by one; a forward step of less than half the 32-bit range is
-/// a gap (or a jump, beyond [`MAX_LOST_MESSAGES`]), anything else a repeat or a step back.
-fn track_sequence(c: &mut ChannelInfo, sequence: u32) {
-    match c.last_sequence {
-        None => c.first_sequence = Some(sequence),
-        Some(last) => {
-            let step = sequence.wrapping_sub(last);
-            if step == 1 {
-            } else if step != 0 && step < (1 << 31) {
-                if u64::from(step - 1) > MAX_LOST_MESSAGES {
-                    c.jumps += 1;
-                } else {
-                    c.gaps += 1;
-                    c.lost += u64::from(step - 1);
-                }
-            } else {
-                c.out_of_order += 1;
-            }
-        }
-    }
-    c.last_sequence = Some(sequence);
-}
-
-/// The accelerometer blocks a compensated block's `input_seq` shows without output,
-/// given the previous message's `input_seq` (`last`) on the same channel.
-fn track_input_seq(c: &mut ChannelInfo, last: Option<u64>, input_seq: u64) {
-    let Some(last) = last else { return };
-    if input_seq <= last.saturating_add(1) {
-        // Consecutive, repeated, or back (the accelerometer's producer restarted).
-        return;
-    }
-    let missing = input_seq - last - 1;
-    if missing > MAX_LOST_MESSAGES {
-        c.input_jumps += 1;
-        return;
-    }
-    c.inputs_without_output += missing;
-    if c.input_gaps.len() < MAX_LISTED_INPUT_GAPS {
-        c.input_gaps.push(InputGap {
-            from: last,
-            to: input_seq,
-            missing,
-        });
-    }
-}
-
-/// The one field of a `vibrocomp.v1.CompensatedBlock` that `info` reads: decoding the
-/// whole message would allocate its seven sample arrays for nothing (prost skips the
-/// other fields by their length). The tag is the one of [`crate::proto::CompensatedBlock`]
-/// (checked by a test).
-#[derive(Clone, PartialEq, prost::Message)]
-struct InputSeqOnly {
-    #[prost(uint64, tag = "2")]
-    input_seq: u64,
+    /// What the recoveries that made this file lost, one per
+    /// [`RECOVERY_METADATA`](crate::RECOVERY_METADATA) metadata record, in file order
+    /// (none: not a recovered file).
+    pub recoveries: Vec<crate::RecoveryRecord>,
 }
 
 fn span_s(first: Option<u64>, last: Option<u64>) -> f64 {
@@ -252,11 +206,12 @@ pub fn info_from_reader(
 /// file has, is [`Error::Unfinished`] unless it ends as a finished file does (then its
 /// damage is something else, reported as it is).
 fn read_info(
-    mut source: impl Read,
+    source: impl Read,
     path: &Path,
     file_bytes: u64,
     finished: Option<bool>,
 ) -> Result<LogInfo> {
+    let mut source = buffered(source);
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_emit_chunks(true)
@@ -283,15 +238,17 @@ fn read_info(
         lost: 0,
         inputs_without_output: 0,
         jumps: 0,
+        retracted: 0,
         channels: Vec::new(),
         metadata: Vec::new(),
         attachments: Vec::new(),
+        recoveries: Vec::new(),
     };
     let mut summary = Summary {
         path,
         schemas: HashMap::new(),
         channels: BTreeMap::new(),
-        last_input_seq: HashMap::new(),
+        losses: ChannelLosses::default(),
         out,
     };
     // Chunks read whole with their CRC checked: what a recovery keeps of a cut file.
@@ -337,9 +294,11 @@ fn read_info(
     let Summary {
         mut out,
         mut channels,
+        losses,
         ..
     } = summary;
     for c in channels.values_mut() {
+        losses.fill(c);
         c.span_s = span_s(c.first_log_time_ns, c.last_log_time_ns);
         c.publish_span_s = span_s(c.first_publish_time_ns, c.last_publish_time_ns);
     }
@@ -347,7 +306,8 @@ fn read_info(
     out.messages = out.channels.iter().map(|c| c.messages).sum();
     out.inputs_without_output = out.channels.iter().map(|c| c.inputs_without_output).sum();
     out.lost = out.channels.iter().map(|c| c.lost).sum::<u64>() + out.inputs_without_output;
-    out.jumps = out.channels.iter().map(|c| c.jumps + c.input_jumps).sum();
+    out.jumps = out.channels.iter().map(|c| c.jumps).sum();
+    out.retracted = out.channels.iter().map(|c| c.retracted).sum();
     out.first_log_time_ns = out
         .channels
         .iter()
@@ -366,7 +326,30 @@ fn read_info(
         .filter_map(|c| c.last_publish_time_ns)
         .max();
     out.publish_span_s = span_s(out.first_publish_time_ns, out.last_publish_time_ns);
+    out.recoveries = recoveries(&out.metadata);
     Ok(out)
+}
+
+/// The bytes read from the file at a time. mcap's linear reader asks for one record
+/// head (9 bytes) at a time: unbuffered, a file of small records cost a `read()` per
+/// record (issue 46: 11.65 M system calls for 100 MiB of 9-byte records, 93 s for
+/// 2 GiB).
+const READ_BUFFER_BYTES: usize = 1 << 20;
+
+/// `source` behind a buffer of [`READ_BUFFER_BYTES`].
+fn buffered<R: Read>(source: R) -> std::io::BufReader<R> {
+    std::io::BufReader::with_capacity(READ_BUFFER_BYTES, source)
+}
+
+/// The losses that recoveries recorded in the file: one per
+/// [`RECOVERY_METADATA`](crate::RECOVERY_METADATA) metadata record (a file recovered
+/// twice has two), read by [`crate::RecoveryRecord::from_entries`].
+fn recoveries(metadata: &[MetadataInfo]) -> Vec<crate::RecoveryRecord> {
+    metadata
+        .iter()
+        .filter(|m| m.name == crate::RECOVERY_METADATA)
+        .map(|m| crate::RecoveryRecord::from_entries(&m.entries))
+        .collect()
 }
 
 /// What [`info`] has gathered so far.
@@ -374,8 +357,8 @@ struct Summary<'p> {
     path: &'p Path,
     schemas: HashMap<u16, String>,
     channels: BTreeMap<u16, ChannelInfo>,
-    /// `CompensatedBlock` channels (protobuf-encoded): the last `input_seq` read, if any.
-    last_input_seq: HashMap<u16, Option<u64>>,
+    /// The losses of every channel (`crate::losses`).
+    losses: ChannelLosses,
     out: LogInfo,
 }
 
@@ -385,7 +368,7 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
         path,
         schemas,
         channels,
-        last_input_seq,
+        losses,
         out,
     } = summary;
     match record {
@@ -399,10 +382,7 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
         McapRecord::Channel(c) => {
             let message_type = schemas.get(&c.schema_id).cloned().unwrap_or_default();
             let kind = kind_of_schema(&message_type);
-            if kind == Some(MessageKind::CompensatedBlock) && c.message_encoding == MESSAGE_ENCODING
-            {
-                last_input_seq.entry(c.id).or_insert(None);
-            }
+            losses.channel(c.id, &c.topic, kind, c.message_encoding == MESSAGE_ENCODING);
             let kind = kind.map(|k| k.name().to_string());
             channels.entry(c.id).or_insert(ChannelInfo {
                 id: c.id,
@@ -423,9 +403,12 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
                 gaps: 0,
                 jumps: 0,
                 out_of_order: 0,
+                restarts: 0,
+                resyncs: 0,
+                retracted: 0,
                 inputs_without_output: 0,
-                input_gaps: Vec::new(),
-                input_jumps: 0,
+                unanswered: crate::SeqRanges::default(),
+                inputs_topic: None,
                 undecodable: 0,
             });
         }
@@ -443,16 +426,11 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
             let p = header.publish_time;
             c.first_publish_time_ns = Some(c.first_publish_time_ns.map_or(p, |f| f.min(p)));
             c.last_publish_time_ns = Some(c.last_publish_time_ns.map_or(p, |l| l.max(p)));
-            track_sequence(c, header.sequence);
-            if let Some(last) = last_input_seq.get_mut(&header.channel_id) {
-                match InputSeqOnly::decode(&*data) {
-                    Ok(m) => {
-                        track_input_seq(c, *last, m.input_seq);
-                        *last = Some(m.input_seq);
-                    }
-                    Err(_) => c.undecodable += 1,
-                }
+            if c.first_sequence.is_none() {
+                c.first_sequence = Some(header.sequence);
             }
+            c.last_sequence = Some(header.sequence);
+            losses.message(header.channel_id, header.sequence, &data);
         }
         McapRecord::Attachment { header, data, .. } => {
             out.attachments.push(AttachmentInfo {
@@ -475,33 +453,7 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn channel() -> ChannelInfo {
-        ChannelInfo {
-            id: 1,
-            topic: "/t".into(),
-            message_type: String::new(),
-            kind: None,
-            message_encoding: String::new(),
-            messages: 0,
-            first_log_time_ns: None,
-            last_log_time_ns: None,
-            first_publish_time_ns: None,
-            last_publish_time_ns: None,
-            publish_span_s: 0.0,
-            span_s: 0.0,
-            first_sequence: None,
-            last_sequence: None,
-            lost: 0,
-            gaps: 0,
-            jumps: 0,
-            out_of_order: 0,
-            inputs_without_output: 0,
-            input_gaps: Vec::new(),
-            input_jumps: 0,
-            undecodable: 0,
-        }
-    }
+    use vibro_msgs::MessageKind;
 
     #[test]
     fn a_record_longer_than_the_file_is_an_error_not_an_abort() {
@@ -577,19 +529,60 @@ mod tests {
         }
     }
 
+    /// A finished file of one channel whose messages carry the sequence numbers
+    /// `sequences`.
+    fn sequenced_file(sequences: impl IntoIterator<Item = u32>) -> Vec<u8> {
+        let mut w = mcap::WriteOptions::new()
+            .create(std::io::Cursor::new(Vec::new()))
+            .unwrap();
+        let channel = w.add_channel(0, "/t", "raw", &BTreeMap::new()).unwrap();
+        for (i, sequence) in sequences.into_iter().enumerate() {
+            let header = mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence,
+                log_time: i as u64,
+                publish_time: i as u64,
+            };
+            w.write_to_known_channel(&header, &[1, 2, 3]).unwrap();
+        }
+        w.finish().unwrap();
+        w.into_inner().into_inner()
+    }
+
     #[test]
     fn sequence_gaps_count_lost_messages_across_the_wrap() {
-        let mut c = channel();
-        for s in [5, 6, 9, 10, 10, 4, u32::MAX - 1, u32::MAX, 1] {
-            track_sequence(&mut c, s);
-        }
-        // 6 -> 9 loses 7, 8; 10 -> 10 repeats; 10 -> 4 goes back; 4 -> MAX-1 is a
-        // jump of more than half the range: back; MAX -> 1 wraps, losing 0.
-        assert_eq!(c.first_sequence, Some(5));
-        assert_eq!(c.last_sequence, Some(1));
-        assert_eq!(c.gaps, 2);
-        assert_eq!(c.lost, 2 + 1);
-        assert_eq!(c.out_of_order, 3);
+        let m = u32::MAX;
+        let bytes = sequenced_file([m - 2, m - 1, m, 0, 1, 3, 4, 4, 2, 5, 0, 1]);
+        let info = info_from_reader(bytes.as_slice(), "w.mcap", bytes.len() as u64).unwrap();
+        let c = &info.channels[0];
+        // MAX -> 0 -> 1 goes on across the wrap; 1 -> 3 loses 2; 4 repeats and 2 is
+        // behind (out of order); 5 goes on; 0 out of step is a restart.
+        assert_eq!((c.first_sequence, c.last_sequence), (Some(m - 2), Some(1)));
+        assert_eq!((c.lost, c.gaps, c.out_of_order, c.restarts), (1, 1, 2, 1));
+        assert_eq!((c.jumps, c.resyncs, c.retracted), (0, 0, 0));
+    }
+
+    /// Issue 46, item 6: sequence 0..=10, a forged 500,000, then 11..=60 (the rule's
+    /// unit test in vibro_msgs::continuity has the same): no loss once the stream
+    /// resumed, 499,989 taken back, one resync, 11..=13 out of order.
+    #[test]
+    fn a_forged_sequence_ahead_counts_no_loss_once_the_stream_resumes() {
+        let bytes = sequenced_file((0..=10).chain([500_000]).chain(11..=60));
+        let info = info_from_reader(bytes.as_slice(), "f.mcap", bytes.len() as u64).unwrap();
+        let c = &info.channels[0];
+        assert_eq!(
+            (
+                c.lost,
+                c.gaps,
+                c.jumps,
+                c.out_of_order,
+                c.resyncs,
+                c.retracted
+            ),
+            (0, 1, 0, 3, 1, 499_989),
+            "{c:?}"
+        );
+        assert_eq!((info.lost, info.retracted), (0, 499_989));
     }
 
     #[test]
@@ -617,23 +610,17 @@ mod tests {
         let info = info_from_reader(bytes.as_slice(), "r.mcap", bytes.len() as u64).unwrap();
         let c = &info.channels[0];
         // Each forward step is below 2^31; summed as losses they came to ~2^39.
-        assert!(c.lost <= c.gaps * MAX_LOST_MESSAGES, "{c:?}");
-        assert_eq!(c.gaps + c.jumps + c.out_of_order, 999, "{c:?}");
-        // About half the steps go forward (binomial, 999 draws: 400 is 6 sigma below).
-        assert!(c.jumps > 400, "{c:?}");
+        assert!(c.lost <= c.gaps * crate::MAX_LOST_MESSAGES, "{c:?}");
+        // Each message but the first counts once at most (a gap, a jump, out of order,
+        // a resync or a restart).
+        assert!(
+            c.gaps + c.jumps + c.out_of_order + c.resyncs + c.restarts <= 999,
+            "{c:?}"
+        );
+        // About half the steps go forward (binomial, 999 draws: 400 is 6 sigma below),
+        // half back.
+        assert!(c.jumps > 400 && c.out_of_order > 400, "{c:?}");
         assert_eq!((info.lost, info.jumps), (c.lost, c.jumps));
-    }
-
-    #[test]
-    fn the_input_seq_field_is_read_as_the_schema_has_it() {
-        let mut b = vibro_msgs::CompensatedBlock::ZEROED;
-        (b.seq, b.input_seq, b.estimate_seq, b.count) = (7, 123_456_789_012, 99, 32);
-        b.a1_g[31] = [1.0, 2.0, 3.0];
-        let bytes = crate::proto::CompensatedBlock::try_from(&b)
-            .unwrap()
-            .encode_to_vec();
-        let m = InputSeqOnly::decode(bytes.as_slice()).unwrap();
-        assert_eq!(m.input_seq, 123_456_789_012);
     }
 
     /// A temporary file name for a test.
@@ -641,9 +628,18 @@ mod tests {
         std::env::temp_dir().join(format!("vibro-mcap-info-{}-{name}", std::process::id()))
     }
 
-    /// A log of `accel` accelerometer blocks (seq 0..accel) and the compensated blocks
-    /// `outputs` (each: the compensator's seq, the input_seq), written by [`Recorder`].
-    fn compensated_log(name: &str, accel: u64, outputs: &[(u64, u64)]) -> PathBuf {
+    /// What a test log holds, in file order.
+    #[derive(Clone, Copy)]
+    enum Rec {
+        /// An accelerometer block (its seq, also its sequence number).
+        A(u64),
+        /// A compensated block: the compensator's seq (the sequence number), input_seq.
+        C(u64, u64),
+    }
+    use Rec::{A, C};
+
+    /// A log of `records` on `/accel` and `/compensated`, written by [`Recorder`].
+    fn compensated_log(name: &str, records: &[Rec]) -> PathBuf {
         use crate::{Recorder, RecorderOptions};
         let path = temp_path(name);
         let mut r = Recorder::create(&path, RecorderOptions::default()).unwrap();
@@ -651,79 +647,120 @@ mod tests {
         let c = r
             .add_channel("/compensated", MessageKind::CompensatedBlock)
             .unwrap();
-        let mut t = 0;
-        for seq in 0..accel {
-            let mut b = vibro_msgs::AccelBlock::ZEROED;
-            (b.seq, b.count) = (seq, 1);
-            t += 1;
-            r.write_to(&a, t, t, seq as u32, b.into()).unwrap();
-        }
-        for &(seq, input_seq) in outputs {
-            let mut b = vibro_msgs::CompensatedBlock::ZEROED;
-            (b.seq, b.input_seq, b.count) = (seq, input_seq, 1);
-            t += 1;
-            r.write_to(&c, t, t, seq as u32, b.into()).unwrap();
+        for (t, rec) in records.iter().enumerate() {
+            let t = t as u64 + 1;
+            match *rec {
+                A(seq) => {
+                    let mut b = vibro_msgs::AccelBlock::ZEROED;
+                    (b.seq, b.count) = (seq, 1);
+                    r.write_to(&a, t, t, seq as u32, b.into()).unwrap();
+                }
+                C(seq, input_seq) => {
+                    let mut b = vibro_msgs::CompensatedBlock::ZEROED;
+                    (b.seq, b.input_seq, b.count) = (seq, input_seq, 1);
+                    r.write_to(&c, t, t, seq as u32, b.into()).unwrap();
+                }
+            }
         }
         r.finish().unwrap();
         path
+    }
+
+    fn info_of(name: &str, records: &[Rec]) -> LogInfo {
+        let path = compensated_log(name, records);
+        let info = info(&path);
+        let _ = std::fs::remove_file(&path);
+        info.unwrap()
+    }
+
+    fn topic<'a>(info: &'a LogInfo, topic: &str) -> &'a ChannelInfo {
+        info.channels.iter().find(|c| c.topic == topic).unwrap()
     }
 
     #[test]
     fn accel_blocks_without_output_are_losses_across_a_compensator_restart() {
         // The compensator answered blocks 0..=269 (its seq 0..=269), was restarted and
         // answered 276..=300 (its seq 0..=24 again): blocks 270..=275 got no output.
-        let outputs: Vec<(u64, u64)> = (0..=269)
-            .map(|i| (i, i))
-            .chain((276..=300).map(|i| (i - 276, i)))
+        // Every block is written first, then every output.
+        let records: Vec<Rec> = (0..=300)
+            .map(A)
+            .chain((0..=269).map(|i| C(i, i)))
+            .chain((276..=300).map(|i| C(i - 276, i)))
             .collect();
-        let path = compensated_log("restart.mcap", 301, &outputs);
-        let info = info(&path);
-        let _ = std::fs::remove_file(&path);
-        let info = info.unwrap();
-        let accel = info.channels.iter().find(|c| c.topic == "/accel").unwrap();
+        let info = info_of("restart.mcap", &records);
+        let accel = topic(&info, "/accel");
         assert_eq!((accel.lost, accel.inputs_without_output), (0, 0));
-        let c = info
-            .channels
-            .iter()
-            .find(|c| c.topic == "/compensated")
-            .unwrap();
-        // Its own numbering shows one step back and nothing lost.
-        assert_eq!((c.messages, c.lost, c.gaps, c.out_of_order), (295, 0, 0, 1));
+        let c = topic(&info, "/compensated");
+        // Its own numbering shows a restart and nothing lost.
+        assert_eq!(
+            (c.messages, c.lost, c.gaps, c.out_of_order, c.restarts),
+            (295, 0, 0, 0, 1)
+        );
         assert_eq!(c.inputs_without_output, 6, "{c:?}");
         assert_eq!(
-            c.input_gaps,
-            vec![InputGap {
-                from: 269,
-                to: 276,
-                missing: 6
+            c.unanswered.listed,
+            [crate::SeqRange {
+                first: 270,
+                last: 275
             }]
         );
-        assert_eq!((c.input_jumps, c.undecodable), (0, 0));
+        assert_eq!(c.inputs_topic.as_deref(), Some("/accel"));
+        assert_eq!(c.undecodable, 0);
         assert_eq!(
             (info.lost, info.inputs_without_output, info.jumps),
             (6, 6, 0)
         );
     }
 
+    /// Issue 46, item 6: blocks 0..=10, a forged 500,000, then 11..=60, each output
+    /// right after its block; the compensator dropped 11..=13 while it resynced. Also
+    /// the recorder missed block 30 (answered all the same) and the output of block 40.
+    /// Each of these 5 losses counts once: before, `lost` said 999,978.
     #[test]
-    fn a_restarted_accel_producer_is_not_a_loss_and_a_random_input_seq_is_a_jump() {
-        // input_seq 0..=9, back to 0..=9 (a new replay), then a random one, then 3 lost.
-        let outputs: Vec<(u64, u64)> = (0..10)
-            .chain(0..10)
-            .chain([0xDEAD_BEEF_0000, 0xDEAD_BEEF_0004])
-            .enumerate()
-            .map(|(i, s)| (i as u64, s))
-            .collect();
-        let path = compensated_log("accel-restart.mcap", 10, &outputs);
-        let info = info(&path);
-        let _ = std::fs::remove_file(&path);
-        let info = info.unwrap();
-        let c = &info.channels[1];
+    fn a_forged_seq_and_the_blocks_it_cost_are_each_counted_once() {
+        let mut records = Vec::new();
+        let mut out_seq = 0;
+        for s in (0..=10).chain([500_000]).chain(11..=60) {
+            if s != 30 {
+                records.push(A(s));
+            }
+            if !(11..=13).contains(&s) {
+                if s != 40 {
+                    records.push(C(out_seq, s));
+                }
+                out_seq += 1;
+            }
+        }
+        let info = info_of("forged.mcap", &records);
+        let a = topic(&info, "/accel");
         assert_eq!(
-            (c.inputs_without_output, c.input_jumps, c.out_of_order),
-            (3, 1, 0),
-            "{c:?}"
+            (
+                a.lost,
+                a.gaps,
+                a.out_of_order,
+                a.resyncs,
+                a.retracted,
+                a.jumps
+            ),
+            (1, 2, 3, 1, 499_989, 0),
+            "{a:?}"
         );
-        assert_eq!((info.lost, info.jumps), (3, 1));
+        let c = topic(&info, "/compensated");
+        assert_eq!((c.lost, c.gaps, c.out_of_order), (1, 1, 0), "{c:?}");
+        assert_eq!(c.inputs_without_output, 3, "{c:?}");
+        assert_eq!(
+            c.unanswered.listed,
+            [crate::SeqRange {
+                first: 11,
+                last: 13
+            }]
+        );
+        let by_channel: u64 = info
+            .channels
+            .iter()
+            .map(|c| c.lost + c.inputs_without_output)
+            .sum();
+        assert_eq!((info.lost, by_channel), (5, 5));
+        assert_eq!((info.inputs_without_output, info.retracted), (3, 499_989));
     }
 }

@@ -14,8 +14,11 @@
 //! - [`Reader`]: messages of a finished file in log-time order, decoded into [`Message`],
 //!   with every chunk's CRC checked;
 //! - [`info`]: channels, counts, time span, sequence gaps, metadata and attachments;
-//! - [`recover`]: a file left by a crash (no summary, a truncated last chunk) rewritten
-//!   up to its last complete chunk.
+//!   the losses counted once each by the services' rule (gaps, jumps, losses taken
+//!   back, and accelerometer blocks without a compensated output: [`Answers`]);
+//! - [`recover`]: a damaged file (a crash: no summary, a truncated last chunk; or bytes
+//!   garbled anywhere) rewritten with every message whose bytes are intact, and what
+//!   was lost said in its report and in the new file ([`RecoveryRecord`]).
 //!
 //! Every channel follows the Foxglove protobuf convention, so the files open in Foxglove
 //! and decode with the Python `mcap` + `mcap-protobuf-support` packages
@@ -59,6 +62,7 @@
 mod convert;
 mod guard;
 mod info;
+mod losses;
 mod reader;
 mod recorder;
 mod recover;
@@ -86,21 +90,27 @@ pub mod foxglove_proto {
 }
 
 pub use convert::{last_sample_ns, Message};
-pub use info::{
-    info, info_from_reader, AttachmentInfo, ChannelInfo, InputGap, LogInfo, MetadataInfo,
-    MAX_LOST_MESSAGES,
+pub use info::{info, info_from_reader, AttachmentInfo, ChannelInfo, LogInfo, MetadataInfo};
+pub use losses::{
+    unwrap_sequence, Answers, SeqRange, SeqRanges, MAX_LISTED_UNANSWERED, MAX_PENDING_ANSWERS,
 };
 pub use reader::{RawRecord, Reader, Record};
 pub use recorder::{
     ChannelId, Compression, Recorder, RecorderOptions, RecorderStats, RecordingSummary,
     ViewChannelId,
 };
-pub use recover::{recover, recover_from_reader, Damage, RecoverReport};
+pub use recover::{
+    recover, recover_from_reader, Damage, Expected, RecoverReport, RecoveryRecord, SummaryUse,
+    MAX_LISTED_RANGES, RECOVERY_METADATA,
+};
 pub use schema::{
     is_view_schema, kind_of_schema, schema, Schema, ViewSchema, FOXGLOVE_LOG, MESSAGE_ENCODING,
     PROTO_PACKAGE, SCHEMA_ENCODING, VIEW_PACKAGE_PREFIX, VIEW_SERVICE_HEALTH, VIEW_UNIT_STAGES,
     VIEW_VIBRATION_AXIS,
 };
+/// The services' jump rule (`vibro_msgs::continuity`), which `info` and the recorder
+/// apply to sequence numbers.
+pub use vibro_msgs::MAX_LOST_MESSAGES;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -109,6 +119,10 @@ use vibro_msgs::MessageKind;
 /// Errors of the MCAP codec. Messages carry the values involved.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
+    /// An output refused by the file rule (a link, a FIFO, a device, an existing file
+    /// without `--force`), or that cannot be opened ([`vibro_files`]).
+    #[error(transparent)]
+    Files(#[from] vibro_files::Error),
     /// An I/O operation on a file failed.
     #[error("cannot {action} {path}: {source}")]
     Io {

@@ -251,12 +251,24 @@ pub struct Recorder {
 }
 
 impl Recorder {
-    /// Creates (truncates) `path` and starts the writer thread.
+    /// Creates `path`, or empties it if it is a regular file, and starts the writer
+    /// thread. A symbolic link (dangling or not), a FIFO, a device or a directory is
+    /// refused ([`Error::Files`]), never followed, blocked on or truncated
+    /// (`vibro_files::create_in_place` with `force`).
     pub fn create(path: impl AsRef<Path>, options: RecorderOptions) -> Result<Recorder> {
-        let path = path.as_ref().to_path_buf();
+        Self::open(path.as_ref(), options, true)
+    }
+
+    /// [`Recorder::create`] for a file that must not exist: an existing one is refused
+    /// (`O_EXCL`; an output without `--force`).
+    pub fn create_new(path: impl AsRef<Path>, options: RecorderOptions) -> Result<Recorder> {
+        Self::open(path.as_ref(), options, false)
+    }
+
+    fn open(path: &Path, options: RecorderOptions, force: bool) -> Result<Recorder> {
         options.check()?;
-        let file = std::fs::File::create(&path).map_err(|e| Error::io("create", &path, e))?;
-        Self::start(file, path, options)
+        let file = vibro_files::create_in_place(path, force)?;
+        Self::start(file, path.to_path_buf(), options)
     }
 
     /// Starts recording into `file`, already open for writing, named `path` in errors.

@@ -3,7 +3,8 @@
 //! The wire types that the services exchange through iceoryx2 shared memory (and that
 //! `vibro-mcap` records): accelerometer output blocks, vibration-sensor blocks,
 //! vibration estimates, compensated blocks, simulator truth and heartbeats, plus the
-//! service names they travel on.
+//! service names they travel on, and the rule every reader of their `seq` counters
+//! applies ([`continuity`]: gaps, jumps, resyncs and the losses they take back).
 //!
 //! Every type is `#[repr(C)]`, fixed-size, made of plain numbers only (no pointers,
 //! strings or vectors), `Copy`, free of implicit padding (checked at compile time), and
@@ -44,10 +45,17 @@
 //! - iceoryx2 0.10 payload types: `ZeroCopySend`, `#[type_name]`
 //!   (<https://docs.rs/iceoryx2/0.10.0>).
 
+#[cfg(any(test, feature = "testing"))]
+pub mod adversary;
+pub mod continuity;
 mod layout;
 mod messages;
 mod names;
 
+pub use continuity::{
+    Arrival, Continuity, SeqTally, StreamCounters, MAX_LOST_MESSAGES, MAX_LOST_SAMPLES,
+    RESYNC_AFTER,
+};
 pub use layout::{FieldLayout, Plain};
 pub use messages::{
     accel_flags, compensation_flags, estimate_flags, truth_flags, vib_flags, AccelBlock,

@@ -13,7 +13,8 @@
 //!   all problems at once), the `[service]` table ([`ServiceSettings`], [`LoopMode`]) and
 //!   the streams' quality of service;
 //! - what the hot loop keeps: the clock ([`now_ns`]), stream [`Continuity`] and its
-//!   [`StreamCounters`], [`Latency`] histograms, [`HeartbeatPublisher`], [`count_first`]
+//!   [`StreamCounters`] (the rule's home is `vibro_msgs::continuity`; the JSON of its
+//!   totals is [`CountersJson`]), [`Latency`] histograms, [`HeartbeatPublisher`], [`count_first`]
 //!   (log a problem once, count the rest), [`Recurring`] and [`DisorderLog`] (log a
 //!   recurring problem, such as out-of-order messages, at once after a quiet period,
 //!   then once per summary period with its count), and [`JsonObject`] for the
@@ -60,8 +61,9 @@
 //! References: `docs/services.md` (command line, signals and shutdown, heartbeats and
 //! summaries, loss accounting), `docs/architecture.md` (where this crate sits).
 
-#[cfg(any(test, feature = "testing"))]
-pub mod adversary;
+/// Adversarial input sequences (`vibro_msgs::adversary`, with the `testing` feature).
+#[cfg(feature = "testing")]
+pub use vibro_msgs::adversary;
 mod cli;
 mod clock;
 mod config;
@@ -84,7 +86,8 @@ pub use cli::ServiceArgs;
 pub use clock::now_ns;
 pub use config::ServiceConfig;
 pub use continuity::{
-    Arrival, Continuity, StreamCounters, MAX_LOST_MESSAGES, MAX_LOST_SAMPLES, RESYNC_AFTER,
+    Arrival, Continuity, CountersJson, StreamCounters, MAX_LOST_MESSAGES, MAX_LOST_SAMPLES,
+    RESYNC_AFTER,
 };
 pub use heartbeat::{HeartbeatPublisher, HeartbeatReport};
 pub use json::JsonObject;

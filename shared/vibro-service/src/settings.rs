@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 use vibro_ipc::StreamConfig;
 use vibro_msgs::ServiceNames;
+use vibro_toml::bounds::quote;
 
 /// An invalid configuration: the file (or other origin) and every problem found, each
 /// naming its key path, the value and the rule.
@@ -76,9 +77,10 @@ impl std::fmt::Display for ConfigSource {
     }
 }
 
-/// Reads a configuration file.
+/// Reads a configuration file: at most [`vibro_toml::bounds::MAX_FILE_BYTES`], a
+/// bigger one refused before it is read ([`vibro_toml::bounds::read_file`]).
 pub fn read_config_file(path: &Path) -> Result<String, ConfigError> {
-    std::fs::read_to_string(path).map_err(|e| {
+    vibro_toml::bounds::read_file(path).map_err(|e| {
         ConfigError::new(
             path.display().to_string(),
             vec![format!("cannot read: {e}")],
@@ -104,16 +106,17 @@ pub fn default_prefix() -> String {
     vibro_msgs::DEFAULT_PREFIX.to_string()
 }
 
-/// Validates a service-name prefix found at `key`.
+/// Validates a service-name prefix found at `key` (its length is bounded by
+/// iceoryx2's service names; a long one is quoted by its excerpt).
 pub fn check_prefix(key: &str, prefix: &str, problems: &mut Vec<String>) -> Option<ServiceNames> {
     match ServiceNames::new(prefix) {
         Ok(names) => Some(names),
         Err(vibro_msgs::Error::InvalidPrefix { rule, .. }) => {
-            problems.push(format!("{key} = {prefix:?}: {rule}"));
+            problems.push(format!("{key} = {}: {rule}", quote(prefix)));
             None
         }
         Err(e) => {
-            problems.push(format!("{key} = {prefix:?}: {e}"));
+            problems.push(format!("{key} = {}: {e}", quote(prefix)));
             None
         }
     }

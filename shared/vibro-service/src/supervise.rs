@@ -252,12 +252,9 @@ pub fn claim_prefix(prefix: &str) -> anyhow::Result<std::result::Result<PrefixCl
     // we would then hold a lock on a file nobody else can find. Checked after locking
     // (the path must still name the locked file), retried if not.
     for _ in 0..100 {
-        let mut file = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)
+        // Its name is guessable and may be in the shared temporary folder: a link or
+        // FIFO planted there is refused, never followed or blocked on (`vibro_files`).
+        let mut file = vibro_files::open_lock(&path)
             .with_context(|| format!("opening the prefix lock {}", path.display()))?;
         // SAFETY: flock on a descriptor we own.
         if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
@@ -332,10 +329,7 @@ impl Process {
     ) -> anyhow::Result<Self> {
         let stderr = match log {
             Some(p) => Stdio::from(
-                std::fs::OpenOptions::new()
-                    .create(true)
-                    .append(true)
-                    .open(p)
+                vibro_files::open_append(p)
                     .with_context(|| format!("opening the log {}", p.display()))?,
             ),
             None => Stdio::inherit(),
@@ -527,4 +521,29 @@ pub async fn supervise(
         }
     }
     Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The prefix lock's name is guessable and may be in the shared temporary folder:
+    /// a link planted there (by another user, in the issue) is refused, not followed,
+    /// and the file it points to keeps its bytes (before: emptied, then our pid).
+    #[test]
+    fn a_link_planted_at_the_prefix_lock_is_not_followed() {
+        let prefix = format!("vct-lock-{}/", std::process::id());
+        let lock = prefix_lock_path(&prefix);
+        let target = lock.with_extension("target");
+        std::fs::write(&target, "root secret.").unwrap();
+        let _ = std::fs::remove_file(&lock);
+        std::os::unix::fs::symlink(&target, &lock).unwrap();
+        let e = claim_prefix(&prefix).err().map(|e| format!("{e:#}"));
+        let kept = std::fs::read_to_string(&target).unwrap();
+        let _ = std::fs::remove_file(&lock);
+        let _ = std::fs::remove_file(&target);
+        let e = e.expect("the link was followed");
+        assert!(e.contains("is a symbolic link to"), "{e}");
+        assert_eq!(kept, "root secret.");
+    }
 }

@@ -28,6 +28,9 @@
 //! assert_eq!(e.location().line, Some(2));
 //! ```
 
+pub mod bounds;
+pub mod echo;
+
 use serde::de::DeserializeOwned;
 use std::ops::Range;
 use toml::de::{DeTable, DeValue};
@@ -138,8 +141,22 @@ pub type Result<T> = std::result::Result<T, Error>;
 const MAX_UNKNOWN: usize = 64;
 
 /// Parses `text` (the file `file`) into `T`, reporting every unknown key at once
-/// (module docs).
+/// (module docs). A text longer than [`bounds::MAX_FILE_BYTES`] is refused unread,
+/// whoever read it.
 pub fn from_str<T: DeserializeOwned>(text: &str, file: &str) -> Result<T> {
+    if text.len() as u64 > bounds::MAX_FILE_BYTES {
+        return Err(Error::Toml {
+            file: file.to_string(),
+            line: None,
+            column: None,
+            key: None,
+            snippet: format!(
+                "{} bytes: a configuration file holds at most {} bytes (1 MiB)",
+                text.len(),
+                bounds::MAX_FILE_BYTES
+            ),
+        });
+    }
     let mut root = DeTable::parse(text).map_err(|e| toml_error(file, text, None, e))?;
     let mut unknown: Vec<UnknownKey> = Vec::new();
     loop {
@@ -153,7 +170,8 @@ pub fn from_str<T: DeserializeOwned>(text: &str, file: &str) -> Result<T> {
                 take_key(root.get_mut(), &span, "").map(|path| {
                     let (line, column) = position(text, span.start);
                     UnknownKey {
-                        key: path,
+                        // A key can be as long as the file: quoted by its excerpt.
+                        key: echo::excerpt(&path).into_owned(),
                         line,
                         column,
                         suggestion: near_miss(&name, &known),
@@ -180,8 +198,7 @@ pub fn from_str<T: DeserializeOwned>(text: &str, file: &str) -> Result<T> {
     })
 }
 
-fn toml_error(file: &str, text: &str, key: Option<String>, mut e: toml::de::Error) -> Error {
-    e.set_input(Some(text));
+fn toml_error(file: &str, text: &str, key: Option<String>, e: toml::de::Error) -> Error {
     let (line, column) = e
         .span()
         .map(|s| position(text, s.start))
@@ -190,9 +207,100 @@ fn toml_error(file: &str, text: &str, key: Option<String>, mut e: toml::de::Erro
         file: file.to_string(),
         line,
         column,
-        key,
-        snippet: e.to_string(),
+        key: key.map(|k| echo::excerpt(&k).into_owned()),
+        snippet: snippet(text, e.span(), &e),
     }
+}
+
+/// Longest line of the file a snippet quotes whole, in characters; of a longer one
+/// (a 200 KB line of brackets), this many characters around the column.
+const SNIPPET_MAX_CHARS: usize = echo::ECHO_MAX_CHARS;
+/// Characters of a cut line shown before the column.
+const SNIPPET_BEFORE_CHARS: usize = 40;
+/// Longest line of toml's message kept whole (serde's messages quote the offending
+/// value, which may be a megabyte long); a longer one is [`echo::excerpt`]ed.
+const MESSAGE_MAX_CHARS: usize = 512;
+
+/// toml's error as toml writes it (the line, a caret under the offending text, the
+/// message), but with at most a line's worth of the file: a line longer than
+/// [`SNIPPET_MAX_CHARS`] is shown as a window around the column, marked cut with `…`
+/// at each end it was cut and followed by a note of its length. Control characters
+/// but tabs are shown as U+FFFD, so that the quote cannot move a terminal's cursor
+/// and the caret stays under its column.
+fn snippet(text: &str, span: Option<Range<usize>>, e: &toml::de::Error) -> String {
+    use std::fmt::Write as _;
+    let Some(span) = span else {
+        // No place in the file: toml's message alone, and the keys it names.
+        return cap_lines(&e.to_string()) + "\n";
+    };
+    let mut out = String::new();
+    let (line, column) = position(text, span.start);
+    let content = text.split('\n').nth(line - 1).unwrap_or("");
+    let content = content.strip_suffix('\r').unwrap_or(content);
+    let n_chars = content.chars().count();
+    let col0 = column - 1;
+    let span_chars = text
+        .get(span.start.min(text.len())..span.end.min(text.len()))
+        .map_or(0, |s| s.chars().count());
+    let (from, to) = if n_chars <= SNIPPET_MAX_CHARS {
+        (0, n_chars)
+    } else {
+        let from = col0
+            .saturating_sub(SNIPPET_BEFORE_CHARS)
+            .min(n_chars - SNIPPET_MAX_CHARS);
+        (from, from + SNIPPET_MAX_CHARS)
+    };
+    let lead = if from > 0 { "…" } else { "" };
+    let trail = if to < n_chars { "…" } else { "" };
+    let shown: String = content
+        .chars()
+        .skip(from)
+        .take(to - from)
+        .map(|c| {
+            if c.is_control() && c != '\t' {
+                '\u{fffd}'
+            } else {
+                c
+            }
+        })
+        .collect();
+    let gutter = " ".repeat(line.to_string().len() + 1);
+    let caret_at = lead.chars().count() + col0.saturating_sub(from);
+    let carets = span_chars.min(to.saturating_sub(col0)).max(1);
+    let _ = writeln!(out, "TOML parse error at line {line}, column {column}");
+    let _ = writeln!(out, "{gutter}|");
+    let _ = writeln!(out, "{line} | {lead}{shown}{trail}");
+    let _ = writeln!(
+        out,
+        "{gutter}|{}{}",
+        " ".repeat(caret_at + 1),
+        "^".repeat(carets)
+    );
+    if from > 0 || to < n_chars {
+        let _ = writeln!(
+            out,
+            "{gutter}= line {line} cut: {n_chars} characters long, {} shown",
+            to - from
+        );
+    }
+    out.push_str(&cap_lines(e.message()));
+    out.push('\n');
+    out
+}
+
+/// `text` with each line longer than [`MESSAGE_MAX_CHARS`] cut to an excerpt.
+fn cap_lines(text: &str) -> String {
+    text.trim_end()
+        .lines()
+        .map(|l| {
+            if l.chars().count() <= MESSAGE_MAX_CHARS {
+                std::borrow::Cow::Borrowed(l)
+            } else {
+                echo::excerpt(l)
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
 }
 
 /// 1-based line and column (in characters) of byte `offset`.
@@ -283,9 +391,17 @@ fn join(path: &str, key: &str) -> String {
     }
 }
 
+/// Longest unknown key a "did you mean" is looked for.
+const NEAR_MISS_MAX_BYTES: usize = 64;
+
 /// The known key `name` is most likely a misspelling of: the same but for case, or
 /// within an edit distance of a third of its length (at least 1).
 fn near_miss(name: &str, known: &[String]) -> Option<String> {
+    // No key of a configuration is this long; the edit distance of a key as long as
+    // the file would cost its length times the known key's, in memory too.
+    if name.len() > NEAR_MISS_MAX_BYTES {
+        return None;
+    }
     if let Some(k) = known.iter().find(|k| k.eq_ignore_ascii_case(name)) {
         return Some(k.clone());
     }
@@ -402,6 +518,77 @@ mod tests {
             (Some(3), Some("rates.sensor_hz"))
         );
         assert!(e.to_string().contains("3 | sensor_hz = \"fast\""), "{e}");
+    }
+
+    /// Issue 46, item 8: a 200 KB line of nested brackets was quoted whole, twice
+    /// (the line, then as many carets); the snippet now shows a line's worth around
+    /// the column, says that it cut, and still points at the line and column.
+    #[test]
+    fn a_huge_line_is_quoted_by_a_window_around_its_column() {
+        let text = format!("name = \"x\"\na={}", "[".repeat(200_000));
+        let e = from_str::<Raw>(&text, "nested.toml").unwrap_err();
+        let msg = e.to_string();
+        assert!(msg.len() < 1024, "{} bytes:\n{msg}", msg.len());
+        let l = e.location();
+        let (line, column) = (l.line.unwrap(), l.column.unwrap());
+        assert_eq!(line, 2, "{msg}");
+        assert!(column > 2, "{msg}");
+        assert!(
+            msg.contains(&format!("TOML parse error at line 2, column {column}\n")),
+            "{msg}"
+        );
+        assert!(
+            msg.contains("= line 2 cut: 200002 characters long, 120 shown"),
+            "{msg}"
+        );
+        // The caret stands under the column: the window starts 40 characters before
+        // it, after the `…` that marks the cut.
+        let lines: Vec<&str> = msg.lines().collect();
+        let quoted = lines.iter().position(|l| l.starts_with("2 | ")).unwrap();
+        let caret_line = lines[quoted + 1];
+        let caret_at = caret_line.find('^').unwrap();
+        let window: Vec<char> = lines[quoted].chars().collect();
+        let under = window[caret_line[..caret_at].chars().count()];
+        let expected = text
+            .split('\n')
+            .nth(1)
+            .unwrap()
+            .chars()
+            .nth(column - 1)
+            .unwrap();
+        assert_eq!(under, expected, "{msg}");
+        assert!(
+            lines[quoted].starts_with("2 | …") && lines[quoted].ends_with('…'),
+            "{msg}"
+        );
+    }
+
+    /// A value that serde quotes in its message (half a megabyte where a number goes)
+    /// and an unknown key as long as a file: an excerpt of each.
+    #[test]
+    fn huge_values_and_keys_are_quoted_by_an_excerpt() {
+        let long = "x".repeat(500_000);
+        let text = format!("name = \"x\"\n[rates]\nsensor_hz = \"{long}\"\noutput_hz = 1.0\n");
+        let e = from_str::<Raw>(&text, "s.toml").unwrap_err();
+        let msg = e.to_string();
+        assert!(msg.len() < 2048, "{} bytes", msg.len());
+        assert!(msg.contains("more bytes cut"), "{msg}");
+        assert_eq!(e.location().line, Some(3));
+        let text = format!("name = \"x\"\n{long} = 1\n[rates]\nsensor_hz = 1.0\noutput_hz = 1.0\n");
+        let e = from_str::<Raw>(&text, "s.toml").unwrap_err();
+        let msg = e.to_string();
+        assert!(msg.len() < 1024, "{} bytes", msg.len());
+        assert!(
+            msg.contains("line 2, column 1: xxxx") && msg.contains("more bytes cut"),
+            "{msg}"
+        );
+        // A text longer than a configuration file may be is not parsed.
+        let huge = format!("# {}\n", "y".repeat(bounds::MAX_FILE_BYTES as usize));
+        let e = from_str::<Raw>(&huge, "big.toml").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "big.toml: 1048579 bytes: a configuration file holds at most 1048576 bytes (1 MiB)"
+        );
     }
 
     #[test]

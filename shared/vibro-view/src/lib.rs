@@ -60,6 +60,11 @@ pub enum Error {
         topic: String,
         source: foxglove::FoxgloveError,
     },
+    #[error(
+        "shutting the Foxglove server's port {port} of 127.0.0.1 to all but the live \
+         view's guard"
+    )]
+    Gate { port: u16, source: std::io::Error },
     #[error("starting the live view's runtime")]
     Runtime(#[source] std::io::Error),
     #[error("the live view's {0} task ended abnormally (it panicked or was cancelled)")]

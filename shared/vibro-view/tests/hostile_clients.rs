@@ -197,6 +197,8 @@ struct View {
     addr: SocketAddr,
     log_lines: Arc<AtomicUsize>,
     log_tail: Arc<Mutex<std::collections::VecDeque<String>>>,
+    /// Addresses the Foxglove SDK's log says its servers started on.
+    sdk_logged: Arc<Mutex<Vec<SocketAddr>>>,
     readers: Vec<std::thread::JoinHandle<()>>,
 }
 
@@ -230,6 +232,7 @@ impl View {
         let err = child.stderr.take().unwrap();
         let log_lines = Arc::new(AtomicUsize::new(0));
         let log_tail = Arc::new(Mutex::new(std::collections::VecDeque::new()));
+        let sdk_logged = Arc::new(Mutex::new(Vec::new()));
         let readers = vec![
             std::thread::spawn(move || {
                 for l in BufReader::new(out).lines().map_while(Result::ok) {
@@ -241,9 +244,19 @@ impl View {
             }),
             {
                 let (n, tail) = (Arc::clone(&log_lines), Arc::clone(&log_tail));
+                let logged = Arc::clone(&sdk_logged);
                 std::thread::spawn(move || {
                     for l in BufReader::new(err).lines().map_while(Result::ok) {
                         n.fetch_add(1, Ordering::Relaxed);
+                        // The SDK's "Started server on 127.0.0.1:PORT".
+                        if let Some(a) = l
+                            .split("Started server on ")
+                            .nth(1)
+                            .and_then(|r| r.split_whitespace().next())
+                            .and_then(|a| a.parse().ok())
+                        {
+                            logged.lock().unwrap().push(a);
+                        }
                         let mut t = tail.lock().unwrap();
                         if t.len() == 40 {
                             t.pop_front();
@@ -270,8 +283,45 @@ impl View {
             addr,
             log_lines,
             log_tail,
+            sdk_logged,
             readers,
         }
+    }
+
+    /// The addresses the view process listens on besides its public one, found as
+    /// another user of the machine finds them: the Foxglove SDK's log line ("Started
+    /// server on ..."), and the listening sockets of `/proc/net/tcp` that belong to the
+    /// process (its descriptors' socket inodes).
+    fn other_listeners(&self) -> (Vec<SocketAddr>, Vec<SocketAddr>) {
+        let logged = self.sdk_logged.lock().unwrap().clone();
+        let pid = self.child.id();
+        let inodes: std::collections::BTreeSet<String> =
+            std::fs::read_dir(format!("/proc/{pid}/fd"))
+                .unwrap()
+                .flatten()
+                .filter_map(|e| std::fs::read_link(e.path()).ok())
+                .filter_map(|l| {
+                    let l = l.to_str()?;
+                    Some(l.strip_prefix("socket:[")?.strip_suffix(']')?.to_string())
+                })
+                .collect();
+        let table = std::fs::read_to_string("/proc/net/tcp").unwrap();
+        let listening = table
+            .lines()
+            .skip(1)
+            .filter_map(|l| {
+                let f: Vec<&str> = l.split_whitespace().collect();
+                (f.get(3) == Some(&"0A") && inodes.contains(*f.get(9)?)).then_some(f[1])
+            })
+            .filter_map(|local| {
+                let (a, p) = local.split_once(':')?;
+                let a = u32::from_str_radix(a, 16).ok()?;
+                let ip = std::net::Ipv4Addr::from(a.to_ne_bytes());
+                Some(SocketAddr::from((ip, u16::from_str_radix(p, 16).ok()?)))
+            })
+            .filter(|a| *a != self.addr)
+            .collect();
+        (logged, listening)
     }
 
     /// Sends the child `command`; its answer.
@@ -693,4 +743,56 @@ fn a_hostile_crowd_leaves_the_view_serving_with_bounded_memory_and_logs() {
     let grew_kib = hwm1.saturating_sub(hwm0);
     assert!(grew_kib < 64 * 1024, "peak memory grew {grew_kib} KiB");
     assert!(s.log_lines < 200, "{} log lines", s.log_lines);
+}
+
+/// Item 4 of issue 46: the Foxglove SDK's own port (its log names it; `/proc/net/tcp`
+/// lists it among the view's listening sockets) takes no connection but the guard's:
+/// a direct one is never made (today's view took 20 x 16 MiB frames through it, 21.8
+/// to 351 MB); the view's memory stays where it was, and a client is served through
+/// the guard after.
+#[test]
+fn the_foxglove_servers_own_port_takes_no_connection_but_the_guards() {
+    let mut view = View::start(None, None);
+    std::thread::sleep(Duration::from_millis(300));
+    let (logged, listening) = view.other_listeners();
+    assert!(
+        !logged.is_empty(),
+        "the SDK logged no address: {}",
+        view.tail()
+    );
+    for a in &logged {
+        assert!(listening.contains(a), "{a} not among {listening:?}");
+    }
+    let inner = logged[0];
+    let (rss0, hwm0) = view.memory_kb();
+    let direct: Vec<String> = listening
+        .iter()
+        .map(
+            |a| match TcpStream::connect_timeout(a, Duration::from_secs(1)) {
+                Ok(_) => format!("{a}: connected"),
+                Err(e) => format!("{a}: {e}"),
+            },
+        )
+        .collect();
+    let sent = huge_frames(inner, 20, 16 << 20);
+    let (rss1, hwm1) = view.memory_kb();
+    let served = well_behaved(view.addr, Duration::from_secs(8));
+    let s = view.stop();
+    let sent_mib = sent.iter().sum::<u64>() as f64 / (1 << 20) as f64;
+    println!(
+        "FIGURES view ({}) the SDK's port {inner} (logged; listening: {listening:?}): direct \
+         connections {direct:?}; 20 clients x 16 MiB frame there: {sent_mib:.0} MiB sent; RSS \
+         {rss0} KiB before, {rss1} KiB after, peak {hwm0} -> {hwm1} KiB; client through the \
+         guard after: {served:?}; {}",
+        server_kind(),
+        s.stats
+    );
+    assert!(
+        direct.iter().all(|d| !d.ends_with("connected")),
+        "a direct connection was made: {direct:?}"
+    );
+    assert!(sent.iter().all(|&b| b == 0), "{sent:?}");
+    let grew_kib = hwm1.saturating_sub(hwm0);
+    assert!(grew_kib < 32 * 1024, "peak memory grew {grew_kib} KiB");
+    served.expect("a client through the guard after");
 }

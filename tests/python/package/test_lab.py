@@ -6,6 +6,7 @@ for byte, and reads back; the errors carry the command line's message, file, lin
 key."""
 
 import math
+import os
 import subprocess
 import sys
 
@@ -57,6 +58,43 @@ def test_diagnose_finds_the_command_lines_effects_with_the_same_parameters(cli):
     assert got_budget == want_budget
     assert d.verdict.verdict == "effect" and d.next_effects == FOUND
     assert calls and calls[-1][0] == calls[-1][1], "the progress callback saw the candidates fitted"
+
+
+def test_save_keeps_the_command_lines_file_rule(tmp_path):
+    """`Model.save` writes as the command line does (README, "Files"): never through a
+    symbolic link (dangling or not), into a FIFO or a device, even with `overwrite`;
+    an existing file only with `overwrite`; nothing left behind. (Before, `overwrite`
+    wrote through a link into its target and blocked on a FIFO.)"""
+    m = vc.Model('format = "vibrocomp-model/1"\nmode = "exact"\n')
+    target = tmp_path / "target.toml"
+    target.write_text("kept")
+    link = tmp_path / "link.toml"
+    link.symlink_to(target)
+    dangling = tmp_path / "dangling.toml"
+    dangling.symlink_to(tmp_path / "missing.toml")
+    fifo = tmp_path / "fifo.toml"
+    os.mkfifo(fifo)
+    for path, says in [
+        (link, "is a symbolic link to"),
+        (dangling, "is a symbolic link to"),
+        (fifo, "is a FIFO"),
+        ("/dev/null", "is a character device"),
+    ]:
+        for overwrite in [True, False]:
+            with pytest.raises(vc.VibrocompError, match=says) as e:
+                m.save(path, overwrite=overwrite)
+            assert str(path) in str(e.value)
+    assert target.read_text() == "kept"
+    assert not (tmp_path / "missing.toml").exists()
+    mine = tmp_path / "model.toml"
+    m.save(mine)
+    with pytest.raises(FileExistsError, match="pass --force to overwrite it"):
+        m.save(mine)
+    m.save(mine, overwrite=True)
+    assert mine.read_text() == m.text
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "dangling.toml", "fifo.toml", "link.toml", "model.toml", "target.toml"
+    ]
 
 
 def test_add_writes_the_command_lines_model_and_reads_it_back(cli, tmp_path):

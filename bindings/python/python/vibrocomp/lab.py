@@ -111,6 +111,7 @@ class Row(_Json):
 @dataclass(frozen=True)
 class Summary(_Json):
     n: int
+    distinct_conditions: int
     rms_residual_g: float
     max_abs_residual_g: float
     rms_measured_g: float
@@ -313,9 +314,11 @@ class Model:
         return cls(text, name)
 
     def save(self, path: PathLike, overwrite: bool = False) -> None:
-        """Writes the model file (an existing file only with `overwrite`)."""
-        with open(path, "w" if overwrite else "x", encoding="utf-8") as f:
-            f.write(self.text)
+        """Writes the model file by the command line's rule (README, "Files"): an
+        existing file only with `overwrite` (else `FileExistsError`); never through a
+        symbolic link, into a FIFO or a device (`VibrocompError`, even with
+        `overwrite`); the file appears only when complete."""
+        _native.save_model(os.fspath(path), self.text, overwrite)
 
     def __repr__(self) -> str:
         return f"Model({self.name!r}, mode={self.mode!r}, effects={self.effects!r})"

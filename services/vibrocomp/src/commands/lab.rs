@@ -331,11 +331,9 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
         fit,
         empirical: correction,
     } = added?;
-    crate::files::write_with(&a.out, a.force, |tmp| {
-        extended
-            .save(tmp)
-            .with_context(|| format!("{}: cannot write the extended model", a.out.display()))
-    })?;
+    extended
+        .save(&a.out, a.force)
+        .context("writing the extended model")?;
     let report = AddReport {
         out: a.out.display().to_string(),
         effects: extended.effect_kinds(),

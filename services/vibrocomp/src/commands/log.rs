@@ -100,6 +100,73 @@ fn info(args: &InfoArgs) -> anyhow::Result<()> {
     print_text(|out| write_info(out, &info))
 }
 
+/// The losses line of a file whose sequences show none: a recovered file's losses are
+/// in its recovery records, not in its sequences (a chunk dropped at the start of the
+/// streams leaves no gap).
+fn write_no_losses(out: &mut String, info: &LogInfo) -> std::fmt::Result {
+    let dropped: u64 = info.recoveries.iter().map(|r| r.messages_dropped).sum();
+    if info.recoveries.iter().any(|r| r.losses) {
+        let counted = if dropped > 0 {
+            format!("{dropped} messages dropped")
+        } else {
+            "parts of the input not copied".to_string()
+        };
+        writeln!(
+            out,
+            "  losses: none in the sequences (every sequence advances by 1), but {counted} when it was recovered (below)"
+        )
+    } else {
+        writeln!(out, "  losses: none (every sequence advances by 1)")
+    }
+}
+
+/// One line per recovery that made the file (its `vibrocomp.recovery` records).
+fn write_recoveries(out: &mut String, info: &LogInfo) -> std::fmt::Result {
+    for r in &info.recoveries {
+        let kept = match r.messages_expected {
+            Some(n) => format!("{} of {n} messages kept", r.messages_kept),
+            None => format!("{} messages kept", r.messages_kept),
+        };
+        let mut lost = Vec::new();
+        if r.messages_dropped > 0 {
+            let exact = if r.messages_expected.is_some() {
+                ""
+            } else {
+                "at least "
+            };
+            lost.push(format!("{exact}{} messages dropped", r.messages_dropped));
+        }
+        if r.chunks_skipped > 0 {
+            lost.push(format!("{} chunk(s) skipped", r.chunks_skipped));
+        }
+        if r.regions_skipped > 0 {
+            lost.push(format!(
+                "{} region(s) of {} bytes not copied (bytes {})",
+                r.regions_skipped, r.bytes_skipped, r.skipped_ranges
+            ));
+        }
+        if r.bytes_cut > 0 {
+            lost.push(format!(
+                "the last {} bytes cut short (a crash)",
+                r.bytes_cut
+            ));
+        }
+        let lost = if lost.is_empty() {
+            "nothing lost".to_string()
+        } else {
+            lost.join(", ")
+        };
+        writeln!(
+            out,
+            "  recovered from {} ({} bytes; {}): {kept}, {lost}",
+            r.input,
+            r.input_bytes,
+            vibro_mcap::RECOVERY_METADATA
+        )?;
+    }
+    Ok(())
+}
+
 fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
     writeln!(
         out,
@@ -134,40 +201,39 @@ fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
     )?;
     let gaps: u64 = info.channels.iter().map(|c| c.gaps).sum();
     let out_of_order: u64 = info.channels.iter().map(|c| c.out_of_order).sum();
-    if info.lost == 0 && out_of_order == 0 && info.jumps == 0 {
-        writeln!(out, "  losses: none (every sequence advances by 1)")?;
+    let resyncs: u64 = info.channels.iter().map(|c| c.resyncs).sum();
+    let restarts: u64 = info.channels.iter().map(|c| c.restarts).sum();
+    if info.lost == 0 && out_of_order == 0 && info.jumps == 0 && resyncs == 0 && restarts == 0 {
+        write_no_losses(out, info)?;
     } else {
-        let by_sequence = info.lost - info.inputs_without_output;
+        // Each loss once (vibro_mcap::LogInfo::lost): by sequence, and the blocks in
+        // the file that got no output.
+        let by_sequence = info.lost.saturating_sub(info.inputs_without_output);
         write!(
             out,
             "  losses: {by_sequence} messages lost in {gaps} sequence gaps, {out_of_order} out of order"
         )?;
-        if info.inputs_without_output > 0 {
-            // Where: the first gap of each channel that has one (all are in --json).
-            let wheres: Vec<String> = info
-                .channels
-                .iter()
-                .filter_map(|c| {
-                    let g = c.input_gaps.first()?;
-                    let more = if c.inputs_without_output > g.missing {
-                        format!(
-                            " and {} more in later gaps",
-                            c.inputs_without_output - g.missing
-                        )
-                    } else {
-                        String::new()
-                    };
-                    Some(format!(
-                        "input_seq {} -> {} on {}{more}",
-                        g.from, g.to, c.topic
-                    ))
-                })
-                .collect();
+        if restarts > 0 {
+            write!(out, "; {restarts} restarts (a sequence back to 0)")?;
+        }
+        if resyncs > 0 {
             write!(
                 out,
-                "; {} accelerometer blocks without compensated output ({})",
-                info.inputs_without_output,
-                wheres.join("; ")
+                "; {resyncs} resyncs, {} counted lost at a seq ahead of its stream and taken back when it resumed",
+                info.retracted
+            )?;
+        }
+        // Which blocks: every compensated channel's, by seq (all are in --json).
+        for c in info.channels.iter().filter(|c| c.inputs_without_output > 0) {
+            write!(
+                out,
+                "; {} accelerometer blocks without compensated output on {} ({}{})",
+                c.inputs_without_output,
+                c.topic,
+                c.unanswered,
+                c.inputs_topic
+                    .as_deref()
+                    .map_or_else(String::new, |t| format!(" on {t}"))
             )?;
         }
         if info.jumps > 0 {
@@ -178,8 +244,12 @@ fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
                 vibro_mcap::MAX_LOST_MESSAGES
             )?;
         }
+        if info.inputs_without_output > 0 {
+            write!(out, "; {} lost in all", info.lost)?;
+        }
         writeln!(out)?;
     }
+    write_recoveries(out, info)?;
     // Topics as wide as the longest (`/heartbeat/compensator` is 22 characters).
     let tw = info
         .channels
@@ -282,9 +352,15 @@ pub struct RecoverArgs {
 fn recover(args: &RecoverArgs) -> anyhow::Result<()> {
     let output = recover_log(&args.damaged, &args.out, args.force)?;
     if args.json {
-        return print_json(&output);
+        print_json(&output)?;
+    } else {
+        print_text(|out| write_recover(out, &output))?;
     }
-    print_text(|out| write_recover(out, &output))
+    // Written, but with losses: its own exit status (docs/logs.md), after the report.
+    match output.exit_code {
+        0 => Ok(()),
+        code => Err(crate::output::ExitStatus(code).into()),
+    }
 }
 
 fn write_recover(out: &mut String, o: &RecoverOutput) -> std::fmt::Result {
@@ -367,9 +443,16 @@ fn write_recover(out: &mut String, o: &RecoverOutput) -> std::fmt::Result {
     if r.messages_orphaned > 0 {
         writeln!(
             out,
-            "  dropped: {} messages whose channel was defined only in a skipped chunk",
+            "  dropped: {} messages whose channel, or its schema, survives nowhere intact",
             r.messages_orphaned
         )?;
     }
-    Ok(())
+    if r.chunks_repaired > 0 {
+        writeln!(
+            out,
+            "  repaired: {} chunk(s) whose header was damaged, read all the same (their CRC proves their records)",
+            r.chunks_repaired
+        )?;
+    }
+    writeln!(out, "  result: {}", o.result)
 }

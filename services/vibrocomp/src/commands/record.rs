@@ -98,7 +98,8 @@ fn config_text(
         .or_else(|| Some(PathBuf::from(default_path)).filter(|p| p.is_file()));
     match path {
         Some(p) => {
-            let bytes = std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?;
+            // A configuration file's bound: a bigger one is refused unread.
+            let bytes = vibro_service::read_config_file(&p)?.into_bytes();
             Ok((p.display().to_string(), bytes))
         }
         None => Ok((
@@ -172,6 +173,7 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
     let mut options = RecordOptions::new(names, streams);
     options.extras = extras;
     options.view = !args.no_view;
+    options.force = args.force;
     let out = args.out.clone();
     let summary = run_service(|shutdown| async move {
         let (tx, rx) = tokio::sync::oneshot::channel();
@@ -228,6 +230,14 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
         } else {
             String::new()
         };
+        // Resyncs, and the losses they took back (a `seq` ahead of the stream), only
+        // when seen.
+        if c.resyncs > 0 {
+            jumps.push_str(&format!(
+                "  resyncs {} ({} taken back)",
+                c.resyncs, c.retracted
+            ));
+        }
         // Data times off the recording's timeline (written at the timeline's time).
         if c.off_timeline > 0 {
             jumps.push_str(&format!("  off the timeline {}", c.off_timeline));
@@ -239,6 +249,13 @@ pub fn run(args: &RecordArgs) -> anyhow::Result<()> {
             c.lost,
             c.out_of_order,
             c.malformed
+        )?;
+    }
+    if s.inputs_without_output > 0 {
+        outln!(
+            "  {} accelerometer blocks without compensated output: {}",
+            s.inputs_without_output,
+            s.unanswered
         )?;
     }
     Ok(())

@@ -226,26 +226,11 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Refuses a recording path the recorder could not write, before any service starts:
-/// a directory, a missing folder, a device or link ([`vibro_log::output::check_output`]),
-/// an existing regular file without --force (README, "Files"), or a folder this user
-/// cannot create a file in (probed by creating the file's entry and removing it).
+/// Refuses a recording path the recorder could not write, before any service starts,
+/// by the same check as `record` ([`crate::files::check_recording`]): an input, a
+/// directory, a missing folder, a device, a FIFO or a link, an existing regular file
+/// without --force (README, "Files"), or a file or folder this user cannot write.
 fn check_record_path(out: &std::path::Path, force: bool) -> anyhow::Result<()> {
-    vibro_log::output::check_output(out, &[], force)
-        .with_context(|| format!("--record {}", out.display()))?;
-    if out.exists() {
-        std::fs::OpenOptions::new()
-            .append(true)
-            .open(out)
-            .with_context(|| format!("--record {}: cannot write it", out.display()))?;
-    } else {
-        std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(out)
-            .with_context(|| format!("--record {}: cannot create it", out.display()))?;
-        std::fs::remove_file(out)
-            .with_context(|| format!("--record {}: removing the probe", out.display()))?;
-    }
-    Ok(())
+    crate::files::check_recording(out, &[], force)
+        .with_context(|| format!("--record {}", out.display()))
 }

@@ -10,10 +10,13 @@
 //! the server queues each client's messages in a bounded queue of its own and drops
 //! the oldest for a client that falls behind. So the services never feel a viewer.
 //!
-//! The Foxglove server listens on 127.0.0.1 only, behind the guard of
-//! `vibro_view::live` (the address given): a cap on viewers (`--max-clients`), a
-//! handshake timeout, client messages of 64 KiB at most, a listener that outlives a
-//! descriptor shortage, log lines about clients rate-limited (issue 31).
+//! The Foxglove server listens on 127.0.0.1 only, its port shut to all but the guard of
+//! `vibro_view::live` (the address given): a cap on viewers (`--max-clients`) with a
+//! share per peer (a local peer is the user owning the client's socket), a handshake
+//! timeout, pings that a client must answer within 10 s, client messages of 64 KiB at
+//! most, a listener that outlives a descriptor shortage, log lines about clients
+//! rate-limited (issues 31 and 46); `foxglove.websocket.v1` is served as well as the
+//! SDK's `foxglove.sdk.v1`.
 
 use anyhow::Context;
 use iceoryx2::prelude::CallbackProgression;
@@ -59,7 +62,9 @@ pub struct ViewArgs {
     /// 127.0.0.1 only when you mean it).
     #[arg(long, default_value = DEFAULT_LISTEN)]
     pub listen: SocketAddr,
-    /// Viewers served at once; one more is refused (HTTP 503) until one leaves.
+    /// Viewers served at once. One more takes the place of one that does not answer its
+    /// pings, or of the peer holding the most when its own holds two fewer; else it is
+    /// refused (HTTP 503).
     #[arg(long, default_value_t = vibro_view::live::DEFAULT_MAX_CLIENTS as u16,
           value_parser = clap::value_parser!(u16).range(1..=1024))]
     pub max_clients: u16,

@@ -221,6 +221,11 @@ pub fn listing() -> Vec<EffectListing> {
         .collect()
 }
 
+/// Most parameters an `[[effect]]` table may give besides `kind`, `enabled` and
+/// `units`: an effect takes at most a handful; a table of more is refused by its count
+/// before its keys are looked at one by one.
+pub const MAX_EFFECT_PARAMS: usize = 32;
+
 /// Builds an effect for the standard triad with no passports (see [`build_for_rig`]).
 pub fn build(spec: &EffectSpec) -> Result<Box<dyn Effect>> {
     build_for_rig(spec, &Rig::standard())
@@ -233,10 +238,17 @@ pub fn build_for_rig(spec: &EffectSpec, rig: &Rig) -> Result<Box<dyn Effect>> {
         let kinds: Vec<&str> = EFFECTS.iter().map(|e| e.kind).collect();
         return Err(Error::Invalid {
             key: "effect.kind".into(),
-            value: format!("{:?}", spec.kind),
+            value: vibro_toml::bounds::quote(&spec.kind),
             rule: format!("unknown effect; expected one of {}", kinds.join(", ")),
         });
     };
+    if spec.params.len() > MAX_EFFECT_PARAMS {
+        return Err(Error::Invalid {
+            key: format!("effect[{}]", info.kind),
+            value: format!("{} parameters", spec.params.len()),
+            rule: format!("at most {MAX_EFFECT_PARAMS}"),
+        });
+    }
     let mut params = Params::new(info, &spec.params, rig);
     let on = units_mask(&mut params, info.scope, spec.units.as_deref());
     let built = (info.build)(&mut params);

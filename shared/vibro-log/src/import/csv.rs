@@ -7,8 +7,11 @@ use std::io::BufReader;
 use std::path::Path;
 
 use super::lines::LineReader;
+// A line is up to 64 KiB (a CR-only file is one line): its cells are quoted by a line's
+// worth, control characters escaped.
 use super::{ImportKind, MAX_PROBLEMS, MAX_TIME_S};
 use crate::{Error, Result};
+use vibro_toml::echo::{excerpt, excerpt_bytes};
 
 /// Problems found in one file, each naming the file, line, column, value and rule.
 #[derive(Debug)]
@@ -240,9 +243,9 @@ impl CsvRows {
                     problems.add(
                         line,
                         format!(
-                            " (header): column {want} appears {} times (columns {:?}); it must appear once",
+                            " (header): column {want} appears {} times (columns {}); it must appear once",
                             several.len(),
-                            several
+                            excerpt(&format!("{several:?}"))
                         ),
                     );
                 }
@@ -253,8 +256,8 @@ impl CsvRows {
             problems.add(
                 line,
                 format!(
-                    " (header) = {:?}: missing column(s) {}; the header must name {expected_text} (in any order; other columns are ignored){}",
-                    names.join(","),
+                    " (header) = \"{}\": missing column(s) {}; the header must name {expected_text} (in any order; other columns are ignored){}",
+                    excerpt(&names.join(",")),
                     missing.join(", "),
                     if numeric {
                         "; the first line that is not a # comment must be the header"
@@ -306,8 +309,8 @@ impl CsvRows {
                 problems.add(
                     line,
                     format!(
-                        " = {:?}: {} columns, the header (line {}) has {width}",
-                        String::from_utf8_lossy(&self.text),
+                        " = \"{}\": {} columns, the header (line {}) has {width}",
+                        excerpt_bytes(&self.text),
                         self.cells.len(),
                         self.header.line
                     ),
@@ -340,9 +343,9 @@ impl CsvRows {
                         problems.add(
                             line,
                             format!(
-                                ", column {} = {:?}: {rule}",
+                                ", column {} = \"{}\": {rule}",
                                 self.names[k],
-                                String::from_utf8_lossy(cell)
+                                excerpt_bytes(cell)
                             ),
                         );
                     }

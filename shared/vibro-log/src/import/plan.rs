@@ -88,6 +88,8 @@ pub struct ImportPlan {
     /// The rig, validated, and the reference stream's file.
     pub(super) rig: Option<vibro_config::RigConfig>,
     pub(super) reference: Option<PathBuf>,
+    /// Replace `out` if it exists (it is renamed over it when complete).
+    pub(super) force: bool,
 }
 
 impl ImportPlan {
@@ -212,6 +214,7 @@ impl TryFrom<&ImportOptions> for ImportPlan {
             tool: args.tool.clone(),
             rig,
             reference: args.reference.clone(),
+            force: args.force,
         })
     }
 }

@@ -151,7 +151,7 @@ pub fn import(plan: &ImportPlan, progress: &mut dyn ImportProgress) -> Result<Im
 
     // Pass 2: blocks, in time order over the streams, into a temporary file.
     progress.sink.pass("importing");
-    let part = PartFile::beside(&plan.out);
+    let part = PartFile::beside(&plan.out)?;
     let mut rec = Recorder::create(part.path(), RecorderOptions::default()).map_err(|source| {
         Error::CreateLog {
             path: plan.out.clone(),
@@ -284,7 +284,7 @@ pub fn import(plan: &ImportPlan, progress: &mut dyn ImportProgress) -> Result<Im
     extras.metadata(IMPORT_METADATA, meta);
     extras.write_to(&rec)?;
     let summary = rec.finish().map_err(Error::FinishLog)?;
-    part.commit(&plan.out)?;
+    part.commit(&plan.out, plan.force)?;
     let elapsed_s = started.elapsed().as_secs_f64();
     let rows: u64 = streams.iter().map(|s| s.rows).sum();
     Ok(ImportReport {

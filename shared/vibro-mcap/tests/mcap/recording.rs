@@ -415,10 +415,13 @@ fn misuse_is_reported_with_the_values_involved() {
     let e = Recorder::create(&missing, RecorderOptions::default())
         .err()
         .unwrap();
-    assert!(
-        e.to_string()
-            .starts_with(&format!("cannot create {}: ", missing.display())),
-        "{e}"
+    assert_eq!(
+        e.to_string(),
+        format!(
+            "output {}: its folder {} does not exist",
+            missing.display(),
+            dir.join("no/such/dir").display()
+        )
     );
     let e = Reader::open(dir.join("absent.mcap")).err().unwrap();
     assert!(e.to_string().starts_with("cannot open "), "{e}");

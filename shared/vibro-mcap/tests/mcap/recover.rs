@@ -378,3 +378,294 @@ fn damage_in_one_attachment_keeps_the_attachments_and_metadata_after_it() {
     assert_eq!(r.metadata, metadata, "{r:?}");
     assert_eq!(r.messages_recovered, messages, "{r:?}");
 }
+
+// ---------------------------------------------------------------------------------
+// Issue 46, item 5: schemas and channels from wherever they survive; losses recorded.
+
+/// The file of issue 46: channels on `/accel` and `/vib`, then an attachment (which
+/// closes the first chunk, so that it holds the schemas and channels only, as
+/// `vibrocomp record`'s first chunk does), then 1000 messages on each channel in
+/// chunks of 64 KiB. Its bytes, and its chunks in file order (from the `mcap` crate's
+/// summary reader, independent of the code under test).
+fn issue_file(dir: &std::path::Path) -> (Vec<u8>, Vec<Chunk>) {
+    let path = dir.join("issue46.mcap");
+    let options = RecorderOptions {
+        chunk_size_bytes: 64 * 1024,
+        // Every message fits in the queue: the test writes faster than zstd.
+        queue_capacity: 2048,
+        ..RecorderOptions::default()
+    };
+    let mut recorder = Recorder::create(&path, options).unwrap();
+    recorder
+        .add_channel("/accel", MessageKind::AccelBlock)
+        .unwrap();
+    recorder.add_channel("/vib", MessageKind::VibBlock).unwrap();
+    recorder
+        .add_attachment("triad.toml", "application/toml", b"id = \"t\"\n".to_vec())
+        .unwrap();
+    for seq in 0..1000u32 {
+        let t = u64::from(seq) * 10_000_000;
+        recorder
+            .write("/accel", t, t, seq, &accel(seq.into()))
+            .unwrap();
+        recorder
+            .write("/vib", t + 1, t, seq, &vib(seq.into()))
+            .unwrap();
+    }
+    recorder.finish().unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    let mut chunks: Vec<Chunk> = summary
+        .chunk_indexes
+        .iter()
+        .map(|c| Chunk {
+            start: c.chunk_start_offset,
+            end: c.chunk_start_offset + c.chunk_length,
+            messages: summary.stream_chunk(&bytes, c).unwrap().count() as u64,
+        })
+        .collect();
+    chunks.sort();
+    (bytes, chunks)
+}
+
+fn le64(bytes: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap())
+}
+
+/// Where the footer record starts (before the closing magic).
+fn footer_at(bytes: &[u8]) -> usize {
+    bytes.len() - mcap::MAGIC.len() - (9 + 20)
+}
+
+/// Sets the first chunk's uncompressed size to 2^40. With `consistent`, also in its
+/// chunk index, and the data-section CRC (data-end record) and summary CRC (footer)
+/// computed again, so that every CRC of the file checks out: a crafted file rather
+/// than a damaged one.
+fn claim_2_pow_40(bytes: &mut [u8], first: Chunk, consistent: bool) {
+    let huge = (1u64 << 40).to_le_bytes();
+    // Chunk record: opcode, length, start time, end time, uncompressed size.
+    let at = first.start as usize + 9 + 16;
+    bytes[at..at + 8].copy_from_slice(&huge);
+    if !consistent {
+        return;
+    }
+    let footer = footer_at(bytes);
+    let summary_start = le64(bytes, footer + 9) as usize;
+    let mut pos = summary_start;
+    let mut patched = false;
+    while pos < footer {
+        let len = le64(bytes, pos + 1) as usize;
+        // Chunk index: two times, then the chunk's start; its last field is the
+        // uncompressed size.
+        if bytes[pos] == 0x08 && le64(bytes, pos + 9 + 16) == first.start {
+            let end = pos + 9 + len;
+            bytes[end - 8..end].copy_from_slice(&huge);
+            patched = true;
+        }
+        pos += 9 + len;
+    }
+    assert!(patched, "no chunk index for the first chunk");
+    // Data end: opcode, length 4, CRC of every byte before it.
+    let data_end = summary_start - 13;
+    let crc = crc32fast::hash(&bytes[..data_end]);
+    bytes[summary_start - 4..summary_start].copy_from_slice(&crc.to_le_bytes());
+    let crc = crc32fast::hash(&bytes[summary_start..footer + 25]);
+    bytes[footer + 25..footer + 29].copy_from_slice(&crc.to_le_bytes());
+}
+
+/// Whether the `mcap` crate's linear reader finds the data section's and the summary
+/// section's CRCs correct (chunks are not decompressed: the first one claims 1 TiB).
+fn every_crc_checks_out(bytes: &[u8]) -> bool {
+    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_validate_data_section_crc(true)
+            .with_validate_summary_section_crc(true)
+            .with_emit_chunks(true)
+            .with_record_length_limit(bytes.len()),
+    );
+    let mut at = 0;
+    while let Some(event) = reader.next_event() {
+        match event {
+            Ok(LinearReadEvent::ReadRequest(n)) => {
+                let n = n.min(bytes.len() - at);
+                reader.insert(n).copy_from_slice(&bytes[at..at + n]);
+                reader.notify_read(n);
+                at += n;
+            }
+            Ok(LinearReadEvent::Record { .. }) => {}
+            Err(_) => return false,
+        }
+    }
+    true
+}
+
+/// Every message of a file as the `mcap` crate reads it (CRCs checked), in a
+/// canonical order: topic, schema, sequence, log time, publish time, bytes.
+fn messages_of(bytes: &[u8]) -> Vec<(String, String, u32, u64, u64, Vec<u8>)> {
+    let mut out: Vec<_> = mcap::MessageStream::new(bytes)
+        .unwrap()
+        .map(|m| {
+            let m = m.unwrap();
+            let schema = m
+                .channel
+                .schema
+                .as_ref()
+                .map_or(String::new(), |s| s.name.clone());
+            (
+                m.channel.topic.clone(),
+                schema,
+                m.sequence,
+                m.log_time,
+                m.publish_time,
+                m.data.to_vec(),
+            )
+        })
+        .collect();
+    out.sort();
+    out
+}
+
+/// The PyPI `mcap` reader's comparison of two files' messages
+/// (`tests/python/mcap_same_messages.py`, CRCs checked). Fails, never skips, without
+/// Python.
+fn python_messages_equal(
+    original: &std::path::Path,
+    recovered: &std::path::Path,
+) -> serde_json::Value {
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/python/mcap_same_messages.py");
+    let out = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(original)
+        .arg(recovered)
+        .output()
+        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
+    assert!(
+        out.status.success(),
+        "the Python mcap reader failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// Issue 46: a first chunk that claims 2^40 uncompressed bytes lost all 2000 messages
+/// ("dropped: 2000 messages whose channel was defined only in a skipped chunk"),
+/// although the summary section held every schema and channel, and the recovery said
+/// nothing was wrong. Now the chunk is read all the same (its CRC proves its records;
+/// the size is only a hint) and every message is kept, whether the size was garbled
+/// alone or the file crafted so that every CRC checks out.
+#[test]
+fn a_first_chunk_claiming_2_pow_40_bytes_loses_no_message() {
+    let dir = scratch("issue46-size");
+    let (bytes, chunks) = issue_file(&dir);
+    assert_eq!(
+        chunks[0].messages, 0,
+        "the first chunk holds the definitions only"
+    );
+    assert_eq!(chunks.iter().map(|c| c.messages).sum::<u64>(), 2000);
+    assert!(chunks.len() >= 3, "{} chunks", chunks.len());
+    let original = messages_of(&bytes);
+    assert_eq!(original.len(), 2000);
+    std::fs::write(dir.join("original.mcap"), &bytes).unwrap();
+    for consistent in [false, true] {
+        let mut b = bytes.clone();
+        claim_2_pow_40(&mut b, chunks[0], consistent);
+        assert_eq!(every_crc_checks_out(&b), consistent);
+        let name = if consistent { "crafted" } else { "garbled" };
+        let damaged = dir.join(format!("{name}.mcap"));
+        std::fs::write(&damaged, &b).unwrap();
+        let out = dir.join(format!("{name}-out.mcap"));
+        let r = recover(&damaged, &out).unwrap();
+        assert_eq!(r.messages_recovered, 2000, "{name}: {r:?}");
+        assert_eq!(r.messages_orphaned, 0, "{name}");
+        assert_eq!((r.messages_dropped, r.messages_dropped_exact), (0, true));
+        assert_eq!(r.expected.map(|e| e.messages), Some(2000));
+        assert_eq!(r.chunks_recovered, chunks.len() as u64, "{name}");
+        assert_eq!((r.chunks_skipped, r.chunks_repaired), (0, 1), "{name}");
+        assert!(!r.losses, "{name}: {r:?}");
+        assert_eq!(r.attachments, 1);
+        // The messages are the original's, bit for bit, as the `mcap` crate and the
+        // Python reader see them.
+        let recovered = std::fs::read(&out).unwrap();
+        assert_eq!(messages_of(&recovered), original, "{name}");
+        let py = python_messages_equal(&dir.join("original.mcap"), &out);
+        assert_eq!(py["a"], 2000, "{name}: {py}");
+        assert_eq!(py["equal"], true, "{name}: {py}");
+        // `info` of the result: a recovery that lost nothing.
+        let i = info(&out).unwrap();
+        assert_eq!(i.messages, 2000);
+        assert_eq!(i.recoveries.len(), 1, "{name}");
+        assert_eq!(i.recoveries[0].messages_kept, 2000);
+        assert_eq!(i.recoveries[0].messages_dropped, 0);
+        assert!(!i.recoveries[0].losses);
+    }
+}
+
+/// A damaged chunk whose messages start the streams: the sequences of what is left
+/// begin later and show no gap, so the loss is invisible to a sequence count. The
+/// recovery counts it exactly (the input's statistics record is intact), says so
+/// (`losses`) and writes it into the new file, where `info` finds it.
+#[test]
+fn a_recovery_that_drops_messages_says_so_and_records_it_in_the_file() {
+    let dir = scratch("issue46-record");
+    let (mut bytes, chunks) = issue_file(&dir);
+    let first = chunks.iter().find(|c| c.messages > 0).copied().unwrap();
+    // The last byte of its compressed records: it still decompresses, to other bytes.
+    bytes[first.end as usize - 1] ^= 0x01;
+    let damaged = dir.join("damaged.mcap");
+    std::fs::write(&damaged, &bytes).unwrap();
+    let out = dir.join("out.mcap");
+    let r = recover(&damaged, &out).unwrap();
+    assert_eq!(r.messages_recovered, 2000 - first.messages, "{r:?}");
+    assert_eq!(r.messages_dropped, first.messages);
+    assert!(r.messages_dropped_exact);
+    assert!(r.losses);
+    assert_eq!(r.chunks_skipped, 1);
+    let i = info(&out).unwrap();
+    assert_eq!(i.lost, 0, "the sequences show nothing: {i:?}");
+    assert_eq!(i.recoveries.len(), 1);
+    let rec = &i.recoveries[0];
+    assert_eq!(rec.messages_dropped, first.messages);
+    assert_eq!(rec.messages_expected, Some(2000));
+    assert_eq!(rec.messages_kept, 2000 - first.messages);
+    assert_eq!(rec.chunks_skipped, 1);
+    assert_eq!(
+        rec.skipped_ranges,
+        format!("{}..{}", first.start, first.end)
+    );
+    assert_eq!(rec.bytes_skipped, first.end - first.start);
+    assert!(rec.losses);
+    assert_eq!(rec.input, "damaged.mcap");
+    // Recovering the result again keeps the first record and adds one that lost
+    // nothing.
+    let again = recover(&out, dir.join("again.mcap")).unwrap();
+    assert!(!again.losses, "{again:?}");
+    let i = info(dir.join("again.mcap")).unwrap();
+    let dropped: Vec<u64> = i.recoveries.iter().map(|r| r.messages_dropped).collect();
+    assert_eq!(dropped, [first.messages, 0]);
+}
+
+/// Issue 46: MCAP magic followed by zeros. `recover` said "Bad magic number"; now it
+/// says that nothing can be recovered and why, quickly (the scan for an intact chunk
+/// reads the file in windows).
+#[test]
+fn magic_and_zeros_is_nothing_to_recover() {
+    let dir = scratch("zeros");
+    let damaged = dir.join("zeros.mcap");
+    let mut bytes = mcap::MAGIC.to_vec();
+    bytes.resize(8 << 20, 0);
+    std::fs::write(&damaged, &bytes).unwrap();
+    let started = std::time::Instant::now();
+    let e = recover(&damaged, dir.join("out.mcap")).unwrap_err();
+    let text = e.to_string();
+    assert!(matches!(e, Error::Malformed { .. }), "{text}");
+    assert!(text.contains("nothing to recover"), "{text}");
+    assert!(text.contains("opcode 0x00 at byte 8"), "{text}");
+    assert!(!text.contains("Bad magic"), "{text}");
+    assert!(
+        started.elapsed().as_secs_f64() < 10.0,
+        "{:?}",
+        started.elapsed()
+    );
+}

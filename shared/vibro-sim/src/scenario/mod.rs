@@ -27,12 +27,17 @@
 mod checks;
 mod grid;
 mod raw;
+mod sizes;
 mod types;
 mod validate;
 
 pub use raw::{
     BandRaw, CampaignRaw, FlightRaw, GridRaw, ProfilePointRaw, RandomRaw, RatesRaw, ScenarioRaw,
     SensorRaw, ToneRaw,
+};
+pub use sizes::{
+    MAX_CONDITIONS, MAX_EFFECTS, MAX_GRIDS, MAX_GRID_TABLES, MAX_GRID_VALUES, MAX_INLINE_BANDS,
+    MAX_PROFILE_POINTS,
 };
 pub use types::{
     random_filter_len, Campaign, Condition, Direction, Flight, FlightTone, Profile, RandomSpec,
@@ -197,7 +202,7 @@ pub fn parse_scenario(text: &str, file: &str, base_dir: Option<&Path>) -> Result
 
 /// Loads a scenario file.
 pub fn load_scenario(path: &Path) -> Result<Scenario> {
-    let text = std::fs::read_to_string(path).map_err(|source| Error::Io {
+    let text = vibro_toml::bounds::read_file(path).map_err(|source| Error::Io {
         file: path.display().to_string(),
         source,
     })?;

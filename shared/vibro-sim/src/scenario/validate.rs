@@ -41,6 +41,13 @@ impl Scenario {
     pub fn try_from_raw(raw: ScenarioRaw, file: &str, base_dir: Option<&Path>) -> Result<Self> {
         let refs = Refs { base_dir };
         let mut p = Problems::default();
+        // Sizes first: a value over its bound is not looked at further.
+        if !super::sizes::check_sizes(&raw, &mut p.0) {
+            return Err(Error::Scenario {
+                file: file.to_string(),
+                problems: p.0,
+            });
+        }
         if raw.name.trim().is_empty() {
             p.push("name", format!("{:?}", raw.name), "must not be empty");
         }

@@ -65,7 +65,27 @@ pub struct FrameScanner {
     /// Payload bytes of the data message being assembled from fragments (§5.4).
     message_bytes: u64,
     frames: u64,
+    /// The payload of the Pong frame being read (a control frame's is at most 125
+    /// bytes, §5.5), still masked, and its mask key; `None` outside a Pong.
+    pong: Option<Pong>,
+    /// Where the first frame to end in the last bytes fed ended, in them.
+    first_end: Option<usize>,
 }
+
+/// A Pong frame's payload gathered as it passes.
+#[derive(Debug, Clone)]
+struct Pong {
+    mask: [u8; 4],
+    len: usize,
+    have: usize,
+    payload: [u8; MAX_CONTROL_PAYLOAD],
+}
+
+/// The longest payload of a control frame (RFC 6455 §5.5).
+pub const MAX_CONTROL_PAYLOAD: usize = 125;
+
+/// The opcode of a Pong frame (§5.5.3).
+const PONG: u8 = 0xA;
 
 impl FrameScanner {
     /// A scanner refusing any frame, and any message (its fragments summed), whose
@@ -78,6 +98,8 @@ impl FrameScanner {
             payload_left: 0,
             message_bytes: 0,
             frames: 0,
+            pong: None,
+            first_end: None,
         }
     }
 
@@ -91,17 +113,47 @@ impl FrameScanner {
         self.frames
     }
 
+    /// Where, in the bytes of the last [`FrameScanner::feed`], the first frame to end in
+    /// them ended (a frame may be inserted there), if one did.
+    pub fn first_frame_end(&self) -> Option<usize> {
+        self.first_end
+    }
+
     /// Follows `bytes`, the next ones of the stream. Once this returns an error, the
     /// stream is not to be followed further.
     pub fn feed(&mut self, bytes: &[u8]) -> Result<(), Oversized> {
+        self.feed_pongs(bytes, |_| {})
+    }
+
+    /// [`FrameScanner::feed`], and `on_pong` called with the (unmasked) payload of each
+    /// Pong frame that ends in `bytes` (of at most [`MAX_CONTROL_PAYLOAD`] bytes: a longer
+    /// one breaks the protocol, and its payload is not gathered).
+    pub fn feed_pongs(
+        &mut self,
+        bytes: &[u8],
+        mut on_pong: impl FnMut(&[u8]),
+    ) -> Result<(), Oversized> {
         let mut i = 0;
         // Where the header being read started in `bytes`, if it did.
         let mut header_start = None;
+        self.first_end = None;
         while i < bytes.len() {
             if self.payload_left > 0 {
                 let skip = self.payload_left.min((bytes.len() - i) as u64);
+                if let Some(p) = self.pong.as_mut() {
+                    // `skip` <= the Pong's length left, at most 125.
+                    let n = skip as usize;
+                    p.payload[p.have..p.have + n].copy_from_slice(&bytes[i..i + n]);
+                    p.have += n;
+                }
                 self.payload_left -= skip;
                 i += skip as usize;
+                if self.payload_left == 0 {
+                    self.first_end.get_or_insert(i);
+                    if let Some(mut p) = self.pong.take() {
+                        on_pong(p.unmask());
+                    }
+                }
                 continue;
             }
             if self.have == 0 {
@@ -157,9 +209,50 @@ impl FrameScanner {
             self.have = 0;
             self.payload_left = len;
             self.frames += 1;
+            if len == 0 {
+                self.first_end.get_or_insert(i);
+            }
+            if opcode == PONG && len <= MAX_CONTROL_PAYLOAD as u64 {
+                let mut mask = [0; 4];
+                if masked {
+                    mask.copy_from_slice(&self.header[2 + ext..2 + ext + 4]);
+                }
+                let pong = Pong {
+                    mask,
+                    len: len as usize,
+                    have: 0,
+                    payload: [0; MAX_CONTROL_PAYLOAD],
+                };
+                if len == 0 {
+                    on_pong(&[]);
+                } else {
+                    self.pong = Some(pong);
+                }
+            }
         }
         Ok(())
     }
+}
+
+impl Pong {
+    /// The payload with its mask removed (§5.3).
+    fn unmask(&mut self) -> &[u8] {
+        for (i, b) in self.payload[..self.len].iter_mut().enumerate() {
+            *b ^= self.mask[i % 4];
+        }
+        &self.payload[..self.len]
+    }
+}
+
+/// An unmasked Ping frame with `payload` (at most 125 bytes kept), as a server sends it
+/// (§5.5.2): the client is to answer with a Pong of the same payload.
+pub fn server_ping_frame(payload: &[u8]) -> Vec<u8> {
+    let payload = &payload[..payload.len().min(MAX_CONTROL_PAYLOAD)];
+    let mut f = Vec::with_capacity(2 + payload.len());
+    f.push(0x89);
+    f.push(payload.len() as u8);
+    f.extend_from_slice(payload);
+    f
 }
 
 /// A masked Close frame (RFC 6455 §5.5.1) with `code` and no reason, as a client sends
@@ -258,6 +351,19 @@ mod tests {
                 );
             }
             assert_eq!(s.frames(), ends.len() as u64);
+        }
+        // Where the first frame ends in each piece, against the ends computed above.
+        for piece in [1, 2, 3, 7, 1000, 70_001, stream.len()] {
+            let mut s = FrameScanner::new(1 << 20);
+            for (k, chunk) in stream.chunks(piece).enumerate() {
+                s.feed(chunk).unwrap();
+                let from = k * piece;
+                let want = ends
+                    .iter()
+                    .find(|&&e| e > from && e <= from + chunk.len())
+                    .map(|e| e - from);
+                assert_eq!(s.first_frame_end(), want, "piece {piece} at {from}");
+            }
         }
     }
 

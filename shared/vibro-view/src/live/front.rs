@@ -2,10 +2,14 @@
 //! what they bound and why).
 
 use super::frames::{self, FrameScanner};
-use super::{Counters, Shared, MAX_REQUEST_HEAD_BYTES};
-use std::collections::VecDeque;
+use super::peer;
+use super::slots::{lock, Admission, Displacement, Slot, Slots};
+use super::upgrade;
+use super::{Counters, Shared, MAX_REQUEST_HEAD_BYTES, MAX_UNANSWERED_GRACE};
+use std::borrow::Cow;
 use std::net::SocketAddr;
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
@@ -35,52 +39,14 @@ const STOP_GRACE: Duration = Duration::from_secs(2);
 const LAST_WORD: Duration = Duration::from_millis(100);
 const LAST_WORD_BYTES: usize = 256 * 1024;
 
-/// The connections open, and those still without their request, oldest first, each
-/// with the way to close it.
-struct Slots {
-    open: usize,
-    waiting: VecDeque<(u64, SocketAddr, oneshot::Sender<()>)>,
-    next_id: u64,
-}
+/// The shortest time between pings, whatever the options say (a client answers each
+/// within a round trip: without it, a zero interval would ping without pause).
+const MIN_PING_INTERVAL: Duration = Duration::from_millis(100);
 
-impl Slots {
-    /// Closes the oldest connection still waiting for its request; which one, if any.
-    fn evict_oldest(&mut self) -> Option<SocketAddr> {
-        while let Some((_, peer, close)) = self.waiting.pop_front() {
-            if close.send(()).is_ok() {
-                return Some(peer);
-            }
-        }
-        None
-    }
-}
-
-fn lock(slots: &Mutex<Slots>) -> MutexGuard<'_, Slots> {
-    slots.lock().unwrap_or_else(PoisonError::into_inner)
-}
-
-/// A connection's place, given back when its task ends.
-struct Slot {
-    id: u64,
-    slots: Arc<Mutex<Slots>>,
-}
-
-impl Slot {
-    /// The connection has its request: it no longer gives its place to newer ones.
-    fn arrived(&self) {
-        lock(&self.slots)
-            .waiting
-            .retain(|(id, _, _)| *id != self.id);
-    }
-}
-
-impl Drop for Slot {
-    fn drop(&mut self) {
-        let mut s = lock(&self.slots);
-        s.open = s.open.saturating_sub(1);
-        s.waiting.retain(|(id, _, _)| *id != self.id);
-    }
-}
+/// Close codes (RFC 6455 §7.4.1, and IANA's registry for 1013).
+const CLOSE_POLICY: u16 = 1008;
+const CLOSE_TOO_BIG: u16 = 1009;
+const CLOSE_TRY_AGAIN_LATER: u16 = 1013;
 
 /// Whether a failed `accept` means the process (or system) is out of descriptors or
 /// buffers, which closing a connection gives back.
@@ -108,11 +74,7 @@ pub(super) async fn run(
     shared: Arc<Shared>,
     mut stop: oneshot::Receiver<()>,
 ) {
-    let slots = Arc::new(Mutex::new(Slots {
-        open: 0,
-        waiting: VecDeque::new(),
-        next_id: 0,
-    }));
+    let slots = Arc::new(Mutex::new(Slots::default()));
     let mut conns = JoinSet::new();
     let mut backoff = MIN_BACKOFF;
     let refusal = http_response(
@@ -126,9 +88,9 @@ pub(super) async fn run(
         // Connections closed to make room count until their task has ended (and closed
         // the socket): none is taken past the cap meanwhile, so that a flood of new
         // connections cannot outrun the closing of the old ones.
-        while lock(&slots).open > shared.max_clients {
+        while lock(&slots).open() > shared.max_clients {
             tokio::task::yield_now().await;
-            if lock(&slots).open > shared.max_clients {
+            if lock(&slots).open() > shared.max_clients {
                 tokio::time::sleep(EVICTION_SETTLE).await;
             }
         }
@@ -146,7 +108,7 @@ pub(super) async fn run(
             Err(e) => {
                 Counters::add(&shared.counters.accept_errors);
                 let evicted = if out_of_descriptors(&e) {
-                    lock(&slots).evict_oldest()
+                    lock(&slots).evict_waiting()
                 } else {
                     None
                 };
@@ -191,8 +153,8 @@ pub(super) async fn run(
     conns.shutdown().await;
 }
 
-/// Gives `stream` a place (the place of the oldest connection still without its
-/// request, at the cap) and its relay task, or refuses it with 503.
+/// Gives `stream` a place (at the cap, another connection's, as [`super::slots`]
+/// says) and its relay task, or refuses it with 503.
 fn admit(
     stream: TcpStream,
     peer: SocketAddr,
@@ -201,38 +163,57 @@ fn admit(
     conns: &mut JoinSet<()>,
     refusal: &[u8],
 ) {
-    let mut s = lock(slots);
-    if s.open >= shared.max_clients {
-        let Some(old) = s.evict_oldest() else {
-            drop(s);
-            Counters::add(&shared.counters.refused);
-            tracing::warn!(
-                "refused viewer {peer}: {} viewers are connected, the most the view serves",
-                shared.max_clients
-            );
-            // A fresh connection's send buffer is empty: the write takes it whole or
-            // the client is gone anyway.
-            let _ = stream.try_write(refusal);
-            return;
-        };
-        Counters::add(&shared.counters.evicted);
+    let max = shared.max_clients;
+    let key = peer::key(peer, stream.local_addr().unwrap_or(peer));
+    let grace = shared.options.pong_timeout.min(MAX_UNANSWERED_GRACE);
+    let admission = lock(slots).admit(peer, key, max, Instant::now(), grace);
+    let Admission::Admitted {
+        id,
+        closed,
+        displaced,
+    } = admission
+    else {
+        Counters::add(&shared.counters.refused);
         tracing::warn!(
-            "closed the connection from {old}, still without its WebSocket request, to let \
-             {peer} in ({} connections, the most the view serves)",
-            shared.max_clients
+            "refused viewer {peer} ({key}): the {max} places, the most the view serves, are \
+             held by viewers that answer their pings or were pinged less than {} s ago",
+            grace.as_secs_f64()
         );
+        // A fresh connection's send buffer is empty: the write takes it whole or
+        // the client is gone anyway.
+        let _ = stream.try_write(refusal);
+        return;
+    };
+    match displaced {
+        None => {}
+        Some((old, _, Displacement::NoRequest)) => {
+            Counters::add(&shared.counters.evicted);
+            tracing::warn!(
+                "closed the connection from {old}, still without its WebSocket request, to \
+                 let {peer} in ({max} connections, the most the view serves)"
+            );
+        }
+        Some((old, old_key, Displacement::Unanswered(owed))) => {
+            Counters::add(&shared.counters.displaced);
+            tracing::warn!(
+                "closed viewer {old} ({old_key}): it has not answered a ping sent {:.1} s \
+                 ago; its place goes to {peer} ({key})",
+                owed.as_secs_f64()
+            );
+        }
+        Some((old, old_key, Displacement::Share { held, theirs })) => {
+            Counters::add(&shared.counters.displaced);
+            tracing::warn!(
+                "closed viewer {old}: {old_key} held {held} of the {max} places and \
+                 {key} {theirs}; its place goes to {peer}"
+            );
+        }
     }
-    s.open += 1;
-    let id = s.next_id;
-    s.next_id += 1;
-    let (evict, evicted) = oneshot::channel();
-    s.waiting.push_back((id, peer, evict));
-    drop(s);
     let slot = Slot {
         id,
         slots: Arc::clone(slots),
     };
-    conns.spawn(connection(stream, peer, Arc::clone(shared), slot, evicted));
+    conns.spawn(connection(stream, peer, Arc::clone(shared), slot, closed));
 }
 
 /// Why a request head was not taken.
@@ -274,13 +255,13 @@ async fn connection(
     peer: SocketAddr,
     shared: Arc<Shared>,
     slot: Slot,
-    evicted: oneshot::Receiver<()>,
+    mut closed: oneshot::Receiver<Displacement>,
 ) {
     let timeout = shared.options.handshake_timeout;
     let deadline = Instant::now() + timeout;
     let mut head = Vec::with_capacity(2048);
     let end = tokio::select! {
-        _ = evicted => return,
+        _ = &mut closed => return,
         r = tokio::time::timeout_at(deadline, read_head(&mut client, &mut head)) => match r {
             Ok(Ok(end)) => end,
             Err(_) => {
@@ -309,8 +290,14 @@ async fn connection(
             }
         }
     };
-    slot.arrived();
-    let server = match shared.connect_server().await {
+    if !slot.upgrading() {
+        return;
+    }
+    let (request, alias) = upgrade::request_for_sdk(&head[..end]);
+    if alias {
+        Counters::add(&shared.counters.websocket_v1_requests);
+    }
+    let (server, hold) = match shared.connect_server().await {
         Ok(s) => s,
         Err(e) => {
             tracing::warn!("viewer {peer}: the Foxglove server cannot be reached: {e}");
@@ -326,8 +313,35 @@ async fn connection(
         .local_addr()
         .map_or_else(|_| "?".to_string(), |a| a.to_string());
     tracing::info!("viewer {peer} connected (the Foxglove server's client {local})");
-    relay(client, server, &head, end, &shared, peer, deadline).await;
+    let to_sdk = Upgrade {
+        request: &request,
+        rest: &head[end..],
+        alias,
+    };
+    relay(
+        client,
+        server,
+        to_sdk,
+        &shared,
+        peer,
+        deadline,
+        &slot,
+        &mut closed,
+    )
+    .await;
+    // The port leaves the filter before the socket holding it closes (the hold keeps a
+    // duplicate of it).
+    drop(hold);
     drop(slot);
+}
+
+/// What the SDK is to get of a client's upgrade: its request as the SDK is to take it
+/// ([`upgrade::request_for_sdk`]), the client's bytes after it, and whether the SDK's
+/// answer is to name `foxglove.websocket.v1`.
+struct Upgrade<'a> {
+    request: &'a [u8],
+    rest: &'a [u8],
+    alias: bool,
 }
 
 /// What ended a relay.
@@ -342,17 +356,135 @@ enum Ending {
     Stalled,
     /// The SDK did not answer the request within the handshake time.
     NoAnswer,
+    /// The client did not answer a ping within the pong timeout.
+    Unanswered,
+    /// The client's place went to a newer connection.
+    Displaced(Displacement),
 }
 
-/// Passes the client's `bytes` on to the SDK, whole frames only past a frame too long;
-/// `clean` says afterwards whether what the SDK got ends on a frame boundary.
+/// A ping the client owes a Pong for: its payload and when it was sent.
+#[derive(Debug, Clone, Copy)]
+struct Ping {
+    nonce: [u8; 8],
+    sent: Instant,
+}
+
+/// A ping payload no client can tell without reading the Ping: SipHash (std's
+/// `RandomState`, keyed at random per thread and per instance) of a counter.
+fn nonce() -> [u8; 8] {
+    use std::hash::{BuildHasher, Hasher};
+    static COUNT: AtomicU64 = AtomicU64::new(0);
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u64(COUNT.fetch_add(1, Ordering::Relaxed));
+    h.finish().to_le_bytes()
+}
+
+/// Sends the client a ping (owed from now, in `owed` and in its slot); when it was sent.
+async fn send_ping(
+    cw: &mut OwnedWriteHalf,
+    owed: &Mutex<Option<Ping>>,
+    slot: &Slot,
+    stall: Duration,
+) -> Result<Instant, Ending> {
+    let ping = Ping {
+        nonce: nonce(),
+        sent: Instant::now(),
+    };
+    // Owed before it is written: its Pong may come back first.
+    *owed.lock().unwrap_or_else(PoisonError::into_inner) = Some(ping);
+    slot.pinged(ping.sent);
+    let frame = frames::server_ping_frame(&ping.nonce);
+    match to_client_within(cw, &frame, stall).await {
+        Some(e) => Err(e),
+        None => Ok(ping.sent),
+    }
+}
+
+/// Writes `bytes` to the client, unless it takes none of them for `stall`.
+async fn to_client_within(
+    cw: &mut OwnedWriteHalf,
+    bytes: &[u8],
+    stall: Duration,
+) -> Option<Ending> {
+    match tokio::time::timeout(stall, cw.write_all(bytes)).await {
+        Ok(Ok(())) => None,
+        Ok(Err(_)) => Some(Ending::ClientGone),
+        Err(_) => Some(Ending::Stalled),
+    }
+}
+
+/// [`to_client_within`], unless the client still owes the Pong of the ping in `owed`
+/// when its `pong_timeout` is up, or, owing none, takes none of these bytes within the
+/// pong timeout of `ping_due` (the next ping, which cannot go before them): a client
+/// that reads nothing is closed then, whether or not the view has bytes for it.
+async fn to_client_by_pong(
+    cw: &mut OwnedWriteHalf,
+    bytes: &[u8],
+    stall: Duration,
+    owed: &Mutex<Option<Ping>>,
+    ping_due: Instant,
+    pong_timeout: Duration,
+) -> Option<Ending> {
+    let answer_by = || {
+        owed.lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .map_or(ping_due, |p| p.sent)
+            + pong_timeout
+    };
+    let write = to_client_within(cw, bytes, stall);
+    tokio::pin!(write);
+    let mut by = answer_by();
+    loop {
+        tokio::select! {
+            // A write the client takes at once goes, whatever the time.
+            biased;
+            r = &mut write => return r,
+            () = tokio::time::sleep_until(by) => {
+                // Only an answer changes what is owed while this write lasts.
+                let now = answer_by();
+                if now == by {
+                    return Some(Ending::Unanswered);
+                }
+                by = now;
+            }
+        }
+    }
+}
+
+/// A Close frame with `code` and `reason` to the client, the end of the stream, then
+/// what the client still sends read and dropped a moment: closing with its bytes unread
+/// would reset the connection, and the client might lose the Close. Not for long: the
+/// rest of a long message is reset.
+async fn last_word(cw: &mut OwnedWriteHalf, cr: &mut OwnedReadHalf, code: u16, reason: &str) {
+    let close = frames::server_close_frame(code, reason);
+    let _ = tokio::time::timeout(LAST_WORD, async {
+        cw.write_all(&close).await?;
+        cw.shutdown().await?;
+        let mut buf = vec![0; COPY_BUFFER_BYTES];
+        let mut left = LAST_WORD_BYTES;
+        while left > 0 {
+            match cr.read(&mut buf).await? {
+                0 => break,
+                n => left = left.saturating_sub(n),
+            }
+        }
+        std::io::Result::Ok(())
+    })
+    .await;
+}
+
+/// Passes the client's `bytes` on to the SDK, whole frames only past a frame too long,
+/// and the payload of each Pong among them to `on_pong`; `clean` says afterwards whether
+/// what the SDK got ends on a frame boundary. (The SDK takes the Pongs too, and ignores
+/// them.)
 async fn pass_up(
     up: &mut FrameScanner,
     bytes: &[u8],
     sw: &mut OwnedWriteHalf,
     clean: &mut bool,
+    on_pong: impl Fn(&[u8]),
 ) -> Option<Ending> {
-    let (pass, boundary, ending) = match up.feed(bytes) {
+    let (pass, boundary, ending) = match up.feed_pongs(bytes, on_pong) {
         Ok(()) => (bytes.len(), up.at_boundary(), None),
         // Cut at the long frame's header: a boundary if the header began in `bytes`.
         Err(o) => (
@@ -371,30 +503,50 @@ async fn pass_up(
     ending
 }
 
-/// Relays between the client and the SDK until one side ends or breaks a rule, then
-/// ends both as the module above says.
+/// Relays between the client and the SDK until one side ends or breaks a rule (or the
+/// client's place goes to a newer connection), then ends both as the module above says.
+/// Pings the client once the SDK has answered its upgrade, as [`super::LiveOptions`]
+/// says.
+// One connection's parts, each used once: a struct would only rename them.
+#[allow(clippy::too_many_arguments)]
 async fn relay(
     client: TcpStream,
     server: TcpStream,
-    head: &[u8],
-    end: usize,
+    to_sdk: Upgrade<'_>,
     shared: &Shared,
     peer: SocketAddr,
     deadline: Instant,
+    slot: &Slot,
+    closed: &mut oneshot::Receiver<Displacement>,
 ) {
     let options = &shared.options;
+    let stall = options.stall_timeout;
+    let pong_timeout = options.pong_timeout.max(Duration::from_millis(1));
+    let ping_interval = options.ping_interval.max(MIN_PING_INTERVAL);
     let (mut cr, mut cw) = client.into_split();
     let (mut sr, mut sw) = server.into_split();
     let mut up = FrameScanner::new(options.max_client_message_bytes);
     let mut down = FrameScanner::new(u64::MAX);
     // Whether what each side got so far ends between two frames (a Close may follow).
     let (mut up_clean, mut down_clean) = (true, true);
+    let owed: Mutex<Option<Ping>> = Mutex::new(None);
+    let owed_now = || *owed.lock().unwrap_or_else(PoisonError::into_inner);
+    // A Pong with the payload of the ping owed answers it.
+    let on_pong = |payload: &[u8]| {
+        let mut o = owed.lock().unwrap_or_else(PoisonError::into_inner);
+        if o.is_some_and(|p| p.nonce[..] == *payload) {
+            *o = None;
+            drop(o);
+            slot.answered();
+        }
+    };
     let ending = 'relay: {
-        if sw.write_all(&head[..end]).await.is_err() {
+        if sw.write_all(to_sdk.request).await.is_err() {
             break 'relay Ending::ServerGone;
         }
-        if end < head.len() {
-            if let Some(e) = pass_up(&mut up, &head[end..], &mut sw, &mut up_clean).await {
+        if !to_sdk.rest.is_empty() {
+            let e = pass_up(&mut up, to_sdk.rest, &mut sw, &mut up_clean, on_pong).await;
+            if let Some(e) = e {
                 break 'relay e;
             }
         }
@@ -405,56 +557,139 @@ async fn relay(
                     Ok(0) | Err(_) => return Ending::ClientGone,
                     Ok(n) => n,
                 };
-                if let Some(e) = pass_up(&mut up, &buf[..n], &mut sw, &mut up_clean).await {
+                if let Some(e) = pass_up(&mut up, &buf[..n], &mut sw, &mut up_clean, on_pong).await
+                {
                     return e;
                 }
             }
         };
         let to_client = async {
             let mut buf = vec![0; COPY_BUFFER_BYTES];
-            // The SDK's HTTP answer, then frames.
-            let mut answer = frames::HeadEnd::default();
-            let mut in_answer = true;
-            let mut answered = false;
-            loop {
-                let r = if answered {
-                    sr.read(&mut buf).await
-                } else {
-                    match tokio::time::timeout_at(deadline, sr.read(&mut buf)).await {
-                        Ok(r) => r,
-                        Err(_) => return Ending::NoAnswer,
-                    }
+            // The SDK's answer head whole, within the handshake time.
+            let mut answer = Vec::with_capacity(1024);
+            let mut scan = frames::HeadEnd::default();
+            let end = loop {
+                let n = match tokio::time::timeout_at(deadline, sr.read(&mut buf)).await {
+                    Err(_) => return Ending::NoAnswer,
+                    Ok(Ok(0) | Err(_)) => return Ending::ServerGone,
+                    Ok(Ok(n)) => n,
                 };
-                let n = match r {
-                    Ok(0) | Err(_) => return Ending::ServerGone,
-                    Ok(n) => n,
-                };
-                answered = true;
-                down_clean = false;
-                match tokio::time::timeout(options.stall_timeout, cw.write_all(&buf[..n])).await {
-                    Ok(Ok(())) => {}
-                    Ok(Err(_)) => return Ending::ClientGone,
-                    Err(_) => return Ending::Stalled,
+                let found = scan.feed(&buf[..n]);
+                let from = answer.len();
+                answer.extend_from_slice(&buf[..n]);
+                if let Some(e) = found {
+                    break from + e;
                 }
-                let frames_from = if in_answer {
-                    match answer.feed(&buf[..n]) {
-                        Some(e) => {
-                            in_answer = false;
-                            e
-                        }
-                        None => n,
+                if answer.len() > MAX_REQUEST_HEAD_BYTES {
+                    // Not an HTTP answer: the SDK's is a few hundred bytes.
+                    return Ending::ServerGone;
+                }
+            };
+            let upgraded = answer.starts_with(b"HTTP/1.1 101 ");
+            let head = if to_sdk.alias && upgraded {
+                Cow::Owned(upgrade::answer_for_client(&answer[..end]))
+            } else {
+                Cow::Borrowed(&answer[..end])
+            };
+            down_clean = false;
+            for bytes in [&head[..], &answer[end..]] {
+                if let Some(e) = to_client_within(&mut cw, bytes, stall).await {
+                    return e;
+                }
+            }
+            if !upgraded {
+                // A refusal (400 for a subprotocol the SDK does not know): its body,
+                // until the SDK closes.
+                loop {
+                    let n = match sr.read(&mut buf).await {
+                        Ok(0) | Err(_) => return Ending::ServerGone,
+                        Ok(n) => n,
+                    };
+                    if let Some(e) = to_client_within(&mut cw, &buf[..n], stall).await {
+                        return e;
                     }
-                } else {
-                    0
-                };
-                // Never fails: no cap on what the SDK sends.
-                let _ = down.feed(&buf[frames_from..n]);
-                down_clean = !in_answer && down.at_boundary();
+                }
+            }
+            // Never fails: no cap on what the SDK sends.
+            let _ = down.feed(&answer[end..]);
+            down_clean = down.at_boundary();
+            slot.live();
+            let mut next_ping = Instant::now();
+            let mut ping_due = false;
+            loop {
+                let owed_since = owed_now().map(|p| p.sent);
+                let answer_by = owed_since.map_or(next_ping, |s| s + pong_timeout);
+                tokio::select! {
+                    r = sr.read(&mut buf) => {
+                        let n = match r {
+                            Ok(0) | Err(_) => return Ending::ServerGone,
+                            Ok(n) => n,
+                        };
+                        // Never fails: no cap on what the SDK sends.
+                        let _ = down.feed(&buf[..n]);
+                        // A ping due goes in after the first frame that ends in these
+                        // bytes, so that a busy stream does not hold it back.
+                        let cut = if ping_due {
+                            down.first_frame_end().filter(|&e| e < n)
+                        } else {
+                            None
+                        };
+                        down_clean = false;
+                        let (first, rest) = buf[..n].split_at(cut.unwrap_or(n));
+                        let wrote =
+                            to_client_by_pong(&mut cw, first, stall, &owed, next_ping, pong_timeout)
+                                .await;
+                        if let Some(e) = wrote {
+                            return e;
+                        }
+                        if cut.is_some() {
+                            match send_ping(&mut cw, &owed, slot, stall).await {
+                                Ok(sent) => {
+                                    ping_due = false;
+                                    next_ping = sent + ping_interval;
+                                }
+                                Err(e) => return e,
+                            }
+                            let wrote = to_client_by_pong(
+                                &mut cw,
+                                rest,
+                                stall,
+                                &owed,
+                                next_ping,
+                                pong_timeout,
+                            )
+                            .await;
+                            if let Some(e) = wrote {
+                                return e;
+                            }
+                        }
+                        down_clean = down.at_boundary();
+                    }
+                    () = tokio::time::sleep_until(next_ping), if owed_since.is_none() && !ping_due => {
+                        ping_due = true;
+                    }
+                    () = tokio::time::sleep_until(answer_by), if owed_since.is_some() => {
+                        if owed_now().map(|p| p.sent) == owed_since {
+                            return Ending::Unanswered;
+                        }
+                    }
+                }
+                // A ping goes between two of the SDK's frames.
+                if ping_due && down_clean {
+                    match send_ping(&mut cw, &owed, slot, stall).await {
+                        Ok(sent) => {
+                            ping_due = false;
+                            next_ping = sent + ping_interval;
+                        }
+                        Err(e) => return e,
+                    }
+                }
             }
         };
         tokio::select! {
             e = to_server => e,
             e = to_client => e,
+            why = &mut *closed => why.map_or(Ending::ClientGone, Ending::Displaced),
         }
     };
     match ending {
@@ -472,35 +707,15 @@ async fn relay(
                  cap of {cap} bytes"
             );
             if down_clean {
-                let close = frames::server_close_frame(
-                    1009,
-                    &format!("message of {bytes} bytes, past the cap of {cap} bytes"),
-                );
-                // The Close, the end of the stream, then what the client still sends is
-                // read and dropped a moment: closing with its bytes unread would reset
-                // the connection, and the client might lose the Close. Not for long:
-                // the rest of a long message is reset.
-                let _ = tokio::time::timeout(LAST_WORD, async {
-                    cw.write_all(&close).await?;
-                    cw.shutdown().await?;
-                    let mut buf = vec![0; COPY_BUFFER_BYTES];
-                    let mut left = LAST_WORD_BYTES;
-                    while left > 0 {
-                        match cr.read(&mut buf).await? {
-                            0 => break,
-                            n => left = left.saturating_sub(n),
-                        }
-                    }
-                    std::io::Result::Ok(())
-                })
-                .await;
+                let why = format!("message of {bytes} bytes, past the cap of {cap} bytes");
+                last_word(&mut cw, &mut cr, CLOSE_TOO_BIG, &why).await;
             }
         }
         Ending::Stalled => {
             Counters::add(&shared.counters.stalled);
             tracing::warn!(
                 "closed viewer {peer}: it took none of the view's bytes for {} s",
-                options.stall_timeout.as_secs_f64()
+                stall.as_secs_f64()
             );
         }
         Ending::NoAnswer => {
@@ -509,6 +724,34 @@ async fn relay(
                 "closed viewer {peer}: the Foxglove server did not answer its request within {} s",
                 options.handshake_timeout.as_secs_f64()
             );
+        }
+        Ending::Unanswered => {
+            Counters::add(&shared.counters.unanswered_pings);
+            let s = pong_timeout.as_secs_f64();
+            tracing::warn!(
+                "closed viewer {peer}: it did not answer a ping (or take the view's bytes \
+                 before it) within {s} s"
+            );
+            if down_clean {
+                let why = format!("no answer to a ping within {s} s");
+                last_word(&mut cw, &mut cr, CLOSE_POLICY, &why).await;
+            }
+        }
+        // Counted and logged when its place was given.
+        Ending::Displaced(why) => {
+            if down_clean {
+                let (code, reason) = match why {
+                    Displacement::Share { .. } => (
+                        CLOSE_TRY_AGAIN_LATER,
+                        "its place went to a viewer from a peer holding fewer",
+                    ),
+                    _ => (
+                        CLOSE_POLICY,
+                        "no answer to a ping; its place went to a newer viewer",
+                    ),
+                };
+                last_word(&mut cw, &mut cr, code, reason).await;
+            }
         }
     }
     drop((cr, cw));

@@ -5,15 +5,23 @@
 //! forever, takes frames of up to 16 MiB, stops accepting for good at the first failed
 //! `accept` (a descriptor limit reached: nothing is logged, the process lives on), and
 //! logs a line per bad message, unknown channel id and failed send. So the SDK listens
-//! on an ephemeral port of 127.0.0.1 only, and the guard ([`LiveServer`]) is the
-//! listener clients reach. Per connection it:
+//! on an ephemeral port of 127.0.0.1, shut by a socket filter to all but the guard's
+//! own connections (`inner`: the SDK binds its listener itself and takes no other),
+//! and the guard ([`LiveServer`]) is the listener clients reach. Per connection it:
 //!
 //! - counts it against a cap ([`LiveOptions::max_clients`], lowered at start to what
 //!   the descriptor limit allows: a viewer costs 3 descriptors). A connection beyond
-//!   the cap takes the place of the oldest one still without its WebSocket request;
-//!   when all have theirs, it gets `503 Service Unavailable`;
+//!   the cap takes the place of one that is not using it, or of one of the peer holding
+//!   the most places when the newcomer's holds two fewer (`slots`); else it gets
+//!   `503 Service Unavailable`;
 //! - wants the HTTP upgrade request whole, within 16 KiB, and the SDK's answer within
 //!   [`LiveOptions::handshake_timeout`] of the connection, before the SDK sees anything;
+//!   a request offering `foxglove.websocket.v1` and none of the SDK's names for it is
+//!   served as `foxglove.sdk.v1`, the same protocol (`upgrade`);
+//! - pings the client at once and every [`LiveOptions::ping_interval`] (a Ping with a
+//!   payload it cannot guess: answering it means reading what the view sent before
+//!   it), and closes a client that has not answered within
+//!   [`LiveOptions::pong_timeout`];
 //! - follows the client's WebSocket frames by their headers ([`frames`]) and closes the
 //!   connection at the header of a frame or message longer than
 //!   [`LiveOptions::max_client_message_bytes`] (the protocol's client messages are
@@ -27,9 +35,9 @@
 //! The accept loop survives a failed `accept`: out of descriptors, it closes the oldest
 //! connection still without its request, else it backs off (10 ms doubling to 1 s) and
 //! tries again. Should the SDK's own listener still end (a descriptor shortage caused
-//! elsewhere in the process), the next connection finds its port refused, and the guard
-//! starts a new SDK server on the same context, says so, and carries on; the former one
-//! keeps the clients it has.
+//! elsewhere in the process), the next connection finds its listener closed, and the
+//! guard starts a new SDK server on the same context (its port shut as the first's),
+//! says so, and carries on; the former one keeps the clients it has.
 //!
 //! The SDK and the guard run on a runtime of their own (one worker thread), whose
 //! threads log through a [`LogLimiter`]: at most [`LiveOptions::log_burst`] lines per
@@ -52,9 +60,14 @@
 
 pub mod frames;
 mod front;
+mod inner;
+mod peer;
 mod quiet;
+mod slots;
+mod upgrade;
 
 pub use quiet::LogLimiter;
+pub use upgrade::{SDK_V1, SDK_V1_1, WEBSOCKET_V1};
 
 use crate::{Error, Result};
 use serde::Serialize;
@@ -83,6 +96,19 @@ pub const DEFAULT_MAX_CLIENT_MESSAGE_BYTES: u64 = 64 * 1024;
 /// drops the oldest messages for a slow client meanwhile; past this, its place goes).
 pub const DEFAULT_STALL_TIMEOUT: Duration = Duration::from_secs(30);
 
+/// How often a client is pinged unless told otherwise (the first at once).
+pub const DEFAULT_PING_INTERVAL: Duration = Duration::from_secs(5);
+
+/// Time a client has to answer a ping unless told otherwise. A browser answers within
+/// a round trip, whatever its page is doing; 10 s leaves room for a slow link and for a
+/// client reading the view's backlog before it reaches the ping.
+pub const DEFAULT_PONG_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// The longest a Pong may be owed before the connection owing it gives its place to a
+/// newer one (at most the pong timeout): a client that reads answers within a round
+/// trip.
+pub const MAX_UNANSWERED_GRACE: Duration = Duration::from_secs(1);
+
 /// Log lines let through per source line per period, and the period.
 pub const DEFAULT_LOG_BURST: u32 = 5;
 pub const DEFAULT_LOG_PERIOD: Duration = Duration::from_secs(10);
@@ -110,6 +136,11 @@ pub struct LiveOptions {
     pub max_client_message_bytes: u64,
     /// Time a client may take none of the bytes the view has for it.
     pub stall_timeout: Duration,
+    /// Time from one ping to the next (the first at once; none while one is owed; at
+    /// least 100 ms).
+    pub ping_interval: Duration,
+    /// Time a client has to answer a ping (at least 1 ms).
+    pub pong_timeout: Duration,
     /// Log lines let through per source line per [`LiveOptions::log_period`].
     pub log_burst: u32,
     pub log_period: Duration,
@@ -123,6 +154,8 @@ impl Default for LiveOptions {
             handshake_timeout: DEFAULT_HANDSHAKE_TIMEOUT,
             max_client_message_bytes: DEFAULT_MAX_CLIENT_MESSAGE_BYTES,
             stall_timeout: DEFAULT_STALL_TIMEOUT,
+            ping_interval: DEFAULT_PING_INTERVAL,
+            pong_timeout: DEFAULT_PONG_TIMEOUT,
             log_burst: DEFAULT_LOG_BURST,
             log_period: DEFAULT_LOG_PERIOD,
         }
@@ -143,6 +176,14 @@ pub struct LiveStats {
     /// Connections closed while still without their request, for a newer one or for a
     /// descriptor.
     pub evicted: u64,
+    /// WebSocket connections closed to let a newer one in: one that owed a Pong past
+    /// the grace, or one of the peer holding the most places.
+    pub displaced: u64,
+    /// WebSocket connections closed for not answering a ping within the pong timeout.
+    pub unanswered_pings: u64,
+    /// Requests offering `foxglove.websocket.v1` and none of the SDK's names, served
+    /// as `foxglove.sdk.v1`.
+    pub websocket_v1_requests: u64,
     /// Connections closed for want of a complete upgrade within the timeout.
     pub handshake_timeouts: u64,
     /// Connections closed for a request head past 16 KiB or not HTTP.
@@ -165,6 +206,9 @@ struct Counters {
     served: AtomicU64,
     refused: AtomicU64,
     evicted: AtomicU64,
+    displaced: AtomicU64,
+    unanswered_pings: AtomicU64,
+    websocket_v1_requests: AtomicU64,
     handshake_timeouts: AtomicU64,
     bad_requests: AtomicU64,
     oversized: AtomicU64,
@@ -197,10 +241,16 @@ struct Shared {
     ctx: Arc<foxglove::Context>,
     make_server: Box<MakeServer>,
     servers: Mutex<Servers>,
-    /// Held while a new SDK server starts, so that one refused port starts one.
+    /// Held while a new SDK server starts, so that one closed listener starts one.
     restarting: tokio::sync::Mutex<()>,
+    /// The current SDK listener's filter and the ports it lets through.
+    gate: Arc<Mutex<inner::Gate>>,
     counters: Counters,
 }
+
+/// Times an SDK server is replaced at start because connections reached its port
+/// before the filter, before the guard gives up.
+const MAX_TAINTED_STARTS: u32 = 3;
 
 impl Shared {
     fn servers(&self) -> std::sync::MutexGuard<'_, Servers> {
@@ -208,41 +258,86 @@ impl Shared {
     }
 
     /// Starts an SDK server on an ephemeral port of 127.0.0.1 (on the current runtime,
-    /// which its tasks then use).
+    /// which its tasks then use), its port shut to all but the guard (`inner`): a
+    /// server that connections reached before the filter is stopped and another started.
     async fn start_server(&self) -> Result<(SocketAddr, foxglove::WebSocketServerHandle)> {
-        let server = (self.make_server)()
-            .context(&self.ctx)
-            .bind(Ipv4Addr::LOCALHOST.to_string(), 0)
-            .start()
-            .await
-            .map_err(Error::Server)?;
-        let addr = SocketAddr::new(Ipv4Addr::LOCALHOST.into(), server.port());
-        Ok((addr, server))
-    }
-
-    /// A connection to the SDK server; a new server first if the current one's port
-    /// refuses (its listener ended).
-    async fn connect_server(&self) -> std::io::Result<tokio::net::TcpStream> {
-        let addr = self.servers().addr;
-        match tokio::net::TcpStream::connect(addr).await {
-            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {
-                let addr = self.restart_server(addr, &e).await?;
-                tokio::net::TcpStream::connect(addr).await
+        let mut tainted = 0;
+        loop {
+            let server = (self.make_server)()
+                .context(&self.ctx)
+                .bind(Ipv4Addr::LOCALHOST.to_string(), 0)
+                .start()
+                .await
+                .map_err(Error::Server)?;
+            let port = server.port();
+            let shut = inner::Gate::adopt(&self.gate, port)
+                .and_then(|()| inner::intruders(port))
+                .map_err(|source| Error::Gate { port, source });
+            match shut {
+                Ok(0) => return Ok((SocketAddr::new(Ipv4Addr::LOCALHOST.into(), port), server)),
+                Ok(n) if tainted + 1 < MAX_TAINTED_STARTS => {
+                    tainted += 1;
+                    tracing::warn!(
+                        port,
+                        "{n} connections reached the Foxglove server's port {port} before \
+                         the guard shut it; stopping that server for a new one"
+                    );
+                    server.stop().wait().await;
+                }
+                Ok(n) => {
+                    server.stop().wait().await;
+                    return Err(Error::Gate {
+                        port,
+                        source: std::io::Error::other(format!(
+                            "{n} connections reached it before the guard shut it, on \
+                             {MAX_TAINTED_STARTS} servers in a row"
+                        )),
+                    });
+                }
+                Err(e) => {
+                    server.stop().wait().await;
+                    return Err(e);
+                }
             }
-            r => r,
         }
     }
 
-    /// Replaces the server whose listener at `dead` ended (unless another connection
-    /// did already); returns where the current one listens.
-    async fn restart_server(
-        &self,
-        dead: SocketAddr,
-        why: &std::io::Error,
-    ) -> std::io::Result<SocketAddr> {
+    /// A connection to the SDK server, from a port its filter lets through, and that
+    /// port's hold (to be dropped when the connection is done with); a new server first
+    /// if the current one's listener has closed.
+    async fn connect_server(&self) -> std::io::Result<(tokio::net::TcpStream, inner::Hold)> {
+        let opening = match inner::Gate::open(&self.gate) {
+            Ok(o) => o,
+            Err(inner::OpenError::Gone { port }) => {
+                self.restart_server(port).await?;
+                inner::Gate::open(&self.gate).map_err(|e| match e {
+                    inner::OpenError::Io(e) => e,
+                    inner::OpenError::Gone { port } => std::io::Error::new(
+                        std::io::ErrorKind::ConnectionRefused,
+                        format!("the new Foxglove server's listener on port {port} closed"),
+                    ),
+                })?
+            }
+            Err(inner::OpenError::Io(e)) => return Err(e),
+        };
+        let inner::Opening {
+            socket,
+            addr,
+            hold,
+            listener,
+        } = opening;
+        let stream = socket.connect(addr).await;
+        drop(listener);
+        Ok((stream?, hold))
+    }
+
+    /// Replaces the server whose listener on `dead` (a port) closed, unless another
+    /// connection did already.
+    async fn restart_server(&self, dead: u16) -> std::io::Result<()> {
         let _one = self.restarting.lock().await;
-        if self.servers().addr != dead {
-            return Ok(self.servers().addr);
+        let current = self.servers().addr;
+        if current.port() != dead {
+            return Ok(());
         }
         let (addr, server) = self.start_server().await.map_err(std::io::Error::other)?;
         let idle = {
@@ -263,12 +358,12 @@ impl Shared {
         }
         Counters::add(&self.counters.server_restarts);
         tracing::warn!(
-            %dead,
+            %current,
             %addr,
-            "the Foxglove server's listener on {dead} is gone ({why}); a new Foxglove server \
+            "the Foxglove server's listener on {current} is closed; a new Foxglove server \
              serves new viewers from {addr}"
         );
-        Ok(addr)
+        Ok(())
     }
 
     fn stats(&self, left_out: u64) -> LiveStats {
@@ -280,6 +375,9 @@ impl Shared {
             served: get(&c.served),
             refused: get(&c.refused),
             evicted: get(&c.evicted),
+            displaced: get(&c.displaced),
+            unanswered_pings: get(&c.unanswered_pings),
+            websocket_v1_requests: get(&c.websocket_v1_requests),
             handshake_timeouts: get(&c.handshake_timeouts),
             bad_requests: get(&c.bad_requests),
             oversized: get(&c.oversized),
@@ -371,6 +469,7 @@ impl LiveServer {
                 former: Vec::new(),
             }),
             restarting: tokio::sync::Mutex::new(()),
+            gate: Arc::new(Mutex::new(inner::Gate::default())),
             counters: Counters::default(),
         });
         let started = {
@@ -486,7 +585,7 @@ impl LiveServer {
         stats
     }
 
-    /// Stops the current SDK server (its port then refuses), as its listener's end
+    /// Stops the current SDK server (its listener then closes), as its listener's end
     /// would: the next client is to find a new one.
     #[cfg(test)]
     async fn end_server_listener(&self) {

@@ -3,11 +3,12 @@
 //! corrupt fields in it, then the real stream alone. The property tests of the
 //! continuity, of the compensator's and the estimator's cores, and the
 //! `stream_sequence` fuzz target feed a sequence to what they test and [`check`] what
-//! it took (with the `testing` feature).
+//! it took (with the `testing` feature; `vibro_service`'s `testing` feature turns it on
+//! and re-exports this module as `vibro_service::adversary`).
 //!
 //! ```
-//! use vibro_service::adversary::{check, generate, Xorshift};
-//! use vibro_service::{Continuity, StreamCounters};
+//! use vibro_msgs::adversary::{check, generate, Xorshift};
+//! use vibro_msgs::{Continuity, StreamCounters};
 //! let mut rng = Xorshift::new(7);
 //! let s = generate(|| Some(rng.next_u64()), 40, 32, true);
 //! let (mut c, mut totals) = (Continuity::new(), StreamCounters::default());
