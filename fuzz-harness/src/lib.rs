@@ -710,7 +710,11 @@ pub fn lab_table(data: &[u8]) {
                 problems.len()
             );
             for p in problems {
-                assert!(p.len() < 1024, "lab table: a problem of {} bytes: {p}", p.len());
+                assert!(
+                    p.len() < 1024,
+                    "lab table: a problem of {} bytes: {p}",
+                    p.len()
+                );
             }
             return;
         }

@@ -267,7 +267,11 @@ impl Manifest {
             vibro_toml::bounds::read_file(path)
         } else {
             // A CSV manifest: the runs' table, within its bound.
-            crate::table_input::read_text(path, crate::table_input::MAX_RUNS_CSV_BYTES)
+            crate::table_input::read_text(
+                path,
+                crate::table_input::MAX_RUNS_CSV_BYTES,
+                "a CSV manifest (10000 runs at most)",
+            )
         };
         let text = read.map_err(|source| Error::Io {
             path: path.display().to_string(),
@@ -373,6 +377,7 @@ impl Manifest {
                 match crate::table_input::read_text(
                     &csv_path,
                     crate::table_input::MAX_RUNS_CSV_BYTES,
+                    "a runs CSV (10000 runs at most)",
                 ) {
                     Ok(csv_text) => runs_from_csv(
                         &csv_text,
@@ -1790,6 +1795,33 @@ run_id,repeat,folder,orientation,gx,gy,gz,tone_hz,amp_x_g,amp_y_g,amp_z_g,phase_
         has(
             &p,
             &["more than 10000 rows: at most 10000 runs in one manifest"],
+        );
+    }
+
+    /// Issue 46, item 2: a CSV manifest, and a TOML manifest's runs CSV, are read up to
+    /// `MAX_RUNS_CSV_BYTES`: a bigger file is refused by its size, unread.
+    #[test]
+    fn a_runs_csv_bigger_than_its_bound_is_refused_unread() {
+        let dir = Dir::new("runs-csv-size");
+        let big = dir.0.join("big.csv");
+        let f = std::fs::File::create(&big).unwrap();
+        f.set_len(2 << 30).unwrap();
+        let e = Manifest::load(&big).unwrap_err().to_string();
+        assert!(
+            e.ends_with(
+                "big.csv: 2147483648 bytes: a CSV manifest (10000 runs at most) holds at most \
+                 16777216 bytes"
+            ),
+            "{e}"
+        );
+        let toml = format!("format = \"vibrocomp-campaign/1\"\nruns = \"big.csv\"\n{SEGMENTS}\n");
+        let p = problems(manifest(&dir, "m.toml", &toml));
+        has(
+            &p,
+            &[
+                "runs = \"big.csv\": cannot read",
+                "2147483648 bytes: a runs CSV",
+            ],
         );
     }
 }

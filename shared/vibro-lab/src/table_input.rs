@@ -22,7 +22,8 @@
 //! let text = "# a comment\r\nrun_id,x\r\nR1,0.5\r\n";
 //! let mut reader = TableReader::new(text.as_bytes(), "t.csv").unwrap();
 //! assert_eq!(reader.header().unwrap(), ["run_id", "x"]);
-//! let row = reader.next_row().unwrap().unwrap();
+//! // A row, or its problem (a cell too many, not UTF-8): reading goes on after one.
+//! let row = reader.next_row().unwrap().unwrap().unwrap();
 //! assert_eq!((row.line, row.cells.as_slice()), (3, &["R1".to_string(), "0.5".into()][..]));
 //! assert!(reader.next_row().unwrap().is_none());
 //!
@@ -83,15 +84,21 @@ pub const MAX_RUNS_CSV_BYTES: u64 = 16 << 20;
 /// The text of the file at `path`, if it has at most `max_bytes` bytes: a bigger file
 /// is refused by the size it says it has before anything is read, and one that does
 /// not say (a device, a pipe) is read no further than one byte past the bound. The
-/// error of a file too big says its size and the bound; the others are the operating
-/// system's, or invalid UTF-8.
-pub fn read_text(path: &std::path::Path, max_bytes: u64) -> std::io::Result<String> {
+/// error of a file too big says its size, `what` the file is and the bound; the others
+/// are the operating system's, or invalid UTF-8.
+///
+/// ```
+/// use vibro_lab::table_input::read_text;
+/// let e = read_text("/dev/zero".as_ref(), 1000, "a runs CSV").unwrap_err();
+/// assert_eq!(e.to_string(), "more than 1000 bytes: a runs CSV holds at most 1000 bytes");
+/// ```
+pub fn read_text(path: &std::path::Path, max_bytes: u64, what: &str) -> std::io::Result<String> {
     let file = std::fs::File::open(path)?;
     let meta = file.metadata()?;
     let too_big = |size: String| {
         std::io::Error::new(
             ErrorKind::FileTooLarge,
-            format!("{size}: at most {max_bytes} bytes are read"),
+            format!("{size}: {what} holds at most {max_bytes} bytes"),
         )
     };
     if meta.is_file() && meta.len() > max_bytes {
@@ -499,7 +506,10 @@ pub fn quote(cell: &str) -> String {
 mod tests {
     use super::*;
 
-    fn rows(input: &[u8]) -> Result<(Vec<String>, Vec<std::result::Result<Row, String>>)> {
+    /// The header, and each row or its problem.
+    type HeaderAndRows = (Vec<String>, Vec<std::result::Result<Row, String>>);
+
+    fn rows(input: &[u8]) -> Result<HeaderAndRows> {
         let mut r = TableReader::new(input, "t.csv")?;
         let header = r.header()?;
         let mut out = Vec::new();

@@ -20,7 +20,11 @@
 //!    summary section without a CRC.
 //!
 //! A chunk whose CRC fails is dropped whole: the CRC does not say which of its records
-//! changed, and keeping the others could keep an altered one. A message is never
+//! changed, and keeping the others could keep an altered one. A CRC of 0 means "not
+//! computed"; in a file where one chunk's CRC (not 0) checks out, the writer computes
+//! them, so a chunk with 0 had its CRC zeroed by damage and proves nothing: it is
+//! skipped, and so are definitions found only in such chunks, or in a summary section
+//! whose CRC is 0. A message is never
 //! invented: in a file with chunks, a record outside them that frames as a message is
 //! kept only on a channel that is itself defined outside chunks (a damaged chunk's
 //! opcode can read as a message's, with a known channel ID in its first bytes).
@@ -297,6 +301,9 @@ impl RecoveryRecord {
 
 /// Opcode, 8-byte length.
 const FRAME_BYTES: u64 = 9;
+/// Why a chunk without a CRC is skipped in a file whose chunks carry one.
+const ZEROED_CRC: &str =
+    "chunk without a CRC (0) in a file whose chunks carry one: a zeroed CRC proves nothing";
 /// A chunk body's fields before its compression string: start and end times,
 /// uncompressed size, CRC.
 const CHUNK_FIXED_BYTES: u64 = 8 + 8 + 8 + 4;
@@ -612,14 +619,41 @@ struct ChannelDef {
     metadata: BTreeMap<String, String>,
 }
 
+/// Where a definition was found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Place {
+    /// A chunk whose CRC checks out, or a summary section whose CRC checks out.
+    Proven,
+    /// A chunk without a CRC (0).
+    UncheckedChunk,
+    /// A record outside chunks.
+    OutsideChunks,
+    /// A summary section without a CRC.
+    UnverifiedSummary,
+}
+
 /// A definition and where it was found.
 #[derive(Clone, Debug)]
 struct Found<T> {
     def: T,
-    /// In a chunk whose CRC checks out, or in a summary section whose CRC checks out.
+    /// Somewhere [`Place::Proven`].
     proven: bool,
-    /// In a record outside chunks.
+    /// Somewhere outside chunks.
     outside_chunks: bool,
+    /// Only in chunks without a CRC: dropped when the file's chunks carry CRCs (a
+    /// CRC of 0 is then a zeroed one, which proves nothing).
+    unchecked_only: bool,
+}
+
+impl<T> Found<T> {
+    fn new(def: T, place: Place) -> Found<T> {
+        Found {
+            def,
+            proven: place == Place::Proven,
+            outside_chunks: place == Place::OutsideChunks,
+            unchecked_only: place == Place::UncheckedChunk,
+        }
+    }
 }
 
 /// The schemas and channels of the input, by ID: a proven definition wins over an
@@ -636,28 +670,21 @@ fn add_def<T: PartialEq>(
     conflicts: &mut u64,
     id: u16,
     def: T,
-    proven: bool,
-    outside_chunks: bool,
+    place: Place,
 ) {
     match map.entry(id) {
         std::collections::hash_map::Entry::Vacant(e) => {
-            e.insert(Found {
-                def,
-                proven,
-                outside_chunks,
-            });
+            e.insert(Found::new(def, place));
         }
         std::collections::hash_map::Entry::Occupied(mut e) => {
             let found = e.get_mut();
             if found.def == def {
-                found.proven |= proven;
-                found.outside_chunks |= outside_chunks;
-            } else if proven && !found.proven {
-                *found = Found {
-                    def,
-                    proven,
-                    outside_chunks,
-                };
+                let other = Found::new((), place);
+                found.proven |= other.proven;
+                found.outside_chunks |= other.outside_chunks;
+                found.unchecked_only &= other.unchecked_only;
+            } else if place == Place::Proven && !found.proven {
+                *found = Found::new(def, place);
             } else {
                 *conflicts += 1;
             }
@@ -666,7 +693,7 @@ fn add_def<T: PartialEq>(
 }
 
 impl Defs {
-    fn add(&mut self, record: &McapRecord<'_>, proven: bool, outside_chunks: bool) {
+    fn add(&mut self, record: &McapRecord<'_>, place: Place) {
         match record {
             // Schema ID 0 means "no schema": a record with it is damage.
             McapRecord::Schema { header, data } if header.id != 0 => {
@@ -680,8 +707,7 @@ impl Defs {
                     &mut self.conflicts,
                     header.id,
                     def,
-                    proven,
-                    outside_chunks,
+                    place,
                 );
             }
             McapRecord::Channel(c) => {
@@ -691,17 +717,16 @@ impl Defs {
                     message_encoding: c.message_encoding.clone(),
                     metadata: c.metadata.clone(),
                 };
-                add_def(
-                    &mut self.channels,
-                    &mut self.conflicts,
-                    c.id,
-                    def,
-                    proven,
-                    outside_chunks,
-                );
+                add_def(&mut self.channels, &mut self.conflicts, c.id, def, place);
             }
             _ => {}
         }
+    }
+
+    /// Drops what was found only in chunks without a CRC.
+    fn drop_unchecked(&mut self) {
+        self.schemas.retain(|_, f| !f.unchecked_only);
+        self.channels.retain(|_, f| !f.unchecked_only);
     }
 }
 
@@ -845,6 +870,8 @@ struct Walked {
     chunks_recovered: u64,
     chunks_repaired: u64,
     chunks_skipped: u64,
+    /// Chunks read whose CRC (not 0) checked out: the file's writer computes CRCs.
+    chunks_with_crc: u64,
     /// Any record read whole, or anything intact found after damage.
     found_anything: bool,
 }
@@ -871,6 +898,9 @@ struct Walker<'a, R> {
     probe: Vec<u8>,
     chunk_buf: Vec<u8>,
     block: Vec<u8>,
+    /// The file's chunks carry CRCs: one of 0 was zeroed by damage, and a chunk
+    /// without one proves nothing (it is skipped, and no resync stops at it).
+    require_crc: bool,
 }
 
 impl<R: Read + Seek> Walker<'_, R> {
@@ -1129,6 +1159,9 @@ impl<R: Read + Seek> Walker<'_, R> {
         visit: &mut impl Visit,
         out: &mut Walked,
     ) -> Result<std::result::Result<(), String>> {
+        if self.require_crc && header.uncompressed_crc == 0 {
+            return Ok(Err(ZEROED_CRC.to_string()));
+        }
         let mut buf = std::mem::take(&mut self.chunk_buf);
         let read = chunk_bytes(
             &header.compression,
@@ -1143,6 +1176,7 @@ impl<R: Read + Seek> Walker<'_, R> {
                 visit.chunk(header.uncompressed_crc != 0, &records)?;
                 out.chunks_recovered += 1;
                 out.chunks_repaired += u64::from(!size_ok);
+                out.chunks_with_crc += u64::from(header.uncompressed_crc != 0);
                 Ok(())
             }
             Err(why) => Err(why),
@@ -1210,6 +1244,7 @@ impl<R: Read + Seek> Walker<'_, R> {
                             visit.chunk(true, &records)?;
                             out.chunks_recovered += 1;
                             out.chunks_repaired += 1;
+                            out.chunks_with_crc += 1;
                             Ok(())
                         }
                         Err(why) => Err(why),
@@ -1244,6 +1279,43 @@ impl<R: Read + Seek> Walker<'_, R> {
             messages.is_none(),
         ));
         Ok(())
+    }
+
+    /// Whether a chunk the summary's index places has a CRC (not 0) that checks out.
+    fn an_indexed_crc_checks_out(&mut self) -> Result<bool> {
+        let indexes: Vec<ChunkIndex> = self.known_chunks.values().cloned().collect();
+        for index in indexes {
+            let pos = index.chunk_start_offset;
+            let end = pos + index.chunk_length;
+            let Some(crc) = self.input.u32_at(pos + CHUNK_CRC_AT)?.filter(|&c| c != 0) else {
+                continue;
+            };
+            let Some(at) = end
+                .checked_sub(index.compressed_size)
+                .filter(|&a| a >= pos + MIN_CHUNK_BYTES)
+                .filter(|_| index.compressed_size <= MAX_RECORD_BYTES)
+            else {
+                continue;
+            };
+            let mut data = vec![0u8; usize::try_from(index.compressed_size).unwrap_or(0)];
+            if !self.input.read_at(at, &mut data)? {
+                continue;
+            }
+            let mut buf = std::mem::take(&mut self.chunk_buf);
+            let checks_out = chunk_bytes(
+                &index.compression,
+                crc,
+                index.uncompressed_size,
+                &data,
+                &mut buf,
+            )
+            .is_ok();
+            self.chunk_buf = buf;
+            if checks_out {
+                return Ok(true);
+            }
+        }
+        Ok(false)
     }
 
     /// The first byte in `from..to` where an intact chunk or attachment starts, or a
@@ -1333,7 +1405,9 @@ impl<R: Read + Seek> Walker<'_, R> {
             Framed::Record { opcode, .. } => {
                 guard::record(opcode, &body).is_ok()
                     && match mcap::parse_record(opcode, &body) {
-                        Ok(McapRecord::Chunk { header, data }) => {
+                        Ok(McapRecord::Chunk { header, data })
+                            if !(self.require_crc && header.uncompressed_crc == 0) =>
+                        {
                             let mut buf = Vec::new();
                             chunk_bytes(
                                 &header.compression,
@@ -1400,13 +1474,18 @@ struct Survey<'d> {
 impl Visit for Survey<'_> {
     fn chunk(&mut self, proven: bool, records: &[McapRecord<'_>]) -> Result<()> {
         for r in records {
-            self.defs.add(r, proven, false);
+            let place = if proven {
+                Place::Proven
+            } else {
+                Place::UncheckedChunk
+            };
+            self.defs.add(r, place);
         }
         Ok(())
     }
 
     fn record(&mut self, _: u64, _: u64, record: McapRecord<'_>) -> Result<()> {
-        self.defs.add(&record, false, true);
+        self.defs.add(&record, Place::OutsideChunks);
         Ok(())
     }
 }
@@ -1579,7 +1658,7 @@ pub fn recover_from_reader<W: Write + Seek>(
     let mut defs = Defs::default();
     if verified {
         for r in &summary.records {
-            defs.add(r, true, false);
+            defs.add(r, Place::Proven);
         }
     }
     let no_chunks = BTreeMap::new();
@@ -1592,7 +1671,11 @@ pub fn recover_from_reader<W: Write + Seek>(
     // First pass: the schemas and channels, unless the summary has them all. It also
     // tells whether there is anything to recover.
     let mut chunked = !known_chunks.is_empty();
-    if !(verified && summary.defines_every_channel(&defs)) {
+    // Whether the file's chunks carry CRCs: one chunk whose CRC (not 0) checks out
+    // shows that its writer computes them (a CRC that damage made up does not check
+    // out), and then a CRC of 0 is a zeroed one.
+    let require_crc;
+    if verified && summary.defines_every_channel(&defs) {
         let mut walker = Walker {
             input: &mut source,
             known_chunks,
@@ -1601,16 +1684,35 @@ pub fn recover_from_reader<W: Write + Seek>(
             probe: Vec::new(),
             chunk_buf: Vec::new(),
             block: Vec::new(),
+            require_crc: false,
+        };
+        require_crc = walker.an_indexed_crc_checks_out()?;
+    } else {
+        let mut walker = Walker {
+            input: &mut source,
+            known_chunks,
+            limit,
+            body: Vec::new(),
+            probe: Vec::new(),
+            chunk_buf: Vec::new(),
+            block: Vec::new(),
+            require_crc: false,
         };
         let walked = walker.walk(&mut Survey { defs: &mut defs })?;
         chunked |= walked.chunks_recovered + walked.chunks_skipped > 0;
         if walked.header.is_none() && !walked.found_anything {
             return Err(nothing_to_recover(input, input_bytes, &walked));
         }
+        require_crc = walked.chunks_with_crc > 0;
     }
-    if summary.state == SummaryUse::Unverified {
+    if require_crc {
+        defs.drop_unchecked();
+    }
+    // A summary without a CRC, in a file whose chunks carry CRCs, had its CRC zeroed by
+    // damage: it proves nothing, and its definitions are not used.
+    if summary.state == SummaryUse::Unverified && !require_crc {
         for r in &summary.records {
-            defs.add(r, false, false);
+            defs.add(r, Place::UnverifiedSummary);
         }
     }
 
@@ -1623,6 +1725,7 @@ pub fn recover_from_reader<W: Write + Seek>(
         probe: Vec::new(),
         chunk_buf: Vec::new(),
         block: Vec::new(),
+        require_crc,
     };
     let profile = match frame(walker.input, magic, limit, &mut walker.body)? {
         Framed::Record {
