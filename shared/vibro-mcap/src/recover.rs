@@ -903,7 +903,25 @@ struct Walker<'a, R> {
     require_crc: bool,
 }
 
-impl<R: Read + Seek> Walker<'_, R> {
+impl<'a, R: Read + Seek> Walker<'a, R> {
+    fn new(
+        input: &'a mut Input<R>,
+        known_chunks: &'a BTreeMap<u64, ChunkIndex>,
+        limit: u64,
+        require_crc: bool,
+    ) -> Walker<'a, R> {
+        Walker {
+            input,
+            known_chunks,
+            limit,
+            body: Vec::new(),
+            probe: Vec::new(),
+            chunk_buf: Vec::new(),
+            block: Vec::new(),
+            require_crc,
+        }
+    }
+
     fn limit_known(&self) -> bool {
         self.limit < self.input.len
     }
@@ -1674,37 +1692,17 @@ pub fn recover_from_reader<W: Write + Seek>(
     // Whether the file's chunks carry CRCs: one chunk whose CRC (not 0) checks out
     // shows that its writer computes them (a CRC that damage made up does not check
     // out), and then a CRC of 0 is a zeroed one.
-    let require_crc;
-    if verified && summary.defines_every_channel(&defs) {
-        let mut walker = Walker {
-            input: &mut source,
-            known_chunks,
-            limit,
-            body: Vec::new(),
-            probe: Vec::new(),
-            chunk_buf: Vec::new(),
-            block: Vec::new(),
-            require_crc: false,
-        };
-        require_crc = walker.an_indexed_crc_checks_out()?;
+    let mut walker = Walker::new(&mut source, known_chunks, limit, false);
+    let require_crc = if verified && summary.defines_every_channel(&defs) {
+        walker.an_indexed_crc_checks_out()?
     } else {
-        let mut walker = Walker {
-            input: &mut source,
-            known_chunks,
-            limit,
-            body: Vec::new(),
-            probe: Vec::new(),
-            chunk_buf: Vec::new(),
-            block: Vec::new(),
-            require_crc: false,
-        };
         let walked = walker.walk(&mut Survey { defs: &mut defs })?;
         chunked |= walked.chunks_recovered + walked.chunks_skipped > 0;
         if walked.header.is_none() && !walked.found_anything {
             return Err(nothing_to_recover(input, input_bytes, &walked));
         }
-        require_crc = walked.chunks_with_crc > 0;
-    }
+        walked.chunks_with_crc > 0
+    };
     if require_crc {
         defs.drop_unchecked();
     }
@@ -1717,16 +1715,7 @@ pub fn recover_from_reader<W: Write + Seek>(
     }
 
     // Second pass: the copy.
-    let mut walker = Walker {
-        input: &mut source,
-        known_chunks,
-        limit,
-        body: Vec::new(),
-        probe: Vec::new(),
-        chunk_buf: Vec::new(),
-        block: Vec::new(),
-        require_crc,
-    };
+    let mut walker = Walker::new(&mut source, known_chunks, limit, require_crc);
     let profile = match frame(walker.input, magic, limit, &mut walker.body)? {
         Framed::Record {
             opcode: op::HEADER, ..

@@ -96,11 +96,17 @@ mod tests {
         let long = "é".repeat(1000);
         let q = excerpt(&long);
         assert_eq!(q.chars().filter(|&c| c == 'é').count(), ECHO_MAX_CHARS);
-        assert!(q.ends_with(&format!("… ({} more bytes cut)", 2 * (1000 - ECHO_MAX_CHARS))));
+        assert!(q.ends_with(&format!(
+            "… ({} more bytes cut)",
+            2 * (1000 - ECHO_MAX_CHARS)
+        )));
         let nested = "[".repeat(200_000);
         assert!(excerpt(&nested).len() < 200);
         assert_eq!(excerpt_bytes(b"ab\xffc\rd"), "ab\\xffc\\rd");
         let q = excerpt_bytes(&[b'x'; 10_000]);
-        assert!(q.ends_with(&format!("… ({} more bytes cut)", 10_000 - ECHO_MAX_CHARS)), "{q}");
+        assert!(
+            q.ends_with(&format!("… ({} more bytes cut)", 10_000 - ECHO_MAX_CHARS)),
+            "{q}"
+        );
     }
 }
