@@ -24,7 +24,8 @@
 //! computed"; in a file where one chunk's CRC (not 0) checks out, the writer computes
 //! them, so a chunk with 0 had its CRC zeroed by damage and proves nothing: it is
 //! skipped, and so are definitions found only in such chunks, or in a summary section
-//! whose CRC is 0. A message is never
+//! whose CRC is 0. Definitions outside chunks count only when a record of the data
+//! section follows them (not the summary's, read by a walk that missed the data end). A message is never
 //! invented: in a file with chunks, a record outside them that frames as a message is
 //! kept only on a channel that is itself defined outside chunks (a damaged chunk's
 //! opcode can read as a message's, with a known channel ID in its first bytes).
@@ -1487,10 +1488,24 @@ impl<'a, R: Read + Seek> Walker<'a, R> {
 /// The first pass: the schemas and channels of the data section.
 struct Survey<'d> {
     defs: &'d mut Defs,
+    /// Definitions outside chunks, kept once a record of the data section follows them
+    /// (a message, a chunk, an attachment, metadata), dropped if a record of the
+    /// summary section does: a walk that missed the data end (its opcode garbled) reads
+    /// on into the summary, whose definitions prove nothing without its CRC.
+    pending: Vec<McapRecord<'static>>,
+}
+
+impl Survey<'_> {
+    fn commit(&mut self) {
+        for r in std::mem::take(&mut self.pending) {
+            self.defs.add(&r, Place::OutsideChunks);
+        }
+    }
 }
 
 impl Visit for Survey<'_> {
     fn chunk(&mut self, proven: bool, records: &[McapRecord<'_>]) -> Result<()> {
+        self.commit();
         for r in records {
             let place = if proven {
                 Place::Proven
@@ -1503,7 +1518,23 @@ impl Visit for Survey<'_> {
     }
 
     fn record(&mut self, _: u64, _: u64, record: McapRecord<'_>) -> Result<()> {
-        self.defs.add(&record, Place::OutsideChunks);
+        match record {
+            McapRecord::Schema { .. } | McapRecord::Channel(_) => {
+                self.pending.push(record.into_owned());
+            }
+            McapRecord::Message { .. }
+            | McapRecord::Attachment { .. }
+            | McapRecord::Metadata(_) => {
+                self.commit();
+            }
+            McapRecord::ChunkIndex(_)
+            | McapRecord::AttachmentIndex(_)
+            | McapRecord::MetadataIndex(_)
+            | McapRecord::Statistics(_)
+            | McapRecord::SummaryOffset(_)
+            | McapRecord::Footer(_) => self.pending.clear(),
+            _ => {}
+        }
         Ok(())
     }
 }
@@ -1696,7 +1727,10 @@ pub fn recover_from_reader<W: Write + Seek>(
     let require_crc = if verified && summary.defines_every_channel(&defs) {
         walker.an_indexed_crc_checks_out()?
     } else {
-        let walked = walker.walk(&mut Survey { defs: &mut defs })?;
+        let walked = walker.walk(&mut Survey {
+            defs: &mut defs,
+            pending: Vec::new(),
+        })?;
         chunked |= walked.chunks_recovered + walked.chunks_skipped > 0;
         if walked.header.is_none() && !walked.found_anything {
             return Err(nothing_to_recover(input, input_bytes, &walked));
