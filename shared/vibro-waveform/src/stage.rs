@@ -1,0 +1,662 @@
+//! The waveform stage (crate docs): the vibration sensors' stream kept in a ring of
+//! samples with the chain undone, and each block of readings solved for the
+//! interval-mean acceleration of each unit.
+//!
+//! The stream's continuity: a block continues the stream when its `seq` and
+//! `first_sample_index` follow the last one, its period is the same and its `t0_ns`
+//! lies within half a period of where the stream puts it. Otherwise:
+//!
+//! - the same block again (its `seq` and index already taken): dropped, counted;
+//! - a jump (lost blocks, a `GAP_BEFORE` flag), a time stamp off by more than half a
+//!   period (forward or backwards), a rate change: a new *segment* starts, counted by
+//!   kind; readings whose interval (with the interpolation's half-width) is not inside
+//!   one segment are never covered ([`Coverage::Never`]): the caller falls back to the
+//!   estimate stage for them;
+//! - a flagged (`SATURATED`) block or one with a sample that is not finite: not stored,
+//!   and the segment ends before it.
+//!
+//! Times: a segment's sample `k` was stamped at `t0 + (k - k0) P`, `P` the stamped
+//! period refined from the blocks' own `t0_ns` over the segment (a 25.6 kHz stream's
+//! integer `sample_period_ns` is 39062 or 39063 ns; the blocks' stamps carry the exact
+//! rate). It saw the base at that time minus the chain's delay.
+
+use crate::chain::{ChainInverse, SensorChain};
+use crate::kernel::{Kernel, HALF_WIDTH};
+use vibro_effects::effect::{BlockCtx, Effect};
+use vibro_physics::fp;
+use vibro_physics::passport::Passport;
+use vibro_physics::triad::TriadAxes;
+
+/// The fine grid runs at least this fast, Hz, and at least twice the sensor rate:
+/// FP raises a 640 Hz vibration band to 3.2 kHz (its fifth power), which the midpoint
+/// rule on the grid must resolve (MODEL.md section 12).
+pub const MIN_FINE_RATE_HZ: f64 = 25_600.0;
+/// Most fine points per reading (a reading interval of 1 s at 51.2 kHz is 51,200).
+pub const MAX_FINE_POINTS: usize = 65_536;
+/// Path effects whose state starts afresh (the first reading, or after a break) are
+/// first run over up to this much of the vibration before the reading.
+pub const WARM_UP_S: f64 = 0.05;
+/// The ring holds at least this long a stretch of the stream, s (plus two readings).
+const RING_S: f64 = 0.5;
+const MAX_RING: usize = 1 << 20;
+/// Newton's iterations at most; it stops earlier when no mean moves by more than
+/// [`NEWTON_TOLERANCE_G`].
+const NEWTON_ITERATIONS: usize = 4;
+const NEWTON_TOLERANCE_G: f64 = 1e-13;
+
+/// Why the stage cannot be built.
+#[derive(Debug, thiserror::Error)]
+pub enum WaveformError {
+    #[error("the vibration sensors' chain: {0}")]
+    Chain(String),
+}
+
+/// Whether a block of readings can be solved now.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Coverage {
+    /// The samples cover every reading's interval: [`WaveformStage::compensate`].
+    Ready,
+    /// The samples that would cover the last reading have not arrived yet.
+    NotYet,
+    /// The samples will never cover the block (a break, a gap, the ring has moved on,
+    /// a rate the stage does not take): the estimate stage answers it.
+    Never,
+}
+
+/// What a vibration block did to the stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VibPush {
+    /// Appended to the stream.
+    Continued,
+    /// The first block, or the first after a break: a new segment.
+    Started,
+    /// A block already taken (same `seq` and index): dropped.
+    Repeated,
+    /// A flagged block or one with a sample that is not finite: not stored.
+    Refused,
+}
+
+/// The stage's counts (cumulative).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct StageCounters {
+    pub vib_blocks: u64,
+    pub vib_samples: u64,
+    /// New segments after the first (the sum of the kinds below).
+    pub breaks: u64,
+    pub gaps: u64,
+    pub time_jumps: u64,
+    pub backwards: u64,
+    pub rate_changes: u64,
+    pub repeated: u64,
+    /// Flagged (saturated, `GAP_BEFORE` aside) or non-finite blocks.
+    pub refused: u64,
+    /// Readings solved.
+    pub readings: u64,
+    /// Readings whose Newton did not meet its tolerance (their last iterate is used).
+    pub unconverged: u64,
+    /// Times the path effects' state started afresh.
+    pub effect_resets: u64,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Segment {
+    /// Index and stamp of the segment's first sample.
+    index0: u64,
+    t0_ns: i128,
+    /// The stamped period, refined from the blocks' stamps, ns.
+    period_ns: f64,
+    nominal_period_ns: u64,
+    /// Oldest index still in the ring, and the index after the newest.
+    lo: u64,
+    hi: u64,
+    next_seq: u64,
+}
+
+/// The fine grid's state: the reading the path effects expect next.
+#[derive(Debug, Clone, Copy)]
+struct Grid {
+    period_ns: u64,
+    points: usize,
+    next_end_ns: i128,
+}
+
+/// The waveform stage of one triad (crate docs).
+pub struct WaveformStage {
+    chain: SensorChain,
+    axes: TriadAxes,
+    passports: [Passport; 3],
+    effects: [Vec<Box<dyn Effect>>; 3],
+    has_effects: [bool; 3],
+    kernel: Kernel,
+    ring: Vec<[f64; 3]>,
+    seg: Option<Segment>,
+    inverse: Option<ChainInverse>,
+    /// The segment ended (a refused block): the next block starts a new one.
+    broken: bool,
+    grid: Option<Grid>,
+    /// Per unit: the vibration at the unit on the reading's grid points, `[OA, PA, IA]`,
+    /// its deviations from the interval's mean, and the output effects' part.
+    vib: [Vec<[f64; 3]>; 3],
+    dev: [Vec<[f64; 3]>; 3],
+    eff: [Vec<f64>; 3],
+    /// Gregory's weights of the interval's mean on its `m + 1` points.
+    weights: Vec<f64>,
+    /// The last reading's point `m` is this reading's point 0 (the grid continues).
+    carry: bool,
+    carry_effects: bool,
+    input: Vec<[f64; 3]>,
+    out: Vec<f64>,
+    fp_out: Vec<f64>,
+    /// Per unit: the last reading minus its solution (the guess for the next).
+    correction_g: [Option<f64>; 3],
+    epoch_ns: Option<i128>,
+    counters: StageCounters,
+}
+
+impl WaveformStage {
+    /// The stage for a triad with `passports` and, per unit, the extended model's
+    /// effects (empty for the base model), built by the caller from the model
+    /// (`LabModel::build_effects`).
+    pub fn new(
+        chain: SensorChain,
+        axes: TriadAxes,
+        passports: [Passport; 3],
+        effects: [Vec<Box<dyn Effect>>; 3],
+    ) -> Result<Self, WaveformError> {
+        let problems = chain.problems();
+        if !problems.is_empty() {
+            let text: Vec<String> = problems.iter().map(|p| p.to_string()).collect();
+            return Err(WaveformError::Chain(text.join("; ")));
+        }
+        let has_effects = [0, 1, 2].map(|u| !effects[u].is_empty());
+        Ok(Self {
+            chain,
+            axes,
+            passports,
+            effects,
+            has_effects,
+            kernel: Kernel::new(),
+            ring: Vec::new(),
+            seg: None,
+            inverse: None,
+            broken: false,
+            grid: None,
+            vib: [Vec::new(), Vec::new(), Vec::new()],
+            dev: [Vec::new(), Vec::new(), Vec::new()],
+            eff: [Vec::new(), Vec::new(), Vec::new()],
+            weights: Vec::new(),
+            carry: false,
+            carry_effects: false,
+            input: Vec::new(),
+            out: Vec::new(),
+            fp_out: Vec::new(),
+            correction_g: [None; 3],
+            epoch_ns: None,
+            counters: StageCounters::default(),
+        })
+    }
+
+    /// The chain the stage undoes.
+    pub fn chain(&self) -> &SensorChain {
+        &self.chain
+    }
+
+    pub fn counters(&self) -> StageCounters {
+        self.counters
+    }
+
+    /// Forgets the stream and the effects' state (a restarted producer).
+    pub fn reset(&mut self) {
+        self.seg = None;
+        self.broken = false;
+        self.grid = None;
+        self.correction_g = [None; 3];
+    }
+
+    /// One vibration-sensor block, samples in volts `[sample][sensor]` (sensor `i` along
+    /// unit `i`'s IA), sample `k` stamped `t0_ns + k period`. `flagged`: the producer
+    /// marked it saturated; `gap_before`: it says samples were lost before it.
+    #[allow(clippy::too_many_arguments)]
+    pub fn push_vib(
+        &mut self,
+        seq: u64,
+        first_index: u64,
+        t0_ns: u64,
+        period_ns: u64,
+        samples_v: &[[f64; 3]],
+        flagged: bool,
+        gap_before: bool,
+    ) -> VibPush {
+        self.counters.vib_blocks += 1;
+        self.counters.vib_samples += samples_v.len() as u64;
+        let count = samples_v.len() as u64;
+        if period_ns == 0 {
+            self.counters.refused += 1;
+            self.broken = true;
+            return VibPush::Refused;
+        }
+        // Continuity against the current segment.
+        let mut start = self.seg.is_none() || self.broken;
+        if let (Some(s), false) = (&self.seg, start) {
+            if seq.wrapping_add(1) == s.next_seq && first_index.wrapping_add(count) == s.hi {
+                self.counters.repeated += 1;
+                return VibPush::Repeated;
+            }
+            let predicted = s.t0_ns as f64 + (first_index as f64 - s.index0 as f64) * s.period_ns;
+            let off = t0_ns as f64 - predicted;
+            if period_ns != s.nominal_period_ns {
+                self.counters.rate_changes += 1;
+                start = true;
+            } else if gap_before || seq != s.next_seq || first_index != s.hi {
+                self.counters.gaps += 1;
+                start = true;
+            } else if 2.0 * off.abs() > s.period_ns {
+                if off < 0.0 {
+                    self.counters.backwards += 1;
+                } else {
+                    self.counters.time_jumps += 1;
+                }
+                start = true;
+            }
+            if start {
+                self.counters.breaks += 1;
+            }
+        }
+        if flagged || samples_v.iter().any(|v| !v.iter().all(|x| x.is_finite())) {
+            self.counters.refused += 1;
+            self.broken = true;
+            return VibPush::Refused;
+        }
+        let rate_hz = 1e9 / period_ns as f64;
+        if start {
+            if !self.chain.usable_at(rate_hz) {
+                self.counters.refused += 1;
+                self.broken = true;
+                return VibPush::Refused;
+            }
+            let want = ((RING_S + 2.0 * self.grid_period_s()) * rate_hz).ceil() as usize;
+            let cap = want.max(4096).next_power_of_two().min(MAX_RING);
+            if self.ring.len() != cap {
+                // Allocates: at the first block and at a rate change, not per block.
+                self.ring = vec![[0.0; 3]; cap];
+            }
+            let inverse = match &mut self.inverse {
+                Some(inv) if self.seg.is_some_and(|s| s.nominal_period_ns == period_ns) => {
+                    inv.reset();
+                    *inv
+                }
+                _ => ChainInverse::new(&self.chain, rate_hz),
+            };
+            self.inverse = Some(inverse);
+            self.seg = Some(Segment {
+                index0: first_index,
+                t0_ns: i128::from(t0_ns),
+                period_ns: period_ns as f64,
+                nominal_period_ns: period_ns,
+                lo: first_index,
+                hi: first_index,
+                next_seq: seq,
+            });
+            self.broken = false;
+        }
+        let (Some(s), Some(inv)) = (&mut self.seg, &mut self.inverse) else {
+            return VibPush::Refused;
+        };
+        // The stamped period from the segment's own stamps.
+        if first_index > s.index0 {
+            s.period_ns = (i128::from(t0_ns) - s.t0_ns) as f64 / (first_index - s.index0) as f64;
+        }
+        let mask = self.ring.len() as u64 - 1;
+        for (k, v) in samples_v.iter().enumerate() {
+            let idx = first_index.wrapping_add(k as u64);
+            self.ring[(idx & mask) as usize] = inv.undo(*v);
+        }
+        s.hi = first_index.wrapping_add(count);
+        s.lo = s.lo.max(s.hi.saturating_sub(self.ring.len() as u64));
+        s.next_seq = seq.wrapping_add(1);
+        if start {
+            VibPush::Started
+        } else {
+            VibPush::Continued
+        }
+    }
+
+    fn grid_period_s(&self) -> f64 {
+        self.grid.map_or(0.0, |g| g.period_ns as f64 * 1e-9)
+    }
+
+    /// Fine points per reading of `period_ns` with the current stream's rate.
+    fn points_for(&self, period_ns: u64) -> Option<usize> {
+        let s = self.seg?;
+        let sensor_hz = 1e9 / s.period_ns;
+        let fine_hz = (2.0 * sensor_hz).max(MIN_FINE_RATE_HZ);
+        let m = (fine_hz * period_ns as f64 * 1e-9).ceil();
+        (m >= 1.0 && m <= MAX_FINE_POINTS as f64).then_some(m as usize)
+    }
+
+    /// The fractional sample index of base time `t_ns` (relative arithmetic: `rel_ns`
+    /// is the time after the segment's first stamp).
+    #[inline]
+    fn position(s: &Segment, rel_ns: f64) -> f64 {
+        s.index0 as f64 + rel_ns / s.period_ns
+    }
+
+    /// Can the readings whose first interval ends at `first_end_ns`, `count` of them
+    /// every `period_ns`, be solved now?
+    pub fn coverage(&self, first_end_ns: u64, period_ns: u64, count: usize) -> Coverage {
+        let Some(s) = self.seg else {
+            return Coverage::NotYet;
+        };
+        if count == 0 || period_ns == 0 {
+            return Coverage::Never;
+        }
+        if self.points_for(period_ns).is_none() {
+            return Coverage::Never;
+        }
+        let delay_ns = self.chain.delay_s * 1e9;
+        let first = i128::from(first_end_ns) - s.t0_ns;
+        let last = first + (count as i128 - 1) * i128::from(period_ns);
+        let x_first = Self::position(&s, first as f64 - period_ns as f64 + delay_ns);
+        let x_last = Self::position(&s, last as f64 + delay_ns);
+        let w = HALF_WIDTH as f64;
+        if x_first.floor() - w + 1.0 < s.lo as f64 {
+            return Coverage::Never;
+        }
+        if x_last.floor() + w < s.hi as f64 {
+            return Coverage::Ready;
+        }
+        if self.broken {
+            // The segment has ended: nothing more comes into it.
+            return Coverage::Never;
+        }
+        Coverage::NotYet
+    }
+
+    /// Solves a block of readings (`readings_g[k][u]` = `U/K1` of unit `u`, reading `k`'s
+    /// interval ending at `first_end_ns + k period_ns`) for each unit's interval-mean
+    /// acceleration along its IA, into `out_g`. Readings that are not finite give NaN.
+    /// Call only when [`Self::coverage`] says `Ready`.
+    pub fn compensate(
+        &mut self,
+        first_end_ns: u64,
+        period_ns: u64,
+        readings_g: &[[f64; 3]],
+        out_g: &mut [[f64; 3]],
+    ) {
+        let Some(m) = self.points_for(period_ns) else {
+            out_g.fill([f64::NAN; 3]);
+            return;
+        };
+        let first = i128::from(first_end_ns);
+        let p = i128::from(period_ns);
+        let continues = self
+            .grid
+            .is_some_and(|g| g.period_ns == period_ns && g.points == m && g.next_end_ns == first);
+        if !continues {
+            self.restart_grid(first, period_ns, m, readings_g.first().copied());
+        }
+        for (k, (r, o)) in readings_g.iter().zip(out_g.iter_mut()).enumerate() {
+            let end = first + k as i128 * p;
+            *o = self.solve(end, period_ns, m, *r);
+        }
+        if let Some(g) = &mut self.grid {
+            g.next_end_ns = first + readings_g.len() as i128 * p;
+        }
+    }
+
+    /// The path effects start afresh at `first_end_ns` and are run over the vibration
+    /// before it (up to [`WARM_UP_S`], as far as the segment reaches).
+    fn restart_grid(
+        &mut self,
+        first_end_ns: i128,
+        period_ns: u64,
+        m: usize,
+        reading: Option<[f64; 3]>,
+    ) {
+        let h_s = period_ns as f64 * 1e-9 / m as f64;
+        for u in 0..3 {
+            if self.vib[u].len() != m + 1 {
+                // Allocates: at the first block and when the grid changes size.
+                self.vib[u] = vec![[0.0; 3]; m + 1];
+                self.dev[u] = vec![[0.0; 3]; m + 1];
+                self.eff[u] = vec![0.0; m + 1];
+            }
+            for e in self.effects[u].iter_mut() {
+                e.reset(1.0 / h_s);
+            }
+        }
+        if self.weights.len() != m + 1 {
+            self.weights = gregory_weights(m);
+            self.input = vec![[0.0; 3]; m + 1];
+            self.out = vec![0.0; m + 1];
+            self.fp_out = vec![0.0; m + 1];
+        }
+        self.counters.effect_resets += 1;
+        self.carry = false;
+        self.grid = Some(Grid {
+            period_ns,
+            points: m,
+            next_end_ns: first_end_ns,
+        });
+        if self.epoch_ns.is_none() {
+            self.epoch_ns = Some(first_end_ns);
+        }
+        self.correction_g = [None; 3];
+        if !self.has_effects.iter().any(|&e| e) {
+            return;
+        }
+        // Warm-up readings that the segment covers.
+        let wanted = (WARM_UP_S / (period_ns as f64 * 1e-9)).ceil() as i128;
+        let p = i128::from(period_ns);
+        let mut k0 = wanted;
+        while k0 > 0 && self.coverage_at(first_end_ns - k0 * p, period_ns) != Coverage::Ready {
+            k0 -= 1;
+        }
+        let r = reading.unwrap_or([f64::NAN; 3]);
+        let guess = self.guess(r);
+        for k in (1..=k0).rev() {
+            let end = first_end_ns - k * p;
+            self.fill_fine(end, period_ns, m);
+            // Output effects see the vibration at the guess of the first reading.
+            if guess.iter().all(|x| x.is_finite()) {
+                self.output_effects(end, period_ns, m, guess);
+            }
+        }
+    }
+
+    fn coverage_at(&self, end_ns: i128, period_ns: u64) -> Coverage {
+        if end_ns < 0 || end_ns > i128::from(u64::MAX) {
+            return Coverage::Never;
+        }
+        self.coverage(end_ns as u64, period_ns, 1)
+    }
+
+    fn ctx(
+        &self,
+        unit: usize,
+        end_ns: i128,
+        period_ns: u64,
+        m: usize,
+        first_point: usize,
+    ) -> BlockCtx {
+        let h = period_ns as f64 / m as f64;
+        let epoch = self.epoch_ns.unwrap_or(end_ns);
+        BlockCtx {
+            unit,
+            t0_s: ((end_ns - epoch) as f64 - period_ns as f64 + first_point as f64 * h) * 1e-9,
+            dt_s: h * 1e-9,
+        }
+    }
+
+    /// The vibration at each unit on the `m + 1` grid points of the reading ending at
+    /// `end_ns` (`end - T + j T/m`), through the path effects, into `self.vib`. Point 0
+    /// is the previous reading's point `m` when the grid continues (each point goes
+    /// through the effects once).
+    fn fill_fine(&mut self, end_ns: i128, period_ns: u64, m: usize) {
+        let Some(s) = self.seg else {
+            return;
+        };
+        let first_point = if self.carry {
+            for u in 0..3 {
+                self.vib[u][0] = self.vib[u][m];
+            }
+            1
+        } else {
+            0
+        };
+        let h = period_ns as f64 / m as f64;
+        let delay_ns = self.chain.delay_s * 1e9;
+        let rel_start = (end_ns - s.t0_ns) as f64 - period_ns as f64 + delay_ns;
+        let mask = self.ring.len() as u64 - 1;
+        let ring = &self.ring;
+        for j in first_point..=m {
+            let x = Self::position(&s, rel_start + j as f64 * h);
+            let sensors = self
+                .kernel
+                .interpolate(x, |k| ring[(k as u64 & mask) as usize]);
+            let body = self.axes.body_from_ia(&sensors);
+            for u in 0..3 {
+                self.vib[u][j] = self.axes.units[u].to_unit(&body);
+            }
+        }
+        for u in 0..3 {
+            let ctx = self.ctx(u, end_ns, period_ns, m, first_point);
+            for e in self.effects[u].iter_mut() {
+                e.at_unit_input(&ctx, &mut self.vib[u][first_point..=m]);
+            }
+        }
+        // The deviations from the interval's mean (Gregory's weights).
+        for u in 0..3 {
+            let mut mean = [0.0; 3];
+            for (v, w) in self.vib[u][..=m].iter().zip(&self.weights) {
+                for i in 0..3 {
+                    mean[i] += w * v[i];
+                }
+            }
+            for (d, v) in self.dev[u][..=m].iter_mut().zip(&self.vib[u][..=m]) {
+                *d = [v[0] - mean[0], v[1] - mean[1], v[2] - mean[2]];
+            }
+        }
+        self.carry_effects = self.carry;
+        self.carry = true;
+    }
+
+    /// The guess of each unit's IA mean for readings `r` (g): the reading less the last
+    /// correction, or the first approximation [P2 (17)].
+    fn guess(&self, r: [f64; 3]) -> [f64; 3] {
+        [0, 1, 2].map(|u| match self.correction_g[u] {
+            Some(c) => r[u] - c,
+            None => {
+                let p = &self.passports[u];
+                (r[u] - p.a0_g) / p.k1
+            }
+        })
+    }
+
+    /// The output effects' contribution on the grid points of the reading ending at
+    /// `end_ns`, at the IA means `m3`, into `self.eff` (crate docs: held fixed while
+    /// Newton solves FP); returns its weighted mean per unit.
+    fn output_effects(&mut self, end_ns: i128, period_ns: u64, m: usize, m3: [f64; 3]) -> [f64; 3] {
+        let mut e_mean = [0.0; 3];
+        let body = self.axes.body_from_ia(&m3);
+        let first_point = if self.carry_effects { 1 } else { 0 };
+        for u in 0..3 {
+            if !self.has_effects[u] {
+                continue;
+            }
+            if first_point == 1 {
+                self.eff[u][0] = self.eff[u][m];
+            }
+            let a = self.axes.units[u].to_unit(&body);
+            let p = &self.passports[u];
+            for j in first_point..=m {
+                let d = self.dev[u][j];
+                let x = [a[0] + d[0], a[1] + d[1], a[2] + d[2]];
+                self.input[j] = x;
+                let f = fp::output_g(p, x[0], x[1], x[2]);
+                self.out[j] = f;
+                self.fp_out[j] = f;
+            }
+            let ctx = self.ctx(u, end_ns, period_ns, m, first_point);
+            for e in self.effects[u].iter_mut() {
+                e.at_unit_output(
+                    &ctx,
+                    &self.input[first_point..=m],
+                    &mut self.out[first_point..=m],
+                );
+            }
+            for j in first_point..=m {
+                self.eff[u][j] = self.out[j] - self.fp_out[j];
+            }
+            e_mean[u] = self.eff[u][..=m]
+                .iter()
+                .zip(&self.weights)
+                .map(|(e, w)| e * w)
+                .sum();
+        }
+        e_mean
+    }
+
+    /// One reading: its grid points, the output effects at the guess, and Newton.
+    fn solve(&mut self, end_ns: i128, period_ns: u64, m: usize, r: [f64; 3]) -> [f64; 3] {
+        self.fill_fine(end_ns, period_ns, m);
+        if !r.iter().all(|x| x.is_finite()) {
+            // The effects' state advanced; the guess stays as it was.
+            return [f64::NAN; 3];
+        }
+        let mut m3 = self.guess(r);
+        let effects_g = self.output_effects(end_ns, period_ns, m, m3);
+        let mut converged = false;
+        for _ in 0..NEWTON_ITERATIONS {
+            let body = self.axes.body_from_ia(&m3);
+            let mut step_max: f64 = 0.0;
+            let mut next = m3;
+            for u in 0..3 {
+                let a = self.axes.units[u].to_unit(&body);
+                let p = &self.passports[u];
+                let (mut f, mut g) = (0.0, 0.0);
+                for (d, w) in self.dev[u][..=m].iter().zip(&self.weights) {
+                    let x = [a[0] + d[0], a[1] + d[1], a[2] + d[2]];
+                    f += w * fp::output_g(p, x[0], x[1], x[2]);
+                    g += w * fp::gradient_g(p, x[0], x[1], x[2])[2];
+                }
+                let step = (f + effects_g[u] - r[u]) / g;
+                next[u] = m3[u] - step;
+                step_max = step_max.max(step.abs());
+            }
+            m3 = next;
+            if step_max
+                <= NEWTON_TOLERANCE_G * (1.0 + m3.iter().fold(0.0f64, |a, x| a.max(x.abs())))
+            {
+                converged = true;
+                break;
+            }
+        }
+        if !converged {
+            self.counters.unconverged += 1;
+        }
+        self.counters.readings += 1;
+        for u in 0..3 {
+            self.correction_g[u] = Some(r[u] - m3[u]);
+        }
+        m3
+    }
+}
+
+/// Gregory's end-corrected trapezoid rule on `m + 1` equally spaced points, as weights
+/// of the interval's mean (they sum to 1): `(3/8, 7/6, 23/24, 1, ..., 1, 23/24, 7/6,
+/// 3/8) / m`, exact for cubics, error `O(h^4)` where the midpoint rule's is `O(h^2)`.
+/// Below 6 intervals, the trapezoid rule.
+pub fn gregory_weights(m: usize) -> Vec<f64> {
+    let mut w = vec![1.0 / m as f64; m + 1];
+    if m >= 6 {
+        for (j, c) in [3.0 / 8.0, 7.0 / 6.0, 23.0 / 24.0].into_iter().enumerate() {
+            w[j] = c / m as f64;
+            w[m - j] = c / m as f64;
+        }
+    } else {
+        w[0] = 0.5 / m as f64;
+        w[m] = 0.5 / m as f64;
+    }
+    w
+}
