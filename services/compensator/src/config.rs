@@ -58,8 +58,84 @@ pub struct RawConfig {
     pub model: Option<String>,
     #[serde(default)]
     pub estimate: EstimateMappingRaw,
+    /// `waveform` (default: the model evaluated on every vibration sample, MODEL.md
+    /// section 12, whenever samples reach the compensator; the estimate stage answers
+    /// readings they do not cover) or `estimate` (the paper's stages (17)-(20) only).
+    #[serde(default = "default_stage")]
+    pub stage: String,
+    /// How long a reading waits for the vibration samples that cover its interval, in
+    /// the streams' time, ms; past it the estimate stage answers it (flagged). Absent:
+    /// one vibration block of the stream.
+    #[serde(default)]
+    pub max_wait_ms: Option<f64>,
+    #[serde(default)]
+    pub sensors: SensorsRaw,
     #[serde(default)]
     pub service: ServiceSettingsRaw,
+}
+
+fn default_stage() -> String {
+    "waveform".into()
+}
+
+/// The `[sensors]` table: the vibration sensors' chain the waveform stage undoes
+/// (`vibro_waveform::SensorChain`), as the estimator's `[estimator]` and a rig file's
+/// `[sensors]` state it.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorsRaw {
+    #[serde(default = "default_sensitivity")]
+    pub sensitivity_v_per_g: Vec<f64>,
+    #[serde(default = "default_ac_corner_hz")]
+    pub ac_corner_hz: f64,
+    #[serde(default)]
+    pub delay_s: f64,
+}
+
+fn default_sensitivity() -> Vec<f64> {
+    vibro_waveform::SensorChain::default()
+        .sensitivity_v_per_g
+        .to_vec()
+}
+fn default_ac_corner_hz() -> f64 {
+    vibro_waveform::SensorChain::default().ac_corner_hz
+}
+
+impl Default for SensorsRaw {
+    fn default() -> Self {
+        Self {
+            sensitivity_v_per_g: default_sensitivity(),
+            ac_corner_hz: default_ac_corner_hz(),
+            delay_s: 0.0,
+        }
+    }
+}
+
+/// Which stage compensates readings whose vibration samples arrive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// MODEL.md section 12, with the estimate stage as the fallback.
+    Waveform,
+    /// [P2 (17)-(20)] only (the samples are not used).
+    Estimate,
+}
+
+impl Stage {
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::Waveform => "waveform",
+            Stage::Estimate => "estimate",
+        }
+    }
+}
+
+/// The waveform stage's settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WaveformSettings {
+    pub stage: Stage,
+    /// `max_wait_ms` in ns; `None`: one vibration block.
+    pub max_wait_ns: Option<u64>,
+    pub chain: vibro_waveform::SensorChain,
 }
 
 fn default_max_estimate_age_s() -> f64 {
@@ -129,6 +205,8 @@ pub struct Model {
     pub estimate: EstimateMapping,
     /// The extended model's effects (`model = ...`), with the file they came from.
     pub effects: Option<(PathBuf, vibro_effects::LabModel)>,
+    /// `stage`, `max_wait_ms` and `[sensors]`.
+    pub waveform: WaveformSettings,
 }
 
 impl Model {
@@ -240,6 +318,14 @@ fn check_sizes(raw: &RawConfig, p: &mut Vec<String>) -> bool {
         MAX_WORD_BYTES,
         p,
     );
+    ok &= text("stage", &raw.stage, MAX_WORD_BYTES, p);
+    if raw.sensors.sensitivity_v_per_g.len() != 3 {
+        p.push(format!(
+            "sensors.sensitivity_v_per_g: {} entries, one per sensor (3)",
+            raw.sensors.sensitivity_v_per_g.len()
+        ));
+        ok = false;
+    }
     ok
 }
 
@@ -400,6 +486,46 @@ impl Config {
             ));
         }
 
+        let stage = match raw.stage.as_str() {
+            "waveform" => Some(Stage::Waveform),
+            "estimate" => Some(Stage::Estimate),
+            other => {
+                problems.push(format!(
+                    "stage = {other:?}: must be \"waveform\" or \"estimate\""
+                ));
+                None
+            }
+        };
+        let max_wait_ns = match raw.max_wait_ms {
+            None => Some(None),
+            Some(ms) if ms.is_finite() && (0.0..=10_000.0).contains(&ms) => {
+                Some(Some((ms * 1e6).round() as u64))
+            }
+            Some(ms) => {
+                problems.push(format!(
+                    "max_wait_ms = {ms}: must be finite and 0 <= ms <= 10000"
+                ));
+                None
+            }
+        };
+        let sens = &raw.sensors.sensitivity_v_per_g;
+        let chain = vibro_waveform::SensorChain {
+            sensitivity_v_per_g: [sens[0], sens[1], sens[2]],
+            ac_corner_hz: raw.sensors.ac_corner_hz,
+            delay_s: raw.sensors.delay_s,
+        };
+        for c in chain.problems() {
+            problems.push(format!("sensors.{c}"));
+        }
+        let waveform = match (stage, max_wait_ns) {
+            (Some(stage), Some(max_wait_ns)) => Some(WaveformSettings {
+                stage,
+                max_wait_ns,
+                chain,
+            }),
+            _ => None,
+        };
+
         match (
             names,
             service,
@@ -410,6 +536,7 @@ impl Config {
             reload_poll,
             kurtosis,
             effects,
+            waveform,
         ) {
             (
                 Some(names),
@@ -421,6 +548,7 @@ impl Config {
                 Some(reload_poll),
                 Some(kurtosis),
                 Some(effects),
+                Some(waveform),
             ) if problems.is_empty() => Ok(Self {
                 source: ConfigSource::Inline,
                 as_written: (names.prefix().to_string(), service),
@@ -439,6 +567,7 @@ impl Config {
                         within_output_interval: e.within_output_interval,
                     },
                     effects,
+                    waveform,
                 },
                 service,
                 reload_poll,

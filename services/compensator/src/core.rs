@@ -7,13 +7,14 @@ use crate::config::{Config, Model};
 use crate::interval::{within_fraction, within_output_interval, within_spectrum};
 use crate::mapping::{sensor_map, unit_vibrations, UnitVibrations};
 use crate::reload::ModelUpdate;
+use crate::waveform::WaveformPath;
 use crate::spectrum::{sensor_spectrum, unit_bands, SpectrumSolver};
 use tracing::{info, warn};
 use vibro_ipc::StreamPublisher;
 use vibro_msgs::compensation_flags as cf;
 use vibro_msgs::{
-    accel_flags, estimate_flags, AccelBlock, CompensatedBlock, CompensationMode, VibEstimate,
-    WireMessage,
+    accel_flags, estimate_flags, AccelBlock, CompensatedBlock, CompensationMode, VibBlock,
+    VibEstimate, WireMessage,
 };
 use vibro_physics::compensation::TriadCompensator;
 use vibro_physics::vibration::{PsdBand, Vibration};
@@ -69,6 +70,14 @@ pub struct Summary {
     pub time_jump_blocks: u64,
     /// Blocks published with `INPUT_SATURATED`.
     pub saturated_blocks: u64,
+    /// `stage` of the configuration: `waveform` or `estimate`.
+    pub stage: &'static str,
+    /// Blocks published with `WAVEFORM` (the waveform stage made them).
+    pub waveform_blocks: u64,
+    /// Blocks published with `WAVEFORM_FALLBACK` (the estimate stage answered them).
+    pub fallback_blocks: u64,
+    /// The waveform stage's counts (`None` with `stage = "estimate"`).
+    pub waveform: Option<crate::waveform::WaveformCounts>,
     /// Estimates for which the extended model's effects could not be evaluated (the
     /// base model was applied without them).
     pub model_effect_errors: u64,
@@ -112,6 +121,9 @@ impl Summary {
             .u64("rate_change_blocks", self.rate_change_blocks)
             .u64("time_jump_blocks", self.time_jump_blocks)
             .u64("saturated_blocks", self.saturated_blocks)
+            .str("stage", self.stage)
+            .u64("waveform_blocks", self.waveform_blocks)
+            .u64("fallback_blocks", self.fallback_blocks)
             .u64("model_effect_errors", self.model_effect_errors)
             .u64("undelivered", self.undelivered)
             .u64("publish_errors", self.publish_errors)
@@ -120,6 +132,9 @@ impl Summary {
             .u64("reload_errors", self.reload_errors)
             .u64("heartbeats", self.heartbeats)
             .object("latency", self.latency.to_json());
+        if let Some(w) = &self.waveform {
+            o.object("waveform", w.to_json());
+        }
         o.finish()
     }
 }
@@ -185,14 +200,27 @@ impl InProcess {
     }
 
     /// An accelerometer block arrives at `recv_ns`: its compensated block (if it was
-    /// not dropped) is appended to `out`.
+    /// not dropped) is appended to `out`, at once with `stage = "estimate"`, when the
+    /// vibration samples cover it with `stage = "waveform"` (crate::waveform).
     pub fn on_accel(&mut self, block: &AccelBlock, recv_ns: u64, out: &mut Vec<CompensatedBlock>) {
         self.st.on_accel(block, recv_ns, out);
     }
 
+    /// A vibration-sensor block arrives at `recv_ns` (the waveform stage's samples);
+    /// the held blocks it covers are appended to `out`.
+    pub fn on_vib(&mut self, block: &VibBlock, recv_ns: u64, out: &mut Vec<CompensatedBlock>) {
+        self.st.on_vib(block, recv_ns, out);
+    }
+
+    /// The input has ended: every held block is appended to `out` (covered ones solved,
+    /// the rest answered by the estimate stage).
+    pub fn finish(&mut self, out: &mut Vec<CompensatedBlock>) {
+        self.st.finish(out);
+    }
+
     /// The counters so far.
     pub fn summary(&self) -> Summary {
-        self.st.s.clone()
+        self.st.summary()
     }
 }
 
@@ -465,6 +493,8 @@ impl EffectGrid {
 
 /// The hot loop's state. Nothing in it allocates per block or per sample.
 pub(crate) struct Compensation {
+    /// The waveform stage and the blocks it holds (`stage = "waveform"`).
+    pub(crate) waveform: Option<WaveformPath>,
     model: Model,
     compensator: TriadCompensator,
     /// A clone of `compensator` holding the latest estimate's vibration, built when the
@@ -513,7 +543,10 @@ pub(crate) struct Compensation {
 impl Compensation {
     pub(crate) fn new(model: Model, compensator: TriadCompensator) -> anyhow::Result<Self> {
         let mode = model.wire_mode();
+        let stage = model.waveform.stage.name();
+        let waveform = WaveformPath::new(&model).map_err(anyhow::Error::msg)?;
         Ok(Compensation {
+            waveform,
             k1_v_per_g: model.k1_v_per_g(),
             effect_grids: None,
             effect_span: [GridSpan::default(); 3],
@@ -555,6 +588,10 @@ impl Compensation {
                 rate_change_blocks: 0,
                 time_jump_blocks: 0,
                 saturated_blocks: 0,
+                stage,
+                waveform_blocks: 0,
+                fallback_blocks: 0,
+                waveform: None,
                 model_effect_errors: 0,
                 undelivered: 0,
                 publish_errors: 0,
@@ -568,8 +605,33 @@ impl Compensation {
         })
     }
 
+    /// The counters so far, with the waveform stage's.
+    pub(crate) fn summary(&self) -> Summary {
+        let mut s = self.s.clone();
+        s.waveform = self.waveform.as_ref().map(|w| w.counts());
+        s
+    }
+
     pub(crate) fn take_update(&mut self, update: ModelUpdate) {
-        self.model = update.model;
+        // The stage (waveform or estimate) is kept until a restart; the waveform stage
+        // takes the new model's passports, effects and sensor chain.
+        let mut model = update.model;
+        if model.waveform.stage != self.model.waveform.stage {
+            warn!(
+                running = self.model.waveform.stage.name(),
+                reloaded = model.waveform.stage.name(),
+                "a change of stage takes effect at the next start; the running stage stays"
+            );
+            model.waveform.stage = self.model.waveform.stage;
+        }
+        if let Some(w) = &mut self.waveform {
+            match WaveformPath::new(&model) {
+                Ok(Some(new)) => w.replace_stage(new),
+                Ok(None) => {}
+                Err(e) => warn!("the reloaded model's waveform stage: {e}; keeping the running one"),
+            }
+        }
+        self.model = model;
         self.compensator = update.compensator;
         // Allocates, once per reload (not per block).
         self.prepared = self.compensator.clone();
@@ -995,8 +1057,9 @@ impl Compensation {
                 .saturating_sub(b.sample_period_ns / 2)
         };
         let mut non_finite = 0u64;
-        let mut publish_ns = 0u64;
-        let result = out.publish_with(|m| {
+        let mut answer = CompensatedBlock::default();
+        {
+            let m = &mut answer;
             m.seq = seq;
             m.input_seq = block.seq;
             m.first_sample_index = block.first_sample_index;
@@ -1075,11 +1138,75 @@ impl Compensation {
             } else {
                 flags
             };
+        }
+        self.s.samples += count;
+        self.s.non_finite_samples += non_finite;
+        let held = match &mut self.waveform {
+            Some(w) => {
+                // Held until the samples cover it (crate::waveform), with the readings.
+                let mut readings_g = [[f64::NAN; 3]; vibro_msgs::ACCEL_BLOCK_MAX];
+                for (r, u_v) in readings_g.iter_mut().zip(block.samples_v()) {
+                    *r = [0, 1, 2].map(|i| {
+                        let g = u_v[i] / k1[i];
+                        if g.abs() <= MAX_ABS_READING_G {
+                            g
+                        } else {
+                            f64::NAN
+                        }
+                    });
+                }
+                w.hold(&answer, &readings_g[..block.samples_v().len()], recv_ns);
+                true
+            }
+            None => false,
+        };
+        if held {
+            // The receive time stands for the wall clock: an in-process run stays
+            // deterministic (crate::waveform's silence rule).
+            self.release(recv_ns, out);
+        } else {
+            self.publish(&answer, recv_ns, out);
+        }
+    }
+
+    /// A `{prefix}vib` block arrives at `recv_ns` (the waveform stage keeps its samples;
+    /// without it, it is not looked at), and held blocks it covers go out.
+    pub(crate) fn on_vib(&mut self, b: &VibBlock, recv_ns: u64, out: &mut impl OutputSink) {
+        if let Some(w) = &mut self.waveform {
+            w.on_vib(b, recv_ns);
+            self.release(recv_ns, out);
+        }
+    }
+
+    /// Publishes every held block that is decided at wall-clock `now_ns`.
+    pub(crate) fn release(&mut self, now_ns: u64, out: &mut impl OutputSink) {
+        while let Some((b, recv_ns)) = self.waveform.as_mut().and_then(|w| {
+            let recv = w.front_recv_ns();
+            w.next_ready(now_ns).map(|b| (b, recv))
+        }) {
+            self.publish(&b, recv_ns, out);
+        }
+    }
+
+    /// Publishes every held block, deciding those still waiting (an in-process run's end).
+    pub(crate) fn finish(&mut self, out: &mut impl OutputSink) {
+        while let Some((b, recv_ns)) = self.waveform.as_mut().and_then(|w| {
+            let recv = w.front_recv_ns();
+            w.finish().map(|b| (b, recv))
+        }) {
+            self.publish(&b, recv_ns, out);
+        }
+    }
+
+    /// Publishes one block and counts it by its flags.
+    fn publish(&mut self, answer: &CompensatedBlock, recv_ns: u64, out: &mut impl OutputSink) {
+        let flags = answer.flags;
+        let mut publish_ns = 0u64;
+        let result = out.publish_with(|m| {
+            *m = *answer;
             publish_ns = now_ns();
             m.publish_ns = publish_ns;
         });
-        self.s.samples += count;
-        self.s.non_finite_samples += non_finite;
         match result {
             Ok(_) => {}
             Err(e @ vibro_ipc::Error::Undelivered { .. }) => {
@@ -1102,8 +1229,10 @@ impl Compensation {
         self.s.missing_blocks += u64::from(flags & cf::ESTIMATE_MISSING != 0);
         self.s.flagged_estimate_blocks += u64::from(flags & cf::ESTIMATE_FLAGGED != 0);
         self.s.ahead_blocks += u64::from(flags & cf::ESTIMATE_AHEAD != 0);
-        self.s.rate_change_blocks += u64::from(rate_change);
-        self.s.time_jump_blocks += u64::from(time_jump);
+        self.s.rate_change_blocks += u64::from(flags & cf::RATE_CHANGE != 0);
+        self.s.time_jump_blocks += u64::from(flags & cf::TIME_JUMP != 0);
+        self.s.waveform_blocks += u64::from(flags & cf::WAVEFORM != 0);
+        self.s.fallback_blocks += u64::from(flags & cf::WAVEFORM_FALLBACK != 0);
         self.s.saturated_blocks += u64::from(flags & cf::INPUT_SATURATED != 0);
         self.latency.record(publish_ns.saturating_sub(recv_ns));
     }

@@ -23,6 +23,12 @@
 //!   sample period (`TIME_JUMP`), a new `sample_period_ns` (`RATE_CHANGE`: the
 //!   estimate is mapped to the new output interval, the kernel starts afresh).
 //! - The model files are reloaded while running (a tokio task polls them).
+//! - **The waveform stage** (`stage = "waveform"`, the default; MODEL.md section 12,
+//!   `vibro_waveform`): the compensator also subscribes to `{prefix}vib`, holds each
+//!   accelerometer block until the sensors' samples cover its readings, and solves
+//!   each reading for its interval-mean acceleration (flag `WAVEFORM`); blocks the
+//!   samples do not cover in time get the estimate stage's answer, made on arrival
+//!   (flag `WAVEFORM_FALLBACK`) ([`waveform`]).
 //!
 //! ```no_run
 //! use vibro_compensator::{run, Config};
@@ -47,9 +53,13 @@ mod config;
 mod core;
 mod reload;
 mod service;
+pub mod waveform;
 
 pub use self::core::{InProcess, OutputSink, Summary, MAX_ABS_READING_G};
-pub use config::{wire_mode, Config, EstimateMappingRaw, Model, RawConfig, DEFAULT_CONFIG_PATH};
+pub use config::{
+    wire_mode, Config, EstimateMappingRaw, Model, RawConfig, SensorsRaw, Stage, WaveformSettings,
+    DEFAULT_CONFIG_PATH,
+};
 pub use mapping::{unit_vibrations, EstimateMapping, KurtosisUse, MappingError, UnitVibrations};
 pub use service::{run, run_async};
 /// From an estimate to each unit's vibration, shared with the lab (`vibro_effects`).

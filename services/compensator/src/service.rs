@@ -15,7 +15,9 @@ use tracing::{debug, info, warn};
 use vibro_ipc::{
     cleanup_dead_nodes, create_node, create_waitset, StreamPublisher, StreamSubscriber,
 };
-use vibro_msgs::{AccelBlock, CompensatedBlock, ServiceId, ServiceState, Stream, VibEstimate};
+use vibro_msgs::{
+    AccelBlock, CompensatedBlock, ServiceId, ServiceState, Stream, VibBlock, VibEstimate,
+};
 use vibro_physics::compensation::TriadCompensator;
 use vibro_service::{
     count_first, data_stream_config, estimate_stream_config, now_ns, ConfigSource,
@@ -84,7 +86,12 @@ impl Compensation {
             published: self.s.published,
             // A dropped malformed block shows as a missing seq: counted once.
             lost: self.s.accel.lost_messages,
-            stale: self.s.stale_blocks + self.s.missing_blocks + self.s.ahead_blocks,
+            // A block the estimate stage answered for want of samples is one made with
+            // a missing input, like a stale estimate's.
+            stale: self.s.stale_blocks
+                + self.s.missing_blocks
+                + self.s.ahead_blocks
+                + self.s.fallback_blocks,
             latency,
             state,
             // Every block is answered at once: nothing to report.
@@ -105,6 +112,34 @@ fn drain_estimates(estimates: &StreamSubscriber<VibEstimate>, st: &mut Compensat
             Ok(Some(e)) => {
                 any = true;
                 st.on_estimate(&e);
+            }
+            Ok(None) => return any,
+            Err(e) => {
+                if count_first(&mut st.s.receive_errors) {
+                    warn!("{e}");
+                }
+                return any;
+            }
+        }
+    }
+}
+
+/// Takes every pending vibration-sensor block (the waveform stage's samples); on an
+/// empty stream one shared-memory poll.
+fn drain_vib(
+    vib: Option<&StreamSubscriber<VibBlock>>,
+    st: &mut Compensation,
+    out: &mut StreamPublisher<CompensatedBlock>,
+) -> bool {
+    let Some(vib) = vib else {
+        return false;
+    };
+    let mut any = false;
+    loop {
+        match vib.receive() {
+            Ok(Some(b)) => {
+                any = true;
+                st.on_vib(&b, now_ns(), out);
             }
             Ok(None) => return any,
             Err(e) => {
@@ -150,6 +185,19 @@ fn hot_loop(
         &estimate_stream_config(),
     )
     .with_context(|| format!("subscribing to {}", names.estimate()))?;
+    // The waveform stage's samples (`stage = "waveform"`).
+    let vib = match config.model.waveform.stage {
+        crate::config::Stage::Waveform => Some(
+            StreamSubscriber::<VibBlock>::create(
+                &node,
+                &names.vib(),
+                &names.event(Stream::Vib),
+                &data_stream_config(),
+            )
+            .with_context(|| format!("subscribing to {}", names.vib()))?,
+        ),
+        crate::config::Stage::Estimate => None,
+    };
     let mut compensated = StreamPublisher::<CompensatedBlock>::create(
         &node,
         &names.compensated(),
@@ -172,6 +220,14 @@ fn hot_loop(
                 names.event(Stream::Estimate)
             )
         })?;
+    let _vib_guard = match &vib {
+        Some(v) => Some(
+            waitset
+                .attach_notification(v.listener())
+                .with_context(|| format!("attaching {} to the wait set", names.event(Stream::Vib)))?,
+        ),
+        None => None,
+    };
     let _poll_guard = waitset
         .attach_interval(config.service.shutdown_poll)
         .context("attaching the shutdown-poll interval to the wait set")?;
@@ -210,6 +266,13 @@ fn hot_loop(
                     config.service.shutdown_poll,
                 )
                 .context("waiting on the compensator's wait set")?;
+            if let Some(v) = &vib {
+                if let Err(e) = v.clear_events() {
+                    if count_first(&mut st.s.receive_errors) {
+                        warn!("{e}");
+                    }
+                }
+            }
             for result in [accel.clear_events(), estimates.clear_events()] {
                 if let Err(e) = result {
                     if count_first(&mut st.s.receive_errors) {
@@ -227,6 +290,9 @@ fn hot_loop(
             }
         }
         let mut received_any = drain_estimates(&estimates, &mut st);
+        // Samples first: a sensor block published before an accelerometer block is
+        // taken before it, so that the held blocks are decided in publish order.
+        received_any |= drain_vib(vib.as_ref(), &mut st, &mut compensated);
         if received_any {
             // The tables of the estimate the next block will want, built now rather
             // than on that block's latency.
@@ -240,6 +306,7 @@ fn hot_loop(
                     // An estimate published before this block is visible now: take it,
                     // so each block uses the latest estimate sent before it.
                     drain_estimates(&estimates, &mut st);
+                    drain_vib(vib.as_ref(), &mut st, &mut compensated);
                     st.on_accel(&block, recv_ns, &mut compensated);
                 }
                 Ok(None) => break,
@@ -251,6 +318,8 @@ fn hot_loop(
                 }
             }
         }
+        // Held blocks whose wait is over by the wall clock (crate::waveform).
+        st.release(now_ns(), &mut compensated);
         if received_any {
             // Once per wake-up: every block taken so far is compensated and published.
             // No latency: quantiles per wake-up would cost the hot loop for nothing.
@@ -264,6 +333,9 @@ fn hot_loop(
                 // Keep the event buffers from filling while nobody waits on them.
                 let _ = accel.clear_events();
                 let _ = estimates.clear_events();
+                if let Some(v) = &vib {
+                    let _ = v.clear_events();
+                }
             } else {
                 std::hint::spin_loop();
             }
@@ -281,8 +353,8 @@ fn hot_loop(
                     > last.accel.seq_jumps + last.accel.index_jumps
                 || s.accel.disorder() + s.estimates.disorder()
                     > last.accel.disorder() + last.estimates.disorder()
-                || s.stale_blocks + s.missing_blocks + s.ahead_blocks
-                    > last.stale_blocks + last.missing_blocks + last.ahead_blocks
+                || s.stale_blocks + s.missing_blocks + s.ahead_blocks + s.fallback_blocks
+                    > last.stale_blocks + last.missing_blocks + last.ahead_blocks + last.fallback_blocks
                 || s.time_jump_blocks > last.time_jump_blocks
                 || s.undelivered > last.undelivered;
             let state = if s.accel.received == 0 {
@@ -302,9 +374,13 @@ fn hot_loop(
             let q = st.latency.period();
             let s = &st.s;
             info!(
-                "compensator ({}): {:.1} blocks/s, {} estimates ({} rejected), lost {} blocks / {} samples, out of order {} blocks / {} estimates, resyncs {} / {}, stale {} missing {} ahead {} blocks, rate changes {}, time jumps {}, saturated {}, undelivered {}, latency p50 {:.1} us p99 {:.1} us",
+                "compensator ({}, {} stage): {:.1} blocks/s, waveform {} fallback {} blocks ({} held), {} estimates ({} rejected), lost {} blocks / {} samples, out of order {} blocks / {} estimates, resyncs {} / {}, stale {} missing {} ahead {} blocks, rate changes {}, time jumps {}, saturated {}, undelivered {}, latency p50 {:.1} us p99 {:.1} us",
                 s.mode,
+                s.stage,
                 (s.accel.received - last.accel.received) as f64 / dt_s,
+                s.waveform_blocks - last.waveform_blocks,
+                s.fallback_blocks - last.fallback_blocks,
+                st.waveform.as_ref().map_or(0, |w| w.held()),
                 s.estimates.received - last.estimates.received,
                 s.estimates_rejected - last.estimates_rejected,
                 // Saturating: a resync can take back a loss counted earlier.
@@ -341,7 +417,9 @@ fn hot_loop(
     if let Err(e) = heartbeat.publish(&st.heartbeat_report(ServiceState::Stopping)) {
         debug!("final heartbeat: {e}");
     }
-    let mut summary = st.s.clone();
+    // Blocks still held go out with what the samples give them (nothing is lost).
+    st.finish(&mut compensated);
+    let mut summary = st.summary();
     summary.uptime_s = now_ns().saturating_sub(started_ns) as f64 * 1e-9;
     summary.heartbeats = heartbeat.sent();
     summary.latency = st.latency.total();

@@ -278,10 +278,10 @@ mod tests {
     fn flag_sets_are_disjoint_bits() {
         assert_eq!(
             compensation_flags::ALL.count_ones(),
-            11,
-            "eleven distinct compensation flags"
+            13,
+            "thirteen distinct compensation flags"
         );
-        assert_eq!(compensation_flags::ALL, 0x7ff, "bits 0..10, no hole");
+        assert_eq!(compensation_flags::ALL, 0x1fff, "bits 0..12, no hole");
         assert_eq!(estimate_flags::ALL.count_ones(), 9);
         assert_eq!(accel_flags::ALL, 0b11);
         assert_eq!(vib_flags::ALL, 0b11);

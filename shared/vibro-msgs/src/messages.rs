@@ -97,6 +97,16 @@ pub mod compensation_flags {
     /// effects' VE: `rand_g` holds the random VE plus the effects', so that
     /// `a4 = a3 - rand` still holds.
     pub const MODEL_EFFECTS: u32 = 1 << 10;
+    /// The waveform stage made the block (MODEL.md section 12): each reading solved for
+    /// its interval-mean acceleration from the vibration sensors' samples. `a4_g` is
+    /// that solution; `a3_g = a4_g`, `det_g = a2 - a4` carries the whole vibration
+    /// correction and `rand_g` is zero; `a1_g`, `a2_g` and `main_g` are stages (17)
+    /// and (18) as always.
+    pub const WAVEFORM: u32 = 1 << 11;
+    /// The compensator runs the waveform stage, but the samples did not cover this
+    /// block's readings in time (missing, late, a gap, a break in the sensors'
+    /// stream, a flagged sensor block): the estimate stage (17)-(20) made it.
+    pub const WAVEFORM_FALLBACK: u32 = 1 << 12;
     /// Every defined bit.
     pub const ALL: u32 = VIBRATION_ESTIMATE_STALE
         | ESTIMATE_MISSING
@@ -108,7 +118,9 @@ pub mod compensation_flags {
         | TIME_JUMP
         | ESTIMATE_AHEAD
         | INPUT_SATURATED
-        | MODEL_EFFECTS;
+        | MODEL_EFFECTS
+        | WAVEFORM
+        | WAVEFORM_FALLBACK;
 }
 
 /// Flag bits of [`TruthBlock::flags`]. Bits not listed are reserved and zero.

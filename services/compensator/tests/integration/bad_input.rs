@@ -47,7 +47,9 @@ struct Stream {
 
 impl Stream {
     fn shipped() -> Self {
-        let config = Config::shipped().unwrap();
+        let mut config = Config::shipped().unwrap();
+        // The estimate stage's rules: no vibration samples in these streams.
+        config.model.waveform.stage = vibro_compensator::Stage::Estimate;
         Self {
             axes: config.model.triad.axes,
             k1_v_per_g: config.model.k1_v_per_g(),

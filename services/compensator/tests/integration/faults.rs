@@ -19,6 +19,8 @@ fn start_watched() -> (
 ) {
     let prefix = prefix();
     let mut config = Config::shipped().unwrap().with_prefix(&prefix).unwrap();
+    // The estimate stage's rules: no vibration samples in these streams.
+    config.model.waveform.stage = vibro_compensator::Stage::Estimate;
     config.service.loop_mode = LoopMode::Spin;
     let k1 = config.model.k1_v_per_g();
     let rig = Rig::new(&prefix);

@@ -58,6 +58,8 @@ mode = "{mode}"
 triad = "{triad}"
 max_estimate_age_s = 2.0
 reload_poll_s = 0.05
+# These tests publish no vibration samples: the estimate stage's rules.
+stage = "estimate"
 
 [service]
 loop_mode = "{loop_mode}"
