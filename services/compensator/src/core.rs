@@ -7,8 +7,8 @@ use crate::config::{Config, Model};
 use crate::interval::{within_fraction, within_output_interval, within_spectrum};
 use crate::mapping::{sensor_map, unit_vibrations, UnitVibrations};
 use crate::reload::ModelUpdate;
-use crate::waveform::WaveformPath;
 use crate::spectrum::{sensor_spectrum, unit_bands, SpectrumSolver};
+use crate::waveform::WaveformPath;
 use tracing::{info, warn};
 use vibro_ipc::StreamPublisher;
 use vibro_msgs::compensation_flags as cf;
@@ -628,7 +628,9 @@ impl Compensation {
             match WaveformPath::new(&model) {
                 Ok(Some(new)) => w.replace_stage(new),
                 Ok(None) => {}
-                Err(e) => warn!("the reloaded model's waveform stage: {e}; keeping the running one"),
+                Err(e) => {
+                    warn!("the reloaded model's waveform stage: {e}; keeping the running one")
+                }
             }
         }
         self.model = model;

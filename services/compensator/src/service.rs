@@ -220,14 +220,13 @@ fn hot_loop(
                 names.event(Stream::Estimate)
             )
         })?;
-    let _vib_guard = match &vib {
-        Some(v) => Some(
-            waitset
-                .attach_notification(v.listener())
-                .with_context(|| format!("attaching {} to the wait set", names.event(Stream::Vib)))?,
-        ),
-        None => None,
-    };
+    let _vib_guard =
+        match &vib {
+            Some(v) => Some(waitset.attach_notification(v.listener()).with_context(|| {
+                format!("attaching {} to the wait set", names.event(Stream::Vib))
+            })?),
+            None => None,
+        };
     let _poll_guard = waitset
         .attach_interval(config.service.shutdown_poll)
         .context("attaching the shutdown-poll interval to the wait set")?;
@@ -354,7 +353,10 @@ fn hot_loop(
                 || s.accel.disorder() + s.estimates.disorder()
                     > last.accel.disorder() + last.estimates.disorder()
                 || s.stale_blocks + s.missing_blocks + s.ahead_blocks + s.fallback_blocks
-                    > last.stale_blocks + last.missing_blocks + last.ahead_blocks + last.fallback_blocks
+                    > last.stale_blocks
+                        + last.missing_blocks
+                        + last.ahead_blocks
+                        + last.fallback_blocks
                 || s.time_jump_blocks > last.time_jump_blocks
                 || s.undelivered > last.undelivered;
             let state = if s.accel.received == 0 {
@@ -437,6 +439,10 @@ fn hot_loop(
         missing_blocks = summary.missing_blocks,
         p50_us = summary.latency.p50_ns as f64 * 1e-3,
         p99_us = summary.latency.p99_ns as f64 * 1e-3,
+        stage = summary.stage,
+        waveform_blocks = summary.waveform_blocks,
+        fallback_blocks = summary.fallback_blocks,
+        waveform = %summary.waveform.map(|w| w.to_json().finish()).unwrap_or_default(),
         "compensator stopped"
     );
     // The wait set, the ports and the node are released here, by Drop.

@@ -30,6 +30,14 @@ use vibro_msgs::{vib_flags, CompensatedBlock, VibBlock, WireMessage, ACCEL_BLOCK
 use vibro_service::JsonObject;
 use vibro_waveform::{Coverage, StageCounters, WaveformStage};
 
+/// Flags that describe the estimate stage's inputs and answer alone.
+const ESTIMATE_STAGE_ONLY: u32 = cf::MAIN_ONLY
+    | cf::ESTIMATE_MISSING
+    | cf::VIBRATION_ESTIMATE_STALE
+    | cf::ESTIMATE_AHEAD
+    | cf::ESTIMATE_FLAGGED
+    | cf::MODEL_EFFECTS;
+
 /// Blocks held at most (at 800 Hz in blocks of 32, 1.6 s of readings).
 pub const MAX_PENDING: usize = 40;
 /// Wall-clock silence of the sensors' stream after which held blocks wait no longer.
@@ -120,9 +128,9 @@ impl WaveformPath {
         let mut effects: [Vec<Box<dyn vibro_effects::Effect>>; 3] = Default::default();
         if let Some((file, lab)) = &model.effects {
             for (u, e) in effects.iter_mut().enumerate() {
-                *e = lab.build_effects(&passports[u]).map_err(|err| {
-                    format!("model = {}: unit {u}: {err}", file.display())
-                })?;
+                *e = lab
+                    .build_effects(&passports[u])
+                    .map_err(|err| format!("model = {}: unit {u}: {err}", file.display()))?;
             }
         }
         let stage = WaveformStage::new(model.waveform.chain, model.triad.axes, passports, effects)
@@ -177,9 +185,11 @@ impl WaveformPath {
     /// Holds a block (its estimate-stage answer, and the readings `U/K1`).
     pub(crate) fn hold(&mut self, block: &CompensatedBlock, readings_g: &[[f64; 3]], recv_ns: u64) {
         let count = u64::from(block.count);
-        let end = block
-            .t0_ns
-            .saturating_add(block.sample_period_ns.saturating_mul(count.saturating_sub(1)));
+        let end = block.t0_ns.saturating_add(
+            block
+                .sample_period_ns
+                .saturating_mul(count.saturating_sub(1)),
+        );
         self.newest_accel_end_ns = self.newest_accel_end_ns.max(end);
         let mut r = [[f64::NAN; 3]; ACCEL_BLOCK_MAX];
         r[..readings_g.len()].copy_from_slice(readings_g);
@@ -240,9 +250,10 @@ impl WaveformPath {
                 self.stage
                     .compensate(block.t0_ns, period, &readings_g[..count], out);
                 // A reading the estimate stage set NaN (not finite, out of range) stays so.
-                let finite = out.iter().zip(&block.a4_g[..count]).all(|(o, a)| {
-                    (0..3).all(|u| o[u].is_finite() || !a[u].is_finite())
-                });
+                let finite = out
+                    .iter()
+                    .zip(&block.a4_g[..count])
+                    .all(|(o, a)| (0..3).all(|u| o[u].is_finite() || !a[u].is_finite()));
                 if finite {
                     for k in 0..count {
                         for u in 0..3 {
@@ -256,8 +267,11 @@ impl WaveformPath {
                             block.rand_g[k][u] = 0.0;
                         }
                     }
-                    // The extended model's effects ran on the samples (their hooks).
-                    block.flags = (block.flags & !cf::MODEL_EFFECTS) | cf::WAVEFORM;
+                    // The estimate stage's flags describe its own inputs (the estimate
+                    // missing, stale, ahead or flagged: main error only); the waveform
+                    // stage used none of them. The extended model's effects ran on the
+                    // samples (their hooks).
+                    block.flags = (block.flags & !ESTIMATE_STAGE_ONLY) | cf::WAVEFORM;
                     if self.model_effects {
                         block.flags |= cf::MODEL_EFFECTS;
                     }

@@ -36,13 +36,17 @@ pub const MAX_FINE_POINTS: usize = 65_536;
 /// Path effects whose state starts afresh (the first reading, or after a break) are
 /// first run over up to this much of the vibration before the reading.
 pub const WARM_UP_S: f64 = 0.05;
-/// The ring holds at least this long a stretch of the stream, s (plus two readings).
-const RING_S: f64 = 0.5;
-const MAX_RING: usize = 1 << 20;
+/// The ring holds at least this long a stretch of the stream, s (plus two readings): a
+/// lock-stepped replay sends the sensors' blocks ahead of the accelerometer's by up to
+/// the estimator's window (1 s shipped) until the first estimate is out.
+const RING_S: f64 = 4.0;
+const MAX_RING: usize = 1 << 19;
 /// Newton's iterations at most; it stops earlier when no mean moves by more than
-/// [`NEWTON_TOLERANCE_G`].
-const NEWTON_ITERATIONS: usize = 4;
-const NEWTON_TOLERANCE_G: f64 = 1e-13;
+/// [`NEWTON_TOLERANCE_G`]. Each unit's own step converges quadratically; the units'
+/// coupling through `m1`, `m2` (about 1e-3) shrinks the rest by that factor per
+/// iteration, so a step of 1e-12 g leaves about 1e-15 g.
+const NEWTON_ITERATIONS: usize = 8;
+const NEWTON_TOLERANCE_G: f64 = 1e-12;
 
 /// Why the stage cannot be built.
 #[derive(Debug, thiserror::Error)]

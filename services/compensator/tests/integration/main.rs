@@ -12,3 +12,4 @@ mod in_process;
 mod process;
 mod reload;
 mod support;
+mod waveform_rig;
