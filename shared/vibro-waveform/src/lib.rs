@@ -34,6 +34,10 @@
 //! - `lambda(w)` of the passport is 1 here, as in the simulator's FP (a unit's own
 //!   frequency response is a path effect, `unit_response`).
 
+// Per-unit and per-axis index loops mirror the formulas' subscripts (and index several
+// arrays at once).
+#![allow(clippy::needless_range_loop)]
+
 pub mod chain;
 pub mod kernel;
 pub mod stage;

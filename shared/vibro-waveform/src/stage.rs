@@ -47,6 +47,9 @@ const MAX_RING: usize = 1 << 19;
 /// iteration, so a step of 1e-12 g leaves about 1e-15 g.
 const NEWTON_ITERATIONS: usize = 8;
 const NEWTON_TOLERANCE_G: f64 = 1e-12;
+/// Blocks the stream already holds, in a row, before the producer is taken to have
+/// started again (the continuity rule's resync after 3, `vibro_msgs::continuity`).
+const REPEATS_BEFORE_RESTART: u32 = 3;
 
 /// Why the stage cannot be built.
 #[derive(Debug, thiserror::Error)]
@@ -137,6 +140,8 @@ pub struct WaveformStage {
     inverse: Option<ChainInverse>,
     /// The segment ended (a refused block): the next block starts a new one.
     broken: bool,
+    /// Blocks in a row the stream already held.
+    repeats: u32,
     grid: Option<Grid>,
     /// Per unit: the vibration at the unit on the reading's grid points, `[OA, PA, IA]`,
     /// its deviations from the interval's mean, and the output effects' part.
@@ -184,6 +189,7 @@ impl WaveformStage {
             seg: None,
             inverse: None,
             broken: false,
+            repeats: 0,
             grid: None,
             vib: [Vec::new(), Vec::new(), Vec::new()],
             dev: [Vec::new(), Vec::new(), Vec::new()],
@@ -242,12 +248,21 @@ impl WaveformStage {
         // Continuity against the current segment.
         let mut start = self.seg.is_none() || self.broken;
         if let (Some(s), false) = (&self.seg, start) {
-            if seq.wrapping_add(1) == s.next_seq && first_index.wrapping_add(count) == s.hi {
+            let predicted = s.t0_ns as f64 + (first_index as f64 - s.index0 as f64) * s.period_ns;
+            let off = t0_ns as f64 - predicted;
+            // A block the stream already holds (a duplicate, a late copy), at its own
+            // time: dropped. After REPEATS_BEFORE_RESTART in a row the producer is taken
+            // to have started again on the same time base (a replay run twice).
+            let old = first_index.wrapping_add(count) <= s.hi && first_index >= s.index0;
+            if old
+                && period_ns == s.nominal_period_ns
+                && 2.0 * off.abs() <= s.period_ns
+                && self.repeats < REPEATS_BEFORE_RESTART
+            {
+                self.repeats += 1;
                 self.counters.repeated += 1;
                 return VibPush::Repeated;
             }
-            let predicted = s.t0_ns as f64 + (first_index as f64 - s.index0 as f64) * s.period_ns;
-            let off = t0_ns as f64 - predicted;
             if period_ns != s.nominal_period_ns {
                 self.counters.rate_changes += 1;
                 start = true;
@@ -266,6 +281,7 @@ impl WaveformStage {
                 self.counters.breaks += 1;
             }
         }
+        self.repeats = 0;
         if flagged || samples_v.iter().any(|v| !v.iter().all(|x| x.is_finite())) {
             self.counters.refused += 1;
             self.broken = true;
@@ -387,8 +403,27 @@ impl WaveformStage {
         readings_g: &[[f64; 3]],
         out_g: &mut [[f64; 3]],
     ) {
+        self.compensate_with_ve(first_end_ns, period_ns, readings_g, out_g, None);
+    }
+
+    /// [`Self::compensate`], and per reading and unit the error the model puts in it
+    /// (`ve_g`, when given): the reading less what the unit's FP gives at its solved
+    /// means without the vibration, `R - FP(m1, m2, m3)`. It is the vibration error
+    /// (what the vibration rectifies, with the output effects), the quantity the lab
+    /// predicts per window: one evaluation for the compensator and the lab.
+    pub fn compensate_with_ve(
+        &mut self,
+        first_end_ns: u64,
+        period_ns: u64,
+        readings_g: &[[f64; 3]],
+        out_g: &mut [[f64; 3]],
+        mut ve_g: Option<&mut [[f64; 3]]>,
+    ) {
         let Some(m) = self.points_for(period_ns) else {
             out_g.fill([f64::NAN; 3]);
+            if let Some(v) = ve_g {
+                v.fill([f64::NAN; 3]);
+            }
             return;
         };
         let first = i128::from(first_end_ns);
@@ -402,6 +437,13 @@ impl WaveformStage {
         for (k, (r, o)) in readings_g.iter().zip(out_g.iter_mut()).enumerate() {
             let end = first + k as i128 * p;
             *o = self.solve(end, period_ns, m, *r);
+            if let Some(v) = ve_g.as_deref_mut().and_then(|v| v.get_mut(k)) {
+                let body = self.axes.body_from_ia(o);
+                *v = [0, 1, 2].map(|u| {
+                    let a = self.axes.units[u].to_unit(&body);
+                    r[u] - fp::output_g(&self.passports[u], a[0], a[1], a[2])
+                });
+            }
         }
         if let Some(g) = &mut self.grid {
             g.next_end_ns = first + readings_g.len() as i128 * p;
