@@ -466,3 +466,163 @@ fn lost_sensor_blocks_fall_back_to_the_estimate_stage() {
         );
     }
 }
+
+/// The service over iceoryx2 gives, block for block and bit for bit, what the
+/// in-process core gives on the same streams (timestamps aside): the three streams
+/// published as they arrive live, the estimates from the estimator's in-process core.
+/// The sensors' stream then stops for good while readings go on: the held blocks fall
+/// back (late, by the streams' time), and the last one after the wall-clock silence;
+/// none is lost.
+#[test]
+fn the_service_gives_the_in_process_blocks_and_loses_none_when_the_sensors_stop() {
+    use vibro_ipc::{create_node, StreamPublisher};
+    use vibro_msgs::Stream;
+    use vibro_service::testing::{wait_until, Running};
+    use vibro_service::{data_stream_config, now_ns};
+
+    let dir = TempDir::new();
+    let rig = generate(
+        &dir.0,
+        &[
+            "--seed",
+            "435",
+            "--orientation=oblique2",
+            "--tone-hz",
+            "30,60,120",
+            "--sensor-rate-hz",
+            "6400",
+            "--oversample",
+            "8",
+        ],
+    );
+    let prefix = crate::support::prefix();
+    let mut config = compensator_config(Stage::Waveform, 0.0, None)
+        .with_prefix(&prefix)
+        .unwrap();
+    config.service.shutdown_poll = std::time::Duration::from_millis(20);
+    // Sensor blocks after 6 s never come.
+    let stop_ns = 6_000_000_000u64;
+    let keep = |seq: u64| seq * 512 * 156_250 < stop_ns - 80_000_000;
+    let want = compensate(&rig, &config, keep);
+
+    let mut test_side = crate::support::Rig::new(&prefix);
+    let node = create_node("vct-cmp-vib").unwrap();
+    let names = vibro_msgs::ServiceNames::new(&prefix).unwrap();
+    let mut vib: StreamPublisher<VibBlock> = StreamPublisher::create(
+        &node,
+        &names.vib(),
+        &names.event(Stream::Vib),
+        &data_stream_config(),
+    )
+    .unwrap();
+    // The compensator's progress (a heartbeat per wake-up that took input): an
+    // estimate goes out only once every block sent before it was taken, as a
+    // lock-stepped replay does (the service takes every estimate it has before a block).
+    let progress: vibro_ipc::StreamSubscriber<vibro_msgs::Heartbeat> =
+        vibro_ipc::StreamSubscriber::create(
+            &node,
+            &names.progress(vibro_msgs::ServiceId::Compensator),
+            &names.event(Stream::Progress(vibro_msgs::ServiceId::Compensator)),
+            &data_stream_config(),
+        )
+        .unwrap();
+    let mut taken = 0u64;
+    let mut sent = 0u64;
+    let service = Running::start(vibro_compensator::run, config);
+    test_side.wait_for_service();
+    assert!(wait_until(std::time::Duration::from_secs(10), || vib
+        .subscriber_count()
+        == 1));
+
+    let mut est = vibro_estimator_core::InProcess::new(&estimator_config(rig.sensor_hz)).unwrap();
+    let mut estimates: Vec<VibEstimate> = Vec::new();
+    let mut got = Vec::new();
+    let drain = |side: &crate::support::Rig, got: &mut Vec<CompensatedBlock>| {
+        while let Some(b) = side.compensated.receive().unwrap() {
+            got.push(*b);
+        }
+    };
+    for (t_ns, m) in messages(&rig) {
+        match m {
+            Msg::Vib(b) => {
+                est.on_block(&b, t_ns, &mut estimates).unwrap();
+                if !estimates.is_empty() {
+                    assert!(
+                        wait_until(std::time::Duration::from_secs(10), || {
+                            while let Some(h) = progress.receive().unwrap() {
+                                taken = taken.max(h.received);
+                            }
+                            taken >= sent
+                        }),
+                        "the compensator took {taken} of {sent} blocks"
+                    );
+                }
+                for e in estimates.drain(..) {
+                    test_side.send_estimate(&e);
+                }
+                if keep(b.seq) {
+                    let mut b = *b;
+                    b.publish_ns = now_ns();
+                    vib.publish(&b).unwrap();
+                }
+            }
+            Msg::Accel(b) => {
+                test_side.send(&b);
+                sent += 1;
+            }
+        }
+        // Live pacing is not needed, but the subscribers' buffers are bounded.
+        std::thread::sleep(std::time::Duration::from_micros(300));
+        drain(&test_side, &mut got);
+    }
+    // The last held block goes out after the sensors' silence (250 ms) at the latest.
+    assert!(
+        wait_until(std::time::Duration::from_secs(5), || {
+            drain(&test_side, &mut got);
+            got.len() == want.len()
+        }),
+        "{} of {} blocks",
+        got.len(),
+        want.len()
+    );
+    let summary = service.stop();
+    for (g, w) in got.iter().zip(&want) {
+        assert_eq!(
+            (g.seq, g.input_seq, g.flags),
+            (w.seq, w.input_seq, w.flags),
+            "block {}",
+            w.seq
+        );
+        let stages =
+            |b: &CompensatedBlock| [b.a1_g, b.a2_g, b.a3_g, b.a4_g, b.main_g, b.det_g, b.rand_g];
+        for (a, b) in stages(g).iter().zip(stages(w).iter()) {
+            for k in 0..w.count as usize {
+                for u in 0..3 {
+                    assert_eq!(
+                        a[k][u].to_bits(),
+                        b[k][u].to_bits(),
+                        "block {} reading {k} unit {u}",
+                        w.seq
+                    );
+                }
+            }
+        }
+    }
+    let w = summary.waveform.expect("waveform counts");
+    eprintln!(
+        "service: {} blocks, waveform {}, fallback {} (never {}, late {}, silent {}), max held {}",
+        got.len(),
+        summary.waveform_blocks,
+        summary.fallback_blocks,
+        w.fallback_never,
+        w.fallback_late,
+        w.fallback_silent,
+        w.max_pending
+    );
+    assert_eq!(summary.published as usize, want.len());
+    assert!(
+        w.fallback_late >= 40,
+        "after 6 s the blocks fall back by the streams' time"
+    );
+    assert!(summary.waveform_blocks >= 140);
+}
