@@ -1227,10 +1227,14 @@ impl Compensation {
         }
         self.s.published += 1;
         self.s.input_gap_blocks += u64::from(flags & cf::INPUT_GAP != 0);
-        self.s.stale_blocks += u64::from(flags & cf::VIBRATION_ESTIMATE_STALE != 0);
-        self.s.missing_blocks += u64::from(flags & cf::ESTIMATE_MISSING != 0);
-        self.s.flagged_estimate_blocks += u64::from(flags & cf::ESTIMATE_FLAGGED != 0);
-        self.s.ahead_blocks += u64::from(flags & cf::ESTIMATE_AHEAD != 0);
+        // A block the waveform stage made was not made with a missing input, whatever
+        // the estimate stage beside it had (its flags describe `a3` alone).
+        let estimate_output = flags & cf::WAVEFORM == 0;
+        let counts = |bit: u32| u64::from(estimate_output && flags & bit != 0);
+        self.s.stale_blocks += counts(cf::VIBRATION_ESTIMATE_STALE);
+        self.s.missing_blocks += counts(cf::ESTIMATE_MISSING);
+        self.s.flagged_estimate_blocks += counts(cf::ESTIMATE_FLAGGED);
+        self.s.ahead_blocks += counts(cf::ESTIMATE_AHEAD);
         self.s.rate_change_blocks += u64::from(flags & cf::RATE_CHANGE != 0);
         self.s.time_jump_blocks += u64::from(flags & cf::TIME_JUMP != 0);
         self.s.waveform_blocks += u64::from(flags & cf::WAVEFORM != 0);

@@ -30,13 +30,8 @@ use vibro_msgs::{vib_flags, CompensatedBlock, VibBlock, WireMessage, ACCEL_BLOCK
 use vibro_service::JsonObject;
 use vibro_waveform::{Coverage, StageCounters, WaveformStage};
 
-/// Flags that describe the estimate stage's inputs and answer alone.
-const ESTIMATE_STAGE_ONLY: u32 = cf::MAIN_ONLY
-    | cf::ESTIMATE_MISSING
-    | cf::VIBRATION_ESTIMATE_STALE
-    | cf::ESTIMATE_AHEAD
-    | cf::ESTIMATE_FLAGGED
-    | cf::MODEL_EFFECTS;
+/// Flags of the estimate stage's answer that do not describe the waveform stage's `a4`.
+const ESTIMATE_STAGE_ONLY: u32 = cf::MAIN_ONLY | cf::MODEL_EFFECTS;
 
 /// Blocks held at most (at 800 Hz in blocks of 32, 1.6 s of readings).
 pub const MAX_PENDING: usize = 40;
@@ -255,22 +250,25 @@ impl WaveformPath {
                     .zip(&block.a4_g[..count])
                     .all(|(o, a)| (0..3).all(|u| o[u].is_finite() || !a[u].is_finite()));
                 if finite {
+                    // Both stages in one block: `a3` becomes the estimate stage's whole
+                    // answer (its `a4`), `a4` the waveform stage's; the corrections
+                    // keep `a2 = a1 - main`, `a3 = a2 - det`, `a4 = a3 - rand`.
                     for k in 0..count {
                         for u in 0..3 {
                             let m = out[k][u];
                             if !block.a4_g[k][u].is_finite() {
                                 continue;
                             }
-                            block.a3_g[k][u] = m;
+                            let estimate_a4 = block.a4_g[k][u];
+                            block.a3_g[k][u] = estimate_a4;
+                            block.det_g[k][u] = block.a2_g[k][u] - estimate_a4;
                             block.a4_g[k][u] = m;
-                            block.det_g[k][u] = block.a2_g[k][u] - m;
-                            block.rand_g[k][u] = 0.0;
+                            block.rand_g[k][u] = estimate_a4 - m;
                         }
                     }
-                    // The estimate stage's flags describe its own inputs (the estimate
-                    // missing, stale, ahead or flagged: main error only); the waveform
-                    // stage used none of them. The extended model's effects ran on the
-                    // samples (their hooks).
+                    // The estimate flags (missing, stale, ahead, flagged) stay: they
+                    // describe `a3`, the estimate stage's answer. `a4` is not main
+                    // error only; the extended model's effects ran on the samples.
                     block.flags = (block.flags & !ESTIMATE_STAGE_ONLY) | cf::WAVEFORM;
                     if self.model_effects {
                         block.flags |= cf::MODEL_EFFECTS;

@@ -97,11 +97,13 @@ pub mod compensation_flags {
     /// effects' VE: `rand_g` holds the random VE plus the effects', so that
     /// `a4 = a3 - rand` still holds.
     pub const MODEL_EFFECTS: u32 = 1 << 10;
-    /// The waveform stage made the block (MODEL.md section 12): each reading solved for
-    /// its interval-mean acceleration from the vibration sensors' samples. `a4_g` is
-    /// that solution; `a3_g = a4_g`, `det_g = a2 - a4` carries the whole vibration
-    /// correction and `rand_g` is zero; `a1_g`, `a2_g` and `main_g` are stages (17)
-    /// and (18) as always.
+    /// The waveform stage made the block (MODEL.md section 12): `a4_g` is each reading
+    /// solved for its interval-mean acceleration from the vibration sensors' samples.
+    /// The block carries the estimate stage's answer beside it: `a3_g` is that stage's
+    /// whole answer (its `a4`, stages (19) and (20) together), `det_g = a2 - a3`, and
+    /// `rand_g = a3 - a4` is what the waveform stage removes beyond it; `a1_g`, `a2_g`
+    /// and `main_g` are stages (17) and (18) as always. The estimate flags (missing,
+    /// stale, ahead, flagged) describe `a3_g`; `MAIN_ONLY` is never set with it.
     pub const WAVEFORM: u32 = 1 << 11;
     /// The compensator runs the waveform stage, but the samples did not cover this
     /// block's readings in time (missing, late, a gap, a break in the sensors'

@@ -247,6 +247,16 @@ fn score(name: &str, rig: &Rig, config: &Config) -> f64 {
     let est = compensate(rig, &compensator_config(Stage::Estimate, 0.0, None), |_| {
         true
     });
+    // Every block carries the estimate stage's answer in `a3` (the flags' contract).
+    if config.model.effects.is_none() {
+        for (b, e) in blocks.iter().zip(&est) {
+            assert_eq!(b.input_seq, e.input_seq);
+            if b.flags & cf::WAVEFORM != 0 {
+                assert_eq!(b.a3_g, e.a4_g, "{name}: block {}", b.seq);
+                assert_eq!(b.flags & cf::MAIN_ONLY, 0);
+            }
+        }
+    }
     let w = window_errors(rig, &est);
     let (e, _) = rms(w
         .iter()
