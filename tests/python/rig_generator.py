@@ -16,7 +16,9 @@ shaker base, a piezoelectric vibration sensor VD1..VD3 measures along that unit'
 a triaxial DC-coupled reference accelerometer on the base measures body x, y, z.
 
 Physical steps and their discretisation (all on one *fine grid* ``t_n = n / fs``,
-``fs = sensor_rate * oversample``, ``n = 0..N`` with ``N = T_run * fs``):
+``fs = sensor_rate * oversample`` when the accel rate divides it, else ``fs =
+lcm(sensor_rate, accel_rate) * oversample`` (5 kHz or 10 kHz sensors with 800 Hz
+readings: 20 kHz), ``n = 0..N`` with ``N = T_run * fs``; ``truth.json``'s ``rates``):
 
 1. **Gravity.** Apparent acceleration of a still rig: ``g * d`` in body axes, ``d`` the
    orientation unit vector (the body direction pointing *up*, so that a unit whose IA
@@ -73,13 +75,21 @@ Physical steps and their discretisation (all on one *fine grid* ``t_n = n / fs``
      of the fine samples, so the static error has no discretisation error beyond the
      sampling of the signal itself (``selfcheck`` and the tests measure it).
 
-   White output noise (``unit_noise_g`` RMS per reading, times K1) is added.
+   White output noise (``unit_noise_g`` RMS per reading, times K1) is added, and with
+   ``--unit-drift-ug-per-s R`` a slow linear drift ``r_u t`` (t from the run start;
+   averaged over the interval: ``r_u (t_j - T_a/2)``), ``r_u = +-R``, the sign per unit
+   drawn from ``spawn_key = (run, 2)``.
 6. **Vibration sensors**: ``V = sens * HP(e_IA . a_base) + noise``, 0.1 V/g by default,
    ``HP(s) = s / (s + 2 pi f_c)`` (AC coupling, f_c = 2 Hz, first order), applied like
    the mount (exact, or bilinear prewarped at f_c). The rig has stood still under
    gravity long before the record, so the response to gravity has decayed: the output
-   carries the vibration only. Sampled at every ``oversample``-th fine sample (the
-   sensor rate); white noise ``vib_noise_g`` RMS (referred to the input) added.
+   carries the vibration only. Sampled at every ``fs / sensor_rate``-th fine sample
+   (the sensor rate); white noise ``vib_noise_g`` RMS (referred to the input) added.
+   With ``--daq-delay-s D`` (0 <= D <= 1 s; a linear-phase anti-alias filter's group
+   delay, an ADC pipeline) the sample stamped ``s`` holds the signal at ``s - D``:
+   exactly, as the other filters, the tone and the envelope at ``t - D`` analytically,
+   the periodic random vibration by ``e^{-j w D}`` on the run's DFT bins (delay and AC
+   coupling commute). The reference and the accelerometers are not delayed.
 7. **Reference accelerometer** (base, body x, y, z, DC-coupled, in g): the total base
    acceleration at the sensor rate plus white noise ``ref_noise_g`` RMS.
 
@@ -95,6 +105,16 @@ Outputs per run (a folder): ``accel.csv`` (``time_s,u1_v,u2_v,u3_v``), ``vib.csv
 format of ``vibrocomp log import`` (docs/logs.md: ``#`` comments, a header line, one row
 per sample, numbers written with Python's ``repr`` so they read back bit for bit), and
 ``truth.json`` (everything used, and the true vibration error: for tests only).
+
+``readings_truth.csv`` (same conventions; for tests only), one row per reading with
+accel.csv's ``time_s``: ``time_s,sensed1_g,sensed2_g,sensed3_g,error1_g,error2_g,
+error3_g``. ``sensed{u}_g`` is the mean over the reading's interval ``(t - T_a, t]`` of
+what unit u senses along its IA, ``e_IA . (g d + v_unit)`` (gravity plus the vibration
+at the unit, through the hidden mount when there is one), exactly (the continuous
+boxcar of step 5's linear part); ``error{u}_g`` is the noise-free, drift-free reading
+``U/K1`` minus ``sensed{u}_g``: the main error plus the vibration error of that very
+reading (MODEL.md section 12). A perfect compensator outputs ``sensed``; its output
+minus ``sensed`` is its error (``waveform_errors.py``).
 
 The true VE (``ve_time_domain_g``, MODEL.md section 3) is the mean noise-free reading
 over the steady part of the vibrating segment minus the reading at rest, less the
@@ -401,6 +421,8 @@ class RunConfig:
     ref_noise_g: float = 1e-3
     vib_sens_v_per_g: float = 0.1
     vib_hp_hz: float = 2.0
+    daq_delay_s: float = 0.0  # vibration sensors' acquisition delay: sample stamped s holds time s - D
+    unit_drift_ug_per_s: float = 0.0  # |r_u| of each unit's linear drift r_u t; signs from the seed
     seed: int = 30
     run_index: int = 0
     repeat: int = 0
@@ -408,7 +430,20 @@ class RunConfig:
     # derived --------------------------------------------------------------------------
     @property
     def fine_rate_hz(self):
-        return self.sensor_rate_hz * self.oversample
+        """``sensor_rate * oversample`` when the accel rate divides it (the original grid),
+        else ``lcm(sensor_rate, accel_rate) * oversample`` (whole-number rates)."""
+        fs = self.sensor_rate_hz * self.oversample
+        if fs % self.accel_rate_hz == 0:
+            return fs
+        s, a = self.sensor_rate_hz, self.accel_rate_hz
+        if not (s > 0 and a > 0 and float(s).is_integer() and float(a).is_integer()):
+            return fs  # validate() refuses it
+        return float(math.lcm(int(s), int(a)) * self.oversample)
+
+    @property
+    def sensor_stride(self):
+        """Fine samples per sensor sample."""
+        return int(round(self.fine_rate_hz / self.sensor_rate_hz))
 
     @property
     def t_run(self):
@@ -437,8 +472,17 @@ class RunConfig:
         for what, x in (("fine", fs), ("sensor", self.sensor_rate_hz), ("accel", self.accel_rate_hz)):
             if not (x > 0 and float(x).is_integer()):
                 raise ValueError(f"{what} rate must be a whole number of Hz: {x}")
-        if fs % self.accel_rate_hz:
-            raise ValueError(f"the fine rate {fs} Hz is not a multiple of the accel rate")
+        if fs % self.accel_rate_hz or fs % self.sensor_rate_hz:
+            raise ValueError(f"the fine rate {fs} Hz is not a multiple of the accel and sensor rates")
+        if abs(self.t_run * self.sensor_rate_hz - round(self.t_run * self.sensor_rate_hz)) > 1e-9:
+            raise ValueError(f"run time {self.t_run} s is not a whole number of sensor periods")
+        if not (0.0 <= self.daq_delay_s <= 1.0):
+            raise ValueError(f"daq_delay_s = {self.daq_delay_s}: must be 0 <= D <= 1 s")
+        if not self.vibrate_throughout and self.daq_delay_s > self.still_s:
+            raise ValueError(f"daq_delay_s = {self.daq_delay_s} s: must not exceed still_s = {self.still_s} s "
+                             "(the delayed vibration must end within the run)")
+        if not math.isfinite(self.unit_drift_ug_per_s):
+            raise ValueError(f"unit_drift_ug_per_s = {self.unit_drift_ug_per_s}: must be finite")
         for what, t in (("run", self.t_run), ("still", 0 if self.vibrate_throughout else self.still_s)):
             if abs(t * self.accel_rate_hz - round(t * self.accel_rate_hz)) > 1e-9:
                 raise ValueError(f"{what} time {t} s is not a whole number of accel periods")
@@ -456,6 +500,16 @@ def _seedseq(cfg, *key):
 
 
 STREAM_RANDOM_VIB, STREAM_UNIT_NOISE, STREAM_VIB_NOISE, STREAM_REF_NOISE = range(4)
+# spawn_key (run, DRIFT_KEY): the signs of the units' drifts; apart from the conditions
+# (run, 0) and the random parts (run, 1, ...), so that adding a drift disturbs neither.
+DRIFT_KEY = 2
+
+
+def drift_rates_g_per_s(cfg):
+    """Each unit's drift rate ``r_u = R * sign_u`` (g/s), signs drawn from ``(run, DRIFT_KEY)``."""
+    rng = np.random.default_rng(_seedseq(cfg, DRIFT_KEY))
+    signs = np.where(rng.uniform(size=3) < 0.5, -1.0, 1.0)
+    return cfg.unit_drift_ug_per_s * 1e-6 * signs
 
 
 def resolve_conditions(cfg):
@@ -737,6 +791,13 @@ class RunResult:
     ref_g: np.ndarray  # (Ns, 3)
     truth: dict
     fine: dict  # fine-grid arrays, for tests: t, a_base, a_unit, rand_unit, tone_unit
+    sensed_g: np.ndarray | None = None  # (J, 3) interval mean of e_IA . a at each unit
+    drift_g_per_s: np.ndarray | None = None  # (3,) each unit's drift rate r_u
+
+    @property
+    def error_g(self):
+        """(J, 3) noise-free, drift-free reading (U/K1) minus ``sensed_g``."""
+        return self.accel_clean_g - self.sensed_g
 
 
 def simulate(cfg: RunConfig, triad=None, keep_fine=False) -> RunResult:
@@ -756,7 +817,8 @@ def simulate(cfg: RunConfig, triad=None, keep_fine=False) -> RunResult:
     # step 2: base vibration (g), per body axis
     tone_b = tone(cfg, t) * env
     has_random = any(any(v > 0 for v in s) for _, _, s in cfg.random_bands)
-    rand_b = random_vibration(cfg, n) * env if has_random else np.zeros((3, n + 1))
+    rand_raw = random_vibration(cfg, n) if has_random else None
+    rand_b = rand_raw * env if has_random else np.zeros((3, n + 1))
     vib_b = tone_b + rand_b
 
     # step 3: mount resonance (vibration only; gravity passes with DC gain 1).
@@ -798,27 +860,50 @@ def simulate(cfg: RunConfig, triad=None, keep_fine=False) -> RunResult:
         clean[:, i] = (p.a0_g + p.k1 * p.lam * aL3 + p.m1 * aL1 + p.m2 * aL2) + lin_vib + nonlin_read[:, i]
     k1v = np.array([u.passport.K1_v_per_g for u in triad])
     rng_u = np.random.default_rng(_seedseq(cfg, 1, cfg.repeat, STREAM_UNIT_NOISE))
-    accel_v = k1v * (clean + cfg.unit_noise_g * rng_u.standard_normal((j, 3)))
+    noisy = clean + cfg.unit_noise_g * rng_u.standard_normal((j, 3))
+    drift = drift_rates_g_per_s(cfg)
+    if cfg.unit_drift_ug_per_s != 0:
+        # r_u t averaged over the reading's interval (t_j - T_a, t_j]: r_u (t_j - T_a / 2)
+        noisy = noisy + drift[None, :] * (t_accel - 0.5 / cfg.accel_rate_hz)[:, None]
+    accel_v = k1v * noisy
+    # per-reading truth: the interval mean of what each unit senses along its IA
+    # (gravity + the vibration at the unit, exact boxcar), and the noise-free,
+    # drift-free reading's error against it
+    e_ia_units = np.array([u.e_ia for u in triad])
+    sensed = (e_ia_units @ g_vec)[None, :] + (e_ia_units @ box_u).T
 
     # step 6: vibration sensors on the base, along each unit's IA, AC-coupled. Gravity
     # is constant and the rig stood still long before the record, so the AC coupling's
     # response to it has decayed to 0: only the vibration goes through the high-pass.
     ns = int(round(cfg.t_run * cfg.sensor_rate_hz))
-    r = cfg.oversample
+    r = cfg.sensor_stride
     e_ia = np.array([u.e_ia for u in triad])
     hp = high_pass(cfg)
+    # The acquisition delay D: the sample stamped s holds the sensor's signal at s - D.
+    # Delay and AC coupling commute (both linear, time-invariant), so the base vibration
+    # is delayed before the high-pass: the tone and the envelope analytically (t - D),
+    # the periodic random vibration by e^{-j w D} on its DFT bins (exact: it is a sum of
+    # the bins k / T_run). D = 0 takes the original path, bit for bit.
+    dly = cfg.daq_delay_s
+    if dly:
+        env_d = envelope(cfg, t - dly)
+        rand_d = delay_periodic(rand_raw, fs, dly) * env_d if has_random else np.zeros((3, n + 1))
+        vib_b_d = tone(cfg, t - dly) * env_d + rand_d
+    else:
+        rand_d, vib_b_d = rand_b, vib_b
     if thr and cfg.filter_method == "exact":
-        s_hp = e_ia @ tone_through(cfg, t, hp)
+        s_hp = e_ia @ tone_through(cfg, t - dly if dly else t, hp)
         if has_random:
-            s_hp = s_hp + hp.apply(e_ia @ rand_b, fs)
+            s_hp = s_hp + hp.apply(e_ia @ rand_d, fs)
     elif thr:
         # bilinear: run first over the vibration before t = 0 (tone at negative times,
         # periodic random tail), long enough for the AC coupling to settle (30 time constants)
         hp_n = min(n, int(math.ceil(30 / (2 * math.pi * cfg.vib_hp_hz) * fs)))
         t_prime = -np.arange(hp_n, 0, -1) / fs
-        s_hp = hp.apply(e_ia @ vib_b, fs, e_ia @ (tone(cfg, t_prime) + rand_b[:, n - hp_n : n]))
+        t_prime_d = t_prime - dly if dly else t_prime
+        s_hp = hp.apply(e_ia @ vib_b_d, fs, e_ia @ (tone(cfg, t_prime_d) + rand_d[:, n - hp_n : n]))
     else:
-        s_hp = hp.apply(e_ia @ vib_b, fs)
+        s_hp = hp.apply(e_ia @ vib_b_d, fs)
     rng_v = np.random.default_rng(_seedseq(cfg, 1, cfg.repeat, STREAM_VIB_NOISE))
     vib_v = cfg.vib_sens_v_per_g * (
         s_hp[:, 0 : ns * r : r].T + cfg.vib_noise_g * rng_v.standard_normal((ns, 3))
@@ -831,11 +916,24 @@ def simulate(cfg: RunConfig, triad=None, keep_fine=False) -> RunResult:
 
     fine = {"t": t, "a_base": a_base, "a_unit": a_unit, "rand_unit": rand_u, "tone_unit": tone_u,
             "nonlin_readings_g": nonlin_read, "vib_unit_readings_g": box_u}
-    res = RunResult(cfg, triad, t_accel, accel_v, clean, t_vib, vib_v, ref_g, {}, fine)
+    res = RunResult(cfg, triad, t_accel, accel_v, clean, t_vib, vib_v, ref_g, {}, fine,
+                    sensed_g=sensed, drift_g_per_s=drift)
     res.truth = make_truth(res)
     if not keep_fine:
         res.fine = {}
     return res
+
+
+def delay_periodic(x, fs, delay_s):
+    """``x(t - delay_s)`` for T_run-periodic, band-limited samples ``x`` (3, N+1): the
+    factor ``e^{-j w D}`` on the run's DFT bins (exact for a sum of bins k / T_run)."""
+    n = x.shape[1] - 1
+    spec = np.fft.rfft(x[:, :n], axis=1)
+    h = np.exp(-2j * np.pi * np.fft.rfftfreq(n, 1.0 / fs) * delay_s)
+    if n % 2 == 0:
+        h[-1] = h[-1].real  # the Nyquist bin of a real signal stays real (it is empty here)
+    y = np.fft.irfft(spec * h, n=n, axis=1)
+    return np.concatenate([y, y[:, :1]], axis=1)
 
 
 def exact_boxcar_readings(cfg, x, m, j):
@@ -1049,6 +1147,9 @@ def make_truth(res: RunResult):
             "oversample": cfg.oversample,
             "fine_hz": fs,
             "fine_samples_per_reading": int(round(fs / cfg.accel_rate_hz)),
+            "fine_samples_per_sensor_sample": cfg.sensor_stride,
+            "fine_rule": "sensor_hz * oversample when accel_hz divides it, else lcm(sensor_hz, accel_hz) "
+            "* oversample",
             "reading": "mean of U over (t - 1/accel_hz, t], latched at t: linear part of (FP) by the exact "
             "continuous boxcar of the band-limited vibration (FFT), the rest by the trapezoid rule "
             "over the fine samples",
@@ -1071,9 +1172,23 @@ def make_truth(res: RunResult):
             "hp_hz": cfg.vib_hp_hz,
             "axis": "each unit's IA (signed body axis), on the base",
             "noise_g_rms": cfg.vib_noise_g,
+            "daq_delay_s": cfg.daq_delay_s,
+            "daq_delay": "the sample stamped s holds the sensor's signal at s - daq_delay_s "
+            "(exact: tone and envelope analytically, random vibration by e^{-j w D} on the run's DFT bins); "
+            "the reference and the accelerometers are not delayed",
         },
         "reference": {"axes": "body x, y, z on the base, DC-coupled, g", "noise_g_rms": cfg.ref_noise_g},
         "unit_noise_g_rms": cfg.unit_noise_g,
+        "unit_drift": {
+            "ug_per_s": cfg.unit_drift_ug_per_s,
+            "rate_g_per_s": [float(x) for x in res.drift_g_per_s],
+            "model": "each unit's reading carries r_u t (t from the run start), averaged over the reading's "
+            "interval: r_u (t_j - 1/(2 accel_hz)); r_u = ug_per_s * 1e-6 * sign_u, signs from spawn_key "
+            "[run_index, 2]; added like the white output noise (not in readings_truth.csv's error_g)",
+        },
+        "readings_truth": "readings_truth.csv: per reading, sensed{u}_g = mean over (t - 1/accel_hz, t] of "
+        "e_IA . (gravity + the vibration at the unit) (exact boxcar), error{u}_g = noise-free, drift-free "
+        "reading U/K1 minus sensed{u}_g",
         "seeds": {
             "seed": cfg.seed,
             "run_index": cfg.run_index,
@@ -1140,7 +1255,7 @@ def _json_default(o):
 
 
 def write_run(res: RunResult, folder, digits=None):
-    """Write accel.csv, vib.csv, reference.csv and truth.json into ``folder``."""
+    """Write accel.csv, vib.csv, reference.csv, readings_truth.csv and truth.json into ``folder``."""
     os.makedirs(folder, exist_ok=True)
     cfg = res.cfg
     desc = (
@@ -1171,6 +1286,15 @@ def write_run(res: RunResult, folder, digits=None):
         res.t_vib,
         res.ref_g,
         digits,
+    )
+    write_csv(
+        os.path.join(folder, "readings_truth.csv"),
+        [desc, f"per reading (time = end of the 1/{cfg.accel_rate_hz:g} s interval, as accel.csv): "
+         "sensed = interval mean of e_IA . (gravity + vibration at the unit), g; "
+         "error = noise-free, drift-free reading U/K1 minus sensed, g (for tests only)"],
+        ["time_s", "sensed1_g", "sensed2_g", "sensed3_g", "error1_g", "error2_g", "error3_g"],
+        res.t_accel,
+        np.concatenate([res.sensed_g, res.error_g], axis=1),
     )
     with open(os.path.join(folder, "truth.json"), "w") as f:
         json.dump(res.truth, f, indent=1, default=_json_default)
@@ -1300,6 +1424,16 @@ def _floats(s, n=None):
     return tuple(v)
 
 
+def _delay_s(s):
+    try:
+        d = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {s!r}") from None
+    if not (0.0 <= d <= 1.0):
+        raise argparse.ArgumentTypeError(f"{s}: the DAQ delay must be 0 <= D <= 1 s")
+    return d
+
+
 def _read_band_table(path):
     """A PSD band table: ``f_lo_hz,f_hi_hz,psd3_g2_per_hz`` (``#`` comments), all axes."""
     bands = []
@@ -1358,6 +1492,11 @@ def build_parser():
         g.add_argument("--ref-noise-mg", type=float, default=1.0, help="reference noise, mg RMS per sample")
         g.add_argument("--vib-sens-v-per-g", type=float, default=0.1)
         g.add_argument("--vib-hp-hz", type=float, default=2.0)
+        g.add_argument("--daq-delay-s", type=_delay_s, default=0.0, metavar="D",
+                       help="vibration sensors' acquisition delay, 0 <= D <= 1 s: the sample stamped s in "
+                       "vib.csv holds the signal at s - D (reference and accelerometers not delayed)")
+        g.add_argument("--unit-drift-ug-per-s", type=float, default=0.0, metavar="R",
+                       help="each unit's readings drift by +-R ug/s from the run start (sign per unit from the seed)")
         g.add_argument("--passport", default=None, help="passport TOML for all units (default built-in AL-15)")
         g.add_argument("--triad", default=None, help="triad TOML (default: AK1 +x/+y/+z, AK2 +y/+z/+x, AK3 +z/+x/+y)")
         g.add_argument("--passport-dir", default=None, help="where the triad's passport ids are looked up")
@@ -1423,6 +1562,8 @@ def config_from_args(a):
         ref_noise_g=a.ref_noise_mg * 1e-3,
         vib_sens_v_per_g=a.vib_sens_v_per_g,
         vib_hp_hz=a.vib_hp_hz,
+        daq_delay_s=a.daq_delay_s,
+        unit_drift_ug_per_s=a.unit_drift_ug_per_s,
         seed=a.seed,
     )
     return cfg, triad

@@ -431,3 +431,229 @@ def test_campaign_index(tmp_path):
         assert truth["tone"]["amp_g"] == [float(x) for x in r[8:11]]
         assert all(0.5 <= float(x) <= 2.0 for x in r[8:11])
         assert abs(float(r[14]) - math.sqrt(0.002 * 620)) < 1e-12
+
+
+# --------------------------------------------------------------------------------------
+# vibration sensors' acquisition delay, unit drift, rates that do not divide,
+# per-reading truth (readings_truth.csv)
+
+FLIGHT = dict(vibrate_throughout=True, duration_s=2.0, sensor_rate_hz=6400.0)
+
+
+def tone_phase(x, fs, f):
+    """Phase (rad) of ``sin(2 pi f t + phase)`` in samples ``x`` at ``t = k / fs``, least
+    squares over whole periods (the run holds a whole number of periods of f)."""
+    t = np.arange(len(x)) / fs
+    basis = np.stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t)], axis=1)
+    (c_sin, c_cos), *_ = np.linalg.lstsq(basis, x, rcond=None)
+    return math.atan2(c_cos, c_sin)
+
+
+@pytest.mark.parametrize("method", ["exact", "bilinear"])
+def test_daq_delay_shifts_the_tone_phase_by_w_d(method):
+    """vib.csv with delay D lags the D = 0 run by exactly D: the tone's phase moves by
+    -2 pi f D (to 1e-9 relative); readings and reference do not move."""
+    d, f = 1.56e-3, 60.0
+    cfg = rg.RunConfig(tone_hz=(f,) * 3, random_bands=NO_RANDOM, filter_method=method, **FLIGHT, **QUIET)
+    a = rg.simulate(cfg)
+    b = rg.simulate(rg.RunConfig(**{**cfg.__dict__, "daq_delay_s": d}))
+    assert np.array_equal(a.accel_v, b.accel_v) and np.array_equal(a.ref_g, b.ref_g)
+    assert b.truth["vibration_sensor"]["daq_delay_s"] == d
+    want = -2 * math.pi * f * d
+    for k in range(3):
+        dp = tone_phase(b.vib_v[:, k], 6400.0, f) - tone_phase(a.vib_v[:, k], 6400.0, f)
+        dp = (dp + math.pi) % (2 * math.pi) - math.pi
+        assert abs(dp / want - 1) < 1e-9, (k, dp, want)
+
+
+def test_daq_delay_of_the_random_vibration_is_a_pure_delay():
+    """With random vibration: vib.csv(D) equals vib.csv(0) delayed by e^{-j w D} on its DFT
+    (the signal is periodic over the run and band-limited), to 1e-12 of its RMS."""
+    d = 0.37e-3  # not a whole number of samples
+    cfg = rg.RunConfig(tone_hz=(50.0,) * 3, **FLIGHT, **QUIET)
+    a = rg.simulate(cfg)
+    b = rg.simulate(rg.RunConfig(**{**cfg.__dict__, "daq_delay_s": d}))
+    x = a.vib_v
+    spec = np.fft.rfft(x, axis=0) * np.exp(-2j * np.pi * np.fft.rfftfreq(len(x), 1 / 6400.0) * d)[:, None]
+    shifted = np.fft.irfft(spec, n=len(x), axis=0)
+    assert np.max(np.abs(shifted - b.vib_v)) < 1e-12 * np.sqrt(np.mean(x**2))
+    # a shaker run (still / vibrating / still): the delayed data start D later
+    cfg = rg.RunConfig(**FAST, **QUIET)
+    a = rg.simulate(cfg)
+    b = rg.simulate(rg.RunConfig(**{**cfg.__dict__, "daq_delay_s": 0.25}))
+    lag = np.argmax(np.abs(b.vib_v[:, 2]) > 1e-9) - np.argmax(np.abs(a.vib_v[:, 2]) > 1e-9)
+    assert abs(lag / 6400.0 - 0.25) <= 2 / 6400.0
+    assert np.array_equal(a.accel_v, b.accel_v)
+
+
+def test_daq_delay_is_checked(tmp_path):
+    for bad in ("-0.1", "1.5", "abc"):
+        r = subprocess.run([sys.executable, os.path.join(HERE, "rig_generator.py"), "run", "--out",
+                            str(tmp_path / "x"), "--daq-delay-s", bad], capture_output=True, text=True)
+        assert r.returncode == 2 and "--daq-delay-s" in r.stderr, r.stderr
+    with pytest.raises(ValueError, match="still_s"):
+        rg.simulate(rg.RunConfig(still_s=0.5, vib_s=3.0, daq_delay_s=0.8, **QUIET))
+
+
+def test_unit_drift_is_a_ramp_per_unit():
+    """Readings with drift R minus the same run without: r_u (t - T_a/2), |r_u| = R."""
+    r_ug = 5.0
+    cfg = rg.RunConfig(**FLIGHT)  # noise on: the same noise draws in both runs
+    a = rg.simulate(cfg)
+    b = rg.simulate(rg.RunConfig(**{**cfg.__dict__, "unit_drift_ug_per_s": r_ug}))
+    rates = np.array(b.truth["unit_drift"]["rate_g_per_s"])
+    assert np.allclose(np.abs(rates), r_ug * 1e-6, rtol=0, atol=0)
+    k1 = np.array([u.passport.K1_v_per_g for u in b.triad])
+    ramp = (b.accel_v - a.accel_v) / k1
+    want = rates[None, :] * (a.t_accel - 0.5 / 800.0)[:, None]
+    assert np.max(np.abs(ramp - want)) < 1e-14
+    assert np.array_equal(a.vib_v, b.vib_v) and np.array_equal(a.ref_g, b.ref_g)
+    assert np.array_equal(a.error_g, b.error_g)  # readings_truth: drift-free
+    # the signs come from their own stream: other seeds give other signs
+    signs = {tuple(np.sign(rg.drift_rates_g_per_s(rg.RunConfig(seed=s, unit_drift_ug_per_s=1.0))))
+             for s in range(8)}
+    assert len(signs) > 1
+
+
+@pytest.mark.parametrize("sensor_hz,fine_hz", [(5000.0, 20000.0), (6400.0, 6400.0), (10000.0, 20000.0)])
+def test_sensor_rates_that_do_not_divide_the_reading_rate(sensor_hz, fine_hz):
+    cfg = rg.RunConfig(**{**FLIGHT, "sensor_rate_hz": sensor_hz}, **QUIET)
+    res = rg.simulate(cfg)
+    assert res.truth["rates"]["fine_hz"] == fine_hz
+    assert res.vib_v.shape == (int(2 * sensor_hz), 3) and res.ref_g.shape == (int(2 * sensor_hz), 3)
+    assert res.accel_v.shape == (1600, 3)
+    assert np.all(np.abs(res.t_vib - np.arange(len(res.t_vib)) / sensor_hz) < 1e-12)
+    assert np.all(np.abs(res.t_accel - np.arange(1, 1601) / 800.0) < 1e-12)
+    # the same continuous signal at any rate: sensed_g equal to the 6.4 kHz run's
+    ref = rg.simulate(rg.RunConfig(**FLIGHT, **QUIET))
+    assert np.max(np.abs(res.sensed_g - ref.sensed_g)) < 1e-12
+    # vib.csv samples at times common to both rates agree (1/200 s for 5 kHz and 6.4 kHz)
+    step_a, step_b = int(sensor_hz / 200), 32
+    assert np.max(np.abs(res.vib_v[::step_a] - ref.vib_v[::step_b])) < 1e-12
+    # over the whole flight-like run the vibration's mean is 0: sensed averages to gravity
+    g_ia = np.array([u.e_ia @ np.asarray(res.cfg.orientation) for u in res.triad])
+    assert np.max(np.abs(res.sensed_g.mean(axis=0) - g_ia)) < 1e-12
+
+
+def test_sensor_rate_that_does_not_divide_in_a_shaker_run():
+    """5 kHz sensors, still / vibrating / still, random vibration only: sensed_g over the VE
+    window averages to gravity's projection within the window mean of the random
+    vibration (bound: sqrt(2 S int df / (2 pi f W)^2), times 5)."""
+    cfg = rg.RunConfig(sensor_rate_hz=5000.0, still_s=1.0, vib_s=3.0, tone_amp_g=(0, 0, 0), **QUIET)
+    res = rg.simulate(cfg)
+    win = res.truth["segments"]["windows_s"]["vibrating"]
+    w = win[1] - win[0]
+    bound = 5 * math.sqrt(2 * 0.002 / (2 * math.pi * w) ** 2 * (1 / 20 - 1 / 640))
+    mv = rg.reading_mask(res.cfg, res.t_accel, win)
+    g_ia = np.array([u.e_ia @ np.asarray(res.cfg.orientation) for u in res.triad])
+    dev = res.sensed_g[mv].mean(axis=0) - g_ia
+    assert np.all(np.abs(dev) < bound), (dev, bound)
+    assert np.all(np.abs(res.sensed_g[~mv][:400] - g_ia) < 1e-12)  # still before
+
+
+def test_readings_truth_error_is_the_section6_exact_ve_for_tones():
+    """Tones only, no mount, flight-like, whole periods of 30 / 50 / 120 Hz on x / y / z:
+    the error averaged over the run is (FP)(g) - aL3 plus MODEL.md section 6's exact VE
+    (written out here: binomial moments of aL3 + c sin, tone amplitudes below |aL3| so the
+    asymmetry term is exact; the tones are at different frequencies, so no cross terms)."""
+    amps = (0.5, 0.3, 0.55)
+    cfg = rg.RunConfig(orientation="oblique1", tone_hz=(30.0, 50.0, 120.0), tone_amp_g=amps,
+                       random_bands=NO_RANDOM, **FLIGHT, **QUIET)
+    res = rg.simulate(cfg)
+    g = np.asarray(res.cfg.orientation)
+    for i, u in enumerate(res.triad):
+        p = u.passport
+        aL3, aL1, aL2 = u.e_ia @ g, u.e_oa @ g, u.e_pa @ g
+        c = amps[int(np.argmax(np.abs(u.e_ia)))]
+        s2, s4 = c**2 / 2, 3 * c**4 / 8
+        ve = (p.k2 * s2 + p.k3 * 3 * aL3 * s2 + p.k4 * (6 * aL3**2 * s2 + s4)
+              + p.k5 * (10 * aL3**3 * s2 + 5 * aL3 * s4))
+        want = fp_independent(p, aL3, aL1, aL2) - aL3 + ve
+        got = res.error_g[:, i].mean()
+        assert abs(got - want) < 1e-12 * abs(want) + 1e-15, (i, got, want)
+        assert abs(res.sensed_g[:, i].mean() - aL3) < 1e-13
+
+
+def test_readings_truth_csv_against_truth_json(tmp_path):
+    """readings_truth.csv: accel.csv's times; over the VE window its error averages to
+    reading_shift_g + still_reading_g - <sensed> (the same readings), and to
+    ve_time_domain_g + still_reading_g - aL3 within the first-order response to the
+    window mean of the vibration."""
+    out = tmp_path / "run"
+    run_cli("run", "--out", str(out), "--orientation=oblique2", "--resonance-f0-hz", "150", *CLI_FAST)
+    header, rows, raw = read_rows(out / "readings_truth.csv")
+    assert header == ["time_s", "sensed1_g", "sensed2_g", "sensed3_g", "error1_g", "error2_g", "error3_g"]
+    _, _, raw_accel = read_rows(out / "accel.csv")
+    assert [r.split(",")[0] for r in raw] == [r.split(",")[0] for r in raw_accel]
+    assert all(repr(float(c)) == c for c in raw[100].split(","))
+    truth = json.loads((out / "truth.json").read_text())
+    a = np.array(rows)
+    cfg = rg.RunConfig(still_s=1.0, vib_s=2.0, sensor_rate_hz=6400.0, resonance=rg.Resonance())
+    mv = rg.reading_mask(cfg, a[:, 0], truth["segments"]["windows_s"]["vibrating"])
+    assert mv.sum() == truth["segments"]["readings_in_ve_window"]
+    sensed, err = a[mv, 1:4].mean(axis=0), a[mv, 4:7].mean(axis=0)
+    v_axis = np.max(np.abs(sensed - [u["aL3_g"] for u in truth["units"]]))
+    for i, u in enumerate(truth["units"]):
+        assert abs(err[i] - (u["reading_shift_g"] + u["still_reading_g"] - sensed[i])) < 1e-14
+        want = u["ve_time_domain_g"] + u["still_reading_g"] - u["aL3_g"]
+        assert abs(err[i] - want) < 3e-3 * v_axis + 1e-14, (i, err[i], want, v_axis)
+    # still: error = (FP)(g) - aL3 exactly, sensed = aL3
+    for i, u in enumerate(truth["units"]):
+        assert np.all(np.abs(a[:400, 1 + i] - u["aL3_g"]) < 1e-12)
+        assert np.all(np.abs(a[:400, 4 + i] - (u["still_reading_g"] - u["aL3_g"])) < 1e-12)
+
+
+def test_every_tone_on_the_mount_resonance(tmp_path):
+    """--tone-hz 150,150,150 --resonance-f0-hz 150: runs, and the tone at the units is
+    |H(j w0)| = Q sqrt(1 + 1/Q^2) times the base's."""
+    out = tmp_path / "res"
+    run_cli("run", "--out", str(out), "--tone-hz", "150,150,150", "--resonance-f0-hz", "150",
+            "--vibrate-throughout", "--duration-s", "2", "--sensor-rate-hz", "6400", "--no-tone")
+    run_cli("run", "--out", str(out), "--tone-hz", "150,150,150", "--resonance-f0-hz", "150",
+            "--vibrate-throughout", "--duration-s", "2", "--sensor-rate-hz", "6400")
+    assert np.all(np.isfinite(np.array(read_rows(out / "readings_truth.csv")[1])))
+    cfg = rg.RunConfig(tone_hz=(150.0,) * 3, tone_amp_g=(0, 0, 1.0), tone_phase_rad=(0, 0, 0),
+                       random_bands=NO_RANDOM, resonance=rg.Resonance(), **FLIGHT, **QUIET)
+    res = rg.simulate(cfg)
+    q = 2.5
+    box = abs(complex(rg.boxcar_response(150.0, 1 / 800.0)))
+    amp = np.sqrt(2 * np.mean((res.sensed_g[:, 2] - 1.0) ** 2))
+    assert abs(amp / (q * math.sqrt(1 + 1 / q**2) * box) - 1) < 1e-9
+
+
+# --------------------------------------------------------------------------------------
+# waveform_errors.py: matching compensated readings to readings_truth.csv, windows
+
+
+def test_waveform_errors_matching_and_windows():
+    import waveform_errors as we
+
+    n, per = 64, 16  # 4 windows of 16 readings at 800 Hz (window 0.02 s)
+    t_s = np.arange(1, n + 1) / 800.0
+    sensed = np.tile([1.0, 0.0, -0.5], (n, 1))
+    error = np.full((n, 3), 3e-3)
+    off = np.array([1e-6, -2e-6, 0.0])
+
+    def block(first, count, flags, t_shift_ns=0):
+        t0 = int(round(t_s[first] * 1e9)) + t_shift_ns
+        return (first, t0, 1_250_000, flags, sensed[first:first + count] + off)
+
+    # window 0: main-only; 1: waveform; 2: a fallback block; 3: one reading missing
+    blocks = [block(0, 16, we.MAIN_ONLY), block(16, 16, we.WAVEFORM), block(32, 8, we.WAVEFORM),
+              block(40, 8, we.WAVEFORM_FALLBACK), block(48, 15, we.WAVEFORM)]
+    r = we.measure(blocks, t_s, sensed, error, window_s=per / 800.0)
+    assert r["window_readings"] == per and r["windows_left_out"] == 1
+    assert r["sample_index_minus_row"] == [0] and r["max_time_diff_s"] < 1e-12
+    assert (r["all"]["windows"], r["compensated"]["windows"], r["waveform"]["windows"],
+            r["fallback"]["windows"]) == (3, 2, 1, 1)
+    for u in range(3):
+        assert abs(r["all"]["units"][u]["rms_g"] - abs(off[u])) < 1e-15
+    assert abs(r["uncompensated"]["all_units_rms_g"] - 3e-3) < 1e-15
+    assert r["blocks_per_flag"] == {"MAIN_ONLY": 1, "WAVEFORM": 3, "WAVEFORM_FALLBACK": 1}
+    # a reading 2 % of a period off its row: refused, loudly
+    with pytest.raises(ValueError, match="of a period"):
+        we.measure([block(0, 16, 0, t_shift_ns=25_000)], t_s, sensed, error, window_s=0.02)
+    # half a period (the start of the interval instead of its end): refused
+    with pytest.raises(ValueError, match="time conventions"):
+        we.measure([block(1, 8, 0, t_shift_ns=-625_000)], t_s, sensed, error, window_s=0.02)
+    assert we.truth_only(t_s, error, 0.02)["uncompensated"]["windows"] == 4

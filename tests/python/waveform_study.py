@@ -44,7 +44,7 @@ ORIENTATIONS = ["+x", "-x", "+y", "-y", "+z", "-z", "oblique1", "oblique2"]
 # Tone frequencies per body axis x, y, z (whole periods in 8 s), one set per run in turn.
 TONE_SETS = ["30,60,120", "45,75,105", "40,90,120", "35,50,110"]
 DELAY_S = 1.56e-3
-SENSOR_HZ = 6400
+SENSOR_HZ = 6400  # --sensor-hz; the delay kind is always at 6.4 kHz
 
 
 def kind_args(kind, run_index):
@@ -70,7 +70,7 @@ def generate(run, seed, orientation, kind, run_index):
                     f"--orientation={orientation}", "--sensor-rate-hz", str(SENSOR_HZ),
                     "--unit-noise-ug", "2", "--unit-drift-ug-per-s", "0.2",
                     # A fine grid of 51.2 kHz: the readings' own quadrature far below 1 ug.
-                    "--oversample", "8", *extra],
+                    "--oversample", str(max(1, 51200 // SENSOR_HZ)), *extra],
                    check=True, stdout=subprocess.DEVNULL)
     return delay
 
@@ -91,10 +91,16 @@ def import_log(binary, run, delay_s):
     return log
 
 
-def session(binary, log, estimator, compensator, model, out, start_wait_s):
+def session(binary, log, estimator, compensator, model, out, start_wait_s, rig=None):
     prefix = f"wf{os.getpid()}x{int(time.time() * 1000) % 100000}/"
     args = [binary, "up", "--json", "--prefix", prefix, "--record", out, "--force",
-            "--estimator-config", estimator, "--compensator-config", compensator]
+            "--estimator-config", estimator]
+    if compensator:
+        args += ["--compensator-config", compensator]
+    if rig:
+        # The sensors' chain (sensitivity, AC coupling, delay) from the rig file, into
+        # both services: no hand-edited configuration.
+        args += ["--rig", rig]
     if model:
         args += ["--model", model]
     stderr = open(out + ".up.log", "w")
@@ -177,7 +183,10 @@ def main():
     ap.add_argument("--window-s", type=float, default=2.0)
     ap.add_argument("--seed", type=int, default=500)
     ap.add_argument("--start-wait-s", type=float, default=6.0, help="wait for the services before replaying")
+    ap.add_argument("--sensor-hz", type=int, default=6400, choices=[5000, 6400, 10000, 25600])
     a = ap.parse_args()
+    global SENSOR_HZ
+    SENSOR_HZ = 6400 if a.kind == "delay" else a.sensor_hz
     os.makedirs(a.out, exist_ok=True)
     est = estimator_config(a.out)
     results, failures = [], []
@@ -189,8 +198,10 @@ def main():
             delay = generate(run, seed, orientation, a.kind, i)
             log = import_log(a.bin, run, delay)
             rec = os.path.join(a.out, f"s{seed}-{a.kind}.mcap")
-            comp = a.compensator_config or compensator_config(a.out, delay, a.stage)
-            session(a.bin, log, est, comp, a.model, rec, a.start_wait_s)
+            comp = a.compensator_config or (
+                compensator_config(a.out, delay, a.stage) if a.stage != "waveform" else None)
+            session(a.bin, log, est, comp, a.model, rec, a.start_wait_s,
+                    rig=os.path.join(run, "rig.toml"))
             t_s, sensed, err = we.read_truth(run)
             r = we.measure(we.read_session(rec), t_s, sensed, err, a.window_s)
             r.update(run=run, session=rec, orientation=orientation, seed=seed)

@@ -253,6 +253,12 @@ fn hot_loop(
         passports = ?config.model.triad.passports.map(|p| p.id().to_string()),
         loop_mode = %config.service.loop_mode,
         source = %config.source,
+        stage = config.model.waveform.stage.name(),
+        sensitivity_v_per_g = ?config.model.waveform.chain.sensitivity_v_per_g,
+        ac_corner_hz = config.model.waveform.chain.ac_corner_hz,
+        delay_s = config.model.waveform.chain.delay_s,
+        max_wait_ms = ?config.model.waveform.max_wait_ns.map(|ns| ns as f64 * 1e-6),
+        model = ?config.model.effects.as_ref().map(|(p, _)| p.display().to_string()),
         "compensator running"
     );
 
