@@ -52,12 +52,24 @@ fn exclusive_load() -> RwLockWriteGuard<'static, ()> {
 /// A compensator configuration: the shipped model, with `max_estimate_age_s` and the
 /// summary period (the heartbeat's `degraded` looks back to the last summary) given.
 fn compensator_config(dir: &Dir, max_estimate_age_s: f64, summary_period_s: f64) -> PathBuf {
+    compensator_config_stage(dir, max_estimate_age_s, summary_period_s, "waveform")
+}
+
+/// The same with `stage` (`waveform`, the default, or `estimate`: the paper's stages,
+/// whose staleness rules a killed estimator shows).
+fn compensator_config_stage(
+    dir: &Dir,
+    max_estimate_age_s: f64,
+    summary_period_s: f64,
+    stage: &str,
+) -> PathBuf {
     let path = dir.path("compensator.toml");
     std::fs::write(
         &path,
         format!(
             "prefix = \"vibrocomp/\"\nmode = \"exact\"\ntriad = \"default\"\n\
-             max_estimate_age_s = {max_estimate_age_s:?}\nreload_poll_s = 0.0\n\n\
+             max_estimate_age_s = {max_estimate_age_s:?}\nreload_poll_s = 0.0\n\
+             stage = \"{stage}\"\n\n\
              [service]\nsummary_period_s = {summary_period_s:?}\n"
         ),
     )
@@ -323,7 +335,9 @@ fn a_killed_estimator_turns_the_compensation_stale_until_up_restarts_it() {
     // the estimator, which needs a whole new window before its first estimate, shows
     // a stale stretch even when it is quick.
     let max_age_s = 1.0;
-    let comp_config = compensator_config(&dir, max_age_s, 10.0);
+    // The estimate stage: its staleness is what a killed estimator shows (the
+    // waveform stage does not need the estimator).
+    let comp_config = compensator_config_stage(&dir, max_age_s, 10.0, "estimate");
     let p = prefix("e");
     let services_log = dir.path("services.log");
     let session = dir.path("session.mcap");

@@ -360,10 +360,12 @@ fn python_rig_client_round_trips_through_both_services() {
     let prefix = format!("vct-py-{}-{}/", std::process::id(), next_id());
     let config = dir.path("compensator.toml");
     // Exact mode on the shipped triad; no hot reload; fast heartbeats for the start-up.
+    // The estimate stage: the reference below is the paper's kernel (the waveform
+    // stage on a rig client's streams: tests/integration/rig_generator.rs).
     std::fs::write(
         &config,
         "prefix = \"unused/\"\nmode = \"exact\"\ntriad = \"default\"\n\
-         max_estimate_age_s = 2.0\nreload_poll_s = 0.0\n\n[service]\n\
+         max_estimate_age_s = 2.0\nreload_poll_s = 0.0\nstage = \"estimate\"\n\n[service]\n\
          loop_mode = \"event\"\nheartbeat_period_s = 0.1\nsummary_period_s = 10.0\n\
          shutdown_poll_s = 0.02\n",
     )

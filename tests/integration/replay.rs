@@ -116,11 +116,14 @@ fn in_process(log: &Path) -> Vec<CompensatedBlock> {
                 for e in pending.drain(..) {
                     compensator.on_estimate(&e);
                 }
+                // The waveform stage's samples (the shipped stage).
+                compensator.on_vib(b, 0, &mut out);
             }
             ("/accel", Message::AccelBlock(b)) => compensator.on_accel(b, 0, &mut out),
             _ => {}
         }
     }
+    compensator.finish(&mut out);
     out
 }
 

@@ -469,13 +469,17 @@ fn a_large_tones_part_inside_each_interval_is_removed_at_its_phase() {
 
 /// The loop on a tone and random vibration through the mount (the generator's run: +x
 /// up, 150 Hz tone, 20..640 Hz random, 10 s), against the same rig without the mount,
-/// over 2 s windows (shorter ones through the mount mostly measure the linear fit's
-/// residual, docs/logs.md): with the mount as an extended model the error falls to
-/// within 2 times the rig's floor without it (measured: 29.7 ug against 15.7 ug, 1.89,
-/// with the generator's mount; 2.1 before the tone's higher moments inside each
-/// interval), on every unit no worse than the base model
-/// beyond the RMS's uncertainty over its 5 windows, and the same with the estimator
-/// over 20..640 Hz and 20..2000 Hz.
+/// over 2 s windows. Measured two ways:
+///
+/// - against the generator's per-reading truth (`readings_truth.csv`, what each unit
+///   sensed, by `tests/python/waveform_errors.py`): with the mount as an extended model
+///   the waveform stage leaves what it leaves without the mount, the rig's own noise
+///   (10 ug per reading here: 0.25 ug over a 2 s window), whatever the estimator's band
+///   (the estimator only serves the fallback);
+/// - by `log errors` against the rig's reference plus a fitted linear response, whose
+///   fit through the mount's resonance is what its figure measures (about 20 ug with
+///   the mount, 3.6 ug without: docs/logs.md); printed, and the model must beat the
+///   base model there on every unit.
 #[test]
 fn through_the_mount_the_model_brings_the_error_near_the_rigs_floor_whatever_the_band() {
     let dir = TempDir::new("riglog", "floor");
@@ -496,13 +500,37 @@ fn through_the_mount_the_model_brings_the_error_near_the_rigs_floor_whatever_the
             .as_f64()
             .unwrap()
     };
+    // The compensated readings against what each unit sensed, 2 s windows the
+    // waveform stage made, over the three units.
+    let truth_rms = |session: &str, run: &str| -> f64 {
+        let o = Command::new("python3")
+            .arg(repo_path("tests/python/waveform_errors.py"))
+            .arg(dir.0.join(format!("{session}.mcap")))
+            .arg(dir.0.join(run))
+            .args(["--window-s", "2"])
+            .env("PYTHONDONTWRITEBYTECODE", "1")
+            .output()
+            .expect("python3 runs");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert!(v["waveform"]["windows"].as_u64().unwrap() >= 3, "{v}");
+        v["waveform"]["all_units_rms_g"].as_f64().unwrap()
+    };
     let floor = session_errors(&without, &dir.0, "floor", &base, "20.0, 640.0", 2.0);
+    let floor_truth = truth_rms("floor", "n");
     let before = session_errors(&with_mount, &dir.0, "before", &base, "20.0, 640.0", 2.0);
+    let before_truth = truth_rms("before", "m");
     let mut after_all = Vec::new();
     for (k, band) in ["20.0, 640.0", "20.0, 2000.0"].into_iter().enumerate() {
-        let after = session_errors(&with_mount, &dir.0, &format!("after{k}"), &with, band, 2.0);
+        let name = format!("after{k}");
+        let after = session_errors(&with_mount, &dir.0, &name, &with, band, 2.0);
+        let after_truth = truth_rms(&name, "m");
         println!(
-            "FIGURES band [{band}]: floor {:.1} ug, base {:.1} ug {:?}, model {:.1} ug {:?}",
+            "FIGURES band [{band}]: against the per-reading truth: floor {:.2} ug, base {:.1} ug, model {:.2} ug; \
+             log errors: floor {:.1} ug, base {:.1} ug {:?}, model {:.1} ug {:?}",
+            floor_truth * 1e6,
+            before_truth * 1e6,
+            after_truth * 1e6,
             all(&floor) * 1e6,
             all(&before) * 1e6,
             units(&before),
@@ -510,23 +538,17 @@ fn through_the_mount_the_model_brings_the_error_near_the_rigs_floor_whatever_the
             units(&after),
         );
         assert!(
-            all(&after) < 2.0 * all(&floor),
-            "{} vs floor {}",
-            all(&after),
-            all(&floor)
+            after_truth < 1.5 * floor_truth.max(0.5e-6) && after_truth < 3e-6,
+            "{after_truth} vs floor {floor_truth}"
         );
-        // No unit worse than the base model beyond the RMS's own relative standard
-        // uncertainty over its windows, 1/sqrt(2 n).
-        let n = before["errors"]["compensated_windows"].as_f64().unwrap();
-        let allowed = 1.0 + 1.0 / (2.0 * n).sqrt();
+        assert!(before_truth > 20.0 * after_truth, "{before_truth} vs {after_truth}");
+        // By `log errors` too, no unit worse than the base model.
         for (a, b) in units(&after).iter().zip(units(&before)) {
-            assert!(
-                *a < allowed * b,
-                "a unit got worse: {a} vs {b} (x {allowed:.3})"
-            );
+            assert!(*a < b, "a unit got worse: {a} vs {b}");
         }
-        after_all.push(all(&after));
+        after_all.push(after_truth);
     }
+    // The waveform stage does not use the estimator's band.
     assert!(
         (after_all[0] / after_all[1] - 1.0).abs() < 0.05,
         "{after_all:?}"
@@ -542,7 +564,11 @@ fn mount_configs(dir: &Path) -> (PathBuf, PathBuf) {
         "mode = \"exact\"\n[[effect]]\nkind = \"mount_resonance\"\nfreq_hz = 150.0\nq = 2.5\n",
     )
     .unwrap();
-    let shipped = std::fs::read_to_string(repo_path("config/services/compensator.toml")).unwrap();
+    // The rig's sensors: AC coupling at 2 Hz (the waveform stage undoes the chain).
+    let shipped = std::fs::read_to_string(repo_path("config/services/compensator.toml"))
+        .unwrap()
+        .replacen("ac_corner_hz = 0.5 ", "ac_corner_hz = 2.0 ", 1);
+    assert!(shipped.contains("ac_corner_hz = 2.0 "));
     let base = dir.join("base.toml");
     std::fs::write(&base, &shipped).unwrap();
     let with = dir.join("with-model.toml");

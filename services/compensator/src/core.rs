@@ -605,6 +605,11 @@ impl Compensation {
         })
     }
 
+    /// Readings held for their vibration samples.
+    pub(crate) fn held_readings(&self) -> u64 {
+        self.waveform.as_ref().map_or(0, |w| w.held_readings())
+    }
+
     /// The counters so far, with the waveform stage's.
     pub(crate) fn summary(&self) -> Summary {
         let mut s = self.s.clone();
@@ -904,6 +909,9 @@ impl Compensation {
             !arrival.restarted && self.timing.is_some_and(|timing| timing.jumped(block));
         self.timing = Some(AccelTiming::after(block));
         if arrival.restarted {
+            // Blocks held from before the restart are decided now (what covers them
+            // has come or never will), ahead of the new stream's.
+            self.finish(out);
             // The producer started again (a new replay, a restarted rig), or the
             // stream was taken up again after out-of-order blocks (a resync): the stream
             // history no longer applies, and an estimate dated after this block

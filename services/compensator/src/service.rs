@@ -94,8 +94,9 @@ impl Compensation {
                 + self.s.fallback_blocks,
             latency,
             state,
-            // Every block is answered at once: nothing to report.
-            input_samples_to_output: 0,
+            // The readings the waveform stage holds for their vibration samples (0
+            // when none): a lock-stepped replay waits for them at its end.
+            input_samples_to_output: self.held_readings(),
             input_samples_per_output: 0,
             out_of_order: self.s.accel.out_of_order + self.s.estimates.out_of_order,
             resyncs: self.s.accel.resyncs + self.s.estimates.resyncs,
@@ -323,9 +324,11 @@ fn hot_loop(
                 }
             }
         }
-        // Held blocks whose wait is over by the wall clock (crate::waveform).
+        // Held blocks whose wait is over by the wall clock (crate::waveform); a
+        // release tells the progress stream too, as input would.
+        let before = st.s.published;
         st.release(now_ns(), &mut compensated);
-        if received_any {
+        if received_any || st.s.published != before {
             // Once per wake-up: every block taken so far is compensated and published.
             // No latency: quantiles per wake-up would cost the hot loop for nothing.
             let report = st.counters_report(Quantiles::default(), ServiceState::Running);
@@ -448,7 +451,7 @@ fn hot_loop(
         stage = summary.stage,
         waveform_blocks = summary.waveform_blocks,
         fallback_blocks = summary.fallback_blocks,
-        waveform = %summary.waveform.map(|w| w.to_json().finish()).unwrap_or_default(),
+        waveform = %summary.waveform.as_ref().map(|w| w.to_json().finish()).unwrap_or_default(),
         "compensator stopped"
     );
     // The wait set, the ports and the node are released here, by Drop.

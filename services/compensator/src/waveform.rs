@@ -27,7 +27,7 @@ use crate::config::{Model, Stage};
 use std::collections::VecDeque;
 use vibro_msgs::compensation_flags as cf;
 use vibro_msgs::{vib_flags, CompensatedBlock, VibBlock, WireMessage, ACCEL_BLOCK_MAX};
-use vibro_service::JsonObject;
+use vibro_service::{Continuity, CountersJson, JsonObject, StreamCounters};
 use vibro_waveform::{Coverage, StageCounters, WaveformStage};
 
 /// Flags of the estimate stage's answer that do not describe the waveform stage's `a4`.
@@ -47,7 +47,7 @@ struct Pending {
 }
 
 /// Why held blocks went out with the estimate stage's answer, and what the stage did.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct WaveformCounts {
     /// Blocks the waveform stage made.
     pub waveform_blocks: u64,
@@ -64,6 +64,9 @@ pub struct WaveformCounts {
     /// `{prefix}vib` blocks received, and malformed ones (dropped).
     pub vib_received: u64,
     pub vib_malformed: u64,
+    /// The sensors' stream by the continuity rule (losses, out of order, restarts,
+    /// jumps, resyncs).
+    pub vib: StreamCounters,
     pub stage: StageCounters,
 }
 
@@ -81,6 +84,7 @@ impl WaveformCounts {
             .u64("max_pending", self.max_pending)
             .u64("vib_received", self.vib_received)
             .u64("vib_malformed", self.vib_malformed)
+            .object("vib", self.vib.to_json())
             .u64("vib_samples", s.vib_samples)
             .u64("vib_breaks", s.breaks)
             .u64("vib_gaps", s.gaps)
@@ -104,6 +108,7 @@ pub(crate) struct WaveformPath {
     /// The latest sensor block's span, ns (the default `max_wait`).
     vib_block_ns: u64,
     last_vib_recv_ns: Option<u64>,
+    continuity: Continuity,
     /// End of the newest accelerometer block's last reading, ns.
     newest_accel_end_ns: u64,
     out_g: [[f64; 3]; ACCEL_BLOCK_MAX],
@@ -136,6 +141,7 @@ impl WaveformPath {
             max_wait_ns: model.waveform.max_wait_ns,
             vib_block_ns: 0,
             last_vib_recv_ns: None,
+            continuity: Continuity::new(),
             newest_accel_end_ns: 0,
             out_g: [[0.0; 3]; ACCEL_BLOCK_MAX],
             model_effects: model.effects.is_some(),
@@ -152,17 +158,30 @@ impl WaveformPath {
     }
 
     pub(crate) fn counts(&self) -> WaveformCounts {
-        let mut c = self.counts;
+        let mut c = self.counts.clone();
         c.stage = self.stage.counters();
         c
     }
 
-    /// A sensor block arrives at `recv_ns`.
+    /// A sensor block arrives at `recv_ns`. Its `seq` and sample index go through the
+    /// continuity rule every reader of a stream applies (`vibro_msgs::continuity`):
+    /// out-of-order blocks are dropped (counted), a restarted producer starts the
+    /// stage afresh, a loss is a gap; the stage then applies its own time rules.
     pub(crate) fn on_vib(&mut self, b: &VibBlock, recv_ns: u64) {
         self.counts.vib_received += 1;
         if b.validate().is_err() {
             self.counts.vib_malformed += 1;
             return;
+        }
+        let arrival = self
+            .continuity
+            .check(b.seq, b.first_sample_index, u64::from(b.count));
+        self.counts.vib.record(&arrival);
+        if !arrival.accepted {
+            return;
+        }
+        if arrival.restarted {
+            self.stage.reset();
         }
         self.last_vib_recv_ns = Some(recv_ns);
         self.vib_block_ns = u64::from(b.count).saturating_mul(b.sample_period_ns);
@@ -173,7 +192,7 @@ impl WaveformPath {
             b.sample_period_ns,
             b.samples_v(),
             b.flags & vib_flags::SATURATED != 0,
-            b.flags & vib_flags::GAP_BEFORE != 0,
+            arrival.gap() || b.flags & vib_flags::GAP_BEFORE != 0,
         );
     }
 
@@ -297,6 +316,10 @@ impl WaveformPath {
     /// Every held block, decided now as if the sensors' stream had ended (the end of an
     /// in-process run): covered ones solved, the rest the estimate stage's.
     pub(crate) fn finish(&mut self) -> Option<CompensatedBlock> {
+        if self.pending.is_empty() {
+            // A restart: the streams' time starts again.
+            self.newest_accel_end_ns = 0;
+        }
         if let Some(b) = self.next_ready(u64::MAX) {
             return Some(b);
         }
@@ -311,6 +334,11 @@ impl WaveformPath {
     /// Blocks held now.
     pub(crate) fn held(&self) -> usize {
         self.pending.len()
+    }
+
+    /// Readings held now.
+    pub(crate) fn held_readings(&self) -> u64 {
+        self.pending.iter().map(|p| u64::from(p.block.count)).sum()
     }
 
     /// The receive time of the oldest held block (0 when none).

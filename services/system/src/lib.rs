@@ -25,6 +25,7 @@
 //! # Ok::<(), anyhow::Error>(())
 //! ```
 
+pub mod derived;
 pub mod hosts;
 mod spec;
 

@@ -11,6 +11,8 @@
 //! [sensors]
 //! sensitivity_v_per_g = 0.1         # one value or [s1, s2, s3]; a negative one flips
 //! ac_corner_hz = 2.0                # first-order AC coupling; absent or 0: DC-coupled
+//! delay_s = 0.0                     # a sample stamped s saw the base at s - delay_s (0..1 s)
+//! # rate_hz = 25600.0               # optional: the vibration CSV must be at this rate
 //!
 //! [reference]
 //! kind = "static"                   # "static" | "centrifuge" | "stream"
@@ -53,7 +55,23 @@ pub struct SensorChain {
     pub sensitivity_v_per_g: [f64; 3],
     /// Corner of the first-order AC coupling, Hz; `None`: DC-coupled.
     pub ac_corner_hz: Option<f64>,
+    /// The chain's delay, s: a sample stamped `s` saw the base at `s - delay_s`
+    /// (0..=[`MAX_DELAY_S`]; absent: 0).
+    pub delay_s: f64,
+    /// The sensors' sample rate, Hz, when the file states it: a vibration stream at
+    /// another rate is not this rig's.
+    pub rate_hz: Option<f64>,
 }
+
+/// The longest chain delay a rig file may state, s: a DAQ's filter delays by
+/// milliseconds; a second is a unit mix-up (ms for s). The same bound as the
+/// estimator's `delay_s` (`vibro_dsp::MAX_DELAY_S`) and the compensator's
+/// `[sensors] delay_s` (`vibro_waveform::MAX_DELAY_S`).
+pub const MAX_DELAY_S: f64 = 1.0;
+
+/// The sample rates `sensors.rate_hz` may state: a period between 1 ns and 1000 s, as
+/// `vibrocomp log import` takes a CSV's rate.
+pub const SENSOR_RATE_RANGE_HZ: [f64; 2] = [1e-3, 1e9];
 
 /// One time segment of a static reference.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -169,6 +187,8 @@ struct RawRig {
 struct RawSensors {
     sensitivity_v_per_g: OneOrThree,
     ac_corner_hz: Option<f64>,
+    delay_s: Option<f64>,
+    rate_hz: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -343,12 +363,44 @@ pub fn parse_rig(text: &str, file: &str) -> Result<RigConfig> {
         }
     };
 
+    let delay_s = match s.delay_s.unwrap_or(0.0) {
+        x if x.is_finite() && (0.0..=MAX_DELAY_S).contains(&x) => Some(x),
+        x => {
+            problems.push(format!(
+                "sensors.delay_s = {x}: must be finite and 0 <= delay <= {MAX_DELAY_S} s \
+                 (a sample stamped s saw the base at s - delay_s)"
+            ));
+            None
+        }
+    };
+    let [lo_hz, hi_hz] = SENSOR_RATE_RANGE_HZ;
+    let rate_hz = match s.rate_hz {
+        None => Some(None),
+        Some(x) if x.is_finite() && (lo_hz..=hi_hz).contains(&x) => Some(Some(x)),
+        Some(x) => {
+            problems.push(format!(
+                "sensors.rate_hz = {x}: must be finite and {lo_hz:e} <= rate <= {hi_hz:e} Hz"
+            ));
+            None
+        }
+    };
+
     let reference = reference(&raw.reference, &mut problems);
-    if let (true, Some(triad), Some(sensitivity_v_per_g), Some(ac_corner_hz), Some(reference)) = (
+    if let (
+        true,
+        Some(triad),
+        Some(sensitivity_v_per_g),
+        Some(ac_corner_hz),
+        Some(delay_s),
+        Some(rate_hz),
+        Some(reference),
+    ) = (
         problems.is_empty(),
         triad,
         sensitivity,
         ac_corner_hz,
+        delay_s,
+        rate_hz,
         reference,
     ) {
         return Ok(RigConfig {
@@ -357,6 +409,8 @@ pub fn parse_rig(text: &str, file: &str) -> Result<RigConfig> {
             sensors: SensorChain {
                 sensitivity_v_per_g,
                 ac_corner_hz,
+                delay_s,
+                rate_hz,
             },
             reference,
         });
@@ -584,12 +638,55 @@ mod tests {
         let rig = parse_rig(GOOD, "rig.toml").unwrap();
         assert_eq!(rig.sensors.sensitivity_v_per_g, [0.1; 3]);
         assert_eq!(rig.sensors.ac_corner_hz, Some(2.0));
+        assert_eq!((rig.sensors.delay_s, rig.sensors.rate_hz), (0.0, None));
         assert_eq!(rig.triad.id, "default");
         assert_eq!(rig.reference.body_g_at(4.0), Some([0.0, 0.0, 1.0]));
         let b = rig.reference.body_g_at(12.0).unwrap();
         assert!((b[0] - 0.6).abs() < 1e-15 && (b[2] + 0.8).abs() < 1e-15);
         assert_eq!(rig.reference.body_g_at(16.5), None);
         assert_eq!(rig.reference.static_span_s(), Some([0.0, 16.0]));
+    }
+
+    /// `sensors.delay_s` (default 0) and the optional `sensors.rate_hz`, each refused
+    /// with its key, value and rule when out of bounds, all at once.
+    #[test]
+    fn the_chain_delay_and_rate_are_read_and_bounded() {
+        let with = |extra: &str| {
+            GOOD.replace(
+                "ac_corner_hz = 2.0\n",
+                &format!("ac_corner_hz = 2.0\n{extra}"),
+            )
+        };
+        let rig = parse_rig(&with("delay_s = 0.00156\nrate_hz = 25600.0\n"), "r.toml").unwrap();
+        assert_eq!(rig.sensors.delay_s, 0.00156);
+        assert_eq!(rig.sensors.rate_hz, Some(25_600.0));
+        for (text, want) in [
+            (
+                "delay_s = -0.001\n",
+                "sensors.delay_s = -0.001: must be finite and 0 <= delay <= 1 s",
+            ),
+            (
+                "delay_s = 2\n",
+                "sensors.delay_s = 2: must be finite and 0 <= delay <= 1 s",
+            ),
+            ("delay_s = nan\n", "sensors.delay_s = NaN: must be finite"),
+            ("delay_s = inf\n", "sensors.delay_s = inf: must be finite"),
+            (
+                "rate_hz = 0.0\n",
+                "sensors.rate_hz = 0: must be finite and 1e-3 <= rate <= 1e9 Hz",
+            ),
+        ] {
+            let e = parse_rig(&with(text), "r.toml").unwrap_err().to_string();
+            assert!(
+                e.starts_with("r.toml: ") && e.contains(want),
+                "{want:?} not in {e}"
+            );
+        }
+        let e = parse_rig(&with("delay_s = -1.0\nrate_hz = -5.0\n"), "r.toml").unwrap_err();
+        let ConfigError::Invalid { problems, .. } = &e else {
+            panic!("{e}")
+        };
+        assert_eq!(problems.len(), 2, "{e}");
     }
 
     #[test]

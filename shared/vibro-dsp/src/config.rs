@@ -38,6 +38,11 @@ pub const DEFAULT_MAX_INVALID_FRACTION: f64 = 0.25;
 /// only when it is within this bound.
 pub const MAX_RESPONSE_POINTS: usize = 1024;
 
+/// The longest sensor-chain delay (`delay_s`), s: a DAQ's filter delays by
+/// milliseconds; a second is a unit mix-up (ms for s). The rig file and the
+/// compensator's `[sensors]` keep the same bound.
+pub const MAX_DELAY_S: f64 = 1.0;
+
 /// Smallest window, in samples: below this the spectra have too few bins to find a floor.
 pub const MIN_WINDOW_SAMPLES: usize = 256;
 /// Largest window, in samples (2^24): bounds the memory allocated at build time.
@@ -114,6 +119,12 @@ pub struct EstimatorConfigRaw {
     /// their jitter here.
     #[serde(default)]
     pub timestamp_tolerance_s: Option<f64>,
+    /// The sensor chain's delay, s: a sample stamped `s` saw the base at `s - delay_s`
+    /// (a DAQ's anti-alias filter, a digital sensor's group delay). The estimates' times
+    /// are taken back by it, so that their tone phases refer to when the base moved
+    /// (MODEL.md section 12 states the same chain for the waveform stage).
+    #[serde(default)]
+    pub delay_s: f64,
 }
 
 fn default_window_s() -> f64 {
@@ -160,6 +171,7 @@ impl EstimatorConfigRaw {
             welch_segment_s: DEFAULT_WELCH_SEGMENT_S,
             max_invalid_fraction: DEFAULT_MAX_INVALID_FRACTION,
             timestamp_tolerance_s: None,
+            delay_s: 0.0,
         }
     }
 }
@@ -197,6 +209,11 @@ impl EstimatorConfig {
     /// Sample period in ns (fractional: 39 062.5 ns at 25.6 kHz).
     pub fn sample_period_ns(&self) -> f64 {
         1e9 / self.raw.sample_rate_hz
+    }
+    /// The chain's delay in ns (`delay_s`, rounded to the ns): taken off the samples'
+    /// time stamps when an estimate is dated.
+    pub fn delay_ns(&self) -> u64 {
+        (self.raw.delay_s * 1e9).round() as u64
     }
     /// First and last DFT bin (of the window) where tones are looked for.
     pub(crate) fn tone_bins(&self) -> [usize; 2] {
@@ -413,6 +430,12 @@ impl TryFrom<EstimatorConfigRaw> for EstimatorConfig {
                 ),
             );
         }
+
+        let delay = raw.delay_s;
+        check(
+            delay.is_finite() && (0.0..=MAX_DELAY_S).contains(&delay),
+            format!("delay_s = {delay}: must be finite and 0 <= delay <= {MAX_DELAY_S} s"),
+        );
 
         if !problems.is_empty() {
             return Err(Error::InvalidConfig { problems });

@@ -434,10 +434,17 @@ impl Work {
         let period_ns = intake.period_ns;
 
         est.samples = n;
-        est.start_ns = intake.times_ns[0];
-        est.end_ns = intake.times_ns[n - 1].saturating_add(intake.offset_ns(1));
-        est.center_ns =
-            intake.times_ns[0].saturating_add(((n as f64 - 1.0) / 2.0 * period_ns).round() as u64);
+        // The samples saw the base `delay_s` before their stamps: the estimate is dated
+        // when the base moved, and its tone phases (fitted about the window's centre)
+        // refer to that time.
+        let delay_ns = config.delay_ns();
+        est.start_ns = intake.times_ns[0].saturating_sub(delay_ns);
+        est.end_ns = intake.times_ns[n - 1]
+            .saturating_add(intake.offset_ns(1))
+            .saturating_sub(delay_ns);
+        est.center_ns = intake.times_ns[0]
+            .saturating_add(((n as f64 - 1.0) / 2.0 * period_ns).round() as u64)
+            .saturating_sub(delay_ns);
         est.tones.clear();
         est.bands.clear();
         est.flags = Default::default();
@@ -658,5 +665,88 @@ fn wrap_pi(x: f64) -> f64 {
         y + TAU
     } else {
         y
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{EstimatorConfig, EstimatorConfigRaw};
+
+    /// The estimates of `samples` stamped from `t0_ns`, with the chain's delay `delay_s`.
+    fn run(samples: &[[f64; 3]], t0_ns: u64, fs_hz: f64, delay_s: f64) -> Vec<Estimate> {
+        let mut raw = EstimatorConfigRaw::new(fs_hz, [1.0; 3]);
+        raw.delay_s = delay_s;
+        let mut est = Estimator::new(EstimatorConfig::try_from(raw).unwrap());
+        let mut out = Vec::new();
+        let period_ns = 1e9 / fs_hz;
+        for (seq, chunk) in samples.chunks(256).enumerate() {
+            let block = SampleBlock {
+                seq: seq as u64,
+                t0_ns: t0_ns + ((seq * 256) as f64 * period_ns).round() as u64,
+                samples_raw: chunk,
+            };
+            est.push_block(&block, |e| out.push(*e)).unwrap();
+        }
+        out
+    }
+
+    /// A chain delay of D dates every estimate D earlier (start, end and centre, to the
+    /// ns) and leaves the fitted tone unchanged, so its phase is the base's phase at the
+    /// new centre: the samples stamped `s` are the base's motion at `s - D`.
+    #[test]
+    fn a_chain_delay_dates_the_estimates_when_the_base_moved() {
+        let (fs_hz, f_hz, phi_rad, delay_s) = (8192.0, 137.0, 0.7, 0.00156);
+        let delay_ns = 1_560_000;
+        let t0_ns = 2_000_000_000u64;
+        // The sample stamped t saw the base at t - D: base(t) = sin(2 pi f t + phi).
+        let samples: Vec<[f64; 3]> = (0..3 * 8192)
+            .map(|k| {
+                let stamp_s = t0_ns as f64 * 1e-9 + k as f64 / fs_hz;
+                let base = (TAU * f_hz * (stamp_s - delay_s) + phi_rad).sin();
+                [base, 0.5 * base, -0.25 * base]
+            })
+            .collect();
+        let plain = run(&samples, t0_ns, fs_hz, 0.0);
+        let delayed = run(&samples, t0_ns, fs_hz, delay_s);
+        assert_eq!(plain.len(), 5);
+        assert_eq!(plain.len(), delayed.len());
+        for (p, d) in plain.iter().zip(&delayed) {
+            assert_eq!(p.start_ns - d.start_ns, delay_ns);
+            assert_eq!(p.end_ns - d.end_ns, delay_ns);
+            assert_eq!(p.center_ns - d.center_ns, delay_ns);
+            assert_eq!(p.tones.len(), 1);
+            let (tp, td) = (p.tones[0], d.tones[0]);
+            assert_eq!(tp.phase_rad, td.phase_rad);
+            assert_eq!(tp.amplitude_g, td.amplitude_g);
+            // The base's phase at the delayed estimate's centre (closed form).
+            let centre_s = d.center_ns as f64 * 1e-9;
+            let base_phase = wrap_pi(TAU * f_hz * centre_s + phi_rad);
+            for a in 0..2 {
+                let dphi = wrap_pi(td.phase_rad[a] - base_phase).abs();
+                assert!(dphi < 1e-6, "axis {a}: off the base's phase by {dphi} rad");
+            }
+            let dphi = wrap_pi(td.phase_rad[2] - wrap_pi(base_phase + PI)).abs();
+            assert!(dphi < 1e-6, "axis 2: off the base's phase by {dphi} rad");
+        }
+        // Without the delay the phase is the base's a delay later, 2 pi f D away.
+        let centre_s = plain[0].center_ns as f64 * 1e-9;
+        let dphi = wrap_pi(plain[0].tones[0].phase_rad[0] - (TAU * f_hz * centre_s + phi_rad));
+        assert!((dphi + TAU * f_hz * delay_s).abs() < 1e-6, "{dphi}");
+    }
+
+    #[test]
+    fn a_delay_outside_0_to_1_s_is_refused_with_its_value() {
+        for bad in [-0.001, 2.0, f64::NAN] {
+            let mut raw = EstimatorConfigRaw::new(1000.0, [1.0; 3]);
+            raw.delay_s = bad;
+            let e = EstimatorConfig::try_from(raw).unwrap_err().to_string();
+            assert!(
+                e.contains(&format!(
+                    "delay_s = {bad}: must be finite and 0 <= delay <= 1 s"
+                )),
+                "{e}"
+            );
+        }
     }
 }

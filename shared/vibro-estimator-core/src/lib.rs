@@ -333,7 +333,10 @@ impl InProcess {
                      are kept out of the estimates (further ones are counted)"
                 );
             }
-            let from = block.t0_ns;
+            // In the estimates' time: the samples' stamps less the chain's delay.
+            let from = block
+                .t0_ns
+                .saturating_sub(self.estimator.config().delay_ns());
             let to = from.saturating_add(
                 block
                     .sample_period_ns

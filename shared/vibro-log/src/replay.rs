@@ -351,6 +351,11 @@ struct Consumer {
     next_probe: Instant,
 }
 
+/// The longest a lock-stepped replay waits at its end for the compensator to release
+/// the blocks its waveform stage holds (they go out after 0.25 s of silence on the
+/// sensors' stream, `vibro_compensator::waveform::SILENCE_NS`).
+const HELD_RELEASE_MAX: Duration = Duration::from_secs(2);
+
 /// How often a replay looks whether its consumers' processes are still there (a list
 /// of the progress stream's publishers and of iceoryx2's nodes: a few file reads).
 const PROBE_PERIOD: Duration = Duration::from_millis(250);
@@ -578,6 +583,21 @@ impl Consumer {
             self.received = self.received.max(m.received);
             self.samples_to_output = m.input_samples_to_output;
             self.samples_per_output = m.input_samples_per_output;
+        }
+        Ok(())
+    }
+
+    /// Waits until the service reports nothing held (`input_samples_to_output` 0: the
+    /// compensator's readings waiting for their vibration samples), at most `max`.
+    fn wait_released(&mut self, max: Duration, stop: &AtomicBool) -> Result<()> {
+        let t = Instant::now();
+        self.poll()?;
+        while self.samples_to_output > 0 && t.elapsed() < max && !stop.load(Ordering::Acquire) {
+            let _ = self
+                .progress
+                .listener()
+                .timed_wait(|_| {}, Duration::from_millis(10));
+            self.poll()?;
         }
         Ok(())
     }
@@ -1506,6 +1526,11 @@ impl<'a> Replayer<'a> {
                 }
                 if let Some(c) = &mut lock.compensator {
                     c.wait_for(self.accel_sent, self.options.stall_timeout, self.stop)?;
+                    // The waveform stage holds the last blocks until the sensors'
+                    // stream has been silent a while (the log's last samples cannot
+                    // cover them): wait until it has published them, so that a
+                    // recorder stopped right after the replay records every block.
+                    c.wait_released(HELD_RELEASE_MAX, self.stop)?;
                 }
                 self.wait_s += t.elapsed().as_secs_f64();
             }

@@ -110,6 +110,9 @@ pub fn import(plan: &ImportPlan, progress: &mut dyn ImportProgress) -> Result<Im
             Err(mut p) => problems.extend(p.lines()),
         }
     }
+    if let Some(rig) = &plan.rig {
+        problems.extend(rate_against_rig(plan, rig, &scans));
+    }
     if !problems.is_empty() {
         progress.sink.finish();
         return Err(Error::CsvInput { problems });
@@ -310,9 +313,41 @@ pub fn import(plan: &ImportPlan, progress: &mut dyn ImportProgress) -> Result<Im
     })
 }
 
+/// Largest relative difference between the rate a rig file states (`sensors.rate_hz`)
+/// and a vibration CSV's rate: a CSV's time column printed to the microsecond over a
+/// second measures the rate to 1e-6.
+const RIG_RATE_TOLERANCE: f64 = 1e-6;
+
+/// The vibration CSV's rate against the rate the rig file states, if it states one: a
+/// problem naming both files, the key, both rates and the rule when they disagree.
+fn rate_against_rig(
+    plan: &ImportPlan,
+    rig: &vibro_config::RigConfig,
+    scans: &[super::scan::Scan],
+) -> Option<String> {
+    let rig_hz = rig.sensors.rate_hz?;
+    let (spec, scan) = plan
+        .streams
+        .iter()
+        .zip(scans)
+        .find(|(spec, _)| spec.kind == ImportKind::Vib)?;
+    let csv_hz = 1.0 / scan.period_s;
+    ((csv_hz - rig_hz).abs() > RIG_RATE_TOLERANCE * rig_hz).then(|| {
+        format!(
+            "{}: sensors.rate_hz = {rig_hz}, but the vibration CSV {} is at {csv_hz} Hz ({}): \
+             the CSV must be at the rig's sensor rate (within {RIG_RATE_TOLERANCE:e} relative)",
+            rig.file,
+            spec.file.display(),
+            scan.rate_from
+        )
+    })
+}
+
 /// The log's `rig` metadata: the rig file, its reference, and the sensor settings the
 /// lab's estimator takes from a log (`sensor_hz`, `sensor_sensitivity_v_per_g` per
-/// sensor, `sensor_ac_corner_hz`; the keys of a simulated log's `scenario`).
+/// sensor, `sensor_ac_corner_hz`, `sensor_delay_s`; the keys of a simulated log's
+/// `scenario`, plus the chain's delay: a sample stamped `s` saw the base at
+/// `s - sensor_delay_s`).
 fn rig_metadata(
     plan: &ImportPlan,
     rig: &vibro_config::RigConfig,
@@ -333,6 +368,10 @@ fn rig_metadata(
         (
             "sensor_ac_corner_hz".to_string(),
             rig.sensors.ac_corner_hz.unwrap_or(0.0).to_string(),
+        ),
+        (
+            "sensor_delay_s".to_string(),
+            rig.sensors.delay_s.to_string(),
         ),
     ]);
     if let Some(r) = &plan.reference {
