@@ -44,6 +44,9 @@ struct Pending {
     block: CompensatedBlock,
     readings_g: [[f64; 3]; ACCEL_BLOCK_MAX],
     recv_ns: u64,
+    /// Readings solved so far (each as soon as the samples cover it), and their answers.
+    solved: usize,
+    out_g: [[f64; 3]; ACCEL_BLOCK_MAX],
 }
 
 /// Why held blocks went out with the estimate stage's answer, and what the stage did.
@@ -111,7 +114,6 @@ pub(crate) struct WaveformPath {
     continuity: Continuity,
     /// End of the newest accelerometer block's last reading, ns.
     newest_accel_end_ns: u64,
-    out_g: [[f64; 3]; ACCEL_BLOCK_MAX],
     /// The model has effects (their hooks run in the stage).
     model_effects: bool,
     pub(crate) counts: WaveformCounts,
@@ -143,7 +145,6 @@ impl WaveformPath {
             last_vib_recv_ns: None,
             continuity: Continuity::new(),
             newest_accel_end_ns: 0,
-            out_g: [[0.0; 3]; ACCEL_BLOCK_MAX],
             model_effects: model.effects.is_some(),
             counts: WaveformCounts::default(),
         }))
@@ -194,6 +195,7 @@ impl WaveformPath {
             b.flags & vib_flags::SATURATED != 0,
             arrival.gap() || b.flags & vib_flags::GAP_BEFORE != 0,
         );
+        self.advance();
     }
 
     /// Holds a block (its estimate-stage answer, and the readings `U/K1`).
@@ -211,13 +213,65 @@ impl WaveformPath {
             block: *block,
             readings_g: r,
             recv_ns,
+            solved: 0,
+            out_g: [[f64::NAN; 3]; ACCEL_BLOCK_MAX],
         });
         self.counts.max_pending = self.counts.max_pending.max(self.pending.len() as u64);
+        self.advance();
+    }
+
+    /// Solves the held readings the samples cover, in order, each as soon as they do:
+    /// when the samples that complete a block arrive, only the readings they cover are
+    /// left to solve (about half a block's with 20 ms sensor blocks), not the block.
+    fn advance(&mut self) {
+        let stage = &mut self.stage;
+        for p in self.pending.iter_mut() {
+            let count = p.block.count as usize;
+            if p.solved >= count {
+                continue;
+            }
+            let period = p.block.sample_period_ns;
+            let first_end = p
+                .block
+                .t0_ns
+                .saturating_add(period.saturating_mul(p.solved as u64));
+            let left = count - p.solved;
+            // The most readings from `solved` on that the samples cover (monotone in n).
+            let n = if stage.coverage(first_end, period, left) == Coverage::Ready {
+                left
+            } else {
+                let (mut lo, mut hi) = (0usize, left - 1);
+                while lo < hi {
+                    let mid = (lo + hi + 1) / 2;
+                    if stage.coverage(first_end, period, mid) == Coverage::Ready {
+                        lo = mid;
+                    } else {
+                        hi = mid - 1;
+                    }
+                }
+                lo
+            };
+            if n == 0 {
+                break;
+            }
+            let range = p.solved..p.solved + n;
+            stage.compensate(
+                first_end,
+                period,
+                &p.readings_g[range.clone()],
+                &mut p.out_g[range],
+            );
+            p.solved += n;
+            if p.solved < count {
+                break;
+            }
+        }
     }
 
     /// The next block that may go out at wall-clock `now_ns`, decided (module docs);
     /// `None` while the oldest held block still waits.
     pub(crate) fn next_ready(&mut self, now_ns: u64) -> Option<CompensatedBlock> {
+        self.advance();
         let front = self.pending.front()?;
         let b = &front.block;
         let count = b.count as usize;
@@ -226,17 +280,22 @@ impl WaveformPath {
             .t0_ns
             .saturating_add(period.saturating_mul((count as u64).saturating_sub(1)));
         let max_wait = self.max_wait_ns.unwrap_or(self.vib_block_ns);
+        let left_end = b
+            .t0_ns
+            .saturating_add(period.saturating_mul(front.solved as u64));
         let decision = if count == 0 {
             Some(Decision::Fallback(Reason::Never))
+        } else if front.solved == count {
+            Some(Decision::Solve)
         } else if self.pending.len() > MAX_PENDING {
             Some(Decision::Fallback(Reason::Full))
         } else if self.last_vib_recv_ns.is_none() {
             // No sensor stream (yet): nothing to wait for.
             Some(Decision::Fallback(Reason::Never))
         } else {
-            match self.stage.coverage(b.t0_ns, period, count) {
-                Coverage::Ready => Some(Decision::Solve),
-                Coverage::Never => Some(Decision::Fallback(Reason::Never)),
+            match self.stage.coverage(left_end, period, count - front.solved) {
+                // `advance` solves what is covered: not reached.
+                Coverage::Ready | Coverage::Never => Some(Decision::Fallback(Reason::Never)),
                 Coverage::NotYet => {
                     let silent = self
                         .last_vib_recv_ns
@@ -254,15 +313,11 @@ impl WaveformPath {
         };
         let decision = decision?;
         let Pending {
-            mut block,
-            readings_g,
-            ..
+            mut block, out_g, ..
         } = self.pending.pop_front()?;
         match decision {
             Decision::Solve => {
-                let out = &mut self.out_g[..count];
-                self.stage
-                    .compensate(block.t0_ns, period, &readings_g[..count], out);
+                let out = &out_g[..count];
                 // A reading the estimate stage set NaN (not finite, out of range) stays so.
                 let finite = out
                     .iter()

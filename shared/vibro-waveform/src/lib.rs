@@ -7,9 +7,10 @@
 //!
 //! 1. the sensors' samples with their chain undone ([`chain`]: sensitivity, the AC
 //!    coupling's high-pass inverted, the stated delay taken off the time stamps);
-//! 2. interpolated band-limited ([`kernel`]: a Kaiser-windowed sinc) onto a fine grid of
-//!    `M` midpoints per reading (at least twice the sensor rate and 25.6 kHz, so that
-//!    FP's fifth power of the vibration is resolved: section 12's quadrature);
+//! 2. interpolated band-limited ([`kernel`]: a Kaiser-windowed sinc) onto a grid of
+//!    `M + 1` points per reading, its ends on the interval's (at least the sensor rate
+//!    and 25.6 kHz, so that FP's fifth power of the vibration is resolved), and averaged
+//!    by Gregory's end-corrected rule (section 12's quadrature);
 //! 3. mapped from the sensors (each along its unit's IA) to the body frame and to each
 //!    unit's `[OA, PA, IA]` (`TriadAxes`, as `vibro_effects::mapping` maps estimates);
 //! 4. through the model's path effects (`Effect::at_unit_input`: mount, the unit's own

@@ -213,3 +213,82 @@ fn a_replay_run_twice_is_taken_up_after_three_copies() {
     // The new segment starts at block 3 (240 ms): readings after it are covered again.
     assert_eq!(cover(&s, 300_000_000), Coverage::Ready);
 }
+
+/// Hostile streams: random `seq`, index, time stamps, periods (down to 1 ns and up to
+/// 100 s), flags and values (NaN, infinities, 1e300), interleaved with reading blocks
+/// of random timing and values. Nothing panics, the ring never grows past its cap, and
+/// every reading block gets an answer: solved (finite, or NaN for a non-finite
+/// reading) or refused as never covered.
+#[test]
+fn no_sequence_of_blocks_panics_or_grows_without_bound() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(46);
+    let mut s = stage();
+    let pick = |rng: &mut rand_chacha::ChaCha8Rng, good: u64| -> u64 {
+        match rng.random_range(0..6) {
+            0 => rng.random(),
+            1 => 0,
+            2 => u64::MAX - rng.random_range(0..3),
+            _ => good,
+        }
+    };
+    let (mut seq, mut index, mut t0) = (0u64, 0u64, 1_000_000_000u64);
+    for round in 0..3000 {
+        let period = match rng.random_range(0..8) {
+            0 => 1,
+            1 => 100_000_000_000,
+            2 => rng.random_range(1..10_000_000),
+            _ => PERIOD_NS,
+        };
+        let n = rng.random_range(0..=N);
+        let values: Vec<[f64; 3]> = (0..n)
+            .map(|_| match rng.random_range(0..40) {
+                0 => [f64::NAN, 0.0, 0.0],
+                1 => [f64::INFINITY, 1e300, -1e300],
+                _ => [
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-1.0..1.0),
+                    0.0,
+                ],
+            })
+            .collect();
+        let b_seq = pick(&mut rng, seq);
+        let b_index = pick(&mut rng, index);
+        let b_t0 = pick(&mut rng, t0);
+        s.push_vib(
+            b_seq,
+            b_index,
+            b_t0,
+            period,
+            &values,
+            rng.random_range(0..20) == 0,
+            rng.random_range(0..20) == 0,
+        );
+        seq = seq.wrapping_add(1);
+        index = index.wrapping_add(n as u64);
+        t0 = t0.wrapping_add(n as u64 * PERIOD_NS);
+        if round % 2 == 0 {
+            let reading_period = match rng.random_range(0..6) {
+                0 => 1,
+                1 => rng.random(),
+                _ => 1_250_000,
+            };
+            let count = rng.random_range(0..=32);
+            let end = pick(&mut rng, t0.saturating_sub(100_000_000));
+            let readings: Vec<[f64; 3]> = (0..count)
+                .map(|_| match rng.random_range(0..30) {
+                    0 => [f64::NAN; 3],
+                    1 => [1e300, -1e300, 0.0],
+                    _ => [rng.random_range(-5.0..5.0), 0.5, 1.0],
+                })
+                .collect();
+            if s.coverage(end, reading_period, count) == Coverage::Ready {
+                let mut out = vec![[0.0; 3]; count];
+                s.compensate(end, reading_period, &readings, &mut out);
+            }
+        }
+    }
+    let c = s.counters();
+    assert!(c.vib_blocks == 3000);
+    assert!(c.breaks > 100 && c.refused > 10, "{c:?}");
+}
