@@ -242,7 +242,7 @@ impl WaveformPath {
             } else {
                 let (mut lo, mut hi) = (0usize, left - 1);
                 while lo < hi {
-                    let mid = (lo + hi + 1) / 2;
+                    let mid = (lo + hi).div_ceil(2);
                     if stage.coverage(first_end, period, mid) == Coverage::Ready {
                         lo = mid;
                     } else {
