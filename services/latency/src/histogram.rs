@@ -42,6 +42,11 @@ pub(crate) struct Stamps {
     pub(crate) publish_ns: u64,
     pub(crate) sub_recv_ns: u64,
     pub(crate) count: u32,
+    /// The compensated block's flags (`compensation_flags`).
+    pub(crate) flags: u32,
+    /// The newest vibration block the rig published before this block's publish
+    /// (`RigStream::stamp_vib`; 0 until stamped, or when none was).
+    pub(crate) last_vib_publish_ns: u64,
 }
 
 impl Stamps {
@@ -55,6 +60,8 @@ impl Stamps {
             publish_ns: b.publish_ns,
             sub_recv_ns,
             count: b.count,
+            flags: b.flags,
+            last_vib_publish_ns: 0,
         }
     }
 }
@@ -64,6 +71,19 @@ pub(crate) struct Histograms {
     pub(crate) processing: Histogram<u64>,
     pub(crate) service_to_subscriber: Histogram<u64>,
     pub(crate) end_to_end: Histogram<u64>,
+    /// Rig publish of the accelerometer block -> compensator publish: what the
+    /// pipeline adds before the last transport hop (with the waveform stage, the wait
+    /// for the samples covering the block).
+    pub(crate) input_to_publish: Histogram<u64>,
+    /// The last input the block needed, published by the rig -> compensator publish:
+    /// for a block the waveform stage made (`WAVEFORM`), the later of its accelerometer
+    /// block and the newest vibration block before its publish (the one whose samples
+    /// released it); for the others, its accelerometer block. One transport hop and
+    /// the compensator's work, without the wait.
+    pub(crate) last_input_to_publish: Histogram<u64>,
+    /// Compensated blocks recorded, and those the waveform stage made.
+    pub(crate) blocks: u64,
+    pub(crate) waveform_blocks: u64,
 }
 
 impl Histograms {
@@ -74,6 +94,10 @@ impl Histograms {
             processing: h()?,
             service_to_subscriber: h()?,
             end_to_end: h()?,
+            input_to_publish: h()?,
+            last_input_to_publish: h()?,
+            blocks: 0,
+            waveform_blocks: 0,
         })
     }
 
@@ -85,6 +109,20 @@ impl Histograms {
             .service_to_subscriber
             .record(d(s.sub_recv_ns, s.publish_ns));
         let _ = self.end_to_end.record(d(s.sub_recv_ns, s.input_publish_ns));
+        let _ = self
+            .input_to_publish
+            .record(d(s.publish_ns, s.input_publish_ns));
+        let waveform = s.flags & vibro_msgs::compensation_flags::WAVEFORM != 0;
+        let last_input_ns = if waveform {
+            s.input_publish_ns.max(s.last_vib_publish_ns)
+        } else {
+            s.input_publish_ns
+        };
+        let _ = self
+            .last_input_to_publish
+            .record(d(s.publish_ns, last_input_ns));
+        self.blocks += 1;
+        self.waveform_blocks += u64::from(waveform);
     }
 }
 
@@ -229,6 +267,38 @@ mod tests {
     }
 
     #[test]
+    fn a_waveform_block_is_timed_from_the_vibration_block_that_released_it() {
+        let mut h = Histograms::new().unwrap();
+        let waveform = vibro_msgs::compensation_flags::WAVEFORM;
+        // Accelerometer block published at 1 ms, the covering vibration block at
+        // 21 ms, the compensated block at 21.1 ms.
+        let s = Stamps {
+            input_publish_ns: 1_000_000,
+            recv_ns: 1_050_000,
+            publish_ns: 21_100_000,
+            sub_recv_ns: 21_150_000,
+            flags: waveform,
+            last_vib_publish_ns: 21_000_000,
+            ..Stamps::default()
+        };
+        h.record(&s);
+        // The estimate stage's block is timed from its accelerometer block, whatever
+        // vibration block came before its publish.
+        h.record(&Stamps { flags: 0, ..s });
+        // A waveform block whose samples were there before it: from its own block.
+        h.record(&Stamps {
+            last_vib_publish_ns: 500_000,
+            ..s
+        });
+        let within = |v: u64, want: u64| v.abs_diff(want) <= want / 500;
+        assert!(within(h.input_to_publish.max(), 20_100_000));
+        assert!(within(h.last_input_to_publish.min(), 100_000));
+        assert!(within(h.last_input_to_publish.max(), 20_100_000));
+        assert_eq!(h.last_input_to_publish.count_between(0, 200_000), 1);
+        assert_eq!((h.blocks, h.waveform_blocks), (3, 2));
+    }
+
+    #[test]
     fn a_block_records_each_hop_from_its_stamps() {
         let mut h = Histograms::new().unwrap();
         h.record(&Stamps {
@@ -250,6 +320,8 @@ mod tests {
         assert_eq!(h.processing.max(), 100);
         assert_eq!(h.service_to_subscriber.max(), 500);
         assert_eq!(h.end_to_end.max(), 1_100);
+        assert_eq!(h.input_to_publish.max(), 600);
+        assert_eq!((h.blocks, h.waveform_blocks), (2, 0));
         for x in [&h.rig_to_service, &h.end_to_end] {
             assert_eq!(x.min(), 1);
             assert_eq!(x.len(), 2);

@@ -42,7 +42,7 @@ pub(crate) fn run_bridged(
     opts: &Options,
     k1: [f64; 3],
     log: &Path,
-    estimator_config: Option<&Path>,
+    (estimator_config, compensator_config): (Option<&Path>, Option<&Path>),
 ) -> anyhow::Result<PipelineRun> {
     let prefix = private_prefix("vclatz");
     let base = std::env::temp_dir().join(format!("vibrocomp-latency-{}-hosts", std::process::id()));
@@ -51,10 +51,13 @@ pub(crate) fn run_bridged(
     let result = (|| {
         let mut spec_b = spec_for(&prefix, opts.mode, opts.realtime_priority);
         spec_b.estimator_config = estimator_config.map(Path::to_path_buf);
-        spec_b.compensator_config = std::fs::canonicalize(
-            <vibro_compensator::Config as vibro_service::ServiceConfig>::DEFAULT_CONFIG_PATH,
-        )
-        .ok();
+        spec_b.compensator_config = match compensator_config {
+            Some(p) => Some(p.to_path_buf()),
+            None => std::fs::canonicalize(
+                <vibro_compensator::Config as vibro_service::ServiceConfig>::DEFAULT_CONFIG_PATH,
+            )
+            .ok(),
+        };
         spec_b.cwd = Some(hosts.b.dir.clone());
         spec_b.bridge = Some(hosts.b.bridge_config.clone());
         // Host A's bridge: in this process's iceoryx2 root.
@@ -104,13 +107,16 @@ pub(crate) fn run_bridged(
         lost.extend(service_losses("estimator", &e, "vib"));
         lost.extend(bridge_losses("bridge A", &ba));
         lost.extend(bridge_losses("bridge B", &bb));
-        summarize(
+        let mut run = summarize(
             "vibrocomp, 2 hosts (iceoryx2 + Zenoh bridges over a Unix socket)",
             opts,
             (ka, kv, &stamps),
             lost,
             cpu,
-        )
+        )?;
+        run.stage = c["stage"].as_str().map(str::to_string);
+        run.waveform = c.get("waveform").cloned();
+        Ok(run)
     })();
     drop(hosts);
     let _ = std::fs::remove_dir_all(&base);

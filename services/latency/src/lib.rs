@@ -27,6 +27,16 @@
 //! The estimator runs with `sample_rate_hz = --vib-rate-hz` (a private copy of its
 //! default configuration when the rates differ: it refuses blocks at any other rate).
 //!
+//! **The compensator's stage** (issue 43): its default configuration's `stage`
+//! (`waveform` as shipped), or the one [`run_with_stage`] is given (a private copy of
+//! its default configuration with `stage` set; `vibrocomp latency --stage`). With the waveform stage the compensator holds each accelerometer block
+//! until the vibration samples cover its readings (plus the interpolation's
+//! half-width), so the rig keeps the sensors' stream going for one vibration block
+//! after the run (`rig::pace`) and the report adds two hops: accelerometer publish ->
+//! compensated publish (with the wait), and last input publish -> compensated publish
+//! (the vibration block that released the block: without the wait), and the fraction
+//! of blocks the stage made (flag `WAVEFORM`).
+//!
 //! **Soak** (`--soak`, issue 18): the vibrocomp pipeline alone for `--duration-s`,
 //! optionally beside a background load (`--load INPUT`: a child process running
 //! `vibrocomp lab diagnose INPUT` in a loop, `--load-jobs` at a time, for the whole
@@ -225,10 +235,44 @@ pub enum Report {
     Soak(Box<SoakReport>),
 }
 
-/// Runs the pipelines (or the soak) and returns what they measured. Its temporary
-/// files (the processes' shared log, a private estimator configuration) are removed
-/// before it returns, an error or not.
+/// The compensator's stage in the vibrocomp pipeline (its configuration's `stage`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// Each reading solved from the vibration sensors' samples (MODEL.md section 12).
+    Waveform,
+    /// The paper's stages (17)-(20) only.
+    Estimate,
+}
+
+impl Stage {
+    /// The configuration's word for it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Waveform => "waveform",
+            Self::Estimate => "estimate",
+        }
+    }
+
+    /// `waveform` or `estimate`.
+    pub fn parse(word: &str) -> anyhow::Result<Self> {
+        match word {
+            "waveform" => Ok(Self::Waveform),
+            "estimate" => Ok(Self::Estimate),
+            other => bail!("stage {other:?}: must be \"waveform\" or \"estimate\""),
+        }
+    }
+}
+
+/// [`run_with_stage`] with the compensator's configured stage.
 pub fn run(options: &Options) -> anyhow::Result<Report> {
+    run_with_stage(options, None)
+}
+
+/// Runs the pipelines (or the soak) with the compensator's `stage` (`None`: its
+/// configuration's) and returns what they measured. Its temporary files (the
+/// processes' shared log, private estimator and compensator configurations) are
+/// removed before it returns, an error or not.
+pub fn run_with_stage(options: &Options, stage: Option<Stage>) -> anyhow::Result<Report> {
     options.check()?;
     let prefix = match &options.prefix {
         Some(p) => p.clone(),
@@ -246,17 +290,49 @@ pub fn run(options: &Options) -> anyhow::Result<Report> {
     // The estimator's configuration follows --vib-rate-hz (its blocks are refused at
     // any other rate).
     let estimator_config = estimator_config_for(options.vib_rate_hz, &tmp("estimator.toml"))?;
-    let est = estimator_config.as_deref();
+    let compensator_config = match stage {
+        Some(s) => Some(compensator_config_for(s, &tmp("compensator.toml"))?),
+        None => None,
+    };
+    let configs = (estimator_config.as_deref(), compensator_config.as_deref());
     let result = if options.soak {
-        soak::run_soak(options, k1, &log, &prefix, est).map(|r| Report::Soak(Box::new(r)))
+        soak::run_soak(options, k1, &log, &prefix, configs).map(|r| Report::Soak(Box::new(r)))
     } else {
-        pipelines::run_pipelines(options, k1, &log, &prefix, est).map(Report::Pipelines)
+        pipelines::run_pipelines(options, k1, &log, &prefix, configs).map(Report::Pipelines)
     };
     let _ = std::fs::remove_file(&log);
-    if let Some(p) = &estimator_config {
+    for p in [&estimator_config, &compensator_config]
+        .into_iter()
+        .flatten()
+    {
         let _ = std::fs::remove_file(p);
     }
     result
+}
+
+/// The compensator's default configuration (the file, else the shipped text) with
+/// `stage` set, written to `path` and validated.
+fn compensator_config_for(stage: Stage, path: &Path) -> anyhow::Result<PathBuf> {
+    type C = vibro_compensator::Config;
+    let default = Path::new(<C as ServiceConfig>::DEFAULT_CONFIG_PATH);
+    let (text, source) = if default.is_file() {
+        (
+            vibro_service::read_config_file(default)?,
+            default.display().to_string(),
+        )
+    } else {
+        (
+            <C as ServiceConfig>::shipped_text().to_string(),
+            "the shipped compensator configuration".to_string(),
+        )
+    };
+    let mut table: toml::Table = text.parse().with_context(|| source.clone())?;
+    table.insert("stage".into(), toml::Value::String(stage.name().into()));
+    vibro_files::write_bytes(path, true, toml::to_string(&table)?.as_bytes())
+        .with_context(|| format!("writing {}", path.display()))?;
+    <C as ServiceConfig>::load(path)
+        .with_context(|| format!("{source} with stage = {:?} is not valid", stage.name()))?;
+    Ok(path.to_path_buf())
 }
 
 /// The estimator's configuration for `--vib-rate-hz`: `None` (its default one) when
@@ -320,6 +396,23 @@ mod tests {
         ] {
             assert!(bad.check().is_err(), "{bad:?}");
         }
+    }
+
+    #[test]
+    fn the_compensator_runs_the_stage_it_is_given() {
+        let path = std::env::temp_dir().join(format!(
+            "vibro-latency-test-{}.compensator.toml",
+            std::process::id()
+        ));
+        for stage in [Stage::Estimate, Stage::Waveform] {
+            assert_eq!(compensator_config_for(stage, &path).unwrap(), path);
+            let text = std::fs::read_to_string(&path).unwrap();
+            let table: toml::Table = text.parse().unwrap();
+            assert_eq!(table["stage"].as_str(), Some(stage.name()));
+            assert_eq!(Stage::parse(stage.name()).unwrap(), stage);
+        }
+        let _ = std::fs::remove_file(&path);
+        assert!(Stage::parse("fast").is_err());
     }
 
     #[test]

@@ -39,6 +39,27 @@ pub struct PipelineRun {
     pub processing: HopUs,
     pub service_to_subscriber: HopUs,
     pub end_to_end: HopUs,
+    /// Rig publish of the accelerometer block -> service publish (rig -> service and
+    /// processing together): with the compensator's waveform stage, the wait for the
+    /// vibration block covering the block's end is in it.
+    pub input_to_publish: HopUs,
+    /// Rig publish of the last input a block needed -> service publish: for a block
+    /// the waveform stage made, the later of its accelerometer block and the newest
+    /// vibration block before its publish (the samples that released it); for the
+    /// others, its accelerometer block. One transport hop and the service's work,
+    /// without the wait for the samples.
+    pub last_input_to_publish: HopUs,
+    /// The compensator's stage (`waveform` or `estimate`, from its summary; `None`
+    /// for the baselines).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stage: Option<String>,
+    /// Compensated blocks after the warm-up made by the waveform stage (flag
+    /// `WAVEFORM`, bit 11), over all compensated blocks after the warm-up.
+    pub waveform_fraction: f64,
+    /// The compensator's waveform-stage counters (its summary's `waveform`: blocks
+    /// solved, fallbacks by reason, most blocks held), when it ran the stage.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub waveform: Option<serde_json::Value>,
     /// Percent of one core over the run.
     pub cpu_percent: Vec<(String, f64)>,
     /// With `--view`: the live view and its client over the run.
@@ -161,15 +182,16 @@ pub(crate) fn run_pipelines(
     k1: [f64; 3],
     log: &Path,
     prefix: &str,
-    estimator_config: Option<&Path>,
+    (estimator_config, compensator_config): (Option<&Path>, Option<&Path>),
 ) -> anyhow::Result<LatencyReport> {
-    let mut runs = vec![run_vibrocomp(opts, k1, log, prefix, estimator_config)?.run];
+    let configs = (estimator_config, compensator_config);
+    let mut runs = vec![run_vibrocomp(opts, k1, log, prefix, configs)?.run];
     if opts.baselines {
         runs.push(run_bare(opts, k1, log)?);
         runs.push(run_uds(opts, k1, log, estimator_config)?);
     }
     if opts.two_hosts {
-        runs.push(hosts::run_bridged(opts, k1, log, estimator_config)?);
+        runs.push(hosts::run_bridged(opts, k1, log, configs)?);
         if opts.baselines {
             runs.push(hosts::run_bare_zenoh(opts, k1, log)?);
         }
@@ -218,6 +240,15 @@ pub(crate) fn summarize(
         processing: hop(&h.processing),
         service_to_subscriber: hop(&h.service_to_subscriber),
         end_to_end: hop(&h.end_to_end),
+        input_to_publish: hop(&h.input_to_publish),
+        last_input_to_publish: hop(&h.last_input_to_publish),
+        stage: None,
+        waveform_fraction: if h.blocks > 0 {
+            h.waveform_blocks as f64 / h.blocks as f64
+        } else {
+            0.0
+        },
+        waveform: None,
         cpu_percent,
         view: None,
     })
@@ -254,10 +285,11 @@ pub(crate) fn run_vibrocomp(
     k1: [f64; 3],
     log: &Path,
     prefix: &str,
-    estimator_config: Option<&Path>,
+    (estimator_config, compensator_config): (Option<&Path>, Option<&Path>),
 ) -> anyhow::Result<VibrocompRun> {
     let mut spec = spec_for(prefix, opts.mode, opts.realtime_priority);
     spec.estimator_config = estimator_config.map(Path::to_path_buf);
+    spec.compensator_config = compensator_config.map(Path::to_path_buf);
     let mut est = spec.spawn(Role::Estimator, Some(log))?;
     let mut comp = spec.spawn(Role::Compensator, Some(log))?;
     wait_for_heartbeats(
@@ -324,6 +356,8 @@ pub(crate) fn run_vibrocomp(
     };
     let mut run = summarize(name, opts, (ka, kv, &stamps), lost, cpu)?;
     run.view = view;
+    run.stage = c["stage"].as_str().map(str::to_string);
+    run.waveform = c.get("waveform").cloned();
     Ok(VibrocompRun {
         run,
         stamps,
@@ -426,9 +460,10 @@ fn run_uds(
     // Closing the rig's ends stops the peer, which closes its answers: EOF.
     let _ = vib_sock.shutdown(std::net::Shutdown::Both);
     let _ = accel_sock.shutdown(std::net::Shutdown::Write);
-    let stamps = rx
+    let mut stamps = rx
         .join()
         .map_err(|_| anyhow::anyhow!("the socket receiver panicked"))??;
+    stream.stamp_vib(&mut stamps);
     let cpu = cpu.finish();
     drop(guard);
     let _ = std::fs::remove_dir_all(&dir);

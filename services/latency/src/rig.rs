@@ -50,6 +50,9 @@ pub(crate) struct RigStream {
     vib_period_ns: f64,
     accel_block_ns: u64,
     vib_block_ns: u64,
+    /// When each vibration block was published (`publish_ns`), in order: what a
+    /// compensated block made by the waveform stage waited for ([`Self::stamp_vib`]).
+    vib_publish_ns: Vec<u64>,
 }
 
 impl RigStream {
@@ -76,6 +79,20 @@ impl RigStream {
             vib_period_ns,
             accel_block_ns: (accel_period_ns * f64::from(opts.block_samples)) as u64,
             vib_block_ns: (vib_period_ns * f64::from(opts.vib_block_samples)) as u64,
+            // The run's blocks and the tail's, sized once (no allocation in the loop).
+            vib_publish_ns: Vec::with_capacity(
+                (opts.duration_s * opts.vib_rate_hz / f64::from(opts.vib_block_samples)) as usize
+                    + 64,
+            ),
+        }
+    }
+
+    /// Sets each compensated block's `last_vib_publish_ns`: the publish time of the
+    /// newest vibration block published before the block's own publish (0: none).
+    pub(crate) fn stamp_vib(&self, stamps: &mut [Stamps]) {
+        for s in stamps {
+            let n = self.vib_publish_ns.partition_point(|&t| t <= s.publish_ns);
+            s.last_vib_publish_ns = n.checked_sub(1).map_or(0, |i| self.vib_publish_ns[i]);
         }
     }
 
@@ -106,12 +123,21 @@ impl RigStream {
             self.vib.sample_v[i] = self.signal.vib_v(t_s);
         }
         self.vib.publish_ns = now_ns();
+        self.vib_publish_ns.push(self.vib.publish_ns);
         &self.vib
     }
 }
 
 /// Sends the run's blocks in real time: `send(Some(accel), None)` or `(None, Some(vib))`
-/// in data-time order. Returns (accel, vib) blocks sent.
+/// in data-time order. Returns (accel, vib) blocks sent in the run.
+///
+/// After the run's last block the vibration stream goes on, in real time, until its
+/// samples reach one vibration block past the last accelerometer block's end (the
+/// sensors do not stop with the accelerometer): the compensator's waveform stage holds
+/// each accelerometer block until the samples cover its readings plus the
+/// interpolation's half-width, so without this tail the last block would wait for
+/// the stage's silence rule (250 ms) and miss the rig. The tail's blocks are not
+/// counted in the returned vib count.
 pub(crate) fn pace(
     opts: &Options,
     stream: &mut RigStream,
@@ -140,6 +166,17 @@ pub(crate) fn pace(
             send_accel(stream.accel_block(ka))?;
             ka += 1;
         }
+    }
+    let tail_end_ns = ka * stream.accel_block_ns + stream.vib_block_ns;
+    let mut tail = kv;
+    while ka > 0 && tail * stream.vib_block_ns < tail_end_ns {
+        let due = (tail + 1) * stream.vib_block_ns;
+        let now = start.elapsed().as_nanos() as u64;
+        if due > now {
+            std::thread::sleep(Duration::from_nanos(due - now));
+        }
+        send_vib(stream.vib_block(tail))?;
+        tail += 1;
     }
     Ok((ka, kv))
 }
@@ -249,9 +286,10 @@ pub(crate) fn run_iceoryx(
     // The last outputs: a moment to arrive.
     std::thread::sleep(Duration::from_millis(300));
     stop.store(true, Ordering::Release);
-    let stamps = rx
+    let mut stamps = rx
         .join()
         .map_err(|_| anyhow::anyhow!("the receiver thread panicked"))??;
+    stream.stamp_vib(&mut stamps);
     Ok((ka, kv, stamps))
 }
 
@@ -286,5 +324,44 @@ mod tests {
             .iter()
             .flatten()
             .all(|x| x.abs() <= 0.1 * 1.5));
+    }
+
+    #[test]
+    fn the_sensor_stream_runs_one_block_past_the_last_accelerometer_block() {
+        // 0.1 s: 2 accelerometer blocks (40 ms each, the third is due at 120 ms) and 5
+        // vibration blocks (20 ms each) in the run; then the tail up to 80 + 20 ms of
+        // samples: none more, the run's 5 blocks already reach 100 ms. At 0.09 s: 2 and
+        // 4 in the run, and 1 in the tail.
+        for (duration_s, run_vib, all_vib) in [(0.1, 5, 5), (0.09, 4, 5)] {
+            let opts = Options {
+                duration_s,
+                ..Options::default()
+            };
+            let mut s = RigStream::new(&opts, [1.0; 3]);
+            let mut vib_sent = 0;
+            let (ka, kv) = pace(
+                &opts,
+                &mut s,
+                |_| Ok(()),
+                |_| {
+                    vib_sent += 1;
+                    Ok(())
+                },
+            )
+            .unwrap();
+            assert_eq!((ka, kv, vib_sent), (2, run_vib, all_vib), "{duration_s} s");
+            // Each compensated block is stamped with the newest sensor block before it.
+            let mut stamps = [s.vib_publish_ns[1] + 1, 0, u64::MAX].map(|publish_ns| Stamps {
+                publish_ns,
+                ..Stamps::default()
+            });
+            s.stamp_vib(&mut stamps);
+            assert_eq!(stamps[0].last_vib_publish_ns, s.vib_publish_ns[1]);
+            assert_eq!(stamps[1].last_vib_publish_ns, 0);
+            assert_eq!(
+                stamps[2].last_vib_publish_ns,
+                *s.vib_publish_ns.last().unwrap()
+            );
+        }
     }
 }

@@ -116,7 +116,7 @@ pub(crate) fn run_soak(
     k1: [f64; 3],
     log: &Path,
     prefix: &str,
-    estimator_config: Option<&Path>,
+    (estimator_config, compensator_config): (Option<&Path>, Option<&Path>),
 ) -> anyhow::Result<SoakReport> {
     let machine = MachineCpu::now();
     // The load first, so that the services start and run beside it.
@@ -124,7 +124,13 @@ pub(crate) fn run_soak(
         Some(l) => Some(start_load(&l.input, l.jobs, log)?),
         None => None,
     };
-    let result = run_vibrocomp(opts, k1, log, prefix, estimator_config);
+    let result = run_vibrocomp(
+        opts,
+        k1,
+        log,
+        prefix,
+        (estimator_config, compensator_config),
+    );
     let machine_busy_percent = machine.busy_percent_since();
     // Stopped whatever happened; the pipeline's error, if any, comes first.
     let load = match (load, &opts.load) {

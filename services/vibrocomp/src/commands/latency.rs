@@ -74,6 +74,10 @@ pub struct LatencyArgs {
     /// (docs/bridge.md).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
     pub hosts: u8,
+    /// The compensator's stage: `waveform` (as shipped: each reading solved from the
+    /// vibration samples) or `estimate` (the paper's stages (17)-(20) only).
+    #[arg(long, value_name = "waveform|estimate", value_parser = ["waveform", "estimate"])]
+    pub stage: Option<String>,
     /// Print the measured latencies as JSON.
     #[arg(long)]
     pub json: bool,
@@ -81,7 +85,12 @@ pub struct LatencyArgs {
 
 pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
     let options = options(args)?;
-    match vibro_latency::run(&options)? {
+    let stage = args
+        .stage
+        .as_deref()
+        .map(vibro_latency::Stage::parse)
+        .transpose()?;
+    match vibro_latency::run_with_stage(&options, stage)? {
         Report::Soak(soak) if args.json => print_json(&soak),
         Report::Soak(soak) => print_soak(&soak),
         Report::Pipelines(report) if args.json => print_json(&report),
