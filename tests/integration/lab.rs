@@ -487,7 +487,18 @@ fn a_flight_log_is_measured_against_its_reference_and_nothing_is_attributed() {
     let log = dir.path("flight.mcap");
     run_json(&["sim", "cyclone-4-short", "--out", s(&log), "--json"]);
 
-    let c = run_json(&["lab", "compare", s(&log), "--all", "--json"]);
+    // The statistics path: this measures its prediction against the simulator's mean
+    // VE (the exact model's expectation). The waveform path predicts each window's
+    // realised VE instead (tests/integration/lab_waveform.rs).
+    let c = run_json(&[
+        "lab",
+        "compare",
+        s(&log),
+        "--all",
+        "--path",
+        "statistics",
+        "--json",
+    ]);
     let info = &c["log"];
     println!("FIGURES lab log: {info}");
     assert_eq!(info["passports_from"], "log");

@@ -4,7 +4,9 @@
 //!   own hint tells a user to make a session): `log errors --json` agrees with an
 //!   independent computation from the raw messages (`tests/python/stage_errors.py`:
 //!   the PyPI `mcap` reader and numpy) to 1e-9 relative, at the default window and
-//!   another; the text prints the JSON's figures (to the digits it shows).
+//!   another; the text prints the JSON's figures (to the digits it shows). With the
+//!   shipped compensator (the waveform stage) both stages and the blocks per stage;
+//!   with `stage = "estimate"` the one-stage table of older logs.
 //! - Bad input fails with exit 1 and a message naming the file and what is missing:
 //!   no compensated stream, no reference, no passports, not MCAP, truncated.
 //!
@@ -35,6 +37,27 @@ fn recorded_session(dir: &Dir, seconds: &str) -> PathBuf {
     session
 }
 
+/// [`recorded_session`]'s flight (`dir`'s `flight.mcap`) through the shipped
+/// compensator configuration set to `stage = "estimate"` (the estimate stage alone, as
+/// before the waveform stage), recorded into `name` in `dir`.
+fn estimate_stage_session(dir: &Dir, name: &str) -> PathBuf {
+    let flight = dir.path("flight.mcap");
+    let shipped = std::fs::read_to_string(repo_path("config/services/compensator.toml")).unwrap();
+    let mut table: toml::Table = toml::from_str(&shipped).unwrap();
+    table.insert("stage".into(), toml::Value::String("estimate".into()));
+    let config = dir.path("compensator-estimate.toml");
+    std::fs::write(&config, toml::to_string(&table).unwrap()).unwrap();
+    let session = dir.path(name);
+    recorded_replay(
+        &flight,
+        &session,
+        "les",
+        &repo_path("config/services/estimator.toml"),
+        &config,
+    );
+    session
+}
+
 /// `stage_errors.py SESSION --window-s W`: the independent figures.
 fn python_errors(session: &Path, window_s: f64) -> Value {
     let out = Command::new("python3")
@@ -61,7 +84,8 @@ const STAGES: [&str; 4] = [
 ];
 
 /// Every figure of `ours` against `reference`: counts exactly, the RMS figures and
-/// the reductions to 1e-9 relative. Returns the largest relative difference.
+/// the reductions to 1e-9 relative (the estimate stage's column too, where the
+/// waveform stage ran). Returns the largest relative difference.
 fn assert_agree(ours: &Value, reference: &Value) -> f64 {
     for key in [
         "window_samples",
@@ -70,10 +94,15 @@ fn assert_agree(ours: &Value, reference: &Value) -> f64 {
         "compensated_windows",
         "blocks",
         "main_only_blocks",
+        "waveform_blocks",
+        "fallback_blocks",
+        "estimate_only_blocks",
+        "estimate_stage",
         "k1_v_per_g",
     ] {
         assert_eq!(ours[key], reference[key], "{key}: {ours}\n{reference}");
     }
+    let two_stages = !ours["estimate_stage"].is_null();
     let mut worst = 0.0f64;
     let rows = |v: &Value| {
         let mut r = vec![v["all_units"].clone()];
@@ -82,7 +111,11 @@ fn assert_agree(ours: &Value, reference: &Value) -> f64 {
     };
     for (a, b) in rows(ours).iter().zip(rows(reference).iter()) {
         assert_eq!(a["unit"], b["unit"]);
-        for s in STAGES {
+        assert_eq!(a.get("estimate_stage_rms_g").is_some(), two_stages, "{a}");
+        for s in STAGES
+            .into_iter()
+            .chain(two_stages.then_some("estimate_stage_rms_g"))
+        {
             let (x, y) = (a[s].as_f64().unwrap(), b[s].as_f64().unwrap());
             let rel = (x - y).abs() / y.abs();
             assert!(
@@ -107,10 +140,15 @@ fn printed_g(number: &str, unit: &str) -> f64 {
 }
 
 /// The text of `log errors` prints the JSON's figures: the counts exactly, each RMS
-/// to its four printed decimals, each reduction to its one.
+/// to its four printed decimals, each reduction to its one; where the waveform stage
+/// ran, the blocks per stage and the estimate stage's column and windows.
 fn assert_text_shows(text: &str, errors: &Value) {
     let n = |k: &str| errors[k].as_u64().unwrap();
     let lines: Vec<&str> = text.lines().collect();
+    let est = &errors["estimate_stage"];
+    if !est.is_null() {
+        return assert_two_stage_text_shows(&lines, errors);
+    }
     assert_eq!(lines.len(), 8, "{text}");
     assert!(
         lines[0].contains(&format!(": {} samples with a reading", n("samples")))
@@ -160,6 +198,70 @@ fn assert_text_shows(text: &str, errors: &Value) {
     }
 }
 
+/// [`assert_text_shows`] for a log with waveform-stage blocks: 9 lines, the estimate
+/// stage's column before the published output.
+fn assert_two_stage_text_shows(lines: &[&str], errors: &Value) {
+    let text = lines.join("\n");
+    let n = |k: &str| errors[k].as_u64().unwrap();
+    let est = &errors["estimate_stage"];
+    assert_eq!(lines.len(), 9, "{text}");
+    assert!(
+        lines[2].ends_with(&format!(
+            "; blocks: {} made by the waveform stage, {} by the estimate stage where the samples did not cover them, {} by the estimate stage alone:",
+            n("waveform_blocks"),
+            n("fallback_blocks"),
+            n("estimate_only_blocks")
+        )),
+        "{text}"
+    );
+    assert_eq!(
+        lines[3],
+        format!(
+            "  vibration removed (published a4): {} of {} windows compensated ({} blocks main error only); estimate stage (its answer, a3 of waveform blocks): {} of {} windows compensated with a vibration estimate ({} blocks without one)",
+            n("compensated_windows"),
+            n("windows"),
+            n("main_only_blocks"),
+            est["compensated_windows"],
+            n("windows"),
+            est["main_only_blocks"]
+        ),
+        "{text}"
+    );
+    let units = errors["units"].as_array().unwrap();
+    let expected = units
+        .iter()
+        .map(|u| (format!("AK{}", u["unit"]), u))
+        .chain([("all".to_string(), &errors["all_units"])]);
+    let columns = [
+        "uncompensated_rms_g",
+        "main_removed_rms_g",
+        "estimate_stage_rms_g",
+        "vibration_removed_rms_g",
+    ];
+    for (line, (name, figures)) in lines[5..].iter().zip(expected) {
+        let t: Vec<&str> = line.split_whitespace().collect();
+        assert_eq!(t.len(), 10, "{line}");
+        assert_eq!(t[0], name, "{line}");
+        for (k, stage) in columns.iter().enumerate() {
+            let json = figures[stage].as_f64().unwrap();
+            let shown = printed_g(t[1 + 2 * k], t[2 + 2 * k]);
+            let half_digit = printed_g("0.00005", t[2 + 2 * k]);
+            assert!(
+                (shown - json).abs() <= half_digit * (1.0 + 1e-9),
+                "{name} {stage}: printed {} {}, JSON {json}",
+                t[1 + 2 * k],
+                t[2 + 2 * k]
+            );
+        }
+        let shown: f64 = t[9].trim_end_matches('x').parse().unwrap();
+        let json = figures["reduction"].as_f64().unwrap();
+        assert!(
+            (shown - json).abs() <= 0.05 * (1.0 + 1e-9),
+            "{line}: {json}"
+        );
+    }
+}
+
 #[test]
 fn log_errors_agrees_with_python_and_prints_its_json_figures() {
     let dir = Dir::new("lerr");
@@ -186,6 +288,21 @@ fn log_errors_agrees_with_python_and_prints_its_json_figures() {
             errors["all_units"]["reduction"].as_f64().unwrap() > 10.0,
             "{report}"
         );
+        // The shipped compensator runs the waveform stage: it made most blocks, and
+        // the estimate stage's own answer is in the table beside the published one.
+        let n = |k: &str| errors[k].as_u64().unwrap();
+        assert!(n("waveform_blocks") >= n("blocks") / 2, "{report}");
+        assert_eq!(
+            n("waveform_blocks") + n("fallback_blocks") + n("estimate_only_blocks"),
+            n("blocks")
+        );
+        assert_eq!(n("estimate_only_blocks"), 0, "{report}");
+        let est = &errors["estimate_stage"];
+        assert!(
+            est["compensated_windows"].as_u64().unwrap() <= n("compensated_windows")
+                && est["compensated_windows"].as_u64().unwrap() >= 5,
+            "{report}"
+        );
 
         let mut text_args = vec!["log", "errors", s];
         text_args.extend(window.map(|w| ["--window-s", w]).into_iter().flatten());
@@ -197,6 +314,31 @@ fn log_errors_agrees_with_python_and_prints_its_json_figures() {
         );
         assert_text_shows(&String::from_utf8(out.stdout).unwrap(), errors);
     }
+
+    // The estimate stage alone: no waveform blocks, the one-stage table, and Python
+    // agrees on it too.
+    let older = estimate_stage_session(&dir, "estimate-session.mcap");
+    let o = older.to_str().unwrap();
+    let report = run_json(&["log", "errors", o, "--json"]);
+    let errors = &report["errors"];
+    assert_eq!(
+        (
+            &errors["waveform_blocks"],
+            &errors["fallback_blocks"],
+            &errors["estimate_only_blocks"]
+        ),
+        (&Value::from(0), &Value::from(0), &errors["blocks"]),
+        "{report}"
+    );
+    assert!(errors.get("estimate_stage").is_none(), "{report}");
+    assert!(
+        errors["all_units"].get("estimate_stage_rms_g").is_none(),
+        "{report}"
+    );
+    worst = worst.max(assert_agree(errors, &python_errors(&older, 0.5)));
+    let out = bin().args(["log", "errors", o]).output().unwrap();
+    assert!(out.status.success());
+    assert_text_shows(&String::from_utf8(out.stdout).unwrap(), errors);
     eprintln!("log errors against stage_errors.py: largest relative difference {worst:e}");
 }
 

@@ -472,6 +472,17 @@ fn the_demo_cuts_the_error_tenfold_and_loses_nothing() {
         f(&e["compensated_windows"]) >= 0.9 * f(&e["windows"]),
         "{v}"
     );
+    // The shipped compensator runs the waveform stage: every block of the flight is
+    // recorded (the last, held until the samples stop, too), nearly all of them the
+    // waveform stage's, and the estimate stage's answer is reported beside it.
+    assert_eq!(e["blocks"], 500, "{v}");
+    assert!(f(&e["waveform_blocks"]) >= 490.0, "{v}");
+    for u in e["units"].as_array().unwrap() {
+        assert!(
+            f(&u["estimate_stage_rms_g"]) < 0.5 * f(&u["main_removed_rms_g"]),
+            "{u}"
+        );
+    }
     // `log errors` on the demo's recording: the same figures, bit for bit (one
     // computation, docs/logs.md "log errors").
     let session = dir.path("demo/session.mcap");

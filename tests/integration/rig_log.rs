@@ -541,7 +541,10 @@ fn through_the_mount_the_model_brings_the_error_near_the_rigs_floor_whatever_the
             after_truth < 1.5 * floor_truth.max(0.5e-6) && after_truth < 3e-6,
             "{after_truth} vs floor {floor_truth}"
         );
-        assert!(before_truth > 20.0 * after_truth, "{before_truth} vs {after_truth}");
+        assert!(
+            before_truth > 20.0 * after_truth,
+            "{before_truth} vs {after_truth}"
+        );
         // By `log errors` too, no unit worse than the base model.
         for (a, b) in units(&after).iter().zip(units(&before)) {
             assert!(*a < b, "a unit got worse: {a} vs {b}");

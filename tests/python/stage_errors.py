@@ -14,12 +14,21 @@ is compensated when no sample's block carries MAIN_ONLY (4). Per window the erro
 the mean of `stage - reference`; a stage's figure is the RMS of the window means over
 the compensated windows, per unit and over the three units together.
 
+Where the waveform stage made blocks (WAVEFORM, 2048), the estimate stage's answer is a
+column of its own: `a3_g` of a WAVEFORM block, `a4_g` of the others, over the windows
+in which no block's answer was main error only (MAIN_ONLY; in a WAVEFORM block
+ESTIMATE_MISSING 2, VIBRATION_ESTIMATE_STALE 1 or ESTIMATE_AHEAD 256, which the
+compensator sets together with MAIN_ONLY). Blocks are counted by stage: WAVEFORM,
+WAVEFORM_FALLBACK (4096), neither.
+
 Usage:
     python3 tests/python/stage_errors.py SESSION.mcap [--window-s 0.5]
 
 Prints JSON with the fields of `vibrocomp log errors --json`'s `errors` that it
 computes: window_samples, samples, windows, compensated_windows, blocks,
-main_only_blocks, k1_v_per_g, all_units and units (each stage's RMS and the reduction).
+main_only_blocks, waveform_blocks, fallback_blocks, estimate_only_blocks,
+estimate_stage (with WAVEFORM blocks), k1_v_per_g, all_units and units (each stage's
+RMS, the reduction, and with WAVEFORM blocks estimate_stage_rms_g).
 
 Requires: pip install -r tests/python/requirements.txt
 """
@@ -44,6 +53,9 @@ except ImportError as e:  # pragma: no cover - the message is the point
     sys.exit(3)
 
 MAIN_ONLY = 4
+ESTIMATE_MAIN_ONLY = 1 | 2 | 256  # stale, missing, ahead
+WAVEFORM = 2048
+WAVEFORM_FALLBACK = 4096
 UNITS = 3
 
 
@@ -54,9 +66,12 @@ def triples(values):
 
 def read(path):
     readings, reference, a2, a4, main_only = {}, {}, {}, {}, {}
+    est, est_main_only = {}, {}
     k1 = [None] * UNITS
     period_ns = None
-    blocks = main_only_blocks = 0
+    counts = dict.fromkeys(
+        ["blocks", "main_only_blocks", "waveform_blocks", "fallback_blocks", "estimate_main_only"], 0
+    )
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
         for a in reader.iter_attachments():
@@ -75,16 +90,24 @@ def read(path):
                 for k, row in enumerate(triples(msg.a_sensed_ia_g)):
                     reference[first + k] = row
             else:
-                blocks += 1
+                counts["blocks"] += 1
                 flagged = bool(msg.flags & MAIN_ONLY)
-                main_only_blocks += flagged
+                waveform = bool(msg.flags & WAVEFORM)
+                est_flagged = bool(msg.flags & ESTIMATE_MAIN_ONLY) if waveform else flagged
+                counts["main_only_blocks"] += flagged
+                counts["waveform_blocks"] += waveform
+                counts["fallback_blocks"] += (not waveform) and bool(msg.flags & WAVEFORM_FALLBACK)
+                counts["estimate_main_only"] += est_flagged
+                answer = triples(msg.a3_g) if waveform else triples(msg.a4_g)
                 for k, (x2, x4) in enumerate(zip(triples(msg.a2_g), triples(msg.a4_g))):
                     a2[first + k] = x2
                     a4[first + k] = x4
                     main_only[first + k] = flagged
+                    est[first + k] = answer[k]
+                    est_main_only[first + k] = est_flagged
     if None in k1:
         raise RuntimeError(f"passports found for units {k1}: need all three")
-    return readings, reference, a2, a4, main_only, np.array(k1), period_ns, blocks, main_only_blocks
+    return readings, reference, a2, a4, main_only, est, est_main_only, np.array(k1), period_ns, counts
 
 
 def rms(x):
@@ -103,7 +126,7 @@ def stage(unc, main, vib):
 
 
 def measure(path, window_s):
-    readings, reference, a2, a4, main_only, k1, period_ns, blocks, main_only_blocks = read(path)
+    readings, reference, a2, a4, main_only, est, est_main_only, k1, period_ns, counts = read(path)
     # Half away from zero, as Rust's f64::round (Python's round() goes to even).
     per_window = max(1, int(math.floor(window_s * 1e9 / period_ns + 0.5)))
     complete = sorted(set(readings) & set(reference) & set(a2))
@@ -121,13 +144,16 @@ def measure(path, window_s):
         means["main"].append(np.mean(np.array([a2[i] for i in rows]) - ref, axis=0))
         means["vib"].append(np.mean(np.array([a4[i] for i in rows]) - ref, axis=0))
     m = {s: np.array(v).reshape(-1, UNITS) for s, v in means.items()}
-    return {
+    result = {
         "window_samples": per_window,
         "samples": len(complete),
         "windows": len(whole),
         "compensated_windows": len(compensated),
-        "blocks": blocks,
-        "main_only_blocks": main_only_blocks,
+        "blocks": counts["blocks"],
+        "main_only_blocks": counts["main_only_blocks"],
+        "waveform_blocks": counts["waveform_blocks"],
+        "fallback_blocks": counts["fallback_blocks"],
+        "estimate_only_blocks": counts["blocks"] - counts["waveform_blocks"] - counts["fallback_blocks"],
         "k1_v_per_g": k1.tolist(),
         "all_units": stage(m["unc"].ravel(), m["main"].ravel(), m["vib"].ravel()),
         "units": [
@@ -135,6 +161,28 @@ def measure(path, window_s):
             for u in range(UNITS)
         ],
     }
+    if counts["waveform_blocks"]:
+        # The estimate stage's answer over the windows it compensated itself.
+        by_estimate = [w for w in whole if not any(est_main_only[i] for i in windows[w])]
+        e = np.array(
+            [
+                np.mean(
+                    np.array([est[i] for i in windows[w]])
+                    - np.array([reference[i] for i in windows[w]]),
+                    axis=0,
+                )
+                for w in by_estimate
+            ]
+        ).reshape(-1, UNITS)
+        result["estimate_stage"] = {
+            "compensated_windows": len(by_estimate),
+            "main_only_blocks": counts["estimate_main_only"],
+        }
+        nan_or = lambda x: rms(x) if len(x) else None  # noqa: E731 - JSON null, as serde's NaN
+        result["all_units"]["estimate_stage_rms_g"] = nan_or(e.ravel())
+        for u in range(UNITS):
+            result["units"][u]["estimate_stage_rms_g"] = nan_or(e[:, u])
+    return result
 
 
 def main():

@@ -223,21 +223,41 @@ fn lab_table(
 
 /// `lab compare --json`.
 #[pyfunction]
-#[pyo3(signature = (inputs, model, mode, log, progress=None))]
+#[pyo3(signature = (inputs, model, mode, log, path="waveform", progress=None))]
+#[allow(clippy::too_many_arguments)]
 fn lab_compare(
     py: Python<'_>,
     inputs: Vec<PyInput>,
     model: Option<(String, String)>,
     mode: &str,
     log: LogArgs,
+    path: &str,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<String> {
+    // `lab compare --path`: the logs' windows predicted as the compensator evaluates
+    // them (the waveform stage over their samples), or from the estimates' statistics.
+    let waveform = match path {
+        "waveform" => true,
+        "statistics" => false,
+        other => {
+            return Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "path = {other:?}: must be \"waveform\" or \"statistics\""
+            )))
+        }
+    };
     with_loaded(
         py,
         "compare",
         (inputs, model, mode, log),
         progress,
-        |model, loaded, _| with_logs(&vibro_lab::compare(model, &loaded.table)?, &loaded.logs),
+        move |model, loaded, _| {
+            let c = if waveform {
+                vibro_lab::compare_evaluated(model, &loaded.table, &loaded.logs)?
+            } else {
+                vibro_lab::compare(model, &loaded.table)?
+            };
+            with_logs(&c, &loaded.logs)
+        },
     )
 }
 

@@ -122,6 +122,12 @@ pub struct RowComparison {
     pub predicted_g: f64,
     pub residual_g: f64,
     pub z: f64,
+    /// Where `predicted_g` came from: `waveform` (the compensator's waveform stage over a
+    /// log's samples, [`crate::waveform`]) or `statistics` (`vibro_effects::predict`).
+    pub path: &'static str,
+    /// On the waveform path, the readings the prediction is the mean of.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub window: Option<crate::waveform::WindowSpan>,
 }
 
 /// The whole table compared.
@@ -173,6 +179,18 @@ pub struct Comparison {
     /// this model (`flight::data_scales`); empty for campaign tables.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub residual_scales: Vec<crate::flight::GroupScale>,
+    /// How many rows each evaluation path predicted.
+    pub paths: PathCounts,
+    /// Per log evaluated on the waveform path, what became of its readings.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub waveform: Vec<crate::waveform::WaveformCounts>,
+}
+
+/// Rows per evaluation path ([`RowComparison::path`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct PathCounts {
+    pub waveform: usize,
+    pub statistics: usize,
 }
 
 /// The residual against one variable.
@@ -353,24 +371,99 @@ fn groups_of(rows: &[RowComparison], keys: &[String]) -> Vec<Group> {
         .collect()
 }
 
-/// Compares `model` with `table`.
+/// Compares `model` with `table` on the statistics path (every row's VE predicted from
+/// its stated vibration, `vibro_effects::predict`): what the fits of `diagnose` and
+/// `add` use.
 pub fn compare(model: &LabModel, table: &CampaignTable) -> Result<Comparison> {
     let prep = Prepared::new(model, table)?;
-    let mut c = comparison_of(model, table, &prep);
+    let mut c = comparison_of(model, table, &prep, &[]);
     c.residual_scales = prep.scales;
     Ok(c)
 }
 
+/// Compares `model` with `table` as the compensator evaluates it (`lab compare`): the
+/// windows of the logs in `logs` (their summaries from `inputs::load`) predicted by the
+/// waveform stage over the logs' samples ([`crate::waveform`]), the other rows (tables,
+/// manifests, windows the samples do not cover) on the statistics path. The stated
+/// uncertainties and the logs' scales are as [`compare`]'s, the scales from the
+/// residuals against these predictions.
+pub fn compare_evaluated(
+    model: &LabModel,
+    table: &CampaignTable,
+    logs: &[crate::log_table::LogTableSummary],
+) -> Result<Comparison> {
+    let n = table.conditions.len();
+    let mut given: Vec<Option<crate::waveform::WaveformPrediction>> = vec![None; n];
+    let mut counts = Vec::new();
+    for log in logs {
+        let Some(w) = &log.waveform else {
+            continue;
+        };
+        let (predicted, c) = crate::waveform::predict_log(model, w, log.conditions)?;
+        counts.push(c);
+        for (i, p) in predicted.into_iter().enumerate() {
+            if let (Some(p), Some(slot)) = (p, given.get_mut(log.first_row + i)) {
+                *slot = Some(p);
+            }
+        }
+    }
+    let given_g: Vec<Option<f64>> = given.iter().map(|g| g.map(|g| g.ve_g)).collect();
+    // The rows of a log on each path have their own scales (`flight::data_scales`):
+    // a waveform row's residual scatters far less than a statistics row's, and one
+    // scale over both would state the statistics rows' uncertainty by the waveform's.
+    let waveform_sources: std::collections::BTreeSet<u32> = table
+        .conditions
+        .iter()
+        .zip(&given)
+        .filter(|(_, g)| g.is_some())
+        .filter_map(|(c, _)| c.scale_group.map(|g| g.source))
+        .collect();
+    let mut split = table.clone();
+    for (c, g) in split.conditions.iter_mut().zip(&given) {
+        if let (Some(s), None) = (c.scale_group.as_mut(), g) {
+            if waveform_sources.contains(&s.source) {
+                s.source += STATISTICS_SOURCE;
+            }
+        }
+    }
+    let prep = Prepared::with_predictions(model, &split, &given_g)?;
+    let mut c = comparison_of(model, &split, &prep, &given);
+    c.residual_scales = prep.scales;
+    for s in &mut c.residual_scales {
+        if s.source >= STATISTICS_SOURCE {
+            s.source -= STATISTICS_SOURCE;
+            s.path = Some(crate::waveform::PATH_STATISTICS);
+        } else if waveform_sources.contains(&s.source) {
+            s.path = Some(crate::waveform::PATH_WAVEFORM);
+        }
+    }
+    c.waveform = counts;
+    Ok(c)
+}
+
+/// Added to the scale group's source of a log's rows left on the statistics path
+/// ([`compare_evaluated`]); a joint table's inputs are numbered from 0.
+const STATISTICS_SOURCE: u32 = 1 << 24;
+
 /// The comparison; `u_g` the rows' standard uncertainties of the residual (the
 /// measured VE's with the stated vibration's propagated through the model).
-fn comparison_of(model: &LabModel, table: &CampaignTable, prep: &Prepared) -> Comparison {
+/// `given[i]`: row `i`'s prediction came from the waveform stage (none: every row's
+/// from the statistics).
+fn comparison_of(
+    model: &LabModel,
+    table: &CampaignTable,
+    prep: &Prepared,
+    given: &[Option<crate::waveform::WaveformPrediction>],
+) -> Comparison {
     let (predicted_g, u_g) = (&prep.predicted_g, &prep.uncertainty_g);
     let rows: Vec<RowComparison> = table
         .conditions
         .iter()
         .zip(predicted_g)
         .zip(u_g)
-        .map(|((c, p), u)| {
+        .enumerate()
+        .map(|(i, ((c, p), u))| {
+            let window = given.get(i).copied().flatten().map(|g| g.span);
             let r = c.ve_measured_g - p;
             RowComparison {
                 run_id: c.run_id.clone(),
@@ -380,10 +473,17 @@ fn comparison_of(model: &LabModel, table: &CampaignTable, prep: &Prepared) -> Co
                 predicted_g: *p,
                 residual_g: r,
                 z: r / u,
+                path: if window.is_some() {
+                    crate::waveform::PATH_WAVEFORM
+                } else {
+                    crate::waveform::PATH_STATISTICS
+                },
+                window,
             }
         })
         .collect();
     let n = rows.len();
+    let waveform_rows = rows.iter().filter(|r| r.window.is_some()).count();
     let chi2: f64 = rows.iter().map(|r| r.z * r.z).sum();
     let summary = Summary {
         n,
@@ -445,6 +545,11 @@ fn comparison_of(model: &LabModel, table: &CampaignTable, prep: &Prepared) -> Co
         summary,
         by_variable,
         residual_scales: Vec::new(),
+        paths: PathCounts {
+            waveform: waveform_rows,
+            statistics: n - waveform_rows,
+        },
+        waveform: Vec::new(),
     }
 }
 
@@ -979,7 +1084,7 @@ pub fn diagnose(
 ) -> Result<Diagnosis> {
     let cands = selected(opts)?;
     let mut prep = Prepared::new(model, table)?;
-    let comparison = comparison_of(model, table, &prep);
+    let comparison = comparison_of(model, table, &prep, &[]);
     let residual_g = prep.residual_g();
     let trends_before = trends(table, &residual_g, &prep.uncertainty_g);
     let lack_of_fit = lack_of_fit(table, &residual_g, &prep.uncertainty_g);

@@ -364,7 +364,19 @@ fn kind_of(t: &toml::Table) -> &str {
 
 impl Prepared {
     pub(crate) fn new(model: &LabModel, table: &CampaignTable) -> Result<Self> {
-        Self::with_classes(model, table, classes(table))
+        Self::with_classes(model, table, classes(table), None)
+    }
+
+    /// [`Self::new`] with some rows' predictions given (`predicted_g[i]`, a log's windows
+    /// predicted by the waveform stage, `crate::waveform`); the others', the stated
+    /// uncertainties and the logs' scales as `new` makes them, the scales from the
+    /// residuals against the given predictions.
+    pub(crate) fn with_predictions(
+        model: &LabModel,
+        table: &CampaignTable,
+        predicted_g: &[Option<f64>],
+    ) -> Result<Self> {
+        Self::with_classes(model, table, classes(table), Some(predicted_g))
     }
 
     /// Without pooling: every row its own class (the tests hold the pooled fits
@@ -372,13 +384,14 @@ impl Prepared {
     #[cfg(test)]
     pub(crate) fn one_class_per_row(model: &LabModel, table: &CampaignTable) -> Result<Self> {
         let rows: Vec<usize> = (0..table.conditions.len()).collect();
-        Self::with_classes(model, table, (rows.clone(), rows))
+        Self::with_classes(model, table, (rows.clone(), rows), None)
     }
 
     fn with_classes(
         model: &LabModel,
         table: &CampaignTable,
         (class, first_row): (Vec<usize>, Vec<usize>),
+        given_g: Option<&[Option<f64>]>,
     ) -> Result<Self> {
         let mut p = Prepared {
             measured_g: Vec::with_capacity(class.len()),
@@ -436,14 +449,15 @@ impl Prepared {
             p.model_tables.push(tables);
             class_var_terms.push(vibration_var_terms_g2(model.mode, &effects, c)?);
         }
-        for (c, &k) in table.conditions.iter().zip(&p.class) {
+        for (i, (c, &k)) in table.conditions.iter().zip(&p.class).enumerate() {
+            let given = given_g.and_then(|g| g.get(i).copied().flatten());
             for t in &model.effects {
-                if !applies(kind_of(t), c) {
+                if given.is_none() && !applies(kind_of(t), c) {
                     note_skipped(&mut p.skipped, kind_of(t), c);
                 }
             }
             p.measured_g.push(c.ve_measured_g);
-            p.predicted_g.push(class_pred_g[k]);
+            p.predicted_g.push(given.unwrap_or(class_pred_g[k]));
         }
         let stated: Vec<f64> = table
             .conditions

@@ -195,6 +195,11 @@ pub struct GroupScale {
     pub clipped: usize,
     /// One scale for all of the log's units (too few differences for each its own).
     pub pooled: bool,
+    /// The evaluation path of the rows it scales, when `lab compare` evaluated the log
+    /// on the waveform (`crate::diagnose::compare_evaluated`: the log's rows on each
+    /// path have their own scale).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub path: Option<&'static str>,
 }
 
 /// Per row, the factor on its stated uncertainty `stated_u_g` (the residual's, through
@@ -263,6 +268,7 @@ pub fn data_scales(
                 differences: s.map_or(0, |s| s.differences),
                 clipped: s.map_or(0, |s| s.clipped),
                 pooled: pooled.is_some(),
+                path: None,
             });
         }
     }

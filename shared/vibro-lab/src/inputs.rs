@@ -48,8 +48,13 @@ pub fn load<E: From<crate::Error>>(
                 tables.push(CampaignTable::parse(text, Path::new(name), dir, model)?);
             }
             Input::Path(path) if is_log(path) => {
-                let (table, summary) =
+                let (table, mut summary) =
                     crate::log_table::table_from_log(path, model, &log_options()?)?;
+                // `CampaignTable::joined` keeps the tables' rows in input order.
+                summary.first_row = tables
+                    .iter()
+                    .map(|t: &CampaignTable| t.conditions.len())
+                    .sum();
                 tables.push(table);
                 logs.push(summary);
             }

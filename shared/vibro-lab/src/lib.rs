@@ -19,6 +19,8 @@
 //! - [`log_table`]: an MCAP log with a reference turned into the lab's table (the
 //!   estimator's core run offline over its vibration stream, windows measured and
 //!   pooled); [`spectrum`]: the spectrum behind an estimate's band powers.
+//! - [`waveform`]: a log's windows predicted by the compensator's waveform stage over
+//!   the log's own samples (`lab compare`: one evaluation everywhere, MODEL.md 12).
 //! - [`report`]: the self-contained HTML report of a diagnosis, with its SVG plots;
 //!   [`text`]: the lab's results as the command line prints them.
 //!
@@ -49,10 +51,11 @@ pub use vibro_effects::spectrum;
 pub mod table;
 pub mod table_input;
 pub mod text;
+pub mod waveform;
 
 pub use diagnose::{
-    add_effect, add_effects, add_empirical, compare, diagnose, error_ladder, fit_effect,
-    Comparison, DiagnoseOptions, Diagnosis, LadderStep, Verdict,
+    add_effect, add_effects, add_empirical, compare, compare_evaluated, diagnose, error_ladder,
+    fit_effect, Comparison, DiagnoseOptions, Diagnosis, LadderStep, Verdict,
 };
 pub use empirical::{fit_empirical, EmpiricalFit};
 pub use fit::{Budget, BudgetUsed, EffectFit};

@@ -36,6 +36,7 @@
 use crate::flight::{self, ReferenceSample, VibrationU, WindowInput, WindowVe};
 use crate::spectrum::{sensor_spectrum, sensor_spectrum_u, unit_bands, SpectrumSolver};
 use crate::table::ScaleGroup;
+use crate::waveform::{LabWindow, LogWaveform};
 use crate::{CampaignTable, Condition, Error, LabModel, Result};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -119,6 +120,13 @@ pub struct LogTableSummary {
     /// Lab windows (pools of consecutive estimator windows).
     pub lab_windows: usize,
     pub conditions: usize,
+    /// This log's first row in the joined table of the inputs (`inputs::load`).
+    #[serde(skip)]
+    pub first_row: usize,
+    /// What `lab compare` needs to predict the log's windows from its samples
+    /// ([`crate::waveform`]).
+    #[serde(skip)]
+    pub waveform: Option<std::sync::Arc<LogWaveform>>,
 }
 
 /// One accelerometer sample with its reference, by sample index.
@@ -224,6 +232,11 @@ fn estimator_config(
                 .sensor_from_log
                 .insert("sensor_sensitivity_v_per_g".into(), s);
         }
+        if let Some(delay_s) = num("sensor_delay_s") {
+            summary
+                .sensor_from_log
+                .insert("sensor_delay_s".into(), delay_s);
+        }
         if let Some(fc) = num("sensor_ac_corner_hz") {
             raw.ac_corner_hz = (fc > 0.0).then_some(fc);
             summary
@@ -286,8 +299,34 @@ pub fn table_from_log(
             (half_segment_ns / streams.period_ns.max(1) as f64).round() as usize;
     }
     let mut solver = SpectrumSolver::new(BandLeakage::new(&config));
-    let conditions = window_conditions(&streams, &units, &mut solver, model, args, &mut summary)?;
+    let mut windows = Vec::new();
+    let conditions = window_conditions(
+        &streams,
+        &units,
+        &mut solver,
+        model,
+        args,
+        &mut summary,
+        &mut windows,
+    )?;
     summary.conditions = conditions.len();
+    summary.waveform = Some(std::sync::Arc::new(LogWaveform {
+        path: path.to_path_buf(),
+        axes: units.triad.axes,
+        passports: [units.flat[0], units.flat[1], units.flat[2]],
+        chain: vibro_waveform::SensorChain {
+            sensitivity_v_per_g: config.raw().sensitivity_raw_per_g,
+            ac_corner_hz: config.raw().ac_corner_hz.unwrap_or(0.0),
+            // A rig's DAQ delay when its metadata states it (`sensor_delay_s`), else none.
+            delay_s: summary
+                .sensor_from_log
+                .get("sensor_delay_s")
+                .copied()
+                .unwrap_or(0.0),
+        },
+        taper_samples: streams.taper_samples,
+        windows,
+    }));
     if conditions.is_empty() {
         return Err(Error::Invalid(format!(
             "{}: no usable window ({} estimates, {} windows: {} flagged by the estimator, \
@@ -580,6 +619,7 @@ fn window_conditions(
     model: &LabModel,
     args: &LogOptions,
     summary: &mut LogTableSummary,
+    windows: &mut Vec<LabWindow>,
 ) -> Result<Vec<Condition>> {
     let complete = complete_rows(&streams.rows);
     let period_ns = streams.period_ns;
@@ -668,6 +708,13 @@ fn window_conditions(
     let mut conditions = Vec::new();
     for g in groups {
         let run = run_of[g.start];
+        let rows = &complete[used[g.start].range.start..used[g.end - 1].range.end];
+        windows.push(LabWindow {
+            first_condition: conditions.len(),
+            units: units.flat.len(),
+            latch_ns: rows.iter().map(|r| r.latch_ns).collect(),
+            a_l_ia_g: rows.iter().map(|r| r.a_l_ia_g).collect(),
+        });
         for u in 0..units.flat.len() {
             let line = conditions.len() + 1;
             conditions.push(pool_condition(

@@ -1061,7 +1061,7 @@ pub fn render(r: &ReportInput<'_>) -> Result<Report> {
     let _ = write!(
         h,
         "<p>Data <b>{}</b>: {} conditions. Model as given: {} mode, effects: {}. \
-         Effects added by the lab: {}.</p>",
+         Effects added by the lab: {}. Evaluation path: {}.</p>",
         esc(&before.table),
         s.n,
         esc(&before.mode),
@@ -1075,6 +1075,17 @@ pub fn render(r: &ReportInput<'_>) -> Result<Report> {
         } else {
             effects_added.join(", ")
         }),
+        // The report's fits are the statistics path's (docs/lab.md, "Which evaluation").
+        if before.paths.waveform == 0 && after.paths.waveform == 0 {
+            "statistics (each condition's VE from its stated vibration; `lab compare` \
+             evaluates a log's windows on the waveform)"
+                .to_string()
+        } else {
+            format!(
+                "waveform for {} conditions, statistics for {}",
+                after.paths.waveform, after.paths.statistics
+            )
+        },
     );
     let _ = write!(
         h,

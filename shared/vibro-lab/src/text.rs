@@ -99,6 +99,21 @@ pub fn write_comparison(o: &mut String, c: &Comparison, all: bool) {
         s.chi2_per_dof,
         s.p_value
     );
+    let paths = &c.paths;
+    if paths.waveform > 0 {
+        p!(
+            o,
+            "path: waveform for {} conditions (the compensator's waveform stage over the log's \
+             samples), statistics for {}",
+            paths.waveform,
+            paths.statistics
+        );
+    } else {
+        p!(
+            o,
+            "path: statistics (the model's VE from each condition's stated vibration)"
+        );
+    }
     let mut rows: Vec<_> = c.rows.iter().collect();
     if !all {
         rows.sort_by(|a, b| b.z.abs().total_cmp(&a.z.abs()));
@@ -109,26 +124,28 @@ pub fn write_comparison(o: &mut String, c: &Comparison, all: bool) {
     }
     p!(
         o,
-        "{:<10} {:>5} {:>11} {:>11} {:>11} {:>11} {:>10}",
+        "{:<10} {:>5} {:>11} {:>11} {:>11} {:>11} {:>10} {}",
         "run_id",
         "line",
         "measured_g",
         "u_g",
         "predicted_g",
         "residual_g",
-        "z"
+        "z",
+        "path"
     );
     for r in rows {
         p!(
             o,
-            "{:<10} {:>5} {} {} {} {} {:>10.2}",
+            "{:<10} {:>5} {} {} {} {} {:>10.2} {}",
             r.run_id,
             r.line,
             g(r.measured_g),
             g(r.uncertainty_g),
             g(r.predicted_g),
             g(r.residual_g),
-            r.z
+            r.z,
+            r.path
         );
     }
     p!(

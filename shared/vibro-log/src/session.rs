@@ -24,6 +24,12 @@
 //! unit the error is the mean of `stage - reference`; a stage's figure is the RMS of
 //! these means over the compensated windows (over the three units for "all").
 //!
+//! Where the compensator's waveform stage made blocks (`WAVEFORM`, MODEL.md section
+//! 12), `a(4)` is its output and the block carries the estimate stage's answer as
+//! `a(3)`: that answer gets a figure of its own (`StageErrors::estimate_stage_rms_g`),
+//! over the windows in which it was never main error only ([`EstimateStageWindows`]),
+//! and the blocks are counted by stage (waveform, fallback, estimate stage alone).
+//!
 //! ```no_run
 //! # fn main() -> vibro_log::Result<()> {
 //! use vibro_log::session::{log_errors, DEFAULT_WINDOW_S};
@@ -170,9 +176,26 @@ impl Reference {
 pub struct StageErrors {
     pub uncompensated_rms_g: f64,
     pub main_removed_rms_g: f64,
+    /// The published output `a4`: the waveform stage's where it made the block.
     pub vibration_removed_rms_g: f64,
     /// `uncompensated / vibration removed`.
     pub reduction: f64,
+    /// With waveform-stage blocks in the log: the estimate stage's answer (`a3` of a
+    /// `WAVEFORM` block, `a4` of the others), over the windows the estimate stage
+    /// compensated (`SessionErrors::estimate_stage`); NaN when there is none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub estimate_stage_rms_g: Option<f64>,
+}
+
+/// The windows the estimate stage compensated, where the waveform stage ran: a window
+/// counts when none of its blocks had the estimate stage's answer for the main error
+/// only (`MAIN_ONLY`, or in a `WAVEFORM` block the estimate flags the compensator sets
+/// with it: `ESTIMATE_MISSING`, `VIBRATION_ESTIMATE_STALE`, `ESTIMATE_AHEAD`).
+#[derive(Debug, Clone, Serialize)]
+pub struct EstimateStageWindows {
+    pub compensated_windows: u64,
+    /// Blocks whose estimate-stage answer is main error only.
+    pub main_only_blocks: u64,
 }
 
 /// One unit's errors.
@@ -209,6 +232,16 @@ pub struct SessionErrors {
     /// Blocks flagged main-only (no usable estimate yet, or stale).
     pub main_only_blocks: u64,
     pub blocks: u64,
+    /// Blocks by stage: made by the waveform stage (`WAVEFORM`), by the estimate stage
+    /// because the samples did not cover them (`WAVEFORM_FALLBACK`), by the estimate
+    /// stage alone (neither flag: `stage = "estimate"`, or an older log).
+    pub waveform_blocks: u64,
+    pub fallback_blocks: u64,
+    pub estimate_only_blocks: u64,
+    /// With waveform-stage blocks in the log: the estimate stage's own compensated
+    /// windows, which its column is taken over.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub estimate_stage: Option<EstimateStageWindows>,
     /// Over the compensated windows and the three units.
     pub all_units: StageErrors,
     pub units: Vec<UnitErrors>,
@@ -238,6 +271,9 @@ impl SessionErrors {
     /// per unit and for all units the RMS of each stage and the reduction. What
     /// `vibrocomp demo` and `vibrocomp log errors` print.
     pub fn write_table(&self, out: &mut impl fmt::Write) -> fmt::Result {
+        if let Some(est) = &self.estimate_stage {
+            return self.write_two_stage_table(est, out);
+        }
         writeln!(
             out,
             "Error against {}, mean over {} s windows ({} of {} windows compensated with a vibration estimate; {} blocks compensated for the main error only: before the first estimate, or with a stale one):",
@@ -259,6 +295,60 @@ impl SessionErrors {
                 name,
                 fmt_g(s.uncompensated_rms_g),
                 fmt_g(s.main_removed_rms_g),
+                fmt_g(s.vibration_removed_rms_g),
+                fmt_ratio(s.reduction)
+            )
+        };
+        for u in &self.units {
+            line(&format!("AK{}", u.unit), &u.errors)?;
+        }
+        line("all", &self.all_units)
+    }
+
+    /// The table of a log with waveform-stage blocks: the estimate stage's answer as a
+    /// column of its own, before the published output.
+    fn write_two_stage_table(
+        &self,
+        est: &EstimateStageWindows,
+        out: &mut impl fmt::Write,
+    ) -> fmt::Result {
+        writeln!(
+            out,
+            "Error against {}, mean over {} s windows; blocks: {} made by the waveform stage, {} by the estimate stage where the samples did not cover them, {} by the estimate stage alone:",
+            self.reference.against(),
+            self.window_s,
+            self.waveform_blocks,
+            self.fallback_blocks,
+            self.estimate_only_blocks
+        )?;
+        writeln!(
+            out,
+            "  vibration removed (published a4): {} of {} windows compensated ({} blocks main error only); estimate stage (its answer, a3 of waveform blocks): {} of {} windows compensated with a vibration estimate ({} blocks without one)",
+            self.compensated_windows,
+            self.windows,
+            self.main_only_blocks,
+            est.compensated_windows,
+            self.windows,
+            est.main_only_blocks
+        )?;
+        writeln!(
+            out,
+            "  {:<10}{:>16}{:>16}{:>18}{:>20}{:>12}",
+            "unit",
+            "uncompensated",
+            "main removed",
+            "estimate stage",
+            "vibration removed",
+            "reduction"
+        )?;
+        let mut line = |name: &str, s: &StageErrors| {
+            writeln!(
+                out,
+                "  {:<10}{:>16}{:>16}{:>18}{:>20}{:>12}",
+                name,
+                fmt_g(s.uncompensated_rms_g),
+                fmt_g(s.main_removed_rms_g),
+                fmt_g(s.estimate_stage_rms_g.unwrap_or(f64::NAN)),
                 fmt_g(s.vibration_removed_rms_g),
                 fmt_ratio(s.reduction)
             )
@@ -623,6 +713,10 @@ struct Compensated {
     a2_g: [f64; UNITS],
     a4_g: [f64; UNITS],
     main_only: bool,
+    /// The estimate stage's answer: `a3` of a `WAVEFORM` block, `a4` of the others.
+    estimate_g: [f64; UNITS],
+    /// Whether that answer is main error only.
+    estimate_main_only: bool,
 }
 
 impl Sample {
@@ -635,9 +729,11 @@ impl Sample {
 #[derive(Debug, Clone, Copy)]
 struct WindowMeans {
     main_only: bool,
+    estimate_main_only: bool,
     uncompensated_g: [f64; UNITS],
     main_removed_g: [f64; UNITS],
     vibration_removed_g: [f64; UNITS],
+    estimate_stage_g: [f64; UNITS],
 }
 
 /// The three inputs of the measure.
@@ -673,7 +769,17 @@ pub struct StagePairs {
     compensated_samples: u64,
     blocks: u64,
     main_only_blocks: u64,
+    waveform_blocks: u64,
+    fallback_blocks: u64,
+    estimate_main_only_blocks: u64,
 }
+
+/// The estimate-stage flags the compensator sets together with `MAIN_ONLY`
+/// (services/compensator `core.rs`: no estimate, or a refused one; stale; ahead). A
+/// `WAVEFORM` block keeps them for its `a3` but drops `MAIN_ONLY`, its `a4` being the
+/// waveform stage's.
+const ESTIMATE_MAIN_ONLY: u32 =
+    cf::ESTIMATE_MISSING | cf::VIBRATION_ESTIMATE_STALE | cf::ESTIMATE_AHEAD;
 
 impl StagePairs {
     /// A measure of the samples of `origin` against `reference`, the readings turned
@@ -709,6 +815,9 @@ impl StagePairs {
             compensated_samples: 0,
             blocks: 0,
             main_only_blocks: 0,
+            waveform_blocks: 0,
+            fallback_blocks: 0,
+            estimate_main_only_blocks: 0,
         })
     }
 
@@ -749,13 +858,24 @@ impl StagePairs {
         )
     }
 
-    /// A compensated block: `a(2)`, `a(4)` and whether it was main-only.
+    /// A compensated block: `a(2)`, `a(4)` and whether it was main-only; from a
+    /// `WAVEFORM` block also the estimate stage's answer `a(3)` and whether that was.
     pub fn add_compensated(&mut self, block: &CompensatedBlock) -> Result<()> {
         self.blocks += 1;
         let main_only = block.flags & cf::MAIN_ONLY != 0;
+        let waveform = block.flags & cf::WAVEFORM != 0;
+        let estimate_main_only = if waveform {
+            block.flags & ESTIMATE_MAIN_ONLY != 0
+        } else {
+            main_only
+        };
         self.main_only_blocks += u64::from(main_only);
+        self.estimate_main_only_blocks += u64::from(estimate_main_only);
+        self.waveform_blocks += u64::from(waveform);
+        self.fallback_blocks += u64::from(!waveform && block.flags & cf::WAVEFORM_FALLBACK != 0);
         let n = (block.count as usize)
             .min(block.a2_g.len())
+            .min(block.a3_g.len())
             .min(block.a4_g.len());
         self.compensated_samples += n as u64;
         self.add(
@@ -768,6 +888,12 @@ impl StagePairs {
                     a2_g: block.a2_g[k],
                     a4_g: block.a4_g[k],
                     main_only,
+                    estimate_g: if waveform {
+                        block.a3_g[k]
+                    } else {
+                        block.a4_g[k]
+                    },
+                    estimate_main_only,
                 };
                 s.compensated.replace(c).is_none()
             },
@@ -890,9 +1016,13 @@ impl StagePairs {
             main_only: rows
                 .iter()
                 .any(|r| r.compensated.is_some_and(|c| c.main_only)),
+            estimate_main_only: rows
+                .iter()
+                .any(|r| r.compensated.is_some_and(|c| c.estimate_main_only)),
             uncompensated_g: [0.0; UNITS],
             main_removed_g: [0.0; UNITS],
             vibration_removed_g: [0.0; UNITS],
+            estimate_stage_g: [0.0; UNITS],
         };
         let nan3 = [f64::NAN; UNITS];
         for u in 0..UNITS {
@@ -905,6 +1035,8 @@ impl StagePairs {
                 mean(&|s| s.compensated.map_or(f64::NAN, |c| c.a2_g[u]) - r(s));
             means.vibration_removed_g[u] =
                 mean(&|s| s.compensated.map_or(f64::NAN, |c| c.a4_g[u]) - r(s));
+            means.estimate_stage_g[u] =
+                mean(&|s| s.compensated.map_or(f64::NAN, |c| c.estimate_g[u]) - r(s));
         }
         self.closed.insert(window, means);
     }
@@ -952,18 +1084,31 @@ impl StagePairs {
                 self.window_s, self.blocks, self.main_only_blocks
             )));
         }
-        let per_unit = |f: fn(&WindowMeans) -> [f64; UNITS], u: usize| -> Vec<f64> {
-            compensated.iter().map(|w| f(w)[u]).collect()
+        // The estimate stage's column, where the waveform stage made blocks: over the
+        // windows it compensated itself (its answer in the others is main error only).
+        let two_stages = self.waveform_blocks > 0;
+        let by_estimate: Vec<&WindowMeans> = self
+            .closed
+            .values()
+            .filter(|w| !w.estimate_main_only)
+            .collect();
+        type Means = fn(&WindowMeans) -> [f64; UNITS];
+        // One stage's window means of unit `u` (every unit: `None`) over `windows`.
+        let values = |windows: &[&WindowMeans], f: Means, u: Option<usize>| -> Vec<f64> {
+            let units = u.map_or(0..UNITS, |u| u..u + 1);
+            units
+                .flat_map(|u| windows.iter().map(move |w| f(w)[u]))
+                .collect()
         };
-        let unit_stage = |u: usize| {
-            stage(
-                &per_unit(|w| w.uncompensated_g, u),
-                &per_unit(|w| w.main_removed_g, u),
-                &per_unit(|w| w.vibration_removed_g, u),
-            )
-        };
-        let all = |f: fn(&WindowMeans) -> [f64; UNITS]| -> Vec<f64> {
-            (0..UNITS).flat_map(|u| per_unit(f, u)).collect()
+        let errors = |u: Option<usize>| {
+            let mut s = stage(
+                &values(&compensated, |w| w.uncompensated_g, u),
+                &values(&compensated, |w| w.main_removed_g, u),
+                &values(&compensated, |w| w.vibration_removed_g, u),
+            );
+            s.estimate_stage_rms_g =
+                two_stages.then(|| rms(&values(&by_estimate, |w| w.estimate_stage_g, u)));
+            s
         };
         Ok(SessionErrors {
             window_s: self.window_s,
@@ -979,15 +1124,18 @@ impl StagePairs {
             compensated_windows: compensated.len() as u64,
             main_only_blocks: self.main_only_blocks,
             blocks: self.blocks,
-            all_units: stage(
-                &all(|w| w.uncompensated_g),
-                &all(|w| w.main_removed_g),
-                &all(|w| w.vibration_removed_g),
-            ),
+            waveform_blocks: self.waveform_blocks,
+            fallback_blocks: self.fallback_blocks,
+            estimate_only_blocks: self.blocks - self.waveform_blocks - self.fallback_blocks,
+            estimate_stage: two_stages.then_some(EstimateStageWindows {
+                compensated_windows: by_estimate.len() as u64,
+                main_only_blocks: self.estimate_main_only_blocks,
+            }),
+            all_units: errors(None),
             units: (0..UNITS)
                 .map(|u| UnitErrors {
                     unit: u + 1,
-                    errors: unit_stage(u),
+                    errors: errors(Some(u)),
                 })
                 .collect(),
         })
@@ -1008,6 +1156,7 @@ fn stage(unc: &[f64], main: &[f64], vib: &[f64]) -> StageErrors {
         main_removed_rms_g: m,
         vibration_removed_rms_g: v,
         reduction: if v > 0.0 { u / v } else { f64::INFINITY },
+        estimate_stage_rms_g: None,
     }
 }
 
@@ -1233,6 +1382,7 @@ mod tests {
             main_removed_rms_g: m,
             vibration_removed_rms_g: v,
             reduction: u / v,
+            estimate_stage_rms_g: None,
         };
         let e = SessionErrors {
             window_s: 0.5,
@@ -1248,6 +1398,10 @@ mod tests {
             compensated_windows: 38,
             main_only_blocks: 24,
             blocks: 500,
+            waveform_blocks: 0,
+            fallback_blocks: 0,
+            estimate_only_blocks: 500,
+            estimate_stage: None,
             all_units: stage(8.2258e-3, 97.5141e-6, 8.7034e-6),
             units: vec![UnitErrors {
                 unit: 1,
@@ -1264,5 +1418,130 @@ mod tests {
   all              8.2258 mg      97.5141 ug           8.7034 ug      945.1x
 "
         );
+
+        // With waveform-stage blocks: the estimate stage's column and both counts.
+        let with = |mut s: StageErrors, est: f64| {
+            s.estimate_stage_rms_g = Some(est);
+            s
+        };
+        let e = SessionErrors {
+            waveform_blocks: 470,
+            fallback_blocks: 6,
+            estimate_only_blocks: 24,
+            compensated_windows: 40,
+            main_only_blocks: 0,
+            estimate_stage: Some(EstimateStageWindows {
+                compensated_windows: 38,
+                main_only_blocks: 24,
+            }),
+            all_units: with(stage(8.2258e-3, 97.5141e-6, 1.2e-6), 8.7034e-6),
+            units: vec![UnitErrors {
+                unit: 1,
+                errors: with(stage(11.1409e-3, 0.1646e-3, 1.5e-6), 13.6836e-6),
+            }],
+            ..e
+        };
+        let mut text = String::new();
+        e.write_table(&mut text).unwrap();
+        assert_eq!(
+            text,
+            "Error against the sensed acceleration, mean over 0.5 s windows; blocks: 470 made by the waveform stage, 6 by the estimate stage where the samples did not cover them, 24 by the estimate stage alone:
+  vibration removed (published a4): 40 of 40 windows compensated (0 blocks main error only); estimate stage (its answer, a3 of waveform blocks): 38 of 40 windows compensated with a vibration estimate (24 blocks without one)
+  unit         uncompensated    main removed    estimate stage   vibration removed   reduction
+  AK1             11.1409 mg       0.1646 mg        13.6836 ug           1.5000 ug     7427.3x
+  all              8.2258 mg      97.5141 ug         8.7034 ug           1.2000 ug     6854.8x
+"
+        );
+    }
+
+    /// Waveform-stage blocks: `a4` is the published output, `a3` the estimate stage's
+    /// answer. Block 0 is `WAVEFORM` with `ESTIMATE_MISSING` (its `a3` main error
+    /// only), block 1 `WAVEFORM_FALLBACK` (the estimate stage's `a4`), the rest
+    /// `WAVEFORM`: the published output counts windows 0..3, the estimate stage 1..3.
+    #[test]
+    fn waveform_blocks_give_both_stages_over_their_own_windows() {
+        const EST_G: [f64; 3] = [5e-6, -6e-6, 7e-6];
+        let (accel, reference, mut comp) = blocks();
+        for (b, c) in comp.iter_mut().enumerate() {
+            c.flags = match b {
+                0 => cf::WAVEFORM | cf::ESTIMATE_MISSING,
+                1 => cf::WAVEFORM_FALLBACK,
+                _ => cf::WAVEFORM,
+            };
+            for (k, rk) in reference[b].iter().enumerate() {
+                let i = 8 * b as u64 + k as u64;
+                let w = (i / 10) as f64;
+                for u in 0..3 {
+                    let r = rk[u];
+                    if b == 1 {
+                        // The estimate stage's answer is the block's a4.
+                        c.a4_g[k][u] = r + w * EST_G[u];
+                        c.a3_g[k][u] = f64::NAN;
+                    } else {
+                        c.a3_g[k][u] = r + w * EST_G[u];
+                    }
+                }
+            }
+        }
+        let mut p = pairs();
+        for b in 0..5 {
+            p.add_readings(&accel[b]).unwrap();
+            p.add_reference(reference_block(8 * b as u64, &reference[b]))
+                .unwrap();
+            p.add_compensated(&comp[b]).unwrap();
+        }
+        let e = p.finish().unwrap();
+        assert_eq!(
+            (e.windows, e.compensated_windows, e.main_only_blocks),
+            (4, 4, 0)
+        );
+        assert_eq!(
+            (e.waveform_blocks, e.fallback_blocks, e.estimate_only_blocks),
+            (4, 1, 0)
+        );
+        let est = e.estimate_stage.as_ref().unwrap();
+        assert_eq!((est.compensated_windows, est.main_only_blocks), (3, 1));
+        // Published: windows 0..3, the fallback block's a4 in window 1 is the estimate
+        // stage's (w EST_G), the waveform blocks' w VIB_G (samples 8..15 in windows 0
+        // and 1).
+        let window_mean = |w: u64, u: usize| -> f64 {
+            (10 * w..10 * w + 10)
+                .map(|i| {
+                    let scale = (i / 10) as f64;
+                    if (8..16).contains(&i) {
+                        scale * EST_G[u]
+                    } else {
+                        scale * VIB_G[u]
+                    }
+                })
+                .sum::<f64>()
+                / 10.0
+        };
+        for (u, unit) in e.units.iter().enumerate() {
+            let published = ((0..4).map(|w| window_mean(w, u).powi(2)).sum::<f64>() / 4.0).sqrt();
+            assert!(
+                close(unit.errors.vibration_removed_rms_g, published),
+                "{unit:?}"
+            );
+            // The estimate stage: w EST_G in windows 1..3.
+            let estimate = EST_G[u].abs() * ((1.0 + 4.0 + 9.0) / 3.0f64).sqrt();
+            assert!(
+                close(unit.errors.estimate_stage_rms_g.unwrap(), estimate),
+                "{unit:?}"
+            );
+            assert!(close(unit.errors.uncompensated_rms_g, BIAS_G[u].abs()));
+        }
+        // An estimate-only log has no estimate-stage column.
+        let (accel, reference, comp) = blocks();
+        let mut p = pairs();
+        for b in 0..5 {
+            p.add_readings(&accel[b]).unwrap();
+            p.add_reference(reference_block(8 * b as u64, &reference[b]))
+                .unwrap();
+            p.add_compensated(&comp[b]).unwrap();
+        }
+        let e = p.finish().unwrap();
+        assert!(e.estimate_stage.is_none() && e.all_units.estimate_stage_rms_g.is_none());
+        assert_eq!(e.estimate_only_blocks, 5);
     }
 }

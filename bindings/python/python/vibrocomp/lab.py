@@ -106,6 +106,12 @@ class Row(_Json):
     predicted_g: float
     residual_g: float
     z: float
+    #: `waveform` (a log's window predicted as the compensator evaluates it, from the
+    #: vibration samples) or `statistics` (from the estimate's statistics); `compare`
+    #: only.
+    path: Optional[str] = None
+    #: A waveform row's window: the stage's VE and the interval means' part, g.
+    window: Optional[dict] = None
 
 
 @dataclass(frozen=True)
@@ -152,6 +158,10 @@ class Comparison(_Json):
     residual_scales: Optional[list] = None
     log: Optional[dict] = None
     logs: Optional[list] = None
+    #: Rows per evaluation path, `{"waveform": n, "statistics": n}`.
+    paths: Optional[dict] = None
+    #: Per log, what the waveform path covered.
+    waveform: Optional[Any] = None
 
     def to_frame(self):
         """The conditions as a pandas DataFrame."""
@@ -422,11 +432,17 @@ def compare(
     batches: int = 8,
     max_al_span_g: float = 1.0,
     pool_windows: int = 0,
+    path: str = "waveform",
     progress: Progress = None,
 ) -> Comparison:
-    """`vibrocomp lab compare`: measured against predicted VE per condition."""
+    """`vibrocomp lab compare`: measured against predicted VE per condition.
+
+    `path`: ``"waveform"`` (default) predicts a log's windows as the compensator
+    evaluates the model, from the vibration samples (MODEL.md section 12); tables and
+    logs without samples use the statistics path, as ``"statistics"`` does for all.
+    """
     log = _log_args(triad, estimator_config, batches, max_al_span_g, pool_windows)
-    text = _native.lab_compare(_inputs(inputs), _model(model), mode, log, progress)
+    text = _native.lab_compare(_inputs(inputs), _model(model), mode, log, path, progress)
     return _build(Comparison, json.loads(text))
 
 

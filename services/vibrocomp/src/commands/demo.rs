@@ -5,14 +5,20 @@
 //!    vibration) into `flight.mcap`: vibration-sensor and accelerometer streams plus
 //!    the truth.
 //! 2. The estimator, the compensator and a recorder start as separate processes under a
-//!    private service prefix.
+//!    private service prefix, on the shipped configurations. Both undo the vibration
+//!    sensors' chain (sensitivity, AC coupling, delay; the estimator also needs their
+//!    rate), which must be the one the scenario simulates: where the shipped files state
+//!    another (a scenario file of one's own), the services get copies with the
+//!    scenario's chain put in (`vibro_system::derived`, as `up --rig` does).
 //! 3. The flight is replayed into them as fast as possible, lock-stepped (nothing
 //!    dropped, the result independent of timing); the recorder writes every stream into
 //!    `session.mcap`.
 //! 4. The services stop; the recording is read back and each stage's error is measured
 //!    against the acceleration each unit really sensed (`TruthBlock.a_sensed_ia_g`),
 //!    averaged over windows (default 0.5 s): uncompensated `U/K1`, main error removed
-//!    `a(2)`, vibration error removed `a(4)` (MODEL.md section 7, [P2 (17)-(20)]).
+//!    `a(2)`, vibration error removed `a(4)` (MODEL.md section 7, [P2 (17)-(20)]),
+//!    and, where the compensator's waveform stage made the blocks (MODEL.md section
+//!    12), the estimate stage's own answer beside it.
 //!
 //! The error measure and its table are `vibro_log::session::log_errors` and
 //! `SessionErrors::write_table`, which `vibrocomp log errors` prints too: the demo's
@@ -20,14 +26,16 @@
 
 use anyhow::{bail, Context};
 use serde::Serialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
+use vibro_config::rig::SensorChain;
 use vibro_log::session::{log_errors, SessionErrors, DEFAULT_WINDOW_S};
 use vibro_log::{Pace, ReplayOptions, ReplaySummary};
 use vibro_msgs::{ServiceId, ServiceNames};
 use vibro_service::ServiceConfig;
-use vibro_sim::ScenarioKind;
+use vibro_sim::{Scenario, ScenarioKind};
+use vibro_system::derived::{self, DerivedConfigs};
 use vibro_system::hosts::TwoHosts;
 use vibro_system::{Role, SystemSpec};
 
@@ -141,15 +149,30 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     }
     let flight = simulate_flight(&scenario, Some(&flight_log), None, args.force)?;
 
-    // 2. The system, under a prefix of its own.
+    // 2. The system, under a prefix of its own, undoing the sensors' chain the
+    // scenario simulates.
     let prefix = private_prefix("vcdemo");
     let names = ServiceNames::new(&prefix)?;
+    let derived = scenario_configs(&scenario)?;
+    if let (Some(d), false) = (&derived, args.json) {
+        outln!(
+            "The shipped service configurations state another vibration-sensor chain than {}'s; the services run on copies with the scenario's ({})",
+            scenario.name,
+            d.dir().display()
+        )?;
+    }
     let spec = SystemSpec {
         prefix: prefix.clone(),
         record: Some(session_log.clone()),
         // The folder was checked above: a previous run's recording is replaced.
         force_record: true,
         json: true,
+        estimator_config: derived
+            .as_ref()
+            .and_then(|d| d.estimator().map(Path::to_path_buf)),
+        compensator_config: derived
+            .as_ref()
+            .and_then(|d| d.compensator().map(Path::to_path_buf)),
         ..SystemSpec::default()
     };
     // With --hosts 2: host B runs the services and the bridge that listens; host A
@@ -208,11 +231,23 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     }
 
     // 3. The replay.
-    let options = ReplayOptions::new(names, Pace::AsFastAsPossible);
+    let options = ReplayOptions::new(names.clone(), Pace::AsFastAsPossible);
     let stop = AtomicBool::new(false);
     let replay = replay_with_bar(&flight_log, &options, &stop)?;
 
     // 4. Stop: the recorder first (it takes what the services published), then them.
+    // The compensator's waveform stage holds a reading until the sensors' samples cover
+    // it, and the flight's last one never is: it goes out once the sensors' stream has
+    // been silent for a while (`vibro_compensator::waveform::SILENCE_NS`, wall clock),
+    // after the replay has returned. The recorder waits for it.
+    let accel_blocks = replay
+        .topics
+        .get(&vibro_log::topic(vibro_msgs::Stream::Accel))
+        .copied()
+        .unwrap_or(0);
+    wait_for_compensated(&names, accel_blocks, Duration::from_secs(10), || {
+        compensator.check_alive()
+    })?;
     let timeout = Duration::from_secs(20);
     let recording = recorder.stop(timeout)?.summary()?;
     let est = estimator.stop(timeout)?.summary()?;
@@ -228,6 +263,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         });
     }
     drop(hosts);
+    drop(derived);
     let lost_messages = losses(&est)
         + losses(&comp)
         + recording.get("lost").and_then(|x| x.as_u64()).unwrap_or(0)
@@ -283,9 +319,17 @@ fn two_host_specs(
     let hosts = TwoHosts::create(&out_dir.join("hosts"), &tag, &spec.prefix)?;
     vibro_ipc::use_config_file(&hosts.a.iceoryx_config)?;
     let shipped = |rel: &str| std::fs::canonicalize(rel).ok();
+    // The scenario's derived configurations if the one-host spec has them (absolute
+    // already), else the shipped ones.
     let common = SystemSpec {
-        estimator_config: shipped(vibro_estimator::Config::DEFAULT_CONFIG_PATH),
-        compensator_config: shipped(vibro_compensator::Config::DEFAULT_CONFIG_PATH),
+        estimator_config: spec
+            .estimator_config
+            .clone()
+            .or_else(|| shipped(vibro_estimator::Config::DEFAULT_CONFIG_PATH)),
+        compensator_config: spec
+            .compensator_config
+            .clone()
+            .or_else(|| shipped(vibro_compensator::Config::DEFAULT_CONFIG_PATH)),
         ..spec.clone()
     };
     let a = SystemSpec {
@@ -300,6 +344,91 @@ fn two_host_specs(
         ..common
     };
     Ok((a, b, hosts))
+}
+
+/// Waits until the compensator's heartbeat says it has published `blocks` blocks (one
+/// per accelerometer block replayed), at most `timeout`: past it the run goes on, and
+/// what is missing shows in the recording's counts.
+fn wait_for_compensated(
+    names: &ServiceNames,
+    blocks: u64,
+    timeout: Duration,
+    mut alive: impl FnMut() -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let node = vibro_ipc::create_node("vibrocomp-demo-wait").context("iceoryx2 node")?;
+    let stream = vibro_msgs::Stream::Heartbeat(ServiceId::Compensator);
+    let heartbeats =
+        vibro_ipc::StreamSubscriber::<vibro_msgs::Heartbeat>::open(&node, names, stream)
+            .with_context(|| format!("subscribing to {}", names.stream(stream)))?;
+    let start = Instant::now();
+    while start.elapsed() < timeout {
+        while let Some(h) = heartbeats.receive()? {
+            if h.published >= blocks {
+                return Ok(());
+            }
+        }
+        alive()?;
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    Ok(())
+}
+
+/// The vibration sensors' chain `scenario` simulates (`[sensor]`, `[rates] sensor_hz`;
+/// the simulator's sensors have no delay), as a rig file states one.
+fn scenario_chain(scenario: &Scenario) -> SensorChain {
+    let s = &scenario.sensor;
+    SensorChain {
+        sensitivity_v_per_g: [s.sensitivity_v_per_g; 3],
+        ac_corner_hz: (s.ac_corner_hz > 0.0).then_some(s.ac_corner_hz),
+        delay_s: 0.0,
+        rate_hz: Some(scenario.rates.sensor_hz),
+    }
+}
+
+/// The services' configurations for `scenario`: `None` when the shipped ones (the files
+/// of the working directory, else the copies compiled in) state the chain it simulates,
+/// as they do for every shipped flight; else copies with its chain put in.
+fn scenario_configs(scenario: &Scenario) -> anyhow::Result<Option<DerivedConfigs>> {
+    let chain = scenario_chain(scenario);
+    let estimator =
+        vibro_estimator::Config::load_default().context("the estimator's shipped configuration")?;
+    let compensator = vibro_compensator::Config::load_default()
+        .context("the compensator's shipped configuration")?;
+    let e = estimator.estimator.raw();
+    let c = compensator.model.waveform.chain;
+    let ac_corner_hz = chain.ac_corner_hz.unwrap_or(0.0);
+    let same = e.sample_rate_hz == scenario.rates.sensor_hz
+        && e.sensitivity_raw_per_g == chain.sensitivity_v_per_g
+        && e.ac_corner_hz.unwrap_or(0.0) == ac_corner_hz
+        && c.sensitivity_v_per_g == chain.sensitivity_v_per_g
+        && c.ac_corner_hz == ac_corner_hz
+        && c.delay_s == chain.delay_s;
+    if same {
+        return Ok(None);
+    }
+    // The base texts as the services would read them: the working directory's files
+    // (their folder resolving the compensator's relative names), else the shipped ones.
+    let text = |rel: &str, shipped: &str| -> anyhow::Result<(String, Option<PathBuf>)> {
+        let path = Path::new(rel);
+        if path.is_file() {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("reading {}", path.display()))?;
+            Ok((text, path.parent().map(Path::to_path_buf)))
+        } else {
+            Ok((shipped.to_string(), None))
+        }
+    };
+    let (est_base, _) = text(
+        vibro_estimator::Config::DEFAULT_CONFIG_PATH,
+        vibro_estimator::Config::shipped_text(),
+    )?;
+    let (comp_base, comp_dir) = text(
+        vibro_compensator::Config::DEFAULT_CONFIG_PATH,
+        vibro_compensator::Config::shipped_text(),
+    )?;
+    let est = derived::estimator_text(&est_base, &chain)?;
+    let comp = derived::compensator_text(&comp_base, comp_dir.as_deref(), Some(&chain), None)?;
+    Ok(Some(DerivedConfigs::write(Some(&est), Some(&comp))?))
 }
 
 fn print_report(r: &DemoReport) -> anyhow::Result<()> {

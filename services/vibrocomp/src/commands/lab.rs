@@ -78,6 +78,19 @@ pub struct CompareArgs {
     /// Print every condition (default: the 10 largest residuals).
     #[arg(long)]
     pub all: bool,
+    /// How a log's windows are predicted: `waveform` (default), the compensator's
+    /// waveform stage over the log's vibration samples where they cover a window, else
+    /// the statistics; `statistics`, every row from its stated vibration, as `diagnose`
+    /// and `add` fit (docs/lab.md, "Which evaluation").
+    #[arg(long, value_enum, default_value = "waveform")]
+    pub path: EvaluationPath,
+}
+
+/// `lab compare --path`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum EvaluationPath {
+    Waveform,
+    Statistics,
 }
 
 #[derive(Debug, Args)]
@@ -273,7 +286,12 @@ fn load_input(i: &Input) -> anyhow::Result<Loaded> {
 
 fn compare(a: &CompareArgs) -> anyhow::Result<()> {
     let Loaded { model, table, log } = load_input(&a.input)?;
-    let c = vibro_lab::compare(&model, &table)?;
+    // A log's windows as the compensator evaluates them (the waveform stage over its
+    // samples); tables, manifests and uncovered windows on the statistics path.
+    let c = match a.path {
+        EvaluationPath::Waveform => vibro_lab::compare_evaluated(&model, &table, &log)?,
+        EvaluationPath::Statistics => vibro_lab::compare(&model, &table)?,
+    };
     print_result(a.input.json, &c, &log, |o| {
         text::write_comparison(o, &c, a.all)
     })
