@@ -450,6 +450,78 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
     Ok(())
 }
 
+/// The text `vibrocomp log info` prints of a log's losses and recoveries.
+impl LogInfo {
+    /// The losses line of a file whose sequences show none: a recovered file's losses are
+    /// in its recovery records, not in its sequences (a chunk dropped at the start of the
+    /// streams leaves no gap).
+    pub fn write_no_losses(&self, out: &mut impl std::fmt::Write) -> std::fmt::Result {
+        let info = self;
+        let dropped: u64 = info.recoveries.iter().map(|r| r.messages_dropped).sum();
+        if info.recoveries.iter().any(|r| r.losses) {
+            let counted = if dropped > 0 {
+                format!("{dropped} messages dropped")
+            } else {
+                "parts of the input not copied".to_string()
+            };
+            writeln!(
+                out,
+                "  losses: none in the sequences (every sequence advances by 1), but {counted} when it was recovered (below)"
+            )
+        } else {
+            writeln!(out, "  losses: none (every sequence advances by 1)")
+        }
+    }
+
+    /// One line per recovery that made the file (its `vibrocomp.recovery` records).
+    pub fn write_recoveries(&self, out: &mut impl std::fmt::Write) -> std::fmt::Result {
+        let info = self;
+        for r in &info.recoveries {
+            let kept = match r.messages_expected {
+                Some(n) => format!("{} of {n} messages kept", r.messages_kept),
+                None => format!("{} messages kept", r.messages_kept),
+            };
+            let mut lost = Vec::new();
+            if r.messages_dropped > 0 {
+                let exact = if r.messages_expected.is_some() {
+                    ""
+                } else {
+                    "at least "
+                };
+                lost.push(format!("{exact}{} messages dropped", r.messages_dropped));
+            }
+            if r.chunks_skipped > 0 {
+                lost.push(format!("{} chunk(s) skipped", r.chunks_skipped));
+            }
+            if r.regions_skipped > 0 {
+                lost.push(format!(
+                    "{} region(s) of {} bytes not copied (bytes {})",
+                    r.regions_skipped, r.bytes_skipped, r.skipped_ranges
+                ));
+            }
+            if r.bytes_cut > 0 {
+                lost.push(format!(
+                    "the last {} bytes cut short (a crash)",
+                    r.bytes_cut
+                ));
+            }
+            let lost = if lost.is_empty() {
+                "nothing lost".to_string()
+            } else {
+                lost.join(", ")
+            };
+            writeln!(
+                out,
+                "  recovered from {} ({} bytes; {}): {kept}, {lost}",
+                r.input,
+                r.input_bytes,
+                crate::RECOVERY_METADATA
+            )?;
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -39,6 +39,34 @@ pub fn stop_with_parent(c: &mut Command) {
     }
 }
 
+/// Waits until `service`'s heartbeat says it has published `count` messages (the
+/// compensator: one block per accelerometer block, the ones its waveform stage held
+/// included), at most `timeout`: past it the caller goes on, and what is missing shows
+/// in its counts. `alive` is asked between looks.
+pub fn wait_for_published(
+    names: &ServiceNames,
+    service: ServiceId,
+    count: u64,
+    timeout: Duration,
+    mut alive: impl FnMut() -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let node = create_node("vibrocomp-wait").context("iceoryx2 node")?;
+    let stream = Stream::Heartbeat(service);
+    let heartbeats = StreamSubscriber::<Heartbeat>::open(&node, names, stream)
+        .with_context(|| format!("subscribing to {}", names.stream(stream)))?;
+    let start = Instant::now();
+    while start.elapsed() < timeout {
+        while let Some(h) = heartbeats.receive()? {
+            if h.published >= count {
+                return Ok(());
+            }
+        }
+        alive()?;
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    Ok(())
+}
+
 /// Waits until each of `services` has published a heartbeat under `names` (their
 /// ports then exist), or fails after `timeout` naming the ones that did not.
 /// `alive` is asked between looks (to fail early when a child has died).

@@ -42,7 +42,7 @@ use vibro_system::{Role, SystemSpec};
 use crate::commands::replay::replay_with_bar;
 use crate::commands::sim::simulate_flight;
 use crate::output::print_json;
-use vibro_service::supervise::{private_prefix, wait_for_heartbeats};
+use vibro_service::supervise::{private_prefix, wait_for_heartbeats, wait_for_published};
 
 #[derive(Debug, clap::Args)]
 pub struct DemoArgs {
@@ -245,9 +245,13 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         .get(&vibro_log::topic(vibro_msgs::Stream::Accel))
         .copied()
         .unwrap_or(0);
-    wait_for_compensated(&names, accel_blocks, Duration::from_secs(10), || {
-        compensator.check_alive()
-    })?;
+    wait_for_published(
+        &names,
+        ServiceId::Compensator,
+        accel_blocks,
+        Duration::from_secs(10),
+        || compensator.check_alive(),
+    )?;
     let timeout = Duration::from_secs(20);
     let recording = recorder.stop(timeout)?.summary()?;
     let est = estimator.stop(timeout)?.summary()?;
@@ -344,33 +348,6 @@ fn two_host_specs(
         ..common
     };
     Ok((a, b, hosts))
-}
-
-/// Waits until the compensator's heartbeat says it has published `blocks` blocks (one
-/// per accelerometer block replayed), at most `timeout`: past it the run goes on, and
-/// what is missing shows in the recording's counts.
-fn wait_for_compensated(
-    names: &ServiceNames,
-    blocks: u64,
-    timeout: Duration,
-    mut alive: impl FnMut() -> anyhow::Result<()>,
-) -> anyhow::Result<()> {
-    let node = vibro_ipc::create_node("vibrocomp-demo-wait").context("iceoryx2 node")?;
-    let stream = vibro_msgs::Stream::Heartbeat(ServiceId::Compensator);
-    let heartbeats =
-        vibro_ipc::StreamSubscriber::<vibro_msgs::Heartbeat>::open(&node, names, stream)
-            .with_context(|| format!("subscribing to {}", names.stream(stream)))?;
-    let start = Instant::now();
-    while start.elapsed() < timeout {
-        while let Some(h) = heartbeats.receive()? {
-            if h.published >= blocks {
-                return Ok(());
-            }
-        }
-        alive()?;
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    Ok(())
 }
 
 /// The vibration sensors' chain `scenario` simulates (`[sensor]`, `[rates] sensor_hz`;

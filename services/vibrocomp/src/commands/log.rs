@@ -100,73 +100,6 @@ fn info(args: &InfoArgs) -> anyhow::Result<()> {
     print_text(|out| write_info(out, &info))
 }
 
-/// The losses line of a file whose sequences show none: a recovered file's losses are
-/// in its recovery records, not in its sequences (a chunk dropped at the start of the
-/// streams leaves no gap).
-fn write_no_losses(out: &mut String, info: &LogInfo) -> std::fmt::Result {
-    let dropped: u64 = info.recoveries.iter().map(|r| r.messages_dropped).sum();
-    if info.recoveries.iter().any(|r| r.losses) {
-        let counted = if dropped > 0 {
-            format!("{dropped} messages dropped")
-        } else {
-            "parts of the input not copied".to_string()
-        };
-        writeln!(
-            out,
-            "  losses: none in the sequences (every sequence advances by 1), but {counted} when it was recovered (below)"
-        )
-    } else {
-        writeln!(out, "  losses: none (every sequence advances by 1)")
-    }
-}
-
-/// One line per recovery that made the file (its `vibrocomp.recovery` records).
-fn write_recoveries(out: &mut String, info: &LogInfo) -> std::fmt::Result {
-    for r in &info.recoveries {
-        let kept = match r.messages_expected {
-            Some(n) => format!("{} of {n} messages kept", r.messages_kept),
-            None => format!("{} messages kept", r.messages_kept),
-        };
-        let mut lost = Vec::new();
-        if r.messages_dropped > 0 {
-            let exact = if r.messages_expected.is_some() {
-                ""
-            } else {
-                "at least "
-            };
-            lost.push(format!("{exact}{} messages dropped", r.messages_dropped));
-        }
-        if r.chunks_skipped > 0 {
-            lost.push(format!("{} chunk(s) skipped", r.chunks_skipped));
-        }
-        if r.regions_skipped > 0 {
-            lost.push(format!(
-                "{} region(s) of {} bytes not copied (bytes {})",
-                r.regions_skipped, r.bytes_skipped, r.skipped_ranges
-            ));
-        }
-        if r.bytes_cut > 0 {
-            lost.push(format!(
-                "the last {} bytes cut short (a crash)",
-                r.bytes_cut
-            ));
-        }
-        let lost = if lost.is_empty() {
-            "nothing lost".to_string()
-        } else {
-            lost.join(", ")
-        };
-        writeln!(
-            out,
-            "  recovered from {} ({} bytes; {}): {kept}, {lost}",
-            r.input,
-            r.input_bytes,
-            vibro_mcap::RECOVERY_METADATA
-        )?;
-    }
-    Ok(())
-}
-
 fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
     writeln!(
         out,
@@ -204,7 +137,7 @@ fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
     let resyncs: u64 = info.channels.iter().map(|c| c.resyncs).sum();
     let restarts: u64 = info.channels.iter().map(|c| c.restarts).sum();
     if info.lost == 0 && out_of_order == 0 && info.jumps == 0 && resyncs == 0 && restarts == 0 {
-        write_no_losses(out, info)?;
+        info.write_no_losses(out)?;
     } else {
         // Each loss once (vibro_mcap::LogInfo::lost): by sequence, and the blocks in
         // the file that got no output.
@@ -249,7 +182,7 @@ fn write_info(out: &mut String, info: &LogInfo) -> std::fmt::Result {
         }
         writeln!(out)?;
     }
-    write_recoveries(out, info)?;
+    info.write_recoveries(out)?;
     // Topics as wide as the longest (`/heartbeat/compensator` is 22 characters).
     let tw = info
         .channels
