@@ -712,6 +712,40 @@ mod tests {
     }
 
     #[test]
+    fn the_waveform_stages_keys_are_checked_with_file_key_value_and_rule() {
+        for (from, to, needle) in [
+            ("delay_s = 0.0 ", "delay_s = -0.001 ", "sensors.delay_s = -0.001: must be from 0 to 1 s"),
+            ("delay_s = 0.0 ", "delay_s = 2.0 ", "sensors.delay_s = 2: must be from 0 to 1 s"),
+            ("ac_corner_hz = 0.5 ", "ac_corner_hz = -2.0 ", "sensors.ac_corner_hz = -2: must be a finite corner"),
+            ("stage = \"waveform\" ", "stage = \"wave\" ", "stage = \"wave\": must be \"waveform\" or \"estimate\""),
+            ("# max_wait_ms = 20.0 ", "max_wait_ms = -5.0 ", "max_wait_ms = -5: must be finite and 0 <= ms <= 10000"),
+            (
+                "sensitivity_v_per_g = [0.1, 0.1, 0.1]",
+                "sensitivity_v_per_g = [0.1, 0.0, 0.1]",
+                "sensors.sensitivity_v_per_g = [0.1, 0.0, 0.1]: each sensitivity must be finite, nonzero",
+            ),
+            (
+                "sensitivity_v_per_g = [0.1, 0.1, 0.1]",
+                "sensitivity_v_per_g = [0.1, 0.1]",
+                "sensors.sensitivity_v_per_g: 2 entries, one per sensor (3)",
+            ),
+        ] {
+            assert!(EMBEDDED_CONFIG.contains(from), "{from}");
+            let text = EMBEDDED_CONFIG.replacen(from, to, 1);
+            let e = Config::parse(&text, ConfigSource::File("c.toml".into())).unwrap_err();
+            let msg = e.to_string();
+            assert!(msg.starts_with("c.toml: ") && msg.contains(needle), "{needle:?} missing from {msg}");
+        }
+        let c = Config::shipped().unwrap();
+        assert_eq!(c.model.waveform.stage, Stage::Waveform);
+        assert_eq!(c.model.waveform.max_wait_ns, None);
+        assert_eq!(
+            c.model.waveform.chain,
+            vibro_waveform::SensorChain::default()
+        );
+    }
+
+    #[test]
     fn paths_are_found_next_to_the_file_and_watched() {
         let dir = temp_dir("paths");
         let passport = vibro_config::EMBEDDED_PASSPORTS[1].2; // AL-1M
