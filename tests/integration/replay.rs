@@ -331,8 +331,10 @@ fn ten_times_real_time_loses_nothing_and_the_recording_reads_in_python() {
     let elapsed = r["elapsed_s"].as_f64().unwrap();
     // Paced, not as fast as possible: 5 s of log at 10x takes about 0.5 s.
     assert!(elapsed > 0.9 * span / 10.0, "{r}");
-    // Give the compensator a moment to take the last block, then stop all.
-    std::thread::sleep(Duration::from_millis(500));
+    // Give the compensator a moment to take the last block, and its waveform stage the
+    // sensors' silence after which it answers the last readings (1 s; the log's samples
+    // do not cover them), then stop all.
+    std::thread::sleep(Duration::from_millis(1500));
     let summaries = stop_all(vec![rec, comp, est]);
     let (rec_s, comp_s, est_s) = (&summaries[0], &summaries[1], &summaries[2]);
     assert_eq!(rec_s["lost"], 0, "{rec_s}");

@@ -61,9 +61,10 @@ fn a_short_soak_under_load_answers_every_block_and_leaves_nothing_running() {
     ]);
 
     // 4 s at 800 Hz in blocks of 32 (40 ms each): 100 blocks; 256 kHz in blocks of 512
-    // (2 ms each): 2,000 blocks.
+    // (2 ms each): 2,000 blocks, and one more past the last accelerometer block (the
+    // sensors go on, so that the waveform stage covers the last readings).
     assert_eq!(u(&v, &["run", "accel_blocks_sent"]), 100, "{v}");
-    assert_eq!(u(&v, &["run", "vib_blocks_sent"]), 2000, "{v}");
+    assert_eq!(u(&v, &["run", "vib_blocks_sent"]), 2001, "{v}");
     // Every accelerometer block answered once, in order, by the rig's own count...
     assert_eq!(u(&v, &["run", "compensated_received"]), 100, "{v}");
     let a = &v["accel"];
@@ -77,7 +78,7 @@ fn a_short_soak_under_load_answers_every_block_and_leaves_nothing_running() {
     let s = &v["services"];
     assert_eq!(u(s, &["compensator_accel_received"]), 100, "{s}");
     assert_eq!(u(s, &["compensator_lost"]), 0, "{s}");
-    assert_eq!(u(s, &["estimator_vib_received"]), 2000, "{s}");
+    assert_eq!(u(s, &["estimator_vib_received"]), 2001, "{s}");
     assert_eq!(u(s, &["estimator_lost"]), 0, "{s}");
     assert_eq!(u(s, &["estimator_rate_mismatches"]), 0, "{s}");
     assert!(u(s, &["estimates_published"]) >= 1, "{s}");

@@ -14,6 +14,8 @@
 //!   accelerometer blocks did: the estimate stage's answer;
 //! - **late**: an accelerometer block dated `max_wait` (default: one vibration block)
 //!   after the held block's last reading arrived before the samples covering it;
+//! - **ended**: the sensors' stream ended (`vib_flags::END_OF_STREAM`, a replay's last
+//!   block): held readings it does not cover are never;
 //! - **silent**: nothing came on `{prefix}vib` for [`SILENCE_NS`] of the wall clock
 //!   and the block has waited `max_wait` (the end of a replay, a sensor stream that
 //!   died while the accelerometer stream stopped too);
@@ -35,9 +37,11 @@ const ESTIMATE_STAGE_ONLY: u32 = cf::MAIN_ONLY | cf::MODEL_EFFECTS;
 
 /// Blocks held at most (at 800 Hz in blocks of 32, 1.6 s of readings).
 pub const MAX_PENDING: usize = 40;
-/// Wall-clock silence of the sensors' stream after which held blocks wait no longer.
-/// Long against a lock-stepped replay's pauses, so that those never decide a block.
-pub const SILENCE_NS: u64 = 250_000_000;
+/// Wall-clock silence of the sensors' stream after which held blocks wait no longer (a
+/// sensor stream that died with the accelerometer's, with no end-of-stream block).
+/// Long against a lock-stepped replay's pauses on a loaded machine, so that those never
+/// decide a block; a replay ends its stream with an end-of-stream block instead.
+pub const SILENCE_NS: u64 = 1_000_000_000;
 
 /// One held block: the estimate stage's answer and the readings `U/K1`.
 struct Pending {
@@ -67,6 +71,8 @@ pub struct WaveformCounts {
     /// `{prefix}vib` blocks received, and malformed ones (dropped).
     pub vib_received: u64,
     pub vib_malformed: u64,
+    /// End-of-stream blocks (`vib_flags::END_OF_STREAM`).
+    pub vib_ends: u64,
     /// The sensors' stream by the continuity rule (losses, out of order, restarts,
     /// jumps, resyncs).
     pub vib: StreamCounters,
@@ -87,6 +93,7 @@ impl WaveformCounts {
             .u64("max_pending", self.max_pending)
             .u64("vib_received", self.vib_received)
             .u64("vib_malformed", self.vib_malformed)
+            .u64("vib_ends", self.vib_ends)
             .object("vib", self.vib.to_json())
             .u64("vib_samples", s.vib_samples)
             .u64("vib_breaks", s.breaks)
@@ -185,6 +192,13 @@ impl WaveformPath {
             self.stage.reset();
         }
         self.last_vib_recv_ns = Some(recv_ns);
+        if b.flags & vib_flags::END_OF_STREAM != 0 {
+            // A replay's or a rig's last word: held readings past the samples are
+            // answered now, by the estimate stage.
+            self.counts.vib_ends += 1;
+            self.stage.end_of_stream();
+            return;
+        }
         self.vib_block_ns = u64::from(b.count).saturating_mul(b.sample_period_ns);
         self.stage.push_vib(
             b.seq,

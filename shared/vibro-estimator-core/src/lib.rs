@@ -313,7 +313,9 @@ impl InProcess {
             self.estimator.reset();
             self.mismatch_span = None;
         }
-        if block.flags & vib_flags::ALL != 0 {
+        // The producer's quality flags (an end-of-stream block carries no samples to
+        // doubt).
+        if block.flags & (vib_flags::GAP_BEFORE | vib_flags::SATURATED) != 0 {
             self.c.producer_flagged += 1;
         }
         // A block at another rate than the estimator's: its samples would sit at the

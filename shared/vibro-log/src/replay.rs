@@ -352,9 +352,9 @@ struct Consumer {
 }
 
 /// The longest a lock-stepped replay waits at its end for the compensator to release
-/// the blocks its waveform stage holds (they go out after 0.25 s of silence on the
+/// the blocks its waveform stage holds (they go out after 1 s of silence on the
 /// sensors' stream, `vibro_compensator::waveform::SILENCE_NS`).
-const HELD_RELEASE_MAX: Duration = Duration::from_secs(2);
+const HELD_RELEASE_MAX: Duration = Duration::from_secs(3);
 
 /// How often a replay looks whether its consumers' processes are still there (a list
 /// of the progress stream's publishers and of iceoryx2's nodes: a few file reads).
@@ -1528,8 +1528,10 @@ impl<'a> Replayer<'a> {
                     c.wait_for(self.accel_sent, self.options.stall_timeout, self.stop)?;
                     // The waveform stage holds the last blocks until the sensors'
                     // stream has been silent a while (the log's last samples cannot
-                    // cover them): wait until it has published them, so that a
-                    // recorder stopped right after the replay records every block.
+                    // cover them; a log's stream does not end with an end-of-stream
+                    // block, and one added here would be a message the log lacks):
+                    // wait until it has published them, so that a recorder stopped
+                    // right after the replay records every block.
                     c.wait_released(HELD_RELEASE_MAX, self.stop)?;
                 }
                 self.wait_s += t.elapsed().as_secs_f64();

@@ -284,7 +284,7 @@ mod tests {
         assert_eq!(compensation_flags::ALL, 0x1fff, "bits 0..12, no hole");
         assert_eq!(estimate_flags::ALL.count_ones(), 9);
         assert_eq!(accel_flags::ALL, 0b11);
-        assert_eq!(vib_flags::ALL, 0b11);
+        assert_eq!(vib_flags::ALL, 0b111);
         assert_eq!(truth_flags::ALL, 0b111);
     }
 }

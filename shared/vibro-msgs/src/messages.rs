@@ -27,8 +27,13 @@ pub mod vib_flags {
     pub const GAP_BEFORE: u32 = 1 << 0;
     /// At least one sample of the block is at or beyond the sensor's full scale.
     pub const SATURATED: u32 = 1 << 1;
+    /// The producer's stream ends here (a replay's last block, a rig stopping): the
+    /// block is empty (`count` 0) and continues the stream's `seq`, index and time. A
+    /// consumer waiting for samples past it (the compensator's waveform stage) stops
+    /// waiting.
+    pub const END_OF_STREAM: u32 = 1 << 2;
     /// Every defined bit.
-    pub const ALL: u32 = GAP_BEFORE | SATURATED;
+    pub const ALL: u32 = GAP_BEFORE | SATURATED | END_OF_STREAM;
 }
 
 /// Flag bits of [`VibEstimate::flags`], mirroring `vibro_dsp::Flags` (plus the estimator

@@ -218,6 +218,15 @@ impl WaveformStage {
         self.counters
     }
 
+    /// The producer's stream has ended (an end-of-stream block): nothing more comes into
+    /// the current segment, so readings it does not cover never will be
+    /// ([`Coverage::Never`]); the next block starts a new segment.
+    pub fn end_of_stream(&mut self) {
+        if self.seg.is_some() {
+            self.broken = true;
+        }
+    }
+
     /// Forgets the stream and the effects' state (a restarted producer).
     pub fn reset(&mut self) {
         self.seg = None;

@@ -161,7 +161,25 @@ fn compensate(rig: &Rig, config: &Config, keep_vib: impl Fn(u64) -> bool) -> Vec
             Msg::Accel(b) => comp.on_accel(&b, t_ns, &mut out),
         }
     }
+    // The stream's end, as a replay marks it: nothing stays held.
+    let last = rig.vib.len() as u64;
+    let end = VibBlock {
+        seq: last.div_ceil(512),
+        first_sample_index: last,
+        t0_ns: (rig.vib[rig.vib.len() - 1].0 * 1e9).round() as u64
+            + (1e9 / rig.sensor_hz).round() as u64,
+        sample_period_ns: (1e9 / rig.sensor_hz).round() as u64,
+        flags: vibro_msgs::vib_flags::END_OF_STREAM,
+        ..Default::default()
+    };
+    comp.on_vib(&end, u64::MAX / 2, &mut out);
+    let before = out.len();
     comp.finish(&mut out);
+    assert_eq!(
+        out.len(),
+        before,
+        "held after the end of the sensors' stream"
+    );
     out
 }
 
