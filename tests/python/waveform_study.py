@@ -9,6 +9,7 @@ vibration sensors (AC coupling 2 Hz), 800 Hz readings, an orientation per run as
 - ``tones``: tones only (no random vibration), 30..120 Hz, rigid mount;
 - ``mount``: tones 30..120 Hz and random vibration through a hidden 150 Hz, Q 2.5
   mount;
+- ``tones150``: every tone at 150 Hz and random vibration, rigid mount;
 - ``resonance``: every tone at 150 Hz through a hidden 150 Hz, Q 2.5 mount, random
   vibration 20..640 Hz;
 - ``delay``: tones 30..120 Hz and random vibration, the sensors behind a stated
@@ -54,6 +55,8 @@ def kind_args(kind, run_index):
         return tones + ["--random-psd", "0"], None
     if kind == "mount":
         return tones + ["--resonance-f0-hz", "150", "--resonance-q", "2.5"], None
+    if kind == "tones150":
+        return ["--tone-hz", "150"], None
     if kind == "resonance":
         return ["--tone-hz", "150", "--resonance-f0-hz", "150", "--resonance-q", "2.5"], None
     if kind == "delay":
@@ -174,7 +177,7 @@ def main():
     ap.add_argument("--bin", default=os.path.join(ROOT, "target", "debug", "vibrocomp"))
     ap.add_argument("--out", required=True)
     ap.add_argument("--runs", type=int, default=8)
-    ap.add_argument("--kind", choices=["tones", "mount", "resonance", "delay", "nothing"],
+    ap.add_argument("--kind", choices=["tones", "tones150", "mount", "resonance", "delay", "nothing"],
                     default="nothing")
     ap.add_argument("--model", default=None, help="model file for `vibrocomp up --model` (optional)")
     ap.add_argument("--compensator-config", default=None,
