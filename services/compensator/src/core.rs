@@ -736,8 +736,14 @@ impl Compensation {
     /// builds once). The extended model's grids depend on the block's reading, so with
     /// `model = ...` the tables are still built by the block ([`Self::apply`]). A
     /// vibration the compensator refuses is left to `apply`, which reports it.
+    ///
+    /// Not with the waveform stage: there the estimate stage's answer is made when a block
+    /// arrives and held with it, so its tables are built on that block's arrival, which
+    /// nothing waits for; built here, in the wake-up an estimate arrives in, they would
+    /// hold up the release of a block whose last samples arrive meanwhile (1 to 3 ms,
+    /// four times a second: the release's p99).
     pub(crate) fn prepare(&mut self) {
-        if self.model.effects.is_some() {
+        if self.model.effects.is_some() || self.waveform.is_some() {
             return;
         }
         let Some(l) = &self.latest else {

@@ -277,6 +277,11 @@ pub(crate) fn run_iceoryx(
         std::thread::sleep(Duration::from_millis(5));
     }
     let mut stream = RigStream::new(opts, k1_v_per_g);
+    // The sender at the real-time priority too, as a DAQ's driver thread runs: at
+    // normal priority the estimator's window work (one below the compensator) can
+    // preempt it between a block's publish stamp and its notification, and the
+    // compensator then sees the block milliseconds late (1 % of the sensor blocks).
+    vibro_service::realtime::enter(opts.realtime_priority)?;
     let (ka, kv) = pace(
         opts,
         &mut stream,
