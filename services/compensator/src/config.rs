@@ -121,10 +121,20 @@ pub enum Stage {
 }
 
 impl Stage {
+    /// The configuration's word for it.
     pub fn name(self) -> &'static str {
         match self {
             Stage::Waveform => "waveform",
             Stage::Estimate => "estimate",
+        }
+    }
+
+    /// `waveform` or `estimate`; otherwise the rule, with the value.
+    pub fn parse(word: &str) -> Result<Self, String> {
+        match word {
+            "waveform" => Ok(Stage::Waveform),
+            "estimate" => Ok(Stage::Estimate),
+            other => Err(format!("{other:?}: must be \"waveform\" or \"estimate\"")),
         }
     }
 }
@@ -486,13 +496,10 @@ impl Config {
             ));
         }
 
-        let stage = match raw.stage.as_str() {
-            "waveform" => Some(Stage::Waveform),
-            "estimate" => Some(Stage::Estimate),
-            other => {
-                problems.push(format!(
-                    "stage = {other:?}: must be \"waveform\" or \"estimate\""
-                ));
+        let stage = match Stage::parse(&raw.stage) {
+            Ok(s) => Some(s),
+            Err(rule) => {
+                problems.push(format!("stage = {rule}"));
                 None
             }
         };

@@ -236,32 +236,7 @@ pub enum Report {
 }
 
 /// The compensator's stage in the vibrocomp pipeline (its configuration's `stage`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Stage {
-    /// Each reading solved from the vibration sensors' samples (MODEL.md section 12).
-    Waveform,
-    /// The paper's stages (17)-(20) only.
-    Estimate,
-}
-
-impl Stage {
-    /// The configuration's word for it.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Waveform => "waveform",
-            Self::Estimate => "estimate",
-        }
-    }
-
-    /// `waveform` or `estimate`.
-    pub fn parse(word: &str) -> anyhow::Result<Self> {
-        match word {
-            "waveform" => Ok(Self::Waveform),
-            "estimate" => Ok(Self::Estimate),
-            other => bail!("stage {other:?}: must be \"waveform\" or \"estimate\""),
-        }
-    }
-}
+pub use vibro_compensator::Stage;
 
 /// [`run_with_stage`] with the compensator's configured stage.
 pub fn run(options: &Options) -> anyhow::Result<Report> {

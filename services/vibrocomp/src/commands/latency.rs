@@ -89,7 +89,8 @@ pub fn run(args: &LatencyArgs) -> anyhow::Result<()> {
         .stage
         .as_deref()
         .map(vibro_latency::Stage::parse)
-        .transpose()?;
+        .transpose()
+        .map_err(|rule| anyhow::anyhow!("--stage {rule}"))?;
     match vibro_latency::run_with_stage(&options, stage)? {
         Report::Soak(soak) if args.json => print_json(&soak),
         Report::Soak(soak) => print_soak(&soak),
