@@ -170,6 +170,18 @@ def test_a_log_with_a_reference_is_the_command_lines(cli, demo_dir):
     both = vc.lab.compare(flight, CAMPAIGN)
     assert both.to_dict() == cli("lab", "compare", flight, CAMPAIGN)
     assert both.logs is None and both.log is not None
+    # A log with vibration samples is evaluated as the compensator does (the waveform
+    # stage over its samples), the table from the statistics; `path="statistics"`
+    # takes the statistics for all, as `--path statistics` does.
+    assert {r.path for r in both.rows} == {"waveform", "statistics"}
+    assert c.paths["waveform"] > 0.5 * c.summary.n
+    assert c.paths["waveform"] + c.paths["statistics"] == c.summary.n
+    assert all(r.window["readings"] > 0 for r in c.rows if r.path == "waveform")
+    stats = vc.lab.compare(flight, pool_windows=2, path="statistics")
+    assert stats.to_dict() == cli("lab", "compare", flight, "--pool-windows", "2", "--path", "statistics")
+    assert {r.path for r in stats.rows} == {"statistics"}
+    with pytest.raises(ValueError, match="path = \"waves\""):
+        vc.lab.compare(flight, path="waves")
 
 
 def test_a_bad_table_is_the_command_lines_error(cli, tmp_path):
