@@ -363,6 +363,45 @@ fn every_tone_on_a_hidden_mount_with_its_true_parameters() {
     assert!(base > 10.0 * wf, "{base} against {wf}");
 }
 
+/// Eight samples per reading with every tone on the resonance: 6.4 kHz sensors, the
+/// 150 Hz tones through the hidden 150 Hz, Q 2.5 mount (the quadrature on the grid
+/// the interpolation fills, issue 43's "8 samples per reading, a tone on a resonance
+/// included").
+#[test]
+fn eight_samples_per_reading_with_every_tone_on_the_resonance() {
+    let dir = TempDir::new();
+    let rig = generate(
+        &dir.0,
+        &[
+            "--seed",
+            "436",
+            "--orientation=+y",
+            "--tone-hz",
+            "150,150,150",
+            "--resonance-f0-hz",
+            "150",
+            "--resonance-q",
+            "2.5",
+            "--sensor-rate-hz",
+            "6400",
+            "--oversample",
+            "8",
+        ],
+    );
+    let model = dir.path("mount.toml");
+    std::fs::write(
+        &model,
+        "format = \"vibrocomp-model/1\"\nmode = \"exact\"\n[[effect]]\nkind = \"mount_resonance\"\nfreq_hz = 150.0\nq = 2.5\n",
+    )
+    .unwrap();
+    let wf = score(
+        "6.4 kHz, tones on a 150 Hz Q 2.5 mount, true model",
+        &rig,
+        &compensator_config(Stage::Waveform, 0.0, Some(&model)),
+    );
+    assert!(wf < 3e-6, "{wf} g");
+}
+
 #[test]
 fn sensors_at_6k4_behind_a_stated_delay() {
     let dir = TempDir::new();
