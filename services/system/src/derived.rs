@@ -2,7 +2,7 @@
 //! in (`vibrocomp up --rig RIG.toml --model MODEL.toml`): the text of each
 //! configuration with those keys replaced ([`estimator_text`], [`compensator_text`]),
 //! written into a private folder ([`DerivedConfigs`]) whose files the services are
-//! started with, so that a restarted service (and the recorder, which attaches them)
+//! started with ([`derive`] does it all, every input checked first), so that a restarted service (and the recorder, which attaches them)
 //! reads exactly what the first one did.
 //!
 //! Files rather than flags on the services: the compensator reloads its configuration
@@ -29,6 +29,7 @@ use anyhow::Context;
 use std::path::{Path, PathBuf};
 use toml::{Table, Value};
 use vibro_config::rig::SensorChain;
+use vibro_service::ServiceConfig;
 
 /// The estimator's configuration text with the chain's sensitivity, AC corner and delay
 /// in `[estimator]` (`sensitivity_raw_per_g`, `ac_corner_hz`, `delay_s`), and its rate
@@ -226,6 +227,133 @@ fn private_dir() -> anyhow::Result<PathBuf> {
         base.display(),
         last
     )
+}
+
+/// Checks the services' configurations as given, then `--rig` and `--model`, and with
+/// either writes the configurations that carry them ([`DerivedConfigs`]) and checks
+/// those as the services will load them. Every error names the file, key, value and
+/// rule; nothing has started yet.
+pub fn derive(
+    estimator_config: Option<&Path>,
+    compensator_config: Option<&Path>,
+    rig_file: Option<&Path>,
+    model: Option<&Path>,
+) -> anyhow::Result<Option<DerivedConfigs>> {
+    use vibro_compensator::Config as Compensator;
+    use vibro_estimator::Config as Estimator;
+    let estimator = base_config::<Estimator>(estimator_config)?;
+    let compensator = base_config::<Compensator>(compensator_config)?;
+    // The rig file's and the model's problems at once.
+    let mut problems = Vec::new();
+    let rig = match rig_file.map(rig_chain) {
+        Some(Ok(chain)) => Some(chain),
+        Some(Err(e)) => {
+            problems.push(format!("{e:#}"));
+            None
+        }
+        None => None,
+    };
+    if let Some(path) = model {
+        if let Err(e) = vibro_effects::LabModel::load(path) {
+            problems.push(format!("--model {}: {e}", path.display()));
+        }
+    }
+    if !problems.is_empty() {
+        anyhow::bail!("{}", problems.join("\n"));
+    }
+    if rig.is_none() && model.is_none() {
+        return Ok(None);
+    }
+    let estimator_derived = match &rig {
+        Some(chain) => Some(estimator_text(&estimator.text, chain).with_context(|| {
+            format!(
+                "applying --rig to the estimator's configuration {}",
+                estimator.name
+            )
+        })?),
+        None => None,
+    };
+    let compensator_derived = compensator_text(
+        &compensator.text,
+        compensator.dir.as_deref(),
+        rig.as_ref(),
+        model,
+    )
+    .with_context(|| {
+        format!(
+            "applying --rig/--model to the compensator's configuration {}",
+            compensator.name
+        )
+    })?;
+    let derived = DerivedConfigs::write(estimator_derived.as_deref(), Some(&compensator_derived))?;
+    let given = |what: &str, name: &str| {
+        let mut from = vec![format!("{what} {name}")];
+        from.extend(rig_file.map(|p| format!("--rig {}", p.display())));
+        if what == "compensator" {
+            from.extend(model.map(|p| format!("--model {}", p.display())));
+        }
+        from.join(" with ")
+    };
+    if let Some(p) = derived.estimator() {
+        Estimator::load(p).with_context(|| given("estimator", &estimator.name))?;
+    }
+    if let Some(p) = derived.compensator() {
+        Compensator::load(p).with_context(|| given("compensator", &compensator.name))?;
+    }
+    Ok(Some(derived))
+}
+
+/// A service's configuration as given (or the default one), checked, with its text.
+struct BaseConfig {
+    text: String,
+    /// Where its relative paths are looked up first.
+    dir: Option<PathBuf>,
+    /// The file, or `... (shipped)`.
+    name: String,
+}
+
+fn base_config<C: ServiceConfig>(given: Option<&Path>) -> anyhow::Result<BaseConfig> {
+    let default = Path::new(C::DEFAULT_CONFIG_PATH);
+    let path = match given {
+        Some(p) => Some(p),
+        None => default.is_file().then_some(default),
+    };
+    match path {
+        Some(p) => {
+            drop(C::load(p)?);
+            Ok(BaseConfig {
+                text: vibro_service::read_config_file(p)?,
+                dir: p.parent().map(Path::to_path_buf),
+                name: p.display().to_string(),
+            })
+        }
+        None => {
+            drop(C::shipped()?);
+            Ok(BaseConfig {
+                text: C::shipped_text().to_string(),
+                dir: None,
+                name: format!("{} (shipped)", C::DEFAULT_CONFIG_PATH),
+            })
+        }
+    }
+}
+
+/// The rig file's sensor chain (`vibro_config::rig`, the parser `log import --rig`
+/// uses), checked against the compensator's rules for a chain as well.
+fn rig_chain(path: &Path) -> anyhow::Result<vibro_config::rig::SensorChain> {
+    let rig = vibro_config::load_rig(path).with_context(|| format!("--rig {}", path.display()))?;
+    let s = rig.sensors;
+    let problems = vibro_waveform::SensorChain {
+        sensitivity_v_per_g: s.sensitivity_v_per_g,
+        ac_corner_hz: s.ac_corner_hz.unwrap_or(0.0),
+        delay_s: s.delay_s,
+    }
+    .problems();
+    if !problems.is_empty() {
+        let list: Vec<String> = problems.iter().map(|p| format!("sensors.{p}")).collect();
+        anyhow::bail!("--rig {}: {}", rig.file, list.join("; "));
+    }
+    Ok(s)
 }
 
 #[cfg(test)]

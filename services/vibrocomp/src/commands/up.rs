@@ -16,8 +16,8 @@ use tokio::sync::mpsc;
 use tracing::info;
 use vibro_msgs::{ServiceId, ServiceNames};
 use vibro_service::supervise::{claim_prefix, running_on, supervise, ProcessReport, RestartLimits};
-use vibro_service::{init_tracing, run_service, ServiceConfig};
-use vibro_system::derived::{compensator_text, estimator_text, DerivedConfigs};
+use vibro_service::{init_tracing, run_service};
+use vibro_system::derived::DerivedConfigs;
 use vibro_system::{Role, SystemSpec};
 
 use crate::output::print_json;
@@ -103,7 +103,15 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
     let (window, stop_timeout) = (window.unwrap_or_default(), stop_timeout.unwrap_or_default());
     // A bad configuration, rig file or model fails here, once, instead of in a restart
     // loop. Kept for `up`'s life: restarted services read the derived files again.
-    let derived = derive_configs(args)?;
+    if let Some(path) = &args.bridge {
+        drop(vibro_bridge::BridgeConfig::load(path)?);
+    }
+    let derived = vibro_system::derived::derive(
+        args.estimator_config.as_deref(),
+        args.compensator_config.as_deref(),
+        args.rig.as_deref(),
+        args.model.as_deref(),
+    )?;
     let derived_path = |pick: fn(&DerivedConfigs) -> Option<&Path>, given: &Option<PathBuf>| {
         derived
             .as_ref()
@@ -247,135 +255,6 @@ pub fn run(args: &UpArgs) -> anyhow::Result<()> {
         "a service crashed too often; the system was stopped"
     );
     Ok(())
-}
-
-/// Checks the services' configurations as given, then `--rig` and `--model`, and with
-/// either writes the configurations that carry them ([`DerivedConfigs`]) and checks
-/// those as the services will load them. Every error names the file, key, value and
-/// rule; nothing has started yet.
-fn derive_configs(args: &UpArgs) -> anyhow::Result<Option<DerivedConfigs>> {
-    use vibro_compensator::Config as Compensator;
-    use vibro_estimator::Config as Estimator;
-    let estimator = base_config::<Estimator>(&args.estimator_config)?;
-    let compensator = base_config::<Compensator>(&args.compensator_config)?;
-    if let Some(path) = &args.bridge {
-        drop(vibro_bridge::BridgeConfig::load(path)?);
-    }
-    // The rig file's and the model's problems at once.
-    let mut problems = Vec::new();
-    let rig = match args.rig.as_deref().map(rig_chain) {
-        Some(Ok(chain)) => Some(chain),
-        Some(Err(e)) => {
-            problems.push(format!("{e:#}"));
-            None
-        }
-        None => None,
-    };
-    if let Some(path) = &args.model {
-        if let Err(e) = vibro_effects::LabModel::load(path) {
-            problems.push(format!("--model {}: {e}", path.display()));
-        }
-    }
-    if !problems.is_empty() {
-        anyhow::bail!("{}", problems.join("\n"));
-    }
-    if rig.is_none() && args.model.is_none() {
-        return Ok(None);
-    }
-    let estimator_derived = match &rig {
-        Some(chain) => Some(estimator_text(&estimator.text, chain).with_context(|| {
-            format!(
-                "applying --rig to the estimator's configuration {}",
-                estimator.name
-            )
-        })?),
-        None => None,
-    };
-    let compensator_derived = compensator_text(
-        &compensator.text,
-        compensator.dir.as_deref(),
-        rig.as_ref(),
-        args.model.as_deref(),
-    )
-    .with_context(|| {
-        format!(
-            "applying --rig/--model to the compensator's configuration {}",
-            compensator.name
-        )
-    })?;
-    let derived = DerivedConfigs::write(estimator_derived.as_deref(), Some(&compensator_derived))?;
-    let given = |what: &str, name: &str| {
-        let mut from = vec![format!("{what} {name}")];
-        from.extend(args.rig.as_ref().map(|p| format!("--rig {}", p.display())));
-        if what == "compensator" {
-            from.extend(
-                args.model
-                    .as_ref()
-                    .map(|p| format!("--model {}", p.display())),
-            );
-        }
-        from.join(" with ")
-    };
-    if let Some(p) = derived.estimator() {
-        Estimator::load(p).with_context(|| given("estimator", &estimator.name))?;
-    }
-    if let Some(p) = derived.compensator() {
-        Compensator::load(p).with_context(|| given("compensator", &compensator.name))?;
-    }
-    Ok(Some(derived))
-}
-
-/// A service's configuration as given (or the default one), checked, with its text.
-struct BaseConfig {
-    text: String,
-    /// Where its relative paths are looked up first.
-    dir: Option<PathBuf>,
-    /// The file, or `... (shipped)`.
-    name: String,
-}
-
-fn base_config<C: ServiceConfig>(given: &Option<PathBuf>) -> anyhow::Result<BaseConfig> {
-    let default = Path::new(C::DEFAULT_CONFIG_PATH);
-    let path = match given {
-        Some(p) => Some(p.as_path()),
-        None => default.is_file().then_some(default),
-    };
-    match path {
-        Some(p) => {
-            drop(C::load(p)?);
-            Ok(BaseConfig {
-                text: vibro_service::read_config_file(p)?,
-                dir: p.parent().map(Path::to_path_buf),
-                name: p.display().to_string(),
-            })
-        }
-        None => {
-            drop(C::shipped()?);
-            Ok(BaseConfig {
-                text: C::shipped_text().to_string(),
-                dir: None,
-                name: format!("{} (shipped)", C::DEFAULT_CONFIG_PATH),
-            })
-        }
-    }
-}
-
-/// The rig file's sensor chain (`vibro_config::rig`, the parser `log import --rig`
-/// uses), checked against the compensator's rules for a chain as well.
-fn rig_chain(path: &Path) -> anyhow::Result<vibro_config::rig::SensorChain> {
-    let rig = vibro_config::load_rig(path).with_context(|| format!("--rig {}", path.display()))?;
-    let s = rig.sensors;
-    let problems = vibro_waveform::SensorChain {
-        sensitivity_v_per_g: s.sensitivity_v_per_g,
-        ac_corner_hz: s.ac_corner_hz.unwrap_or(0.0),
-        delay_s: s.delay_s,
-    }
-    .problems();
-    if !problems.is_empty() {
-        let list: Vec<String> = problems.iter().map(|p| format!("sensors.{p}")).collect();
-        anyhow::bail!("--rig {}: {}", rig.file, list.join("; "));
-    }
-    Ok(s)
 }
 
 /// Refuses a recording path the recorder could not write, before any service starts,
