@@ -317,15 +317,22 @@ fn nothing_hidden_at_25k6_leaves_the_rigs_noise() {
     assert!(wf < 3e-6, "{wf} g");
 }
 
-#[test]
-fn every_tone_on_a_hidden_mount_with_its_true_parameters() {
+/// Every tone at 150 Hz through the generator's hidden 150 Hz, Q 2.5 mount, the sensors
+/// at `sensor_hz` (`oversample` for the generator's 51.2 kHz grid), compensated with the
+/// mount's true parameters: the waveform stage's RMS, g; and with the base model.
+fn tones_on_the_mount(
+    seed: &str,
+    orientation: &str,
+    sensor_hz: &str,
+    oversample: &str,
+) -> (f64, f64) {
     let dir = TempDir::new();
     let rig = generate(
         &dir.0,
         &[
             "--seed",
-            "432",
-            "--orientation=oblique1",
+            seed,
+            orientation,
             "--tone-hz",
             "150,150,150",
             "--resonance-f0-hz",
@@ -333,9 +340,9 @@ fn every_tone_on_a_hidden_mount_with_its_true_parameters() {
             "--resonance-q",
             "2.5",
             "--sensor-rate-hz",
-            "25600",
+            sensor_hz,
             "--oversample",
-            "2",
+            oversample,
         ],
     );
     let model = dir.path("mount.toml");
@@ -345,60 +352,33 @@ fn every_tone_on_a_hidden_mount_with_its_true_parameters() {
     )
     .unwrap();
     let wf = score(
-        "tones on a 150 Hz Q 2.5 mount, true model",
+        &format!("{sensor_hz} Hz sensors, tones on a 150 Hz Q 2.5 mount, true model"),
         &rig,
         &compensator_config(Stage::Waveform, 0.0, Some(&model)),
     );
+    let base = compensate(
+        &rig,
+        &compensator_config(Stage::Waveform, 0.0, None),
+        |_| true,
+    );
+    (wf, waveform_rms(&rig, &base).0)
+}
+
+#[test]
+fn every_tone_on_a_hidden_mount_with_its_true_parameters() {
+    let (wf, base) = tones_on_the_mount("432", "--orientation=oblique1", "25600", "2");
     assert!(wf < 3e-6, "{wf} g");
     // Without the mount in the model the stage leaves far more: the test can fail.
-    let (base, _) = waveform_rms(
-        &rig,
-        &compensate(
-            &rig,
-            &compensator_config(Stage::Waveform, 0.0, None),
-            |_| true,
-        ),
-    );
     eprintln!("the same without the mount: {:.1} ug", base * 1e6);
     assert!(base > 10.0 * wf, "{base} against {wf}");
 }
 
-/// Eight samples per reading with every tone on the resonance: 6.4 kHz sensors, the
-/// 150 Hz tones through the hidden 150 Hz, Q 2.5 mount (the quadrature on the grid
-/// the interpolation fills, issue 43's "8 samples per reading, a tone on a resonance
-/// included").
+/// Eight samples per reading with every tone on the resonance: 6.4 kHz sensors (the
+/// quadrature on the grid the interpolation fills, issue 43's "8 samples per reading, a
+/// tone on a resonance included").
 #[test]
 fn eight_samples_per_reading_with_every_tone_on_the_resonance() {
-    let dir = TempDir::new();
-    let rig = generate(
-        &dir.0,
-        &[
-            "--seed",
-            "436",
-            "--orientation=+y",
-            "--tone-hz",
-            "150,150,150",
-            "--resonance-f0-hz",
-            "150",
-            "--resonance-q",
-            "2.5",
-            "--sensor-rate-hz",
-            "6400",
-            "--oversample",
-            "8",
-        ],
-    );
-    let model = dir.path("mount.toml");
-    std::fs::write(
-        &model,
-        "format = \"vibrocomp-model/1\"\nmode = \"exact\"\n[[effect]]\nkind = \"mount_resonance\"\nfreq_hz = 150.0\nq = 2.5\n",
-    )
-    .unwrap();
-    let wf = score(
-        "6.4 kHz, tones on a 150 Hz Q 2.5 mount, true model",
-        &rig,
-        &compensator_config(Stage::Waveform, 0.0, Some(&model)),
-    );
+    let (wf, _) = tones_on_the_mount("436", "--orientation=+y", "6400", "8");
     assert!(wf < 3e-6, "{wf} g");
 }
 
