@@ -15,9 +15,8 @@
 //! error (`a2_g - a4_g`; `a2` is the paper's first-order inverse, 1.2 % measured), the
 //! compensator's and the estimator's cores run in-process over the log's blocks.
 
-use crate::common::{repo_path, run_json, TempDir};
+use crate::common::{run_json, TempDir};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use vibro_compensator::{Config, InProcess, Stage};
 use vibro_mcap::{Message, Reader};
 use vibro_msgs::compensation_flags as cf;
@@ -31,71 +30,8 @@ const MOUNT_MODEL: &str = "format = \"vibrocomp-model/1\"\nmode = \"exact\"\n\
 /// into `dir/name`, its rig file (the shipped triad, 0.1 V/g, 2 Hz AC corner, the run's
 /// orientation as the static reference) and its import into `dir/name.mcap`.
 fn rig_log(dir: &Path, name: &str, seed: u32, mount: bool) -> PathBuf {
-    let run = dir.join(name);
-    let mut gen = Command::new("python3");
-    gen.arg(repo_path("tests/python/rig_generator.py"))
-        .args(["run", "--out"])
-        .arg(&run)
-        .args([
-            "--vibrate-throughout",
-            "--duration-s",
-            "8",
-            "--tone-hz",
-            "30,60,120",
-            "--sensor-rate-hz",
-            "6400",
-            "--oversample",
-            "8",
-            "--unit-noise-ug",
-            "2",
-            "--seed",
-            &seed.to_string(),
-        ])
-        .env("PYTHONDONTWRITEBYTECODE", "1");
-    if mount {
-        gen.args(["--resonance-f0-hz", "150", "--resonance-q", "2.5"]);
-    }
-    let out = gen.output().expect("python3 runs");
-    assert!(
-        out.status.success(),
-        "rig generator: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let truth: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run.join("truth.json")).unwrap()).unwrap();
-    let up: Vec<f64> = truth["orientation"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_f64().unwrap())
-        .collect();
-    let rig = run.join("rig.toml");
-    std::fs::write(
-        &rig,
-        format!(
-            "format = \"vibrocomp-rig/1\"\ntriad = \"default\"\n[sensors]\n\
-             sensitivity_v_per_g = 0.1\nac_corner_hz = 2.0\n[reference]\nkind = \"static\"\n\
-             [[reference.segment]]\nfrom_s = 0.0\nto_s = 3600.0\nup = [{:?}, {:?}, {:?}]\n",
-            up[0], up[1], up[2]
-        ),
-    )
-    .unwrap();
-    let log = dir.join(format!("{name}.mcap"));
-    let s = |p: &Path| p.to_str().unwrap().to_string();
-    run_json(&[
-        "log",
-        "import",
-        "--accel",
-        &s(&run.join("accel.csv")),
-        "--vib",
-        &s(&run.join("vib.csv")),
-        "--rig",
-        &s(&rig),
-        "--out",
-        &s(&log),
-        "--json",
-    ]);
-    log
+    let extra = ["--oversample", "8", "--unit-noise-ug", "2"];
+    crate::rig_log::rig_log_with(dir, name, seed, "+z", "30,60,120", mount, &extra)
 }
 
 /// `lab COMMAND LOG [--model MODEL] [--path statistics] --json`.

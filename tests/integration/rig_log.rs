@@ -30,7 +30,7 @@ fn rig_log(
 }
 
 /// [`rig_log`] with more generator arguments.
-fn rig_log_with(
+pub(crate) fn rig_log_with(
     dir: &Path,
     name: &str,
     seed: u32,
