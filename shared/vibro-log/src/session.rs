@@ -1230,6 +1230,22 @@ mod tests {
         StagePairs::new(Path::new("t.mcap"), Reference::Truth, K1_V_PER_G, WINDOW_S).unwrap()
     }
 
+    /// The five blocks of each input, paired in order, measured.
+    fn measured(
+        accel: &[AccelBlock],
+        reference: &[[[f64; 3]; 8]],
+        comp: &[CompensatedBlock],
+    ) -> SessionErrors {
+        let mut p = pairs();
+        for b in 0..5 {
+            p.add_readings(&accel[b]).unwrap();
+            p.add_reference(reference_block(8 * b as u64, &reference[b]))
+                .unwrap();
+            p.add_compensated(&comp[b]).unwrap();
+        }
+        p.finish().unwrap()
+    }
+
     fn close(a: f64, b: f64) -> bool {
         (a - b).abs() <= 1e-9 * b.abs()
     }
@@ -1240,14 +1256,7 @@ mod tests {
     #[test]
     fn the_errors_are_the_closed_forms_and_independent_of_the_order_of_arrival() {
         let (accel, reference, comp) = blocks();
-        let mut p = pairs();
-        for b in 0..5 {
-            p.add_readings(&accel[b]).unwrap();
-            p.add_reference(reference_block(8 * b as u64, &reference[b]))
-                .unwrap();
-            p.add_compensated(&comp[b]).unwrap();
-        }
-        let e = p.finish().unwrap();
+        let e = measured(&accel, &reference, &comp);
         assert_eq!(
             (
                 e.window_samples,
@@ -1483,14 +1492,7 @@ mod tests {
                 }
             }
         }
-        let mut p = pairs();
-        for b in 0..5 {
-            p.add_readings(&accel[b]).unwrap();
-            p.add_reference(reference_block(8 * b as u64, &reference[b]))
-                .unwrap();
-            p.add_compensated(&comp[b]).unwrap();
-        }
-        let e = p.finish().unwrap();
+        let e = measured(&accel, &reference, &comp);
         assert_eq!(
             (e.windows, e.compensated_windows, e.main_only_blocks),
             (4, 4, 0)
@@ -1533,14 +1535,7 @@ mod tests {
         }
         // An estimate-only log has no estimate-stage column.
         let (accel, reference, comp) = blocks();
-        let mut p = pairs();
-        for b in 0..5 {
-            p.add_readings(&accel[b]).unwrap();
-            p.add_reference(reference_block(8 * b as u64, &reference[b]))
-                .unwrap();
-            p.add_compensated(&comp[b]).unwrap();
-        }
-        let e = p.finish().unwrap();
+        let e = measured(&accel, &reference, &comp);
         assert!(e.estimate_stage.is_none() && e.all_units.estimate_stage_rms_g.is_none());
         assert_eq!(e.estimate_only_blocks, 5);
     }

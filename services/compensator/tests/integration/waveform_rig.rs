@@ -77,6 +77,34 @@ fn generate(dir: &Path, args: &[&str]) -> Rig {
     }
 }
 
+/// One generator run: `tones` (per body axis) and the default random vibration, the
+/// sensors at `sensor_hz` on the generator's 51.2 kHz fine grid, `extra` options after.
+fn rig_run(
+    dir: &Path,
+    seed: &str,
+    orientation: &str,
+    tones: &str,
+    sensor_hz: &str,
+    extra: &[&str],
+) -> Rig {
+    let oversample = (51_200 / sensor_hz.parse::<u32>().unwrap())
+        .max(1)
+        .to_string();
+    let mut args = vec![
+        "--seed",
+        seed,
+        orientation,
+        "--tone-hz",
+        tones,
+        "--sensor-rate-hz",
+        sensor_hz,
+        "--oversample",
+        &oversample,
+    ];
+    args.extend_from_slice(extra);
+    generate(dir, &args)
+}
+
 /// The rig's streams as wire blocks, in the order they arrive live (each when its last
 /// sample is in; a sensor block first on a tie). `keep_vib(seq)`: which sensor blocks
 /// reach the compensator (all reach the estimator, as in a rig where only the
@@ -295,20 +323,7 @@ fn score(name: &str, rig: &Rig, config: &Config) -> f64 {
 #[test]
 fn nothing_hidden_at_25k6_leaves_the_rigs_noise() {
     let dir = TempDir::new();
-    let rig = generate(
-        &dir.0,
-        &[
-            "--seed",
-            "431",
-            "--orientation=+x",
-            "--tone-hz",
-            "30,60,120",
-            "--sensor-rate-hz",
-            "25600",
-            "--oversample",
-            "2",
-        ],
-    );
+    let rig = rig_run(&dir.0, "431", "--orientation=+x", "30,60,120", "25600", &[]);
     let wf = score(
         "nothing hidden, 25.6 kHz",
         &rig,
@@ -318,32 +333,17 @@ fn nothing_hidden_at_25k6_leaves_the_rigs_noise() {
 }
 
 /// Every tone at 150 Hz through the generator's hidden 150 Hz, Q 2.5 mount, the sensors
-/// at `sensor_hz` (`oversample` for the generator's 51.2 kHz grid), compensated with the
+/// at `sensor_hz` (the generator's 51.2 kHz grid), compensated with the
 /// mount's true parameters: the waveform stage's RMS, g; and with the base model.
-fn tones_on_the_mount(
-    seed: &str,
-    orientation: &str,
-    sensor_hz: &str,
-    oversample: &str,
-) -> (f64, f64) {
+fn tones_on_the_mount(seed: &str, orientation: &str, sensor_hz: &str) -> (f64, f64) {
     let dir = TempDir::new();
-    let rig = generate(
+    let rig = rig_run(
         &dir.0,
-        &[
-            "--seed",
-            seed,
-            orientation,
-            "--tone-hz",
-            "150,150,150",
-            "--resonance-f0-hz",
-            "150",
-            "--resonance-q",
-            "2.5",
-            "--sensor-rate-hz",
-            sensor_hz,
-            "--oversample",
-            oversample,
-        ],
+        seed,
+        orientation,
+        "150,150,150",
+        sensor_hz,
+        &["--resonance-f0-hz", "150", "--resonance-q", "2.5"],
     );
     let model = dir.path("mount.toml");
     std::fs::write(
@@ -366,7 +366,7 @@ fn tones_on_the_mount(
 
 #[test]
 fn every_tone_on_a_hidden_mount_with_its_true_parameters() {
-    let (wf, base) = tones_on_the_mount("432", "--orientation=oblique1", "25600", "2");
+    let (wf, base) = tones_on_the_mount("432", "--orientation=oblique1", "25600");
     assert!(wf < 3e-6, "{wf} g");
     // Without the mount in the model the stage leaves far more: the test can fail.
     eprintln!("the same without the mount: {:.1} ug", base * 1e6);
@@ -378,28 +378,20 @@ fn every_tone_on_a_hidden_mount_with_its_true_parameters() {
 /// tone on a resonance included").
 #[test]
 fn eight_samples_per_reading_with_every_tone_on_the_resonance() {
-    let (wf, _) = tones_on_the_mount("436", "--orientation=+y", "6400", "8");
+    let (wf, _) = tones_on_the_mount("436", "--orientation=+y", "6400");
     assert!(wf < 3e-6, "{wf} g");
 }
 
 #[test]
 fn sensors_at_6k4_behind_a_stated_delay() {
     let dir = TempDir::new();
-    let rig = generate(
+    let rig = rig_run(
         &dir.0,
-        &[
-            "--seed",
-            "433",
-            "--orientation=-y",
-            "--tone-hz",
-            "45,75,105",
-            "--sensor-rate-hz",
-            "6400",
-            "--oversample",
-            "8",
-            "--daq-delay-s",
-            "0.00156",
-        ],
+        "433",
+        "--orientation=-y",
+        "45,75,105",
+        "6400",
+        &["--daq-delay-s", "0.00156"],
     );
     let wf = score(
         "6.4 kHz, 1.56 ms delay stated",
@@ -426,20 +418,7 @@ fn sensors_at_6k4_behind_a_stated_delay() {
 #[test]
 fn lost_sensor_blocks_fall_back_to_the_estimate_stage() {
     let dir = TempDir::new();
-    let rig = generate(
-        &dir.0,
-        &[
-            "--seed",
-            "434",
-            "--orientation=+z",
-            "--tone-hz",
-            "30,60,120",
-            "--sensor-rate-hz",
-            "6400",
-            "--oversample",
-            "8",
-        ],
-    );
+    let rig = rig_run(&dir.0, "434", "--orientation=+z", "30,60,120", "6400", &[]);
     let config = compensator_config(Stage::Waveform, 0.0, None);
     let estimate = compensate(
         &rig,
@@ -528,19 +507,13 @@ fn the_service_gives_the_in_process_blocks_and_loses_none_when_the_sensors_stop(
     use vibro_service::{data_stream_config, now_ns};
 
     let dir = TempDir::new();
-    let rig = generate(
+    let rig = rig_run(
         &dir.0,
-        &[
-            "--seed",
-            "435",
-            "--orientation=oblique2",
-            "--tone-hz",
-            "30,60,120",
-            "--sensor-rate-hz",
-            "6400",
-            "--oversample",
-            "8",
-        ],
+        "435",
+        "--orientation=oblique2",
+        "30,60,120",
+        "6400",
+        &[],
     );
     let prefix = crate::support::prefix();
     let mut config = compensator_config(Stage::Waveform, 0.0, None)
