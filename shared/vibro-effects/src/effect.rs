@@ -32,6 +32,7 @@
 //! effect keeps its filter state between blocks, allocates only in its constructor
 //! or in [`Effect::reset`], and never logs per sample.
 
+use realfft::num_complex::Complex;
 use vibro_physics::passport::Passport;
 use vibro_physics::vibration::{PsdBand, Vibration};
 
@@ -192,6 +193,25 @@ pub trait Effect: Send {
     /// (or constant over the run): that term under `ctx` (the effect switched on).
     /// `None` for others (filters, clips, sensor effects).
     fn output_terms(&self, _ctx: &MeanContext<'_>) -> Option<OutputTerms> {
+        None
+    }
+
+    /// The frequency-domain form of a linear, time-invariant vibration-path effect
+    /// ([`Effect::at_unit_input`]): the transfer `H(j 2 pi f)` of the continuous-time
+    /// system on each of unit `unit`'s axes `[OA, PA, IA]`, of which the hook runs the
+    /// discretisation (a biquad at the internal rate). The lab's fit to a log's readings
+    /// filters whole records in the frequency domain with it (`vibro_wavefit`): exact
+    /// for any rate, and cheap to differentiate. `None` for effects that are not LTI
+    /// path filters; `Some([1; 3])` on a unit the effect does not act on.
+    fn path_transfer(&self, _unit: usize, _f_hz: f64) -> Option<[Complex<f64>; 3]> {
+        None
+    }
+
+    /// For effects on a vibration sensor's reading ([`Effect::at_sensor`]) that are
+    /// linear in the vibration: the sensor of unit `unit` reads
+    /// `c[0] v_OA + c[1] v_PA + c[2] v_IA` (the unit's axes), `c` returned. `None` for
+    /// other effects; `Some([0, 0, 1])` on a unit it does not act on.
+    fn sensor_response(&self, _unit: usize) -> Option<[f64; 3]> {
         None
     }
 

@@ -51,6 +51,8 @@ pub use vibro_effects::spectrum;
 pub mod table;
 pub mod table_input;
 pub mod text;
+pub mod wave_diagnose;
+pub mod wave_input;
 pub mod waveform;
 
 pub use diagnose::{

@@ -193,7 +193,7 @@ fn log_passports(reader: &mut Reader) -> Result<Option<[(String, Passport); 3]>>
 }
 
 /// The estimator's configuration, with the sensor settings the log's metadata states.
-fn estimator_config(
+pub(crate) fn estimator_config(
     base: &EstimatorConfig,
     reader: &mut Reader,
     summary: &mut LogTableSummary,
@@ -352,18 +352,18 @@ pub fn table_from_log(
 }
 
 /// The log's units: the triad's geometry and names, and their passports.
-struct Units {
-    triad: TriadConfig,
+pub(crate) struct Units {
+    pub(crate) triad: TriadConfig,
     /// Per unit: the passport as the table names it.
     refs: Vec<String>,
     /// Per unit: the passport, flat (`vibro_effects::predict::flat_passport`).
-    flat: Vec<Passport>,
+    pub(crate) flat: Vec<Passport>,
     /// Per unit axis: the vibration sensor that measures it, and the sign.
     map: [[(usize, f64); 3]; 3],
 }
 
 /// The units of `--triad`, with the passports the log carries if it has all three.
-fn log_units(
+pub(crate) fn log_units(
     reader: &mut Reader,
     args: &LogOptions,
     summary: &mut LogTableSummary,

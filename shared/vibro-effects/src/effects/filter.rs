@@ -66,6 +66,15 @@ impl Analog {
     }
 }
 
+impl Analog {
+    /// The continuous-time response `H(j 2 pi f)`.
+    pub fn at(&self, freq_hz: f64) -> Complex<f64> {
+        let s = Complex::new(0.0, 2.0 * PI * freq_hz);
+        let poly = |c: &[f64; 3]| c[0] + s * (c[1] + s * c[2]);
+        poly(&self.num) / poly(&self.den)
+    }
+}
+
 /// A second-order section, `a0 = 1`:
 /// `H(z) = (b0 + b1 z^-1 + b2 z^-2) / (1 + a1 z^-1 + a2 z^-2)`.
 #[derive(Debug, Clone, Copy, PartialEq)]

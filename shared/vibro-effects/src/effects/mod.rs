@@ -386,6 +386,28 @@ impl Effect for OnUnits {
         self.inner.on_vibration_path()
     }
 
+    fn path_transfer(
+        &self,
+        unit: usize,
+        f_hz: f64,
+    ) -> Option<[realfft::num_complex::Complex<f64>; 3]> {
+        let t = self.inner.path_transfer(unit, f_hz);
+        if self.applies(unit) {
+            t
+        } else {
+            t.map(|_| [realfft::num_complex::Complex::new(1.0, 0.0); 3])
+        }
+    }
+
+    fn sensor_response(&self, unit: usize) -> Option<[f64; 3]> {
+        let c = self.inner.sensor_response(unit);
+        if self.applies(unit) {
+            c
+        } else {
+            c.map(|_| [0.0, 0.0, 1.0])
+        }
+    }
+
     fn transmitted(
         &self,
         ctx: &MeanContext<'_>,

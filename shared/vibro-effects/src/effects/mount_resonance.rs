@@ -24,6 +24,7 @@ use super::spectral::{
 use super::{unit_axes_param, EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
 use crate::Result;
+use realfft::num_complex::Complex;
 use vibro_physics::vibration::{PsdBand, Vibration};
 
 const KIND: &str = "mount_resonance";
@@ -128,6 +129,12 @@ impl Effect for MountResonance {
 
     fn on_vibration_path(&self) -> bool {
         true
+    }
+
+    fn path_transfer(&self, _unit: usize, f_hz: f64) -> Option<[Complex<f64>; 3]> {
+        let t = self.analog.at(f_hz);
+        let one = Complex::new(1.0, 0.0);
+        Some(std::array::from_fn(|i| if self.axes[i] { t } else { one }))
     }
 
     fn transmitted(&self, ctx: &MeanContext<'_>) -> Option<Result<(Vibration, Vec<PsdBand>)>> {

@@ -108,6 +108,14 @@ impl Effect for SensorError {
         Ok(0.0)
     }
 
+    fn sensor_response(&self, _unit: usize) -> Option<[f64; 3]> {
+        Some([
+            self.misalignment_rad[0],
+            self.misalignment_rad[1],
+            self.gain,
+        ])
+    }
+
     fn sensor_rms_factor(&self, ctx: &MeanContext<'_>) -> Option<f64> {
         let vib = ctx.vibration_unit;
         let u = [

@@ -22,6 +22,7 @@ use super::spectral::{
 use super::{EffectInfo, ParamInfo, Params, Scope};
 use crate::effect::{BlockCtx, Effect, MeanContext};
 use crate::Result;
+use realfft::num_complex::Complex;
 use vibro_physics::vibration::{PsdBand, Vibration};
 
 const KIND: &str = "unit_response";
@@ -116,6 +117,11 @@ impl Effect for UnitResponse {
 
     fn on_vibration_path(&self) -> bool {
         true
+    }
+
+    fn path_transfer(&self, _unit: usize, f_hz: f64) -> Option<[Complex<f64>; 3]> {
+        let one = Complex::new(1.0, 0.0);
+        Some([one, one, self.analog.at(f_hz)])
     }
 
     fn transmitted(&self, ctx: &MeanContext<'_>) -> Option<Result<(Vibration, Vec<PsdBand>)>> {
