@@ -548,7 +548,7 @@ fn a_flight_log_is_measured_against_its_reference_and_nothing_is_attributed() {
     let s_ = &c["summary"];
     println!("FIGURES lab log compare: {s_}");
     assert!(num(s_, "p_value") > 0.01, "{s_}");
-    let d = run_json(&["lab", "diagnose", s(&log), "--json"]);
+    let d = run_json(&["lab", "diagnose", s(&log), "--path", "statistics", "--json"]);
     assert_eq!(d["verdict"]["verdict"], "noise", "{}", d["verdict"]);
 }
 
@@ -568,12 +568,12 @@ fn a_resonance_hidden_in_a_flight_log_is_found_and_the_error_falls() {
         s(&log),
         "--json",
     ]);
-    let before = run_json(&["lab", "compare", s(&log), "--json"]);
+    let before = run_json(&["lab", "compare", s(&log), "--path", "windows", "--json"]);
     let b = &before["summary"];
     println!("FIGURES lab log with resonance, before: {b}");
     assert!(num(b, "p_value") < 1e-6, "{b}");
 
-    let d = run_json(&["lab", "diagnose", s(&log), "--json"]);
+    let d = run_json(&["lab", "diagnose", s(&log), "--path", "statistics", "--json"]);
     let v = &d["verdict"];
     println!("FIGURES lab log diagnosis: {v}");
     // On one flight's one spectrum a 48 Hz suspension and a unit response near it
@@ -596,14 +596,34 @@ fn a_resonance_hidden_in_a_flight_log_is_found_and_the_error_falls() {
         s(&log),
         "--out",
         s(&model),
+        "--path",
+        "statistics",
         "--json",
     ]);
-    let after = run_json(&["lab", "compare", s(&log), "--model", s(&model), "--json"]);
+    let after = run_json(&[
+        "lab",
+        "compare",
+        s(&log),
+        "--model",
+        s(&model),
+        "--path",
+        "windows",
+        "--json",
+    ]);
     let a = &after["summary"];
     println!("FIGURES lab log with resonance, after: {a}");
     let limit = (num(b, "rms_residual_g") / 10.0).max(2.0 * num(b, "noise_floor_g"));
     assert!(num(a, "rms_residual_g") <= limit, "{a}");
-    let d2 = run_json(&["lab", "diagnose", s(&log), "--model", s(&model), "--json"]);
+    let d2 = run_json(&[
+        "lab",
+        "diagnose",
+        s(&log),
+        "--model",
+        s(&model),
+        "--path",
+        "statistics",
+        "--json",
+    ]);
     assert_eq!(d2["verdict"]["verdict"], "noise", "{}", d2["verdict"]);
 }
 

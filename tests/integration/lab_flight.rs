@@ -127,7 +127,14 @@ fn resonance_fit(dir: &Dir, inputs: &[&std::path::Path]) -> [Fitted; 2] {
     let mut args = vec!["lab", "add", "mount_resonance", "--from"];
     args.extend(inputs.iter().map(|p| s(p)));
     // The same file for every fit: replaced on purpose.
-    args.extend(["--out", s(&out), "--force", "--json"]);
+    args.extend([
+        "--out",
+        s(&out),
+        "--force",
+        "--path",
+        "statistics",
+        "--json",
+    ]);
     let a = run_json(&args);
     let params = a["fit"]["params"].as_array().expect("params");
     let get = |name: &str| {

@@ -34,7 +34,7 @@ fn rig_log(dir: &Path, name: &str, seed: u32, mount: bool) -> PathBuf {
     crate::rig_log::rig_log_with(dir, name, seed, "+z", "30,60,120", mount, &extra)
 }
 
-/// `lab COMMAND LOG [--model MODEL] [--path statistics] --json`.
+/// `lab COMMAND LOG [--model MODEL] --path statistics|windows --json`.
 fn lab(command: &str, log: &Path, model: Option<&Path>, statistics: bool) -> serde_json::Value {
     let mut args = vec![
         "lab".to_string(),
@@ -44,9 +44,10 @@ fn lab(command: &str, log: &Path, model: Option<&Path>, statistics: bool) -> ser
     if let Some(m) = model {
         args.extend(["--model".to_string(), m.to_str().unwrap().to_string()]);
     }
-    if statistics {
-        args.extend(["--path".to_string(), "statistics".to_string()]);
-    }
+    // `windows`: the windows by the compensator's stage (issue 43); the waveform path
+    // (every reading, issue 44) is tests/integration/lab_wave.rs's.
+    let path = if statistics { "statistics" } else { "windows" };
+    args.extend(["--path".to_string(), path.to_string()]);
     args.push("--json".into());
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     run_json(&args)

@@ -156,6 +156,8 @@ fn a_rig_import_writes_the_rigs_reference_beside_the_readings() {
         "lab",
         "compare",
         log.to_str().unwrap(),
+        "--path",
+        "statistics",
         "--table-out",
         csv.to_str().unwrap(),
     ]);
@@ -170,7 +172,8 @@ fn a_rig_import_writes_the_rigs_reference_beside_the_readings() {
 fn diagnose(logs: &[PathBuf]) -> serde_json::Value {
     let mut args = vec!["lab".to_string(), "diagnose".to_string()];
     args.extend(logs.iter().map(|p| p.to_str().unwrap().to_string()));
-    args.push("--json".into());
+    // The statistics path's diagnosis (the waveform's: lab_wave.rs).
+    args.extend(["--path".into(), "statistics".into(), "--json".into()]);
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     run_json(&args)
 }

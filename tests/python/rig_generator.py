@@ -58,7 +58,45 @@ readings: 20 kHz), ``n = 0..N`` with ``N = T_run * fs``; ``truth.json``'s ``rate
        aF = a0 + k1*lambda*(1 + 0.5*d1A*sign(a3))*a3 + k2 a3^2 + k3 a3^3 + k4 a3^4
             + k5 a3^5 + m1*a1 + m2*a2 + m31*a3*a1 + m32*a3*a2,        U = K1 * aF
 
-   with ``lambda(w) = 1`` (the unit's own frequency response is not modelled).
+   with ``lambda(w) = 1`` (the unit's own frequency response is the optional hidden
+   ``unit_response`` below).
+
+   **Hidden effects** (docs/effects.md; all off by default, each recorded with its
+   parameters in ``truth.json``'s ``effects``; an effect at zero strength is skipped,
+   so such a rig is bit for bit the rig without it). In the simulator's chain order:
+
+   a. *Path* (``--unit-response-hz F --unit-response-damping Z``, ``unit_response``):
+      per unit, the IA component of the vibration at the unit (after the mount) goes
+      through ``wn^2 / (s^2 + 2 Z wn s + wn^2)`` like the mount (exact: on the run's DFT
+      bins; flight-like tones analytically; ``--filter-method bilinear``: prewarped at
+      F); OA, PA and gravity (DC gain 1) are untouched. The (FP) and every output
+      effect see ``a3 = aL3 + H[v3]``; ``sensed{u}_g`` stays the acceleration at the unit
+      (before its own response), so ``error{u}_g`` carries the unit's dynamic error too.
+   b. *Output* (``--effect kind:key=value,...[,units=0|1|2|0+2]``), added to the
+      instantaneous ``aF`` at every fine sample, from the total acceleration at the unit
+      ``a = (a1, a2, a3)`` (after the path), then the clip:
+
+      - ``vibropendulous`` (``c_rad_per_g``, ``tau_s``): ``+ c HP[a3] a2``, ``HP(s) = s tau /
+        (1 + s tau)`` on the total IA acceleration (gravity gives 0), ``a2`` total PA;
+      - ``anisoelastic`` (``k_ae_per_g``): ``+ k_ae a1 a2``;
+      - ``high_order_nonlinearity`` (``k6_ppm_per_g5``, ``k7_ppm_per_g6``): ``+ 1e-6 (k6 a3^6
+        + k7 a3^7)``;
+      - ``heating`` (``c_g_per_g2``, ``tau_s``): ``+ b``, ``tau db/dt = c v3^2 - b``, ``b = 0`` at
+        the run start, ``v3`` the IA vibration at the unit (after the path);
+      - ``scale_factor_frequency`` (``corner_hz``, ``lambda_hf``): ``+ k1 (1 + 0.5 d1A
+        sign(a3)) (L[a3] - a3)``, ``L(s) = (1 + lambda_hf s/wc) / (1 + s/wc)`` (passport k1, d1A);
+      - ``saturation`` (``range_g``): the whole output (all the above) clipped to
+        ``+-range_g``, last whatever the order given.
+
+      Filters: ``HP`` and ``L - 1`` (first-order high-passes of the vibration) are exact,
+      on the run's DFT bins (flight-like: tones analytically, the periodic steady state
+      as the other filters); on a shaker run they start at rest (the rig stood still), so
+      the periodic response ``y_p`` is made causal exactly by ``y_p(t) - y_p(0) e^{-t/tau}``.
+      The heating lag is solved exactly for ``v3^2`` linear between fine samples (first-
+      order hold): 6e-7 relative at 6.4 kHz, 4e-8 at 25.6 kHz (``selfcheck`` 10).
+   c. *Sensor* (``--sensor-gain-error G1,G2,G3``, ``sensor_error``, gain only): sensor k
+      reads ``(1 + G_k)`` times the vibration along unit k's IA (before its sensitivity,
+      AC coupling and noise; step 6).
 5. **Readings**: each output reading is the mean of ``U`` over its averaging interval
    ``(t_j - T_a, t_j]``, ``T_a = 1 / accel_rate``, latched (time-stamped) at the end
    ``t_j = j T_a``, j = 1..J. (FP) is split into its linear part
@@ -74,6 +112,15 @@ readings: 20 kHz), ``n = 0..N`` with ``N = T_run * fs``; ``truth.json``'s ``rate
      piecewise-linear signal through the samples. Over many readings this is the mean
      of the fine samples, so the static error has no discretisation error beyond the
      sampling of the signal itself (``selfcheck`` and the tests measure it).
+   - output effects: their constant parts exactly, their parts linear in the vibration
+     (``c aL2 HP[v3]``, ``k_ae (aL1 v2 + aL2 v1)``, ``(6 k6 aL3^5 + 7 k7 aL3^6) v3``,
+     ``k1 (L - 1)[v3]``) by the exact boxcar, the rest (``c HP[v3] v2``, ``k_ae v1 v2``, the
+     higher powers, the heating bias, the clip's correction) by the trapezoid rule; the
+     jump of ``0.5 k1 d1A sign(a3) (L - 1)[v3]`` is integrated exactly for the signals
+     linear between samples (split at the zero of ``a3``; a plain trapezoid is O(h): 10 %
+     for a 400 Hz tone at 6.4 kHz, this is 1.8e-2, 5e-4 at 25.6 kHz). A clipped reading
+     mixes the exact boxcar with the trapezoid of the clip's correction, so it can pass
+     the range by O((w h)^2 A) (1 mg for a 4 g, 60 Hz tone at 6.4 kHz; ``--oversample``).
 
    White output noise (``unit_noise_g`` RMS per reading, times K1) is added, and with
    ``--unit-drift-ug-per-s R`` a slow linear drift ``r_u t`` (t from the run start;
@@ -113,7 +160,8 @@ what unit u senses along its IA, ``e_IA . (g d + v_unit)`` (gravity plus the vib
 at the unit, through the hidden mount when there is one), exactly (the continuous
 boxcar of step 5's linear part); ``error{u}_g`` is the noise-free, drift-free reading
 ``U/K1`` minus ``sensed{u}_g``: the main error plus the vibration error of that very
-reading (MODEL.md section 12). A perfect compensator outputs ``sensed``; its output
+reading (MODEL.md section 12), with every hidden output effect and the unit's own
+response when they are on. A perfect compensator outputs ``sensed``; its output
 minus ``sensed`` is its error (``waveform_errors.py``).
 
 The true VE (``ve_time_domain_g``, MODEL.md section 3) is the mean noise-free reading
@@ -122,14 +170,15 @@ first-order response ``grad(FP)(aL) . <v>`` to the window mean ``<v>`` of the vi
 itself: over a finite window a shaker's acceleration does not average to zero (it is
 the table's velocity change over the window divided by its length: about 3e-4 g over
 7.7 s for 0.002 g^2/Hz in 20..640 Hz), and that is input, not error. Both parts are in
-the truth (``reading_shift_g = ve_time_domain_g + first_order_input_mean_g``); MODEL.md
+the truth (``reading_shift_g = ve_time_domain_g + first_order_input_mean_g +
+effects_mean_shift_g``, the last the window mean of what the output effects add); MODEL.md
 section 8's measurement from the recorded outputs is there too.
 
 Usage::
 
     rig_generator.py run --out DIR [options]           one run (K folders with --repeat K)
     rig_generator.py campaign --out DIR [options]      orientations x tone frequencies
-    rig_generator.py selfcheck                         discretisation figures
+    rig_generator.py selfcheck                         discretisation figures, hidden effects vs closed forms
 
 (A negative orientation takes ``=``: ``--orientation=-y``.)
 """
@@ -423,6 +472,9 @@ class RunConfig:
     vib_hp_hz: float = 2.0
     daq_delay_s: float = 0.0  # vibration sensors' acquisition delay: sample stamped s holds time s - D
     unit_drift_ug_per_s: float = 0.0  # |r_u| of each unit's linear drift r_u t; signs from the seed
+    unit_response: "UnitResponse | None" = None  # the units' own IA response (docs/effects.md unit_response)
+    sensor_gain_error: tuple = (0.0, 0.0, 0.0)  # vibration sensor k reads (1 + G_k) x the vibration on unit k's IA
+    effects: list = field(default_factory=list)  # OutputEffect, docs/effects.md at_unit_output effects
     seed: int = 30
     run_index: int = 0
     repeat: int = 0
@@ -461,7 +513,10 @@ class RunConfig:
     def settle(self):
         if self.settle_s is not None:
             return self.settle_s
-        return max(0.1, self.resonance.settle_s() if self.resonance else 0.0)
+        s = max(0.1, self.resonance.settle_s() if self.resonance else 0.0)
+        if self.unit_response is not None:
+            s = max(s, self.unit_response.settle_s())
+        return s
 
     def random_psd_per_axis(self):
         """Variance per body axis, ``sum S_i * (f_hi - f_lo)`` (MODEL.md section 3)."""
@@ -493,6 +548,15 @@ class RunConfig:
             raise ValueError("resonance above Nyquist of the fine grid")
         if not self.vibrate_throughout and 2 * self.ramp_s + self.settle >= self.vib_s:
             raise ValueError("vibrating segment shorter than its ramps and settle time")
+        probs = self.unit_response.validate(fs) if self.unit_response else []
+        if len(self.sensor_gain_error) != 3 or not all(math.isfinite(g) and abs(g) <= 0.5
+                                                       for g in self.sensor_gain_error):
+            probs.append(f"sensor_gain_error = {self.sensor_gain_error}: three numbers, each |g| <= 0.5")
+        for e in self.effects:
+            if not isinstance(e, OutputEffect):
+                probs.append(f"effects: {e!r} is not an OutputEffect (parse_effect)")
+        if probs:
+            raise ValueError("; ".join(probs))
 
 
 def _seedseq(cfg, *key):
@@ -849,8 +913,21 @@ def simulate(cfg: RunConfig, triad=None, keep_fine=False) -> RunResult:
     # steps 4-5: conversion function at every fine sample, readings
     clean = np.empty((j, 3))
     nonlin_read = np.empty((j, 3))
+    # the hidden effects (docs/effects.md): zero-strength ones are skipped, so that such a
+    # rig is bit for bit the rig without them
+    effects = [e for e in cfg.effects if not e.is_null()]
+    body = body_sigs(cfg, vib_u, rand_u, mnt) if (effects or cfg.unit_response) else None
+    eff_read = np.zeros((j, 3))
+    unit_extra = [None] * 3
     for i, u in enumerate(triad):
         p = u.passport
+        if cfg.unit_response is not None or any(e.acts_on(i) for e in effects):
+            aL3, aL1, aL2 = u.e_ia @ g_vec, u.e_oa @ g_vec, u.e_pa @ g_vec
+            lin_vib, nonlin_read[:, i], eff_read[:, i], _, unit_extra[i] = unit_effects(
+                cfg, u, i, t, t_accel, m, j, body, box_u, a_unit, g_vec, effects)
+            clean[:, i] = ((p.a0_g + p.k1 * p.lam * aL3 + p.m1 * aL1 + p.m2 * aL2) + lin_vib + nonlin_read[:, i]
+                           + eff_read[:, i])
+            continue
         a3, a1, a2 = u.e_ia @ a_unit, u.e_oa @ a_unit, u.e_pa @ a_unit
         lin = p.k1 * p.lam * a3 + p.m1 * a1 + p.m2 * a2
         nl = p.af(a3, a1, a2) - p.a0_g - lin  # (FP) minus its linear part
@@ -904,6 +981,10 @@ def simulate(cfg: RunConfig, triad=None, keep_fine=False) -> RunResult:
         s_hp = hp.apply(e_ia @ vib_b_d, fs, e_ia @ (tone(cfg, t_prime_d) + rand_d[:, n - hp_n : n]))
     else:
         s_hp = hp.apply(e_ia @ vib_b_d, fs)
+    if any(g != 0 for g in cfg.sensor_gain_error):
+        # sensor k reads (1 + G_k) times the vibration along unit k's IA (docs/effects.md
+        # sensor_error, gain only); linear, so before or after the AC coupling alike
+        s_hp = s_hp * (1.0 + np.asarray(cfg.sensor_gain_error, float))[:, None]
     rng_v = np.random.default_rng(_seedseq(cfg, 1, cfg.repeat, STREAM_VIB_NOISE))
     vib_v = cfg.vib_sens_v_per_g * (
         s_hp[:, 0 : ns * r : r].T + cfg.vib_noise_g * rng_v.standard_normal((ns, 3))
@@ -915,7 +996,8 @@ def simulate(cfg: RunConfig, triad=None, keep_fine=False) -> RunResult:
     ref_g = a_base[:, 0 : ns * r : r].T + cfg.ref_noise_g * rng_r.standard_normal((ns, 3))
 
     fine = {"t": t, "a_base": a_base, "a_unit": a_unit, "rand_unit": rand_u, "tone_unit": tone_u,
-            "nonlin_readings_g": nonlin_read, "vib_unit_readings_g": box_u}
+            "nonlin_readings_g": nonlin_read, "vib_unit_readings_g": box_u,
+            "effect_readings_g": eff_read, "unit_extra": unit_extra}
     res = RunResult(cfg, triad, t_accel, accel_v, clean, t_vib, vib_v, ref_g, {}, fine,
                     sensed_g=sensed, drift_g_per_s=drift)
     res.truth = make_truth(res)
@@ -979,6 +1061,376 @@ def steady_tone_boxcar(cfg, t_accel, lti):
     return out
 
 
+# ---------------------------------------------------------------------------------------
+# Hidden effects (docs/effects.md): the unit's response, the sensors' gain, output effects
+
+
+@dataclass
+class UnitResponse:
+    """The unit's own response to IA acceleration, ``wn^2 / (s^2 + 2 zeta wn s + wn^2)``
+    (docs/effects.md ``unit_response``; DC gain 1, so gravity passes)."""
+
+    natural_freq_hz: float
+    damping_ratio: float
+
+    def analog(self):
+        wn = 2 * math.pi * self.natural_freq_hz
+        return [wn * wn], [1.0, 2 * self.damping_ratio * wn, wn * wn]
+
+    def h(self, f_hz):
+        b, a = self.analog()
+        return signal.freqs(b, a, worN=2 * np.pi * np.atleast_1d(np.asarray(f_hz, float)))[1]
+
+    def settle_s(self):
+        return 25.0 / (self.damping_ratio * 2 * math.pi * self.natural_freq_hz)
+
+    def validate(self, fs):
+        probs = []
+        if not (math.isfinite(self.natural_freq_hz) and 0 < self.natural_freq_hz <= 1e6):
+            probs.append(f"unit_response.natural_freq_hz = {self.natural_freq_hz}: must be finite and 0 < f <= 1e6 Hz")
+        elif self.natural_freq_hz >= fs / 2:
+            probs.append(f"unit_response.natural_freq_hz = {self.natural_freq_hz}: must be below the fine grid's "
+                         f"Nyquist frequency {fs / 2} Hz")
+        if not (math.isfinite(self.damping_ratio) and 0.01 <= self.damping_ratio <= 10):
+            probs.append(f"unit_response.damping_ratio = {self.damping_ratio}: must be finite and 0.01 <= zeta <= 10")
+        return probs
+
+
+# kind -> {param: (default or None if required, rule text, check)}; names and ranges as
+# docs/effects.md states them (the lab's library validates the same ranges).
+OUTPUT_EFFECTS = {
+    "vibropendulous": {
+        "c_rad_per_g": (None, "must be finite and |c| <= 0.1 rad/g", lambda v: abs(v) <= 0.1),
+        "tau_s": (None, "must be finite and 0 < tau <= 10 s", lambda v: 0 < v <= 10),
+    },
+    "anisoelastic": {
+        "k_ae_per_g": (None, "must be finite and |k_ae| <= 0.01 1/g", lambda v: abs(v) <= 0.01),
+    },
+    "high_order_nonlinearity": {
+        "k6_ppm_per_g5": (0.0, "must be finite and |k6| <= 1e4 ppm/g^5", lambda v: abs(v) <= 1e4),
+        "k7_ppm_per_g6": (0.0, "must be finite and |k7| <= 1e4 ppm/g^6", lambda v: abs(v) <= 1e4),
+    },
+    "heating": {
+        "c_g_per_g2": (None, "must be finite and |c| <= 0.1 g/g^2", lambda v: abs(v) <= 0.1),
+        "tau_s": (None, "must be finite and 0 < tau <= 1e6 s", lambda v: 0 < v <= 1e6),
+    },
+    "saturation": {
+        "range_g": (None, "must be finite and 0.1 <= range <= 1e4 g", lambda v: 0.1 <= v <= 1e4),
+    },
+    "scale_factor_frequency": {
+        "corner_hz": (None, "must be finite and 0 < f <= 1e6 Hz", lambda v: 0 < v <= 1e6),
+        "lambda_hf": (None, "must be finite and 0 < lambda_hf <= 10", lambda v: 0 < v <= 10),
+    },
+}
+
+OUTPUT_EFFECT_MODELS = {
+    "vibropendulous": "out += c_rad_per_g * HP[a3](t) * a2(t), HP(s) = s tau/(1 + s tau) on the total IA "
+    "acceleration at the unit (after the path effects; zero at DC), a2 the total PA acceleration",
+    "anisoelastic": "out += k_ae_per_g * a1(t) * a2(t) (total OA and PA accelerations)",
+    "high_order_nonlinearity": "out += 1e-6 (k6_ppm_per_g5 a3^6 + k7_ppm_per_g6 a3^7) (total IA acceleration)",
+    "heating": "tau db/dt = c_g_per_g2 v3(t)^2 - b, b(0) = 0 at the run start, v3 the IA vibration at the unit "
+    "(after the path effects); out += b(t)",
+    "saturation": "the whole output (FP plus every other effect's term) clipped to +-range_g, per fine sample",
+    "scale_factor_frequency": "out += k1 (1 + 0.5 d1A sign(a3)) (L[a3] - a3), L(s) = (1 + lambda_hf s/wc)/(1 + s/wc), "
+    "wc = 2 pi corner_hz, k1 and d1A from the unit's passport",
+}
+
+
+@dataclass
+class OutputEffect:
+    """One output effect of docs/effects.md (hook ``at_unit_output``), on ``units`` (None: all)."""
+
+    kind: str
+    params: dict
+    units: tuple | None = None
+
+    def acts_on(self, i):
+        return self.units is None or i in self.units
+
+    def is_null(self):
+        """Zero strength: the effect changes nothing (skipped, so the data are bit-identical)."""
+        p = self.params
+        if self.kind == "vibropendulous":
+            return p["c_rad_per_g"] == 0
+        if self.kind == "anisoelastic":
+            return p["k_ae_per_g"] == 0
+        if self.kind == "high_order_nonlinearity":
+            return p["k6_ppm_per_g5"] == 0 and p["k7_ppm_per_g6"] == 0
+        if self.kind == "heating":
+            return p["c_g_per_g2"] == 0
+        if self.kind == "scale_factor_frequency":
+            return p["lambda_hf"] == 1
+        return False
+
+    def to_dict(self):
+        return {"kind": self.kind, **self.params, "units": list(self.units) if self.units is not None else [0, 1, 2],
+                "hook": "at_unit_output", "model": OUTPUT_EFFECT_MODELS[self.kind], "zero_strength": self.is_null()}
+
+
+def parse_effect(spec):
+    """``kind:key=value,key=value`` (``units=0``, ``units=0+2``): an ``OutputEffect``.
+
+    Unknown kinds and keys, missing required keys and values outside their range are
+    reported all at once, naming the effect, key, value and rule (docs/effects.md).
+    """
+    kind, _, rest = spec.partition(":")
+    kind = kind.strip()
+    if kind not in OUTPUT_EFFECTS:
+        raise ValueError(f"--effect {spec!r}: unknown kind {kind!r} (want one of {', '.join(OUTPUT_EFFECTS)})")
+    table = OUTPUT_EFFECTS[kind]
+    given, units, probs = {}, None, []
+    for item in filter(None, (s.strip() for s in rest.split(","))):
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq:
+            probs.append(f"effect[{kind}] {item!r}: want key=value")
+        elif key == "units":
+            try:
+                units = tuple(sorted({int(x) for x in value.split("+")}))
+            except ValueError:
+                units = ()
+            if not units or any(u not in (0, 1, 2) for u in units):
+                probs.append(f"effect[{kind}].units = {value!r}: must be unit indices 0, 1, 2 joined by '+'")
+        elif key not in table:
+            probs.append(f"effect[{kind}].{key}: unknown key (want {', '.join(table)}, units)")
+        else:
+            try:
+                given[key] = float(value)
+            except ValueError:
+                probs.append(f"effect[{kind}].{key} = {value!r}: not a number")
+    params = {}
+    for key, (default, rule, ok) in table.items():
+        if key not in given:
+            if default is None:
+                probs.append(f"effect[{kind}].{key}: required ({rule})")
+            else:
+                params[key] = default
+            continue
+        v = given[key]
+        if not (math.isfinite(v) and ok(v)):
+            probs.append(f"effect[{kind}].{key} = {v!r}: {rule}")
+        params[key] = v
+    if kind == "high_order_nonlinearity" and not given.keys() & table.keys():
+        probs.append(f"effect[{kind}]: at least one of {', '.join(table)}")
+    if probs:
+        raise ValueError("; ".join(probs))
+    return OutputEffect(kind, params, units)
+
+
+@dataclass
+class Sig:
+    """A signal at the unit: ``per`` (N+1 fine samples, periodic over the run: the whole
+    vibration of a shaker run, the random part of a flight-like one) plus steady tones
+    ``Im(c e^{j 2 pi f t})`` (flight-like runs: each tone analytically, in steady state)."""
+
+    per: np.ndarray
+    tones: list
+
+    def fine(self, t):
+        out = self.per.copy()
+        for f, c in self.tones:
+            w = 2 * np.pi * f * t
+            out += c.real * np.sin(w) + c.imag * np.cos(w)
+        return out
+
+    def through(self, lti, fs, prime_n=0, causal_tau_s=None, t=None):
+        """Through ``lti`` (``Lti``; tones by its effective gain). ``prime_n``: bilinear
+        flight-like runs run first over the periodic tail. ``causal_tau_s``: a first-order
+        high-pass ``s tau/(1 + s tau)`` (times a constant) on a shaker run, whose input is
+        0 at t = 0 and whose state was at rest: the periodic response ``y_p`` on the DFT
+        bins becomes the causal one by ``y_p(t) - y_p(0) e^{-t/tau}`` (exact: the two
+        differ by the free response that makes the low-pass state zero at t = 0)."""
+        x = self.per[None, :]
+        prime = x[:, x.shape[1] - 1 - prime_n : x.shape[1] - 1] if prime_n else None
+        y = lti.apply(x, fs, prime)[0]
+        if causal_tau_s is not None:
+            y = y - y[0] * np.exp(-t / causal_tau_s)
+        tones = [(f, c * complex(lti.h_effective(f, fs)[0])) for f, c in self.tones]
+        return Sig(y, tones)
+
+    def boxcar(self, cfg, t_accel, m, j):
+        """Readings: the exact continuous boxcar (``exact_boxcar_readings``; tones analytically)."""
+        out = exact_boxcar_readings(cfg, self.per[None, :], m, j)[0]
+        ta = 1.0 / cfg.accel_rate_hz
+        for f, c in self.tones:
+            out = out + (c * complex(boxcar_response(f, ta)) * np.exp(2j * np.pi * f * t_accel)).imag
+        return out
+
+
+def body_sigs(cfg, vib_u, rand_u, mnt):
+    """The vibration at the units per body axis as (per (3, N+1), tones [(axis, f, c)])."""
+    if not cfg.vibrate_throughout:
+        return vib_u, []
+    tones = []
+    for k in range(3):
+        f, a, ph = cfg.tone_hz[k], cfg.tone_amp_g[k], cfg.tone_phase_rad[k]
+        if a == 0:
+            continue
+        g = complex(mnt.h_effective(f, cfg.fine_rate_hz)[0]) if mnt else 1.0 + 0j
+        tones.append((k, f, a * complex(math.cos(ph), math.sin(ph)) * g))
+    return rand_u, tones
+
+
+def project(body, e):
+    per, tones = body
+    return Sig(e @ per, [(f, e[k] * c) for k, f, c in tones if e[k] != 0])
+
+
+def first_order_lag_foh(p, fs, tau_s):
+    """``tau db/dt = p(t) - b``, ``b(0) = 0``, for ``p`` linear between the fine samples
+    (first-order hold): the exact solution of that piecewise-linear input, sample by sample,
+    ``b[n] = alpha b[n-1] + w1 p[n] + w0 p[n-1]``, ``alpha = e^{-h/tau}``."""
+    r = 1.0 / (fs * tau_s)
+    alpha = math.exp(-r)
+    one_minus = -math.expm1(-r)
+    # w1 = 1 - (1 - alpha)/r, by its series when r is small (no cancellation)
+    w1 = r / 2 - r * r / 6 + r**3 / 24 - r**4 / 120 if r < 1e-3 else 1.0 - one_minus / r
+    w0 = one_minus - w1
+    q = w1 * p[1:] + w0 * p[:-1]
+    b = np.zeros_like(p)
+    b[1:] = signal.lfilter([1.0], [1.0, -alpha], q)
+    return b
+
+
+def unit_effects(cfg, u, i, t, t_accel, m, j, body, box_u, a_unit, g_vec, effects):
+    """Unit ``i`` with its path and output effects: the parts of its readings.
+
+    Returns ``(lin_vib, nonlin, eff_read, v3_box, extra)``: the linear response to the
+    vibration (exact boxcar), the (FP) rest averaged by the trapezoid rule, the output
+    effects' part of the reading (their parts linear in the vibration by the exact
+    boxcar, the rest and the clip by the trapezoid rule), the reading of the IA vibration
+    the unit's (FP) sees, and fine-grid arrays for the tests.
+    """
+    p = u.passport
+    fs = cfg.fine_rate_hz
+    thr = cfg.vibrate_throughout
+    aL3, aL1, aL2 = float(u.e_ia @ g_vec), float(u.e_oa @ g_vec), float(u.e_pa @ g_vec)
+    v1s, v2s = project(body, u.e_oa), project(body, u.e_pa)
+    ur = cfg.unit_response
+    if ur is None:
+        a3, a1, a2 = u.e_ia @ a_unit, u.e_oa @ a_unit, u.e_pa @ a_unit
+        v3s = project(body, u.e_ia)
+        v3_box = u.e_ia @ box_u
+    else:
+        b, a = ur.analog()
+        lp = Lti(b, a, ur.natural_freq_hz, cfg.filter_method)
+        prime_n = int(round(min(cfg.t_run, 0.2 + 3 * ur.settle_s()) * fs)) if thr else 0
+        v3s = project(body, u.e_ia).through(lp, fs, prime_n)
+        v3_box = v3s.boxcar(cfg, t_accel, m, j)
+        a3 = aL3 + v3s.fine(t)
+        a1, a2 = u.e_oa @ a_unit, u.e_pa @ a_unit
+    lin_vib = p.k1 * p.lam * v3_box + (p.m1 * u.e_oa + p.m2 * u.e_pa) @ box_u
+    nl = p.af(a3, a1, a2) - p.a0_g - (p.k1 * p.lam * a3 + p.m1 * a1 + p.m2 * a2)
+    nonlin = boxcar_readings(nl, m)
+
+    mine = [e for e in effects if e.acts_on(i)]
+    eff_const = 0.0  # constant part (g)
+    eff_lin_box = np.zeros(j)  # parts linear in the vibration: exact boxcar
+    eff_lin_fine = np.zeros_like(t)
+    eff_rest = np.zeros_like(t)  # the rest: trapezoid rule over the fine grid
+    eff_sign_read = np.zeros(j)  # sign(a3) x a smooth signal: exact for the piecewise-linear signals
+    eff_sign_fine = np.zeros_like(t)
+    clips = []
+    v3 = v3s.fine(t) if mine else None
+    v1 = v1s.fine(t) if mine else None
+    v2 = v2s.fine(t) if mine else None
+    for e in mine:
+        q = e.params
+        if e.kind == "vibropendulous":
+            # c HP[a3] a2 = c aL2 HP[v3] (linear) + c HP[v3] v2 (HP kills gravity)
+            tau = q["tau_s"]
+            hp = Lti([tau, 0.0], [tau, 1.0], 1.0 / (2 * math.pi * tau), "exact")
+            h = v3s.through(hp, fs, causal_tau_s=None if thr else tau, t=t)
+            hf = h.fine(t)
+            c = q["c_rad_per_g"]
+            eff_lin_box += c * aL2 * h.boxcar(cfg, t_accel, m, j)
+            eff_lin_fine += c * aL2 * hf
+            eff_rest += c * hf * v2
+        elif e.kind == "anisoelastic":
+            k = q["k_ae_per_g"]
+            eff_const += k * aL1 * aL2
+            eff_lin_box += k * (aL1 * v2s.boxcar(cfg, t_accel, m, j) + aL2 * v1s.boxcar(cfg, t_accel, m, j))
+            eff_lin_fine += k * (aL1 * v2 + aL2 * v1)
+            eff_rest += k * v1 * v2
+        elif e.kind == "high_order_nonlinearity":
+            k6, k7 = 1e-6 * q["k6_ppm_per_g5"], 1e-6 * q["k7_ppm_per_g6"]
+            const = k6 * aL3**6 + k7 * aL3**7
+            slope = 6 * k6 * aL3**5 + 7 * k7 * aL3**6
+            eff_const += const
+            eff_lin_box += slope * v3_box
+            eff_lin_fine += slope * v3
+            eff_rest += k6 * a3**6 + k7 * a3**7 - const - slope * v3
+        elif e.kind == "heating":
+            eff_rest += first_order_lag_foh(q["c_g_per_g2"] * v3 * v3, fs, q["tau_s"])
+        elif e.kind == "scale_factor_frequency":
+            # (L - 1)[a3] = (lambda_hf - 1) (s/wc)/(1 + s/wc) [v3]: a first-order high-pass
+            tau = 1.0 / (2 * math.pi * q["corner_hz"])
+            lam1 = q["lambda_hf"] - 1.0
+            sh = Lti([lam1 * tau, 0.0], [tau, 1.0], q["corner_hz"], "exact")
+            d = v3s.through(sh, fs, causal_tau_s=None if thr else tau, t=t)
+            df = d.fine(t)
+            eff_lin_box += p.k1 * d.boxcar(cfg, t_accel, m, j)
+            eff_lin_fine += p.k1 * df
+            eff_sign_read += sign_product_readings(a3, 0.5 * p.k1 * p.d1a * df, m)
+            eff_sign_fine += 0.5 * p.k1 * p.d1a * np.sign(a3) * df
+        elif e.kind == "saturation":
+            clips.append(q["range_g"])
+    if clips:
+        y = p.af(a3, a1, a2) + eff_const + eff_lin_fine + eff_rest + eff_sign_fine
+        yc = y
+        for r in clips:
+            yc = np.clip(yc, -r, r)
+        eff_rest = eff_rest + (yc - y)
+    eff_read = eff_const + eff_lin_box + boxcar_readings(eff_rest, m) + eff_sign_read if mine else np.zeros(j)
+    extra = {"a_unit_axes_g": np.array([a1, a2, a3]) if mine or ur else None,
+             "vib_unit_axes_readings_g": np.array([v1s.boxcar(cfg, t_accel, m, j) if ur else u.e_oa @ box_u,
+                                                    v2s.boxcar(cfg, t_accel, m, j) if ur else u.e_pa @ box_u,
+                                                    v3_box]),
+             "effects_still_g": effects_at_rest(p, aL3, aL1, aL2, mine),
+             "effect_linear_readings_g": eff_lin_box}
+    return lin_vib, nonlin, eff_read, v3_box, extra
+
+
+def sign_product_readings(a3, d, m):
+    """Readings (mean over each interval of M fine samples) of ``sign(a3) d`` with ``a3`` and
+    ``d`` linear between the samples: exact for those piecewise-linear signals, as the
+    trapezoid rule is for the others. The trapezoid of the samples would miss the jump at
+    each zero of ``a3`` inside a sample interval (an O(h) error: 10 % for a 400 Hz tone
+    at 6.4 kHz); each such interval gets the exact integral, split at the zero."""
+    s = np.sign(a3)
+    out = boxcar_readings(s * d, m)
+    n = np.nonzero(s[:-1] != s[1:])[0]
+    if len(n):
+        x = a3[n] / (a3[n] - a3[n + 1])  # where a3 crosses 0, fraction of the interval
+        dx = d[n] + x * (d[n + 1] - d[n])
+        exact = s[n] * 0.5 * (d[n] + dx) * x + s[n + 1] * 0.5 * (dx + d[n + 1]) * (1 - x)
+        corr = exact - 0.5 * (s[n] * d[n] + s[n + 1] * d[n + 1])
+        acc = np.zeros(len(out))
+        keep = n // m < len(out)
+        np.add.at(acc, n[keep] // m, corr[keep])
+        out = out + acc / m
+    return out
+
+
+def effects_at_rest(p, aL3, aL1, aL2, effects):
+    """What the output effects add to the reading of a still unit (no vibration)."""
+    add = 0.0
+    for e in effects:
+        q = e.params
+        if e.kind == "anisoelastic":
+            add += q["k_ae_per_g"] * aL1 * aL2
+        elif e.kind == "high_order_nonlinearity":
+            add += 1e-6 * (q["k6_ppm_per_g5"] * aL3**6 + q["k7_ppm_per_g6"] * aL3**7)
+    if not any(e.kind == "saturation" for e in effects):
+        return add
+    y0 = float(p.af(aL3, aL1, aL2))
+    y = y0 + add
+    for e in effects:
+        if e.kind == "saturation":
+            y = min(max(y, -e.params["range_g"]), e.params["range_g"])
+    return y - y0
+
+
 def windows(cfg):
     """Time windows [start, end] of the VE measurement and of the still segments."""
     if cfg.vibrate_throughout:
@@ -995,6 +1447,36 @@ def reading_mask(cfg, t_accel, win):
     ta = 1.0 / cfg.accel_rate_hz
     eps = 1e-9 * ta
     return (t_accel - ta >= win[0] - eps) & (t_accel <= win[1] + eps)
+
+
+def effects_truth(cfg):
+    """The hidden effects of docs/effects.md, with their parameters (truth.json ``effects``)."""
+    out = []
+    if cfg.resonance is not None:
+        # the hidden mount (step 3, also under "resonance"), in docs/effects.md's names; its
+        # "base" form is docs' transmissibility, the "plain" form is not a library effect
+        out.append({"kind": "mount_resonance", "freq_hz": cfg.resonance.f0_hz, "q": cfg.resonance.q,
+                    "form": cfg.resonance.form, "units": [0, 1, 2], "axes": ["OA", "PA", "IA"],
+                    "hook": "at_unit_input", "model": "see resonance"})
+    if cfg.unit_response is not None:
+        ur = cfg.unit_response
+        out.append({"kind": "unit_response", "natural_freq_hz": ur.natural_freq_hz,
+                    "damping_ratio": ur.damping_ratio, "units": [0, 1, 2], "hook": "at_unit_input",
+                    "model": "the IA component of the vibration at each unit (after the mount) through "
+                    "wn^2/(s^2 + 2 zeta wn s + wn^2); OA, PA and gravity untouched; the whole (FP) and the output "
+                    "effects see the filtered IA acceleration; sensed{u}_g of readings_truth.csv does not (it is "
+                    "the acceleration at the unit)",
+                    "discretisation": "exact: H(j w) on the run's DFT bins (flight-like runs: tones analytically)"
+                    if cfg.filter_method == "exact" else "bilinear transform prewarped at natural_freq_hz"})
+    for k, g in enumerate(cfg.sensor_gain_error):
+        if g != 0:
+            out.append({"kind": "sensor_error", "gain_error": g, "misalignment_oa_rad": 0.0,
+                        "misalignment_pa_rad": 0.0, "units": [k], "hook": "at_sensor",
+                        "model": f"vibration sensor VD{k + 1} reads (1 + gain_error) times the vibration along "
+                        f"unit {k}'s IA (before its sensitivity, AC coupling and noise)"})
+    for e in cfg.effects:
+        out.append(e.to_dict())
+    return out
 
 
 def make_truth(res: RunResult):
@@ -1026,9 +1508,17 @@ def make_truth(res: RunResult):
               + 4 * p.k4 * aL3**3 + 5 * p.k5 * aL3**4 + p.m31 * aL1 + p.m32 * aL2)
         grad_nl = d3 * u.e_ia + p.m31 * aL3 * u.e_oa + p.m32 * aL3 * u.e_pa
         grad_lin = p.k1 * p.lam * u.e_ia + p.m1 * u.e_oa + p.m2 * u.e_pa
-        v_mean = res.fine["vib_unit_readings_g"][:, mv].mean(axis=1)  # body axes
-        first = float((grad_lin + grad_nl) @ v_mean)
-        ve_td = float(res.fine["nonlin_readings_g"][mv, i].mean() - nl0 - grad_nl @ v_mean)
+        ex = res.fine["unit_extra"][i]
+        if cfg.unit_response is None:
+            v_mean = res.fine["vib_unit_readings_g"][:, mv].mean(axis=1)  # body axes
+            first = float((grad_lin + grad_nl) @ v_mean)
+            ve_td = float(res.fine["nonlin_readings_g"][mv, i].mean() - nl0 - grad_nl @ v_mean)
+        else:
+            # the (FP) sees the IA vibration through the unit's response: unit axes OA, PA, IA
+            vm = ex["vib_unit_axes_readings_g"][:, mv].mean(axis=1)
+            g_u = np.array([p.m31 * aL3, p.m32 * aL3, d3])
+            first = float((np.array([p.m1, p.m2, p.k1 * p.lam]) + g_u) @ vm)
+            ve_td = float(res.fine["nonlin_readings_g"][mv, i].mean() - nl0 - g_u @ vm)
         shift = float(res.accel_clean_g[mv, i].mean() - af0)
         entry = {
             "name": u.name,
@@ -1043,7 +1533,12 @@ def make_truth(res: RunResult):
             "ve_time_domain_g": ve_td,
             "reading_shift_g": shift,
             "first_order_input_mean_g": first,
+            "effects_mean_shift_g": float(res.fine["effect_readings_g"][mv, i].mean()),
+            "effects_still_g": float(ex["effects_still_g"]) if ex else 0.0,
+            "effects_linear_mean_g": float(ex["effect_linear_readings_g"][mv].mean()) if ex else 0.0,
         }
+        entry["effects_ve_g"] = (entry["effects_mean_shift_g"] - entry["effects_still_g"]
+                                 - entry["effects_linear_mean_g"])
         # section 8 [P2 (16)] from the recorded (noisy) outputs
         if not cfg.vibrate_throughout:
             m1 = reading_mask(cfg, res.t_accel, win["still_before"])
@@ -1111,7 +1606,9 @@ def make_truth(res: RunResult):
         "gravity_convention": "apparent acceleration of the still rig = gravity_g * orientation "
         "(the body direction pointing up); a unit with IA along it reads aL3 = +gravity_g",
         "triad": [u.to_dict() for u in triad],
-        "lambda": "1 (the unit's frequency response is not modelled)",
+        "lambda": "1 (the unit's frequency response is not modelled)" if cfg.unit_response is None
+        else "1 in (FP); the unit's IA response is the hidden unit_response effect (see effects)",
+        "effects": effects_truth(cfg),
         "tone": {
             "freq_hz": list(cfg.tone_hz),
             "amp_g": list(cfg.tone_amp_g),
@@ -1207,7 +1704,17 @@ def make_truth(res: RunResult):
             "first_order_input_mean_g; computed from the nonlinear part of (FP) (all but a0 + k1 lambda a3 "
             "+ m1 a1 + m2 a2) averaged as the readings average it",
             "reading_shift_g": "mean noise-free reading (g) over the VE window minus (FP) of gravity "
-            "= ve_time_domain_g + first_order_input_mean_g",
+            "= ve_time_domain_g + first_order_input_mean_g + effects_mean_shift_g",
+            "effects_mean_shift_g": "mean over the VE window of what the hidden output effects add to the "
+            "noise-free reading (including their static parts, e.g. k_ae aL1 aL2, and the clip); 0 without "
+            "output effects. ve_time_domain_g is the (FP)'s own VE (with the IA vibration through the "
+            "unit_response when there is one)",
+            "effects_still_g": "what the output effects add to the reading of the still unit (static parts)",
+            "effects_linear_mean_g": "the window mean of the output effects' parts linear in the vibration "
+            "(c aL2 HP[v3], k_ae (aL1 v2 + aL2 v1), (6 k6 aL3^5 + 7 k7 aL3^6) v3, k1 (L - 1)[v3]): zero over whole "
+            "periods, nonzero in a finite window, like first_order_input_mean_g",
+            "effects_ve_g": "the vibration error the output effects add: effects_mean_shift_g - effects_still_g - "
+            "effects_linear_mean_g (MODEL.md section 3's definition applied to them)",
             "first_order_input_mean_g": "grad (FP)(aL) . <v>: the response to the window mean <v> of the "
             "vibration at the unit (the table's velocity change over the window / its length; zero on "
             "average, nonzero in a finite window; the DC-coupled reference measures it at the base)",
@@ -1410,6 +1917,156 @@ def selfcheck(log=print):
         log(f"   fs {fs:7.0f} Hz: max |Hd/H - 1| = {err.max():.2e} (at {f[err.argmax()]:.0f} Hz); "
             f"at f0 {abs(hd[np.argmin(abs(f - 150))] / hc[np.argmin(abs(f - 150))] - 1):.1e}")
 
+    selfcheck_effects(log)
+
+
+def _only(**coeffs):
+    """A passport with every (FP) coefficient 0 but k1 = 1 (K1 as AL-15) and ``coeffs``."""
+    base = dict(a0_g=0.0, d1a=0.0, k2=0.0, k3=0.0, k4=0.0, k5=0.0, m1=0.0, m2=0.0, m31=0.0, m32=0.0)
+    base.update(coeffs)
+    return Passport(id="selfcheck", **base)
+
+
+def _effect_run(effects=(), amps=(0.0, 0.0, 2.0), f=60.0, orientation="+z", passport=None, fs=6400.0,
+                phases=(0.0, 0.9, 2.0), **kw):
+    """A quiet flight-like 2 s run with tones of ``amps`` at ``f`` on x, y, z and ``effects``."""
+    args = dict(vibrate_throughout=True, duration_s=2.0, sensor_rate_hz=fs, orientation=orientation,
+                orientation_name=str(orientation), tone_hz=(f,) * 3, tone_amp_g=amps, tone_phase_rad=phases,
+                random_bands=[(20.0, 640.0, (0.0, 0.0, 0.0))], unit_noise_g=0.0, vib_noise_g=0.0, ref_noise_g=0.0,
+                effects=[parse_effect(s) if isinstance(s, str) else s for s in effects])
+    args.update(kw)
+    return simulate(RunConfig(**args), default_triad(passport or _only()), keep_fine=True)
+
+
+def closed_form_clip_of_tone(aL, amp, range_g):
+    """``E[clip(aL + A sin) - (aL + A sin)]``, clip to +-r: ``-(up(r - aL) - up(r + aL))``,
+    ``up(c) = E[(A sin - c)+] = (sqrt(A^2 - c^2) - c acos(c/A))/pi`` (docs/effects.md saturation)."""
+    def up(c):
+        return (math.sqrt(amp * amp - c * c) - c * math.acos(c / amp)) / math.pi if c < amp else 0.0
+    return -up(range_g - aL) + up(range_g + aL)
+
+
+def heating_window_mean(c, tau, amp, f, phase, t0, t1):
+    """Mean over [t0, t1] of ``b``, ``tau b' = c v^2 - b``, ``b(0) = 0``, ``v = A sin(w t + phase)``:
+    ``v^2 = P (1 - cos(2 w t + 2 phase))``, ``P = A^2/2``, each part's exact response, integrated
+    in closed form."""
+    p = amp * amp / 2
+    big_w, psi = 4 * math.pi * f, 2 * phase
+    k = 1.0 / (1 + 1j * big_w * tau)
+
+    def integral(t):  # of b from 0 to t
+        dc = c * p * (t - tau * (1 - math.exp(-t / tau)))
+        rip = (np.exp(1j * psi) * (np.exp(1j * big_w * t) - 1) / (1j * big_w)
+               - np.exp(1j * psi) * tau * (1 - math.exp(-t / tau)))
+        return dc - c * p * (k * rip).real
+
+    return (integral(t1) - integral(t0)) / (t1 - t0)
+
+
+def selfcheck_effects(log=print):
+    """The hidden effects against closed forms (docs/effects.md; the tests check the same)."""
+    log("5. unit_response (1500 Hz, zeta 0.3), k2 only, 2 g IA tone at 1200 Hz: VE vs 0.5 k2 (|H| A)^2")
+    ur = UnitResponse(1500.0, 0.3)
+    h = abs(complex(ur.h(1200.0)[0]))
+    for method in ("exact", "bilinear"):
+        for fs in (6400.0, 25600.0):
+            r = _effect_run(amps=(0.0, 0.0, 2.0), f=1200.0, passport=_only(k2=105e-6), unit_response=ur,
+                            filter_method=method, fs=fs)
+            cf = 0.5 * 105e-6 * (h * 2.0) ** 2
+            log(f"   {method:8s} fs {fs:7.0f} Hz: VE {r.truth['units'][2]['ve_time_domain_g']:.9e} g, closed form "
+                f"{cf:.9e} g, rel err {r.truth['units'][2]['ve_time_domain_g'] / cf - 1:+.2e}")
+    log("   random 20..640 Hz, 0.002 g^2/Hz on z, through a 500 Hz, zeta 0.3 response: RMS at AK3 vs "
+        "sqrt(int |H|^2 S df)")
+    ur5 = UnitResponse(500.0, 0.3)
+    r = _effect_run(amps=(0.0, 0.0, 0.0), unit_response=ur5, random_bands=[(20.0, 640.0, (0.0, 0.0, 0.002))],
+                    duration_s=8.0)
+    v3 = r.fine["unit_extra"][2]["a_unit_axes_g"][2] - 1.0
+    f = np.linspace(20.0, 640.0, 62001)
+    w = 0.002 * np.abs(ur5.h(f)) ** 2
+    var = float(np.trapezoid(w, f))
+    bins = 0.002 / 8.0 * np.abs(ur5.h(np.arange(160, 5120) / 8.0)) ** 2  # one bin's variance
+    rel_sd = float(np.sqrt(np.sum(bins**2)) / np.sum(bins))
+    got = float(np.mean(v3[:-1] ** 2))
+    log(f"   RMS {math.sqrt(got):.6f} g, analytic {math.sqrt(var):.6f} g, variance ratio - 1 = "
+        f"{got / var - 1:+.2e} (the draw's standard deviation {rel_sd:.1e}); without the response "
+        f"{math.sqrt(0.002 * 620):.6f} g")
+    log("6. sensor gain error 0.05 on VD2: its samples (noise-free) / the plain rig's = 1.05")
+    a = _effect_run(amps=(1.0, 1.0, 1.0))
+    b = _effect_run(amps=(1.0, 1.0, 1.0), sensor_gain_error=(0.0, 0.05, 0.0))
+    ratio = b.vib_v[:, 1] / np.where(a.vib_v[:, 1] == 0, np.nan, a.vib_v[:, 1])
+    log(f"   max |ratio - 1.05| = {np.nanmax(np.abs(ratio - 1.05)):.1e}; VD1, VD3 and readings unchanged: "
+        f"{np.array_equal(a.vib_v[:, [0, 2]], b.vib_v[:, [0, 2]]) and np.array_equal(a.accel_v, b.accel_v)}")
+    log("7. vibropendulous c 2e-4 rad/g, tau 2 ms, 60 Hz tones 1 / 1.5 / 2 g, oblique1: mean vs "
+        "c 0.5 aB3 aB2 Re(HP e^{j(phi3 - phi2)})")
+    amps, ph = (1.0, 1.5, 2.0), (0.0, 0.9, 2.0)
+    w60 = 2 * math.pi * 60.0
+    hp = 1j * w60 * 2e-3 / (1 + 1j * w60 * 2e-3)
+    for thr in (True, False):
+        extra = {} if thr else dict(vibrate_throughout=False, still_s=0.5, vib_s=1.0)
+        r = _effect_run(["vibropendulous:c_rad_per_g=2e-4,tau_s=0.002"], amps=amps, orientation="oblique1",
+                        **extra)
+        errs = []
+        for i, u in enumerate(r.triad):
+            x3, x2 = int(np.argmax(np.abs(u.e_ia))), int(np.argmax(np.abs(u.e_pa)))
+            cf = 2e-4 * 0.5 * u.e_ia[x3] * amps[x3] * u.e_pa[x2] * amps[x2] * (hp * np.exp(1j * (ph[x3] - ph[x2]))).real
+            errs.append(r.truth["units"][i]["effects_mean_shift_g"] / cf - 1)
+        log(f"   {'flight-like' if thr else 'shaker run '}: rel err per unit {', '.join(f'{e:+.1e}' for e in errs)}")
+    log("8. anisoelastic k_ae 3e-5 /g, same tones: mean vs k_ae (aL1 aL2 + 0.5 aB1 aB2 cos(phi1 - phi2))")
+    r = _effect_run(["anisoelastic:k_ae_per_g=3e-5"], amps=amps, orientation="oblique1")
+    g = np.asarray(r.cfg.orientation)
+    errs = []
+    for i, u in enumerate(r.triad):
+        x1, x2 = int(np.argmax(np.abs(u.e_oa))), int(np.argmax(np.abs(u.e_pa)))
+        cf = 3e-5 * ((u.e_oa @ g) * (u.e_pa @ g) + 0.5 * u.e_oa[x1] * u.e_pa[x2] * amps[x1] * amps[x2]
+                     * math.cos(ph[x1] - ph[x2]))
+        errs.append(r.truth["units"][i]["effects_mean_shift_g"] / cf - 1)
+    log(f"   rel err per unit {', '.join(f'{e:+.1e}' for e in errs)}")
+    log("9. high_order_nonlinearity k6 0.05 ppm/g^5, k7 0.01 ppm/g^6, 3 g IA tone, aL3 = 1 g: vs "
+        "k6 E[a3^6] + k7 E[a3^7] (binomial, E[sin^2,4,6] = 1/2, 3/8, 5/16)")
+    mom = [1, 0, 0.5, 0, 3 / 8, 0, 5 / 16, 0]
+    e6 = sum(math.comb(6, q) * 3.0**q * mom[q] for q in range(7))
+    e7 = sum(math.comb(7, q) * 3.0**q * mom[q] for q in range(8))
+    cf = 0.05e-6 * e6 + 0.01e-6 * e7
+    r = _effect_run(["high_order_nonlinearity:k6_ppm_per_g5=0.05,k7_ppm_per_g6=0.01"], amps=(0.0, 0.0, 3.0))
+    got = r.truth["units"][2]["effects_mean_shift_g"]
+    log(f"   {got:.9e} g vs {cf:.9e} g, rel err {got / cf - 1:+.1e}")
+    log("   random only (0.01 g^2/Hz, 20..640 Hz on z): the k6 term's mean vs k6 (E[a3^6] of the realised "
+        "samples) and vs 1e-6 k6 (1 + 15 s^2 + 45 s^4 + 15 s^6) of the requested sigma")
+    r = _effect_run(["high_order_nonlinearity:k6_ppm_per_g5=0.05"], amps=(0.0, 0.0, 0.0),
+                    random_bands=[(20.0, 640.0, (0.0, 0.0, 0.01))], duration_s=4.0)
+    win = windows(r.cfg)["vibrating"]
+    t = r.fine["t"]
+    a3 = r.fine["unit_extra"][2]["a_unit_axes_g"][2][(t >= win[0] - 1e-12) & (t <= win[1] + 1e-12)]
+    e6 = float((np.sum(a3**6) - 0.5 * (a3[0] ** 6 + a3[-1] ** 6)) / (len(a3) - 1))  # trapezoid over the window
+    s2 = 0.01 * 620
+    got = r.truth["units"][2]["effects_mean_shift_g"]
+    log(f"   {got:.9e} g vs realised {0.05e-6 * e6:.9e} g (rel err {got / (0.05e-6 * e6) - 1:+.1e}) vs expected "
+        f"{0.05e-6 * (1 + 15 * s2 + 45 * s2**2 + 15 * s2**3):.6e} g (one draw of a heavy moment)")
+    log("10. heating c 1e-5 g/g^2, tau 0.5 s, 2 g IA tone at 60 Hz from t = 0: window mean vs the exact "
+        "response to v^2 = P (1 - cos 2 w t)")
+    for fs in (6400.0, 25600.0):
+        r = _effect_run(["heating:c_g_per_g2=1e-5,tau_s=0.5"], fs=fs)
+        cf = heating_window_mean(1e-5, 0.5, 2.0, 60.0, 2.0, r.cfg.settle, r.cfg.t_run)
+        got = r.truth["units"][2]["effects_mean_shift_g"]
+        log(f"   fs {fs:7.0f} Hz: {got:.9e} g vs {cf:.9e} g, rel err {got / cf - 1:+.1e} (first-order hold)")
+    log("11. saturation: k1 only, 4 g IA tone, aL3 = 1 g, range 3 g: mean of the clip vs the sinusoid's "
+        "closed form")
+    cf = closed_form_clip_of_tone(1.0, 4.0, 3.0)
+    for fs in (6400.0, 25600.0):
+        r = _effect_run(["saturation:range_g=3"], amps=(0.0, 0.0, 4.0), fs=fs)
+        got = r.truth["units"][2]["effects_mean_shift_g"]
+        log(f"   fs {fs:7.0f} Hz: {got:.9e} g vs {cf:.9e} g, rel err {got / cf - 1:+.1e} (kinks: O(h^2))")
+    log("12. scale_factor_frequency corner 800 Hz, lambda_hf 1.5, d1A exaggerated to 0.1, 2 g IA tone at "
+        "400 Hz, aL3 = 1 g: vs 0.5 k1 d1A A (Re L - 1) (2/pi) sqrt(1 - aL^2/A^2)")
+    lf = (1 + 1.5j * 400.0 / 800.0) / (1 + 1j * 400.0 / 800.0)
+    cf = 0.5 * 0.1 * 2.0 * (lf.real - 1) * (2 / math.pi) * math.sqrt(1 - 1 / 4.0)
+    for fs in (6400.0, 25600.0):
+        r = _effect_run(["scale_factor_frequency:corner_hz=800,lambda_hf=1.5"], f=400.0, fs=fs,
+                        passport=_only(d1a=0.1))
+        got = r.truth["units"][2]["effects_mean_shift_g"]
+        log(f"   fs {fs:7.0f} Hz: {got:.9e} g vs {cf:.9e} g, rel err {got / cf - 1:+.1e} "
+            "(sign(a3) split exactly at its zeros, the signals linear between samples)")
+
 
 # ---------------------------------------------------------------------------------------
 # CLI
@@ -1497,6 +2154,16 @@ def build_parser():
                        "vib.csv holds the signal at s - D (reference and accelerometers not delayed)")
         g.add_argument("--unit-drift-ug-per-s", type=float, default=0.0, metavar="R",
                        help="each unit's readings drift by +-R ug/s from the run start (sign per unit from the seed)")
+        h = p.add_argument_group("hidden effects (docs/effects.md; recorded in truth.json 'effects')")
+        h.add_argument("--unit-response-hz", type=float, default=None, metavar="F",
+                       help="the units' own IA response wn^2/(s^2 + 2 Z wn s + wn^2), natural frequency F "
+                       "(with --unit-response-damping)")
+        h.add_argument("--unit-response-damping", type=float, default=None, metavar="Z", help="its damping ratio")
+        h.add_argument("--sensor-gain-error", type=lambda s: _floats(s, 3), default=None, metavar="G1,G2,G3",
+                       help="vibration sensor k reads (1 + G_k) times the vibration on unit k's IA")
+        h.add_argument("--effect", action="append", default=[], metavar="SPEC",
+                       help="an output effect, kind:key=value,... (units=0|1|2 or 0+2 for some units only): "
+                       + "; ".join(f"{k}: {', '.join(v)}" for k, v in OUTPUT_EFFECTS.items()))
         g.add_argument("--passport", default=None, help="passport TOML for all units (default built-in AL-15)")
         g.add_argument("--triad", default=None, help="triad TOML (default: AK1 +x/+y/+z, AK2 +y/+z/+x, AK3 +z/+x/+y)")
         g.add_argument("--passport-dir", default=None, help="where the triad's passport ids are looked up")
@@ -1518,7 +2185,7 @@ def build_parser():
     p_c.add_argument("--orientations", default=",".join(ORIENTATIONS), help="names, comma-separated")
     p_c.add_argument("--tone-freqs-hz", type=_floats, default="30,60,120")
 
-    sub.add_parser("selfcheck", help="print the discretisation figures")
+    sub.add_parser("selfcheck", help="print the discretisation figures and the hidden effects' closed-form checks")
     return ap
 
 
@@ -1542,7 +2209,17 @@ def config_from_args(a):
                 raise SystemExit(f"--set: unknown passport field {name!r}")
             for u in triad:
                 setattr(u.passport, name, float(value))
+    if (a.unit_response_hz is None) != (a.unit_response_damping is None):
+        raise SystemExit("--unit-response-hz and --unit-response-damping go together")
+    try:
+        effects = [parse_effect(s) for s in a.effect]
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
     cfg = RunConfig(
+        unit_response=None if a.unit_response_hz is None
+        else UnitResponse(a.unit_response_hz, a.unit_response_damping),
+        sensor_gain_error=a.sensor_gain_error or (0.0, 0.0, 0.0),
+        effects=effects,
         tone_amp_g=(0.0, 0.0, 0.0) if a.no_tone else a.tone_amp_g,
         tone_phase_rad=None if a.tone_phase_deg is None else tuple(math.radians(x) for x in a.tone_phase_deg),
         random_bands=bands,

@@ -657,3 +657,321 @@ def test_waveform_errors_matching_and_windows():
     with pytest.raises(ValueError, match="time conventions"):
         we.measure([block(1, 8, 0, t_shift_ns=-625_000)], t_s, sensed, error, window_s=0.02)
     assert we.truth_only(t_s, error, 0.02)["uncompensated"]["windows"] == 4
+
+
+# --------------------------------------------------------------------------------------
+# hidden effects (docs/effects.md): each against a closed form written out here
+
+EFF_AMPS, EFF_PHASES = (1.0, 1.5, 2.0), (0.0, 0.9, 2.0)
+
+
+def effect_run(effects=(), amps=(0.0, 0.0, 2.0), f=60.0, orientation="+z", passport=None, **kw):
+    """Quiet, flight-like 2 s at 6.4 kHz, tones ``amps`` at ``f`` on x, y, z, and ``effects``."""
+    args = dict(orientation=orientation, orientation_name=orientation, tone_hz=(f,) * 3, tone_amp_g=amps,
+                tone_phase_rad=EFF_PHASES, random_bands=NO_RANDOM,
+                effects=[rg.parse_effect(s) for s in effects], **FLIGHT, **QUIET)
+    args.update(kw)
+    return rg.simulate(rg.RunConfig(**args), rg.default_triad(passport or only()), keep_fine=True)
+
+
+def shift_of(res, unit):
+    return res.truth["units"][unit]["effects_mean_shift_g"]
+
+
+def axis_sign(e):
+    k = int(np.argmax(np.abs(e)))
+    return k, float(e[k])
+
+
+EFFECT_CLI = ["--sensor-rate-hz", "3200", "--accel-rate-hz", "400", "--still-s", "0.5", "--vib-s", "1",
+              "--tone-hz", "40,40,40"]
+DATA_FILES = ("accel.csv", "vib.csv", "reference.csv", "readings_truth.csv")
+
+
+def test_effects_at_zero_strength_are_bit_identical(tmp_path):
+    run_cli("run", "--out", str(tmp_path / "plain"), *EFFECT_CLI)
+    run_cli("run", "--out", str(tmp_path / "zero"), *EFFECT_CLI, "--sensor-gain-error", "0,0,0",
+            "--effect", "vibropendulous:c_rad_per_g=0,tau_s=0.002", "--effect", "anisoelastic:k_ae_per_g=0",
+            "--effect", "high_order_nonlinearity:k6_ppm_per_g5=0,k7_ppm_per_g6=0",
+            "--effect", "heating:c_g_per_g2=0,tau_s=2", "--effect", "scale_factor_frequency:corner_hz=800,lambda_hf=1")
+    for name in DATA_FILES:
+        assert (tmp_path / "plain" / name).read_bytes() == (tmp_path / "zero" / name).read_bytes(), name
+    truth = json.loads((tmp_path / "zero" / "truth.json").read_text())
+    assert [e["kind"] for e in truth["effects"]] == ["vibropendulous", "anisoelastic", "high_order_nonlinearity",
+                                                     "heating", "scale_factor_frequency"]
+    assert all(e["zero_strength"] for e in truth["effects"])
+    assert json.loads((tmp_path / "plain" / "truth.json").read_text())["effects"] == []
+
+
+def test_truth_records_every_effect_and_its_parameters(tmp_path):
+    out = tmp_path / "eff"
+    run_cli("run", "--out", str(out), *EFFECT_CLI, "--unit-response-hz", "1200", "--unit-response-damping", "0.4",
+            "--sensor-gain-error", "0,0.05,0", "--effect", "anisoelastic:k_ae_per_g=2e-5,units=1",
+            "--effect", "saturation:range_g=15")
+    eff = json.loads((out / "truth.json").read_text())["effects"]
+    by = {e["kind"]: e for e in eff}
+    assert by["unit_response"]["natural_freq_hz"] == 1200.0 and by["unit_response"]["damping_ratio"] == 0.4
+    assert by["sensor_error"]["gain_error"] == 0.05 and by["sensor_error"]["units"] == [1]
+    assert by["anisoelastic"]["k_ae_per_g"] == 2e-5 and by["anisoelastic"]["units"] == [1]
+    assert by["saturation"]["range_g"] == 15.0 and by["saturation"]["units"] == [0, 1, 2]
+
+
+def test_effect_specs_are_checked():
+    with pytest.raises(ValueError, match=r"unknown kind 'nope'"):
+        rg.parse_effect("nope:x=1")
+    with pytest.raises(ValueError) as e:
+        rg.parse_effect("vibropendulous:c_rad_per_g=0.5,foo=1,units=3")
+    msg = str(e.value)  # every problem at once, with the value and the rule
+    assert "c_rad_per_g = 0.5: must be finite and |c| <= 0.1 rad/g" in msg
+    assert "foo: unknown key" in msg and "tau_s: required" in msg and "units = '3'" in msg
+    assert rg.parse_effect("heating:c_g_per_g2=1e-6,tau_s=3,units=0+2").units == (0, 2)
+    with pytest.raises(ValueError, match="at least one of"):
+        rg.parse_effect("high_order_nonlinearity:units=1")
+
+
+def test_unit_response_filters_the_ia_vibration_only():
+    """k2 only, 2 g tone at 1200 Hz on z through a 1500 Hz, zeta 0.3 response: VE = 0.5 k2 (|H| A)^2
+    with H = wn^2/(wn^2 - w^2 + 2j zeta wn w); a tone on x (AK3's OA) goes through untouched
+    (m31 a3 a1 with the IA tone off: no change), and sensed/readings_truth's sensed is the
+    acceleration at the unit (without its response)."""
+    k2, amp, f, fn, z = 105e-6, 2.0, 1200.0, 1500.0, 0.3
+    wn, w = 2 * math.pi * fn, 2 * math.pi * f
+    h = abs(wn**2 / (wn**2 - w**2 + 2j * z * wn * w))
+    ur = rg.UnitResponse(fn, z)
+    for thr in (True, False):
+        extra = {} if thr else dict(vibrate_throughout=False, still_s=0.5, vib_s=1.0)
+        res = effect_run(amps=(0.0, 0.0, amp), f=f, passport=only(k2=k2), unit_response=ur, **extra)
+        assert abs(ve_of(res, 2) / (0.5 * k2 * (h * amp) ** 2) - 1) < 1e-9
+        plain = effect_run(amps=(0.0, 0.0, amp), f=f, passport=only(k2=k2), **extra)
+        assert np.array_equal(res.sensed_g, plain.sensed_g)
+    # OA untouched: m31 a3 a1 with a tone on OA (x) only and aL3 = 1 g: 0 VE, equal readings
+    res = effect_run(amps=(amp, 0.0, 0.0), f=f, passport=only(m31=11.6e-6), unit_response=ur)
+    plain = effect_run(amps=(amp, 0.0, 0.0), f=f, passport=only(m31=11.6e-6))
+    assert np.max(np.abs(res.accel_clean_g[:, 2] - plain.accel_clean_g[:, 2])) < 1e-15
+
+
+def test_sensor_gain_error_scales_one_sensor():
+    a = effect_run(amps=(1.0, 1.0, 1.0))
+    b = effect_run(amps=(1.0, 1.0, 1.0), sensor_gain_error=(0.0, -0.04, 0.0))
+    assert np.allclose(b.vib_v[:, 1], 0.96 * a.vib_v[:, 1], rtol=1e-14, atol=1e-18)
+    assert np.array_equal(a.vib_v[:, [0, 2]], b.vib_v[:, [0, 2]]) and np.array_equal(a.accel_v, b.accel_v)
+
+
+@pytest.mark.parametrize("flight", [True, False])
+def test_vibropendulous_mean_with_phase(flight):
+    """c 0.5 aB3 aB2 Re(HP(jw) e^{j(phi3 - phi2)}), HP = jw tau/(1 + jw tau), with signed axes."""
+    c, tau, f = 2e-4, 2e-3, 60.0
+    extra = {} if flight else dict(vibrate_throughout=False, still_s=0.5, vib_s=1.0)
+    res = effect_run([f"vibropendulous:c_rad_per_g={c},tau_s={tau}"], amps=EFF_AMPS, f=f,
+                     orientation="oblique1", **extra)
+    w = 2 * math.pi * f
+    hp = 1j * w * tau / (1 + 1j * w * tau)
+    for i, u in enumerate(res.triad):
+        (x3, s3), (x2, s2) = axis_sign(u.e_ia), axis_sign(u.e_pa)
+        want = c * 0.5 * s3 * EFF_AMPS[x3] * s2 * EFF_AMPS[x2] * (hp * np.exp(
+            1j * (EFF_PHASES[x3] - EFF_PHASES[x2]))).real
+        assert abs(shift_of(res, i) / want - 1) < 1e-9, (i, shift_of(res, i), want)
+    # error_g (readings_truth) carries it: error with the effect minus without = the effect
+    plain = effect_run(amps=EFF_AMPS, f=f, orientation="oblique1", **extra)
+    d = res.error_g - plain.error_g
+    assert np.allclose(d, res.fine["effect_readings_g"], rtol=0, atol=1e-15)
+
+
+def test_anisoelastic_mean_and_unit_selection():
+    k = 3e-5
+    res = effect_run([f"anisoelastic:k_ae_per_g={k},units=2"], amps=EFF_AMPS, orientation="oblique1")
+    plain = effect_run(amps=EFF_AMPS, orientation="oblique1")
+    g = np.asarray(res.cfg.orientation)
+    u = res.triad[2]
+    (x1, s1), (x2, s2) = axis_sign(u.e_oa), axis_sign(u.e_pa)
+    want = k * ((u.e_oa @ g) * (u.e_pa @ g)
+                + 0.5 * s1 * s2 * EFF_AMPS[x1] * EFF_AMPS[x2] * math.cos(EFF_PHASES[x1] - EFF_PHASES[x2]))
+    assert abs(shift_of(res, 2) / want - 1) < 1e-9
+    assert abs(res.truth["units"][2]["effects_still_g"] / (k * (u.e_oa @ g) * (u.e_pa @ g)) - 1) < 1e-12
+    assert np.array_equal(res.accel_v[:, :2], plain.accel_v[:, :2])  # units 0 and 1 untouched
+
+
+def test_high_order_nonlinearity_tone_and_random():
+    """Tone: k6 E[(1 + A sin)^6] + k7 E[(1 + A sin)^7] by the binomial rule; random only: the
+    k6 term's mean is k6 E[a3^6] of the samples the unit saw (trapezoid over the window)."""
+    mom = [1, 0, 0.5, 0, 3 / 8, 0, 5 / 16, 0]
+    amp = 3.0
+    want = (0.05e-6 * sum(math.comb(6, q) * amp**q * mom[q] for q in range(7))
+            + 0.01e-6 * sum(math.comb(7, q) * amp**q * mom[q] for q in range(8)))
+    res = effect_run(["high_order_nonlinearity:k6_ppm_per_g5=0.05,k7_ppm_per_g6=0.01"], amps=(0.0, 0.0, amp))
+    assert abs(shift_of(res, 2) / want - 1) < 1e-12
+    res = effect_run(["high_order_nonlinearity:k6_ppm_per_g5=0.05"], amps=(0.0, 0.0, 0.0),
+                     random_bands=[(20.0, 640.0, (0.0, 0.0, 0.01))])
+    win = rg.windows(res.cfg)["vibrating"]
+    t = res.fine["t"]
+    a3 = res.fine["a_unit"][2][(t >= win[0] - 1e-12) & (t <= win[1] + 1e-12)]
+    e6 = (np.sum(a3**6) - 0.5 * (a3[0] ** 6 + a3[-1] ** 6)) / (len(a3) - 1)
+    assert abs(shift_of(res, 2) / (0.05e-6 * e6) - 1) < 1e-7  # linear part: exact boxcar, not trapezoid
+
+
+def test_heating_warm_up():
+    """tau b' = c v^2 - b from b(0) = 0, v = A sin(w t + phi): window mean of the exact solution
+    (DC part and 2w ripple) against the first-order-hold recursion: 1e-6 at 6.4 kHz."""
+    c, tau, amp, f = 1e-5, 0.5, 2.0, 60.0
+    res = effect_run([f"heating:c_g_per_g2={c},tau_s={tau}"], amps=(0.0, 0.0, amp), f=f)
+    want = rg.heating_window_mean(c, tau, amp, f, EFF_PHASES[2], res.cfg.settle, res.cfg.t_run)
+    assert abs(shift_of(res, 2) / want - 1) < 1e-6
+    # the bias grows through the run: the last readings carry more than the first
+    e = res.fine["effect_readings_g"][:, 2]
+    assert e[-80:].mean() > 2 * e[80:160].mean() > 0
+    # and the closed form itself against a quadrature of the exact b(t)
+    from scipy import integrate
+    w2, psi = 4 * math.pi * f, 2 * EFF_PHASES[2]
+
+    def b(tt):
+        return c * amp**2 / 2 * ((1 - math.exp(-tt / tau)) - ((np.exp(1j * (w2 * tt + psi)) - np.exp(1j * psi)
+                                  * math.exp(-tt / tau)) / (1 + 1j * w2 * tau)).real)
+
+    q = integrate.quad(b, 0.3, 1.7, limit=500)[0] / 1.4
+    assert abs(rg.heating_window_mean(c, tau, amp, f, EFF_PHASES[2], 0.3, 1.7) / q - 1) < 1e-9
+
+
+def test_saturation_clips_a_sine():
+    """k1 only, aL3 = 1 g + 4 g tone, range 3 g: E[clip - identity] = -up(r - 1) + up(r + 1),
+    up(c) = (sqrt(A^2 - c^2) - c acos(c/A))/pi; the trapezoid over the kinks: O(h^2), 2e-5."""
+    amp, r = 4.0, 3.0
+
+    def up(cc):
+        return (math.sqrt(amp**2 - cc**2) - cc * math.acos(cc / amp)) / math.pi if cc < amp else 0.0
+
+    res = effect_run([f"saturation:range_g={r}"], amps=(0.0, 0.0, amp))
+    want = -up(r - 1.0) + up(r + 1.0)
+    assert want < 0 and abs(shift_of(res, 2) / want - 1) < 3e-5
+    # a clipped reading: the exact boxcar of the linear part plus the trapezoid of the clip's
+    # correction, so it passes the range by O((w h)^2 A) (1.2e-3 g here), 16x less at 4x the rate
+    assert np.max(np.abs(res.accel_clean_g)) < r + 2e-3
+    fine = effect_run([f"saturation:range_g={r}"], amps=(0.0, 0.0, amp), oversample=4)
+    assert np.max(np.abs(fine.accel_clean_g)) < r + 1e-4
+    assert abs(shift_of(fine, 2) / want - 1) < 2e-6
+
+
+def test_scale_factor_frequency_sign_term():
+    """0.5 k1 d1A A (Re L - 1) (2/pi) sqrt(1 - aL^2/A^2) (docs/effects.md), d1A exaggerated
+    to 0.1; the k1 (L - 1) a3 part averages out over whole periods; 1.8e-2 at 6.4 kHz."""
+    fc, lam, amp, f = 800.0, 1.5, 2.0, 400.0
+    lf = (1 + lam * 1j * f / fc) / (1 + 1j * f / fc)
+    want = 0.5 * 0.1 * amp * (lf.real - 1) * (2 / math.pi) * math.sqrt(1 - 1 / amp**2)
+    res = effect_run([f"scale_factor_frequency:corner_hz={fc},lambda_hf={lam}"], amps=(0.0, 0.0, amp), f=f,
+                     passport=only(d1a=0.1))
+    assert abs(shift_of(res, 2) / want - 1) < 2e-2
+    # per reading the linear part k1 (L - 1) v3 is there: |L - 1| A times the reading's boxcar
+    f = 130.0  # (d1A = 0: the linear part alone; 13/80 of the reading rate, whole cycles)
+    lf = (1 + lam * 1j * f / fc) / (1 + 1j * f / fc)
+    res = effect_run([f"scale_factor_frequency:corner_hz={fc},lambda_hf={lam}"], amps=(0.0, 0.0, amp), f=f)
+    plain = effect_run(amps=(0.0, 0.0, amp), f=f)
+    d = res.accel_clean_g[:, 2] - plain.accel_clean_g[:, 2]
+    box = abs(complex(rg.boxcar_response(f, 1 / 800.0)))
+    assert abs(np.sqrt(2 * np.mean(d**2)) / (abs(lf - 1) * amp * box) - 1) < 1e-9
+
+
+# --------------------------------------------------------------------------------------
+# waveform_battery.py: the members' generator options, and the scoring (hand-made JSON)
+
+
+def test_waveform_battery_members_make_valid_rigs():
+    """Every member's generator options parse and validate (no generation), and hide
+    exactly the member's kinds, with the lab's parameter names mapped."""
+    import waveform_battery as wb
+
+    assert len(wb.SINGLES) == 9 and sum("+" in m for m in wb.MEMBERS) == 4 and "nothing" in wb.MEMBERS
+    for name, m in wb.MEMBERS.items():
+        for i in range(wb.SIZES["full"]["runs"]):
+            args = ["run", "--out", "unused", "--vibrate-throughout", "--duration-s", "4",
+                    "--sensor-rate-hz", "6400", "--oversample", "4", *m["design"](i), *wb.generator_args(m["effects"])]
+            a = rg.build_parser().parse_args(args)
+            cfg, _ = rg.config_from_args(a)
+            cfg.tone_hz = a.tone_hz
+            rg.resolve_conditions(cfg).validate()
+        truth = rg.effects_truth(cfg)
+        assert {e["kind"] for e in truth} == set(wb.member_truth(name)["kinds"]), name
+        for kind, k in wb.member_truth(name)["kinds"].items():
+            rec = next(e for e in truth if e["kind"] == kind)
+            for pname in k["hidden"]:
+                assert rec[pname] == k["params"][pname], (name, kind, pname)
+            if kind == "sensor_error":
+                assert rec["units"] == [k["unit"]]
+
+
+def _diag(found, params, verdict="effect", path="waveform"):
+    return {"path": path, "verdict": verdict, "found": found, "params": params, "chi2_per_dof": 1.02,
+            "elapsed_s": 3.5}
+
+
+def test_waveform_battery_scoring():
+    import waveform_battery as wb
+
+    t = wb.member_truth("vibropendulous")
+    good = [{"kind": "vibropendulous", "name": "c_rad_per_g", "value": 2.1e-4, "sigma": 0.05e-4},
+            {"kind": "vibropendulous", "name": "tau_s", "value": 0.0019, "sigma": 0.0001}]
+    s = wb.score(t, _diag(["vibropendulous"], good))
+    assert s["pass"] and [round(r["pull"], 6) for r in s["params"]] == [2.0, -1.0]
+    # a pull beyond 3 sigma, a missing parameter, a spurious effect, the wrong verdict or path
+    bad = [dict(good[0], value=2.2e-4), good[1]]
+    assert not wb.score(t, _diag(["vibropendulous"], bad))["pass"]
+    assert "tau_s not reported" in " ".join(wb.score(t, _diag(["vibropendulous"], good[:1]))["reasons"])
+    s = wb.score(t, _diag(["vibropendulous", "heating"], good))
+    assert not s["pass"] and "spurious heating" in s["reasons"]
+    assert not wb.score(t, _diag(["vibropendulous"], good, verdict="confounded"))["pass"]
+    assert not wb.score(t, _diag(["vibropendulous"], good, path="statistics"))["pass"]
+    assert not wb.score(t, _diag(["vibropendulous"], [dict(good[0], sigma=0.0), good[1]]))["pass"]
+    # nothing: verdict noise
+    n = wb.member_truth("nothing")
+    assert wb.score(n, _diag([], [], verdict="noise"))["pass"]
+    assert not wb.score(n, _diag(["heating"], [], verdict="effect"))["pass"]
+    # a pair; the sensor error's unit when the JSON carries it; k7 = 0 left out of a member
+    # is scored when reported; the chain's delay against 0
+    p = wb.member_truth("mount_resonance+sensor_error")
+    params = [{"kind": "mount_resonance", "name": "freq_hz", "value": 150.3, "sigma": 0.2},
+              {"kind": "mount_resonance", "name": "q", "value": 2.45, "sigma": 0.05},
+              {"kind": "sensor_error", "name": "gain_error", "value": 0.0, "sigma": 0.001, "unit": 0},
+              {"kind": "sensor_error", "name": "gain_error", "value": 0.041, "sigma": 0.002, "unit": 2},
+              {"kind": "sensor_chain", "name": "delay_s", "value": 2e-6, "sigma": 1e-6}]
+    s = wb.score(p, _diag(["sensor_error", "mount_resonance"], params))
+    assert s["pass"], s["reasons"]
+    params[-1]["value"] = 5e-6
+    assert "delay_s" in " ".join(wb.score(p, _diag(["sensor_error", "mount_resonance"], params))["reasons"])
+    h = wb.member_truth("heating")
+    assert set(h["kinds"]["heating"]["params"]) == {"c_g_per_g2", "tau_s"}
+    assert wb.member_truth("high_order_nonlinearity")["kinds"]["high_order_nonlinearity"]["hidden"] == [
+        "k6_ppm_per_g5", "k7_ppm_per_g6"]
+    assert "PASS" in wb.format_row("vibropendulous", wb.score(t, _diag(["vibropendulous"], good)))
+
+
+@pytest.mark.skipif(not os.path.exists(os.path.join(ROOT, "target", "debug", "vibrocomp")),
+                    reason="needs target/debug/vibrocomp (cargo build -p vibrocomp)")
+def test_waveform_battery_generates_and_imports(tmp_path):
+    """One member at CI size, generated and imported (no diagnosis): the logs exist and the
+    runs' truth records the hidden effect."""
+    import waveform_battery as wb
+
+    made = wb.make_member(os.path.join(ROOT, "target", "debug", "vibrocomp"), str(tmp_path), "heating", "ci",
+                          seed=5, jobs=2, fit_delay=False)
+    assert len(made["logs"]) == 2 and all(os.path.getsize(p) > 100_000 for p in made["logs"])
+    truth = json.loads(open(os.path.join(made["runs"][1], "truth.json")).read())
+    assert truth["effects"][0]["kind"] == "heating" and truth["effects"][0]["tau_s"] == 2.0
+    assert truth["orientation_name"] == "oblique1" and truth["segments"]["t_run_s"] == 4.0
+    assert "delay_s = 0.0" in open(os.path.join(made["runs"][0], "rig.toml")).read()
+
+
+def test_waveform_battery_reads_the_statistics_paths_json():
+    """Today's `lab diagnose --json` (statistics path) maps onto the battery's interface."""
+    import waveform_battery as wb
+
+    today = {"comparison": {"paths": {"waveform": 0, "statistics": 12}}, "elapsed_s": 0.9,
+             "verdict": {"verdict": "effect", "kind": "vibropendulous", "kinds": ["vibropendulous"],
+                         "chi2_per_dof_after": 0.21,
+                         "params": [{"effect": "vibropendulous", "name": "c_rad_per_g", "value": 2.15e-4,
+                                     "sigma": 2.6e-5},
+                                    {"effect": "vibropendulous", "name": "tau_s", "value": 1.87e-3, "sigma": 3.3e-4}]}}
+    n = wb.normalize(today)
+    assert (n["path"], n["verdict"], n["found"], n["chi2_per_dof"]) == (
+        "statistics", "effect", ["vibropendulous"], 0.21)
+    t = wb.member_truth("vibropendulous")
+    assert not wb.score(t, today)["pass"]  # not the waveform path
+    s = wb.score(t, today, require_path="any")
+    assert s["pass"] and abs(s["params"][0]["pull"] - 0.15e-4 / 2.6e-5) < 1e-12

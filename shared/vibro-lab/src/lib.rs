@@ -53,6 +53,8 @@ pub mod table_input;
 pub mod text;
 pub mod wave_diagnose;
 pub mod wave_input;
+pub mod wave_report;
+pub mod wave_text;
 pub mod waveform;
 
 pub use diagnose::{

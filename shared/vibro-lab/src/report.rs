@@ -35,16 +35,20 @@ pub const AFTER: RGBColor = RGBColor(31, 119, 180);
 pub const FLOOR_BAND: RGBColor = RGBColor(199, 233, 192);
 /// The candidates' bars (supported, not supported): neither red nor blue, so that
 /// those colours stay the residual points'.
-const SUPPORTED: RGBColor = RGBColor(44, 160, 44);
-const NOT_SUPPORTED: RGBColor = RGBColor(180, 180, 180);
-const GREY: RGBColor = RGBColor(120, 120, 120);
+pub(crate) const SUPPORTED: RGBColor = RGBColor(44, 160, 44);
+pub(crate) const NOT_SUPPORTED: RGBColor = RGBColor(180, 180, 180);
+pub(crate) const GREY: RGBColor = RGBColor(120, 120, 120);
 
 /// Panel size: two side by side fill the page's 1340 px.
-const PANEL: (u32, u32) = (660, 300);
+pub(crate) const PANEL: (u32, u32) = (660, 300);
 
-type Area<'a> = DrawingArea<SVGBackend<'a>, Shift>;
+pub(crate) type Area<'a> = DrawingArea<SVGBackend<'a>, Shift>;
 
-fn svg(width: u32, height: u32, draw: impl FnOnce(&Area<'_>) -> Result<()>) -> Result<String> {
+pub(crate) fn svg(
+    width: u32,
+    height: u32,
+    draw: impl FnOnce(&Area<'_>) -> Result<()>,
+) -> Result<String> {
     let mut out = String::new();
     {
         let area = SVGBackend::with_string(&mut out, (width, height)).into_drawing_area();
@@ -121,7 +125,7 @@ pub fn eng(x: f64, unit: &str) -> String {
 
 /// A tick formatter for a linear axis over `lo..hi`: one prefix for the whole axis
 /// (`-1.0 mg, -0.5 mg, 0, 0.5 mg`), the decimals its tick step needs.
-fn axis_formatter(lo: f64, hi: f64, unit: &str) -> impl Fn(&f64) -> String {
+pub(crate) fn axis_formatter(lo: f64, hi: f64, unit: &str) -> impl Fn(&f64) -> String {
     let e = eng_exponent(lo.abs().max(hi.abs()), unit);
     let scale = 10f64.powi(e);
     let step = ((hi - lo) / 8.0 / scale).abs().max(1e-300);
@@ -170,7 +174,7 @@ fn describe(variable: &str) -> (String, &'static str) {
     }
 }
 
-fn finite_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+pub(crate) fn finite_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
     let (lo, hi) = values
         .filter(|v| v.is_finite())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
@@ -180,7 +184,7 @@ fn finite_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
 }
 
 /// An axis range around `lo..hi` with 6 % margins (and some width when it has none).
-fn padded(lo: f64, hi: f64) -> (f64, f64) {
+pub(crate) fn padded(lo: f64, hi: f64) -> (f64, f64) {
     let pad = ((hi - lo) * 0.06)
         .max(hi.abs().max(lo.abs()) * 1e-3)
         .max(1e-15);
@@ -188,14 +192,14 @@ fn padded(lo: f64, hi: f64) -> (f64, f64) {
 }
 
 /// One thing a legend names.
-enum Key {
+pub(crate) enum Key {
     Point(RGBColor),
     Band(RGBColor),
     Line(RGBColor),
 }
 
 /// A legend in a strip of its own above the plot, so it never covers a point.
-fn legend(area: &Area<'_>, keys: &[(Key, &str)]) -> Result<()> {
+pub(crate) fn legend(area: &Area<'_>, keys: &[(Key, &str)]) -> Result<()> {
     let mut x = 70;
     let y = 12;
     for (key, label) in keys {
@@ -517,7 +521,7 @@ fn ranking_plot(d: &Diagnosis) -> Result<String> {
 }
 
 /// A plain number to 3 or 4 significant digits (BIC, chi2 per dof, p-values).
-fn num(x: f64) -> String {
+pub(crate) fn num(x: f64) -> String {
     if !x.is_finite() {
         return "n/a".into();
     }
@@ -573,7 +577,7 @@ fn param_pm(p: &crate::fit::FittedParam) -> String {
     .replace("  ", " ")
 }
 
-fn value_pm(name: &str, value: f64, sigma: f64) -> String {
+pub(crate) fn value_pm(name: &str, value: f64, sigma: f64) -> String {
     let unit = describe(name).1;
     if !sigma.is_finite() || sigma <= 0.0 {
         let v = if unit.is_empty() {
@@ -605,7 +609,7 @@ fn value_pm(name: &str, value: f64, sigma: f64) -> String {
     .to_string()
 }
 
-fn esc(s: &str) -> String {
+pub(crate) fn esc(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")

@@ -127,6 +127,8 @@ pub struct StepOut {
     /// What the round added (none: the model as is).
     pub added: Option<String>,
     pub chi2: f64,
+    /// The RMS of the vibrating readings' residual, g.
+    pub rms_vibrating_g: f64,
     pub lack_of_fit: LackOfFit,
     pub candidates: Vec<CandidateOut>,
 }
@@ -143,6 +145,14 @@ pub struct RunOut {
     pub passports_from: String,
     pub vib_blocks_refused: u64,
     pub vib_breaks: u64,
+}
+
+/// [`WaveDiagnosis::timings`], s.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Timings {
+    pub read_s: f64,
+    pub model_as_is_s: f64,
+    pub rounds_s: Vec<f64>,
 }
 
 /// A window of the residual along a run.
@@ -197,6 +207,9 @@ pub struct WaveDiagnosis {
     pub window_noise_rms_g: f64,
     pub options: WaveOptions,
     pub elapsed_s: f64,
+    /// Where the time went: reading and preparing the logs, the model as is (with the
+    /// delay's search), each round of candidates.
+    pub timings: Timings,
     /// The final model: the input's with the effects found (for `lab add`).
     #[serde(skip)]
     pub model: LabModel,
@@ -356,6 +369,10 @@ pub fn diagnose_logs(
     // Read and prepare, the logs on the fit's threads.
     let logs = read_all(paths, log_options, options)?;
     let runs: Vec<PreparedRun> = logs.iter().map(|(_, r)| r.clone()).collect();
+    let mut timings = Timings {
+        read_s: start.elapsed().as_secs_f64(),
+        ..Timings::default()
+    };
     drop_duplicates(&runs)?;
     let band_hz = runs.iter().fold((f64::INFINITY, 0.0f64), |(a, b), r| {
         (a.min(r.band_hz.0), b.max(r.band_hz.1))
@@ -412,6 +429,7 @@ pub fn diagnose_logs(
     )
     .map_err(err)?;
     let lof_before = lack_of_fit(&runs, &pr_base.residual_g, &noise, settings.block_readings);
+    timings.model_as_is_s = start.elapsed().as_secs_f64() - timings.read_s;
     let mut state = State {
         problem: problem.clone(),
         x: base_fit.x.clone(),
@@ -420,9 +438,11 @@ pub fn diagnose_logs(
         fit: Some(base_fit),
         labels: labels.clone(),
     };
+    let mut rms_now = rms_vibrating(&runs, &pr_base.residual_g);
     let mut steps = vec![StepOut {
         added: None,
         chi2: chi2_base,
+        rms_vibrating_g: rms_now,
         lack_of_fit: lof_before,
         candidates: Vec::new(),
     }];
@@ -432,6 +452,7 @@ pub fn diagnose_logs(
     let candidates = waveform_candidates(&options.candidates);
     let n_total = runs.iter().map(|r| 3 * r.counts.used).sum::<usize>().max(1) as f64;
     while lof.z >= options.z_noise && found.len() < options.max_effects {
+        let round_start = Instant::now();
         let inflation = lof.inflation.max(1.0);
         let mut outs: Vec<(CandidateOut, Option<State>)> = Vec::new();
         let round_of = candidates.len();
@@ -489,6 +510,7 @@ pub fn diagnose_logs(
             }
         }
         outs.sort_by(|a, b| a.0.delta_bic.total_cmp(&b.0.delta_bic));
+        timings.rounds_s.push(round_start.elapsed().as_secs_f64());
         let best = outs.first().filter(|o| o.0.supported).map(|o| o.0.clone());
         let tie: Vec<String> = match &best {
             Some(b) => outs
@@ -508,6 +530,7 @@ pub fn diagnose_logs(
             steps.push(StepOut {
                 added: None,
                 chi2: state.chi2,
+                rms_vibrating_g: rms_now,
                 lack_of_fit: lof,
                 candidates: round,
             });
@@ -518,6 +541,7 @@ pub fn diagnose_logs(
             steps.push(StepOut {
                 added: None,
                 chi2: state.chi2,
+                rms_vibrating_g: rms_now,
                 lack_of_fit: lof,
                 candidates: round,
             });
@@ -553,11 +577,13 @@ pub fn diagnose_logs(
         state.chi2 = chi2;
         state.rest = rest;
         lof = lack_of_fit(&runs, &pr.residual_g, &noise, settings.block_readings);
+        rms_now = rms_vibrating(&runs, &pr.residual_g);
         found.push(best.kind.clone());
         labels = state.labels.clone();
         steps.push(StepOut {
             added: Some(best.kind.clone()),
             chi2,
+            rms_vibrating_g: rms_now,
             lack_of_fit: lof,
             candidates: round,
         });
@@ -597,9 +623,7 @@ pub fn diagnose_logs(
         .map_or(Vec::new(), |f| f.correlation.clone());
     let (windows, win_res, win_noise) = windows_of(&runs, &pr, options.window_s);
     let final_delay = state.problem.at(&state.x).1;
-    let mut final_model = model.clone();
-    let (tables, _) = state.problem.at(&state.x);
-    final_model.effects = tables;
+    let final_model = model_with_fits(model, &state, &steps, paths);
     let _ = labels;
     Ok(WaveDiagnosis {
         path: "waveform",
@@ -636,10 +660,84 @@ pub fn diagnose_logs(
         window_noise_rms_g: win_noise,
         options: options.clone(),
         elapsed_s: start.elapsed().as_secs_f64(),
+        timings,
         model: final_model,
         residuals: run_residuals(&runs, &pr.residual_g),
         residuals_before: run_residuals(&runs, &pr_base.residual_g),
     })
+}
+
+/// `model` with the effects the search added, each with its provenance (the logs, the
+/// fitted values and uncertainties, the residual RMS before and after its round, its
+/// `delta_bic`).
+fn model_with_fits(
+    model: &LabModel,
+    state: &State,
+    steps: &[StepOut],
+    paths: &[PathBuf],
+) -> LabModel {
+    let (tables, _) = state.problem.at(&state.x);
+    let mut out = model.clone();
+    let source: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+    let added: Vec<&StepOut> = steps.iter().filter(|s| s.added.is_some()).collect();
+    for (i, t) in tables.iter().enumerate().skip(model.effects.len()) {
+        let kind = t
+            .get("kind")
+            .and_then(|k| k.as_str())
+            .unwrap_or("?")
+            .to_string();
+        let mut params = std::collections::BTreeMap::new();
+        let mut sigma = std::collections::BTreeMap::new();
+        if let Some(f) = &state.fit {
+            for (q, p) in f.params.iter().enumerate() {
+                if p.effect == Some(i) {
+                    params.insert(p.name.clone(), f.x[q]);
+                    sigma.insert(p.name.clone(), f.sigma[q]);
+                }
+            }
+        }
+        let k = i - model.effects.len();
+        let rms = |s: Option<&&StepOut>| s.map_or(f64::NAN, |s| s.rms_vibrating_g);
+        let record = vibro_effects::model::FitRecord {
+            kind,
+            table: format!("waveform: {}", source.join(", ")),
+            params,
+            sigma,
+            interval: Default::default(),
+            // The vibrating readings' residual RMS before and after the round that
+            // added it (per reading: the waveform's residual).
+            rms_residual_before_g: if k == 0 {
+                rms(steps.first().as_ref())
+            } else {
+                rms(added.get(k - 1))
+            },
+            rms_residual_after_g: rms(added.get(k)),
+            delta_bic: added
+                .get(k)
+                .and_then(|s| s.candidates.first())
+                .map_or(f64::NAN, |c| c.delta_bic),
+        };
+        out = out.with_effect(t.clone(), Some(record));
+    }
+    out
+}
+
+/// The RMS of the residual over the vibrating used readings, g.
+fn rms_vibrating(runs: &[PreparedRun], residual_g: &[Vec<[f64; 3]>]) -> f64 {
+    let (mut s, mut n) = (0.0, 0usize);
+    for (run, res) in runs.iter().zip(residual_g) {
+        for r in 0..run.j {
+            if run.used[r] && !run.quiet[r] {
+                for x in res[r] {
+                    if x.is_finite() {
+                        s += x * x;
+                        n += 1;
+                    }
+                }
+            }
+        }
+    }
+    (s / n.max(1) as f64).sqrt()
 }
 
 /// Reads and prepares every log, on the fit's threads.
@@ -793,7 +891,19 @@ fn fit_candidate(
         x.extend_from_slice(s);
         x
     };
-    // Screen the starts by the cheap objective.
+    // Screen the starts by the cheap objective: a path effect's linear response over
+    // every run, an output effect's grid pass over the runs with the most vibrating
+    // readings (two; a start's rank does not need all of them).
+    let screen_runs: Vec<PreparedRun>;
+    let screen: &[PreparedRun] = match role {
+        Role::Output if runs.len() > 2 => {
+            let mut order: Vec<usize> = (0..runs.len()).collect();
+            order.sort_by_key(|&i| std::cmp::Reverse(runs[i].counts.used - runs[i].counts.quiet));
+            screen_runs = order.iter().take(2).map(|&i| runs[i].clone()).collect();
+            &screen_runs
+        }
+        _ => runs,
+    };
     let mut screened: Vec<(f64, Vec<f64>)> = Vec::new();
     let mut evaluations = 0;
     for s in &starts {
@@ -802,7 +912,7 @@ fn fit_candidate(
             Role::Path => Rest::Fixed(&state.rest),
             Role::Output => Rest::Compute,
         };
-        let chi2 = match evaluate(runs, &problem, &x, noise, &settings, rest) {
+        let chi2 = match evaluate(screen, &problem, &x, noise, &settings, rest) {
             Ok((c2, _, _)) => c2,
             Err(_) => f64::INFINITY,
         };

@@ -509,9 +509,11 @@ pub fn fit(
         let (chi2_t, _, _) = evaluate(runs, problem, &xt, noise, settings, rest)?;
         evaluations += 1;
         if chi2_t.is_finite() && chi2_t <= nm.chi2 {
+            // Converged when no parameter moves by a fiftieth of its (white-noise)
+            // uncertainty: far below what the sandwich states.
             let small = match invert(&nm.a) {
                 Some(inv) => {
-                    (0..p).all(|i| (xt[i] - x[i]).abs() <= 1e-3 * inv[i][i].max(0.0).sqrt())
+                    (0..p).all(|i| (xt[i] - x[i]).abs() <= 0.02 * inv[i][i].max(0.0).sqrt())
                 }
                 None => false,
             };
@@ -523,7 +525,7 @@ pub fn fit(
             rest_g = evals.iter().map(|e| e.rest_g.clone()).collect();
             pr = project(runs, evals);
             nm = normal(runs, &pr, noise, settings.block_readings);
-            if small || rel < 1e-10 {
+            if small || rel < 1e-9 {
                 converged = true;
             }
         } else {

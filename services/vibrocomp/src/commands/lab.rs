@@ -66,6 +66,13 @@ pub struct Input {
     pub mode: super::model::ModeArg,
     #[command(flatten)]
     pub log: LogArgs,
+    /// How readings are predicted (docs/lab.md, "Which evaluation"): `waveform`, every
+    /// reading of an MCAP log from its vibration samples through the model (default when
+    /// every input is a log); `statistics`, each window's VE from the estimate's
+    /// statistics (tables and manifests); `windows` (`compare`), a log's windows by the
+    /// compensator's stage over its samples.
+    #[arg(long, value_enum)]
+    pub path: Option<EvaluationPath>,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
@@ -78,19 +85,14 @@ pub struct CompareArgs {
     /// Print every condition (default: the 10 largest residuals).
     #[arg(long)]
     pub all: bool,
-    /// How a log's windows are predicted: `waveform` (default), the compensator's
-    /// waveform stage over the log's vibration samples where they cover a window, else
-    /// the statistics; `statistics`, every row from its stated vibration, as `diagnose`
-    /// and `add` fit (docs/lab.md, "Which evaluation").
-    #[arg(long, value_enum, default_value = "waveform")]
-    pub path: EvaluationPath,
 }
 
-/// `lab compare --path`.
+/// `lab ... --path`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum EvaluationPath {
     Waveform,
     Statistics,
+    Windows,
 }
 
 #[derive(Debug, Args)]
@@ -126,6 +128,9 @@ pub struct AddArgs {
     pub from: Vec<PathBuf>,
     #[command(flatten)]
     pub log: LogArgs,
+    /// How readings are predicted (`lab diagnose --path`).
+    #[arg(long, value_enum)]
+    pub path: Option<EvaluationPath>,
     /// The model to extend (default the model of MODEL.md, exact mode).
     #[arg(long)]
     pub model: Option<PathBuf>,
@@ -140,7 +145,7 @@ pub struct AddArgs {
     pub json: bool,
 }
 
-fn base_mode(m: super::model::ModeArg) -> BaseMode {
+pub(super) fn base_mode(m: super::model::ModeArg) -> BaseMode {
     use super::model::ModeArg;
     match m {
         ModeArg::Exact => BaseMode::Exact,
@@ -223,7 +228,7 @@ fn load(
 
 /// A progress bar over the candidates' fits (a long log's diagnosis takes minutes),
 /// on a terminal only: redirected stderr (scripts, tests) stays clean.
-fn fit_progress() -> (ProgressBar, Progress) {
+pub(super) fn fit_progress() -> (ProgressBar, Progress) {
     if !std::io::stderr().is_terminal() {
         return (ProgressBar::hidden(), Progress::default());
     }
@@ -285,12 +290,15 @@ fn load_input(i: &Input) -> anyhow::Result<Loaded> {
 }
 
 fn compare(a: &CompareArgs) -> anyhow::Result<()> {
+    if super::lab_wave::takes_waveform(&a.input.input, a.input.path)? {
+        return super::lab_wave::compare(&a.input);
+    }
     let Loaded { model, table, log } = load_input(&a.input)?;
-    // A log's windows as the compensator evaluates them (the waveform stage over its
-    // samples); tables, manifests and uncovered windows on the statistics path.
-    let c = match a.path {
-        EvaluationPath::Waveform => vibro_lab::compare_evaluated(&model, &table, &log)?,
-        EvaluationPath::Statistics => vibro_lab::compare(&model, &table)?,
+    // `windows`: a log's windows as the compensator evaluates them (the waveform stage
+    // over its samples); tables, manifests and uncovered windows on the statistics path.
+    let c = match a.input.path {
+        Some(EvaluationPath::Windows) => vibro_lab::compare_evaluated(&model, &table, &log)?,
+        _ => vibro_lab::compare(&model, &table)?,
     };
     print_result(a.input.json, &c, &log, |o| {
         text::write_comparison(o, &c, a.all)
@@ -298,6 +306,9 @@ fn compare(a: &CompareArgs) -> anyhow::Result<()> {
 }
 
 fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
+    if super::lab_wave::takes_waveform(&a.input.input, a.input.path)? {
+        return super::lab_wave::diagnose(&a.input, &a.effects, a.max_effects);
+    }
     let Loaded { model, table, log } = load_input(&a.input)?;
     let (bar, progress) = fit_progress();
     let opts = DiagnoseOptions {
@@ -323,6 +334,9 @@ struct AddReport<'a> {
 }
 
 fn add(a: &AddArgs) -> anyhow::Result<()> {
+    if super::lab_wave::takes_waveform(&a.from, a.path)? {
+        return super::lab_wave::add(a);
+    }
     // README, "Files": checked before the fit runs; the inputs are never replaced.
     let mut inputs: Vec<&Path> = a.from.iter().map(PathBuf::as_path).collect();
     inputs.extend(a.model.as_deref());
@@ -370,6 +384,9 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
 }
 
 fn report(a: &ReportArgs) -> anyhow::Result<()> {
+    if super::lab_wave::takes_waveform(&a.input.input, a.input.path)? {
+        return super::lab_wave::report(a);
+    }
     crate::files::check_dir(&a.out, vibro_lab::report::REPORT_FILES, a.force)?;
     let Loaded { model, table, log } = load_input(&a.input)?;
     let (bar, progress) = fit_progress();
@@ -409,16 +426,16 @@ fn report(a: &ReportArgs) -> anyhow::Result<()> {
 
 /// What `lab report --json` prints: where the page is, and what it holds.
 #[derive(serde::Serialize)]
-struct WrittenReport {
-    html: String,
+pub(super) struct WrittenReport {
+    pub html: String,
     #[serde(flatten)]
-    summary: vibro_lab::report::ReportSummary,
+    pub summary: vibro_lab::report::ReportSummary,
 }
 
 /// Writes the report into `dir` (checked by `files::check_dir`): each plot as an SVG
 /// file, then `index.html` last, since its presence marks a complete report; each file
 /// complete or not at all (`crate::files`).
-fn write_report(
+pub(super) fn write_report(
     dir: &Path,
     force: bool,
     report: vibro_lab::report::Report,

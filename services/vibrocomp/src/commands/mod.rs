@@ -7,6 +7,7 @@ pub mod identify;
 pub mod identify_measure;
 pub mod lab;
 pub mod lab_log;
+pub mod lab_wave;
 pub mod latency;
 pub mod log;
 pub mod model;
