@@ -695,6 +695,8 @@ fn a_recorded_session_gives_the_conditions_of_the_flight_it_replayed() {
         "compare",
         s(&out.join("flight.mcap")),
         "--all",
+        "--path",
+        "windows",
         "--json",
     ]);
     let session = run_json(&[
@@ -702,6 +704,8 @@ fn a_recorded_session_gives_the_conditions_of_the_flight_it_replayed() {
         "compare",
         s(&out.join("session.mcap")),
         "--all",
+        "--path",
+        "windows",
         "--json",
     ]);
     assert!(num(&flight["log"], "conditions") > 0.0);

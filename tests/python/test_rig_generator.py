@@ -954,7 +954,8 @@ def test_waveform_battery_generates_and_imports(tmp_path):
     assert len(made["logs"]) == 2 and all(os.path.getsize(p) > 100_000 for p in made["logs"])
     truth = json.loads(open(os.path.join(made["runs"][1], "truth.json")).read())
     assert truth["effects"][0]["kind"] == "heating" and truth["effects"][0]["tau_s"] == 2.0
-    assert truth["orientation_name"] == "oblique1" and truth["segments"]["t_run_s"] == 4.0
+    # heating runs on the shaker: still 2 s, vibrating 4 s, still 2 s.
+    assert truth["orientation_name"] == "oblique1" and truth["segments"]["t_run_s"] == 8.0
     assert "delay_s = 0.0" in open(os.path.join(made["runs"][0], "rig.toml")).read()
 
 

@@ -55,10 +55,12 @@ why it shows the effect):
   big IA amplitudes, tones 4 g at 30/60/120 Hz and random 0.004 g^2/Hz (1.6 g RMS):
   ``k6 E[a3^6]`` about 100 ug, ``k7 E[a3^7]`` (odd: through aL3, signs flip with the
   orientation) about 100 ug.
-- ``heating`` (c_g_per_g2 1e-5, tau_s 2): the IA power alternates per run (tones 1 g,
-  then 3 g, random 0.002 g^2/Hz), the bias warms from 0 at each run's start over
-  a time constant of half the CI run: equilibrium 15..50 ug, its rise visible
-  along the run.
+- ``heating`` (c_g_per_g2 1e-5, tau_s 2): shaker runs (still half the run's length,
+  vibrating its length, still half again): the IA power alternates per run (tones 3 g,
+  then 4 g, random 0.002 g^2/Hz), the bias warms from 0 when the vibration starts over
+  a time constant of half the CI run and cools after it: equilibrium 50..90 ug. Vibrating
+  throughout, a 2 s lag over a 4 s run is nearly a drift, which each run's own offset
+  and slope (the lab's nuisance) take.
 - ``saturation`` (range_g 8): IA tones of 6.5 g at 30/60/120 Hz plus random 0.002 g^2/Hz
   (1.1 g RMS) on 1 g of gravity: the output reaches the range on the side gravity
   pushes (clipping by several hundred ug on average, signed by aL3).
@@ -196,7 +198,11 @@ def member_table():
         "anisoelastic": {"effects": [ae],
                          "design": design(same_freq([60, 200, 40, 120, 300, 80, 160, 100], 2.0), random(0.002))},
         "high_order_nonlinearity": {"effects": [hon], "design": design(tones(LOW, 3.0), random(0.002))},
-        "heating": {"effects": [heat], "design": design(tones(LOW, [1.0, 3.0]), random(0.002))},
+        # heating: shaker runs (still, vibrating, still): the bias rises with the
+        # vibration and falls after it, which a run's own offset and drift (the lab's
+        # nuisance) cannot take; vibrating throughout, a 2 s lag is nearly a drift.
+        "heating": {"effects": [heat], "design": design(tones(LOW, [3.0, 4.0]), random(0.002)),
+                    "shaker": True},
         "saturation": {"effects": [("saturation", {"range_g": 8.0}, None)],
                        "design": design(tones(LOW, 4.5), random(0.002))},
         "scale_factor_frequency": {"effects": [("scale_factor_frequency", {"corner_hz": 800.0, "lambda_hf": 1.3},
@@ -214,7 +220,8 @@ def member_table():
             "design": mount_design},
         "anisoelastic+heating": {
             "effects": [ae, heat],
-            "design": design(same_freq([60, 200, 40, 120, 300, 80, 160, 100], [1.0, 3.0]), random(0.002))},
+            "design": design(same_freq([60, 200, 40, 120, 300, 80, 160, 100], [3.0, 4.0]), random(0.002)),
+            "shaker": True},
     }
 
 
@@ -266,8 +273,13 @@ def generate_run(run, seed, run_index, name, size, fit_delay):
     sz = SIZES[size]
     m = MEMBERS[name]
     t0 = time.perf_counter()
+    if m.get("shaker"):
+        # Still half the run's length, vibrating its length, still half its length.
+        timing = ["--still-s", repr(sz["duration_s"] / 2), "--vib-s", repr(sz["duration_s"])]
+    else:
+        timing = ["--vibrate-throughout", "--duration-s", repr(sz["duration_s"])]
     args = [sys.executable, os.path.join(HERE, "rig_generator.py"), "run", "--out", run,
-            "--seed", str(seed), "--vibrate-throughout", "--duration-s", repr(sz["duration_s"]),
+            "--seed", str(seed), *timing,
             f"--orientation={ORIENTATIONS[run_index % len(ORIENTATIONS)]}",
             "--sensor-rate-hz", str(sz["sensor_hz"]), "--oversample", str(sz["oversample"]),
             "--unit-noise-ug", "2", *m["design"](run_index), *generator_args(m["effects"])]

@@ -364,6 +364,7 @@ mod tests {
         sensitivity_v_per_g: [0.01, -0.01, 0.02],
         ac_corner_hz: None,
         delay_s: 0.00156,
+        delay_stated: true,
         rate_hz: None,
     };
 

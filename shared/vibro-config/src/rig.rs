@@ -58,6 +58,8 @@ pub struct SensorChain {
     /// The chain's delay, s: a sample stamped `s` saw the base at `s - delay_s`
     /// (0..=[`MAX_DELAY_S`]; absent: 0).
     pub delay_s: f64,
+    /// Whether the file states `delay_s` (absent, the lab on the waveform fits it).
+    pub delay_stated: bool,
     /// The sensors' sample rate, Hz, when the file states it: a vibration stream at
     /// another rate is not this rig's.
     pub rate_hz: Option<f64>,
@@ -363,6 +365,7 @@ pub fn parse_rig(text: &str, file: &str) -> Result<RigConfig> {
         }
     };
 
+    let raw_delay_stated = s.delay_s.is_some();
     let delay_s = match s.delay_s.unwrap_or(0.0) {
         x if x.is_finite() && (0.0..=MAX_DELAY_S).contains(&x) => Some(x),
         x => {
@@ -410,6 +413,7 @@ pub fn parse_rig(text: &str, file: &str) -> Result<RigConfig> {
                 sensitivity_v_per_g,
                 ac_corner_hz,
                 delay_s,
+                delay_stated: raw_delay_stated,
                 rate_hz,
             },
             reference,
@@ -639,6 +643,7 @@ mod tests {
         assert_eq!(rig.sensors.sensitivity_v_per_g, [0.1; 3]);
         assert_eq!(rig.sensors.ac_corner_hz, Some(2.0));
         assert_eq!((rig.sensors.delay_s, rig.sensors.rate_hz), (0.0, None));
+        assert!(!rig.sensors.delay_stated);
         assert_eq!(rig.triad.id, "default");
         assert_eq!(rig.reference.body_g_at(4.0), Some([0.0, 0.0, 1.0]));
         let b = rig.reference.body_g_at(12.0).unwrap();
@@ -659,6 +664,7 @@ mod tests {
         };
         let rig = parse_rig(&with("delay_s = 0.00156\nrate_hz = 25600.0\n"), "r.toml").unwrap();
         assert_eq!(rig.sensors.delay_s, 0.00156);
+        assert!(rig.sensors.delay_stated);
         assert_eq!(rig.sensors.rate_hz, Some(25_600.0));
         for (text, want) in [
             (

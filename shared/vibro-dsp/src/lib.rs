@@ -76,6 +76,7 @@ mod leakage;
 mod output;
 mod response;
 mod sinefit;
+pub mod text;
 mod welch;
 
 pub use config::parse_band_hz;

@@ -12,7 +12,10 @@
 //! 2. **The noise**: each unit's residual over the runs' quiet readings (the sensors'
 //!    and the readings' own noise, which no effect explains); the vibrating readings'
 //!    residual against it is the lack of fit (`vibro_wavefit::lack_of_fit`: a z from
-//!    block means). Below [`WaveOptions::z_noise`], the verdict is "noise".
+//!    block means). Below [`WaveOptions::z_noise`], the verdict is "noise". Logs with
+//!    no quiet readings (vibrating throughout) have no such reference: the noise is the
+//!    fit's own residual, every round is run, and the candidates' delta BIC alone
+//!    decides (the report says the lack of fit was not testable).
 //! 3. **Rounds**: every candidate of the library that the waveform can evaluate
 //!    (`non_gaussian` and `axis_phase` describe statistics and phases the samples carry
 //!    themselves), and `sensor_error` per unit, is fitted beside the effects found so
@@ -25,7 +28,10 @@
 //!    parameter. The best supported candidate is added; two of different kinds within
 //!    [`WaveOptions::bic_tie`] make the verdict "confounded".
 //! 4. **Verdict**: "effect" (the effects found leave the noise), "unexplained" (they do
-//!    not, or none is supported), "confounded", or "noise".
+//!    not, or none is supported where the lack of fit remains), "confounded", or
+//!    "noise" (no candidate supported and no lack of fit). A round runs first and
+//!    after every round that added an effect, whatever the lack-of-fit test says: a
+//!    candidate's signature can be supported below the omnibus test's reach.
 //!
 //! The uncertainties are the fit's sandwich covariance (`vibro_wavefit::fit`), tested
 //! against the scatter over repeated draws (tests/python/waveform_battery.py).
@@ -68,6 +74,21 @@ pub struct WaveOptions {
     pub max_starts: usize,
     #[serde(skip)]
     pub progress: Progress,
+}
+
+impl WaveOptions {
+    /// Options that fit `kinds` whatever their support (`lab add KIND...`): each round
+    /// adds the best of them until all are in.
+    pub fn adding(kinds: &[String]) -> Self {
+        Self {
+            candidates: kinds.to_vec(),
+            max_effects: kinds.len(),
+            z_noise: f64::NEG_INFINITY,
+            bic_support: f64::INFINITY,
+            bic_tie: f64::NEG_INFINITY,
+            ..Self::default()
+        }
+    }
 }
 
 impl Default for WaveOptions {
@@ -405,7 +426,7 @@ pub fn diagnose_logs(
         evaluate(&runs, &problem, &[], &noise0, &settings, Rest::Compute).map_err(err)?;
     let mut noise = noise_of(&runs, &pr0.residual_g);
     if delay_free {
-        let d0 = delay_start(&runs, &problem, &pr0, &rest0, &noise, options.max_delay_s)?;
+        let d0 = delay_start(&runs, &problem, &[], &rest0, &noise, options.max_delay_s)?;
         problem.delay_s = d0;
         problem.free.push(FreeParam {
             kind: "sensor_chain".into(),
@@ -451,7 +472,16 @@ pub fn diagnose_logs(
     let mut lof = lof_before;
     let candidates = waveform_candidates(&options.candidates);
     let n_total = runs.iter().map(|r| 3 * r.counts.used).sum::<usize>().max(1) as f64;
-    while lof.z >= options.z_noise && found.len() < options.max_effects {
+    // Without quiet readings (a flight: vibrating throughout) the noise is the fit's own
+    // residual and the lack of fit cannot be tested: the candidates decide by their
+    // delta BIC alone.
+    let testable = noise.from_quiet;
+    // A round runs first, and again after every round that added an effect: a
+    // candidate's own signature (a slow bias that follows the vibration's power, a term
+    // that only OA and PA vibration together excite) can be supported where the
+    // omnibus test, summed over every reading's noise, does not see it. The search ends
+    // when a round supports nothing.
+    while found.len() < options.max_effects {
         let round_start = Instant::now();
         let inflation = lof.inflation.max(1.0);
         let mut outs: Vec<(CandidateOut, Option<State>)> = Vec::new();
@@ -562,8 +592,19 @@ pub fn diagnose_logs(
             Rest::Compute,
         )
         .map_err(err)?;
-        state.x = joint.x.clone();
         noise = noise_of(&runs, &joint.residual_g);
+        // Refitted under the noise it leaves (its weights per unit): the next round's
+        // candidates are measured against this minimum, not against a re-weighting.
+        let joint = fit(
+            &runs,
+            &state.problem,
+            &joint.x,
+            &noise,
+            &settings,
+            Rest::Compute,
+        )
+        .map_err(err)?;
+        state.x = joint.x.clone();
         state.fit = Some(joint);
         let (chi2, pr, rest) = evaluate(
             &runs,
@@ -600,7 +641,7 @@ pub fn diagnose_logs(
     .map_err(err)?;
     let verdict = if !confounded.is_empty() {
         "confounded"
-    } else if lof.z < options.z_noise {
+    } else if lof.z < options.z_noise || !testable {
         if found.is_empty() {
             "noise"
         } else {
@@ -778,25 +819,26 @@ fn drop_duplicates(runs: &[PreparedRun]) -> Result<()> {
     Ok(())
 }
 
-/// The delay's start: the peak of the readings' cross-correlation with the predicted
-/// linear response over `0..max_delay_s`, summed over the runs whose delay is not
-/// stated.
+/// The delay's start: the peak of the readings' cross-correlation with the linear
+/// response predicted under `problem` at `x` over `0..max_delay_s` (parabolic between
+/// lags), summed over the runs whose delay is not stated.
 fn delay_start(
     runs: &[PreparedRun],
     problem: &Problem,
-    pr: &Projected,
+    x: &[f64],
     rest: &[Vec<[f64; 3]>],
     noise: &Noise,
     max_delay_s: f64,
 ) -> Result<f64> {
     let mut total: Vec<f64> = Vec::new();
-    let mut dt = 0.0;
+    let mut lag = 0.0;
+    let (tables, delay) = problem.at(x);
     for (i, run) in runs.iter().enumerate() {
         if run.delay_stated {
             continue;
         }
-        let (tables, delay) = problem.at(&[]);
-        let built = Built::new(&tables, &run.passports, delay).map_err(err)?;
+        // Correlated at the delay the runs were prepared at.
+        let built = Built::new(&tables, &run.passports, run.delay0_s).map_err(err)?;
         let stat = eval::static_part(run);
         // d = readings less the static and rectified parts, demeaned per unit.
         let mut d: Vec<[f64; 3]> = (0..run.j)
@@ -821,9 +863,9 @@ fn delay_start(
             }
         }
         let w = noise.sigma_g.map(|s| 1.0 / (s * s));
-        let cc = eval::delay_cross_correlation(run, &built, &d, w).map_err(err)?;
-        dt = run.dt_s;
-        let q_max = ((max_delay_s / run.dt_s).ceil() as usize).min(cc.len());
+        let (cc, lag_s) = eval::delay_cross_correlation(run, &built, &d, w).map_err(err)?;
+        lag = lag_s;
+        let q_max = ((max_delay_s / lag_s).ceil() as usize + 1).min(cc.len());
         if total.is_empty() {
             total = vec![0.0; q_max];
         }
@@ -831,12 +873,24 @@ fn delay_start(
             *t += c;
         }
     }
-    let _ = pr;
-    Ok(total
-        .iter()
-        .enumerate()
-        .max_by(|a, b| a.1.total_cmp(b.1))
-        .map_or(0.0, |(q, _)| q as f64 * dt))
+    let _ = delay;
+    let Some((q, _)) = total.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)) else {
+        return Ok(0.0);
+    };
+    // A parabola through the peak and its neighbours.
+    let frac = if q > 0 && q + 1 < total.len() {
+        let (a, b, c) = (total[q - 1], total[q], total[q + 1]);
+        let den = a - 2.0 * b + c;
+        if den < 0.0 {
+            (0.5 * (a - c) / den).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    } else {
+        0.0
+    };
+    let out = ((q as f64 + frac) * lag).clamp(0.0, max_delay_s);
+    Ok(out)
 }
 
 /// Fits candidate `c` (on `unit`, or all) beside the state's model: multi-start, then
@@ -906,8 +960,17 @@ fn fit_candidate(
     };
     let mut screened: Vec<(f64, Vec<f64>)> = Vec::new();
     let mut evaluations = 0;
+    let delay_at = problem.free.iter().position(|p| p.effect.is_none());
     for s in &starts {
-        let x = x_with(s);
+        let mut x = x_with(s);
+        // A path effect moves the readings' phase as a delay does: with the delay free,
+        // each start takes the delay its own linear response correlates best at.
+        if let (Role::Path, Some(q)) = (role, delay_at) {
+            if let Ok(d) = delay_start(runs, &problem, &x, &state.rest, noise, options.max_delay_s)
+            {
+                x[q] = d;
+            }
+        }
         let rest = match role {
             Role::Path => Rest::Fixed(&state.rest),
             Role::Output => Rest::Compute,

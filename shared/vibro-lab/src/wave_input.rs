@@ -173,8 +173,8 @@ pub fn read_log(path: &Path, options: &LogOptions) -> Result<WaveLog> {
     };
     if segments.is_empty() {
         return Err(Error::Invalid(format!(
-            "{name}: no usable vibration samples ({vib_topic}; {refused} blocks refused): the \
-             waveform fit predicts each reading from them"
+            "{name}: the lab on the waveform needs the vibration sensors ({vib_topic}): none \
+             usable ({refused} blocks refused); it predicts each reading from them"
         )));
     }
     if !rows.values().any(|r| r.1[0].is_finite()) {

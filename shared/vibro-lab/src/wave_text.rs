@@ -450,6 +450,25 @@ pub fn write_wave_comparison(o: &mut String, d: &WaveDiagnosis) {
 }
 
 /// A hand-made diagnosis for the tests of this module and [`crate::wave_report`].
+/// What `lab add` prints on the waveform path after the diagnosis: the fitted delay (the
+/// rig file's to state, not the model's) and the file written.
+pub fn write_wave_added(o: &mut String, d: &WaveDiagnosis, out: &str) {
+    write_wave_diagnosis(o, d);
+    if let Some(p) = d.params.iter().find(|p| p.kind == "sensor_chain") {
+        let _ = writeln!(
+            o,
+            "the sensors' delay is the rig's, not the model's: state it in the rig file \
+             ([sensors] delay_s = {:.6e}, +- {:.1e} s)",
+            p.value, p.sigma
+        );
+    }
+    let _ = writeln!(
+        o,
+        "wrote {out} (effects: {})",
+        d.model.effect_kinds().join(", ")
+    );
+}
+
 #[cfg(test)]
 pub(crate) mod fixture {
     use crate::wave_diagnose::*;
@@ -616,6 +635,7 @@ pub(crate) mod fixture {
                         no_reference: 0,
                         uncovered: 1,
                         quiet: readings / 2,
+                        transition: 0,
                     },
                     delay_stated: i == 0,
                     delay_s: if i == 0 { 1.0e-3 } else { 1.2503e-3 },

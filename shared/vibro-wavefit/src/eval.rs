@@ -378,6 +378,50 @@ pub fn linear_part_in(
     Ok(out)
 }
 
+/// The chi2 the sensors' own noise adds through the predicted linear response, expected
+/// over the noise: `sum_u w_u n_u (2 / N^2) sum_k |B_k|^2 sum_s |a_us(k)|^2 p_s`, with
+/// `a_us(k) = sum_i c_i T_ui(k) (R_u G^-1)_is` the path from sensor `s` to unit `u`'s
+/// linear response, `p_s` the sensor's noise per bin, `n_u` the run's used readings and
+/// `w_u` the weights. The regressors of the fit carry the sensors' noise (errors in
+/// variables): least squares then prefers a path that passes less of it (a lower Q, a
+/// shifted resonance), by about half a standard uncertainty on the generator's rigs.
+/// [`crate::fit::fit`] removes that: its correction is the step that minimises
+/// `chi2 - E(theta)` instead of `chi2`.
+pub fn sensor_noise_chi2(run: &PreparedRun, built: &Built, w: [f64; 3]) -> Result<f64> {
+    let p = run.noise_per_bin_g2;
+    if p.iter().all(|&x| x <= 0.0) {
+        return Ok(0.0);
+    }
+    let spectra = UnitSpectra::new(run, built, run.lin_bins)?;
+    let (n, j) = (run.n, run.j);
+    let kb = run.lin_bins.min(n / 2 + 1);
+    let used = run.used.iter().filter(|&&u| u).count() as f64;
+    let mut total = 0.0;
+    for u in 0..3 {
+        let c = lin_coefficients(&run.passports[u]);
+        let mut sum = 0.0;
+        for k in 1..kb {
+            let x = 2.0 * PI * k as f64 / j as f64;
+            let b2 = (2.0 - 2.0 * x.cos()) / (x * x);
+            let mut pw = 0.0;
+            for s in 0..3 {
+                let mut a = Complex::new(0.0, 0.0);
+                for i in 0..3 {
+                    let mut t = Complex::new(spectra.map[u][i][s] * c[i], 0.0);
+                    if let Some(tr) = &spectra.transfer[u] {
+                        t *= tr[i][k];
+                    }
+                    a += t;
+                }
+                pw += a.norm_sqr() * p[s];
+            }
+            sum += b2 * pw;
+        }
+        total += w[u] * used * 2.0 / (n as f64 * n as f64) * sum;
+    }
+    Ok(total)
+}
+
 /// The bins of `lo_hz..hi_hz`.
 pub fn bins(run: &PreparedRun, lo_hz: f64, hi_hz: f64) -> (usize, usize) {
     let df = 1.0 / (run.n as f64 * run.dt_s);
@@ -400,18 +444,22 @@ pub fn delay_cross_correlation(
     built: &Built,
     d: &[[f64; 3]],
     w: [f64; 3],
-) -> Result<Vec<f64>> {
+) -> Result<(Vec<f64>, f64)> {
     let spectra = UnitSpectra::new(run, built, run.lin_bins)?;
     let (n, j) = (run.n, run.j);
     let nb = n / 2 + 1;
     let mut planner = RealFftPlanner::<f64>::new();
     let fwd_j = planner.plan_fft_forward(j);
-    let inv_n = planner.plan_fft_inverse(n);
+    // The correlation is band-limited to the vibration's bins: evaluated on a grid of
+    // `l` lags over the record (a spacing of the record over l), not of n.
+    let kb = run.lin_bins.min(nb);
+    let l = (2 * kb).next_power_of_two().clamp(64, n.max(64));
+    let inv_l = planner.plan_fft_inverse(l);
     let fail = |e: realfft::FftError| Error::Input {
         run: run.name.clone(),
         reason: format!("FFT: {e}"),
     };
-    let mut acc = vec![Complex::new(0.0, 0.0); nb];
+    let mut acc = vec![Complex::new(0.0, 0.0); l / 2 + 1];
     for u in 0..3 {
         let c = lin_coefficients(&run.passports[u]);
         let mut dj: Vec<f64> = d
@@ -428,7 +476,7 @@ pub fn delay_cross_correlation(
                 dspec[j - r].conj()
             }
         };
-        for k in 1..run.lin_bins.min(nb) {
+        for k in 1..kb.min(l / 2) {
             let mut y = Complex::new(0.0, 0.0);
             for i in 0..3 {
                 if c[i] != 0.0 {
@@ -441,12 +489,11 @@ pub fn delay_cross_correlation(
         }
     }
     acc[0] = Complex::new(0.0, 0.0);
-    if n % 2 == 0 {
-        acc[nb - 1].im = 0.0;
-    }
-    let mut out = inv_n.make_output_vec();
-    inv_n.process(&mut acc, &mut out).map_err(fail)?;
-    Ok(out.into_iter().map(|x| x / n as f64).collect())
+    acc[l / 2] = Complex::new(0.0, 0.0);
+    let mut out = inv_l.make_output_vec();
+    inv_l.process(&mut acc, &mut out).map_err(fail)?;
+    let lag_s = n as f64 * run.dt_s / l as f64;
+    Ok((out.into_iter().map(|x| x / n as f64).collect(), lag_s))
 }
 
 /// The boxcar `(1 - e^{-j 2 pi k/J}) / (j 2 pi k / J)` at bin `k` (its numerator is

@@ -430,6 +430,9 @@ pub struct Fit {
     pub iterations: usize,
     pub evaluations: usize,
     pub converged: bool,
+    /// The errors-in-variables step applied after convergence, per parameter
+    /// (`eval::sensor_noise_chi2`).
+    pub eiv_correction: Vec<f64>,
     /// Per run, per reading, per unit, the residual (NaN where not used).
     #[serde(skip)]
     pub residual_g: Vec<Vec<[f64; 3]>>,
@@ -536,6 +539,39 @@ pub fn fit(
             }
         }
     }
+    // Errors in variables (`eval::sensor_noise_chi2`): the step from the least-squares
+    // root to the minimum of `chi2 - E(theta)`, `A^-1 grad(E) / 2`, over the path
+    // parameters (E does not depend on the others).
+    let mut eiv_correction = vec![0.0; p];
+    if converged && matches!(rest, Rest::Compute) {
+        if let (Some(inv), Ok(e0)) = (invert(&nm.a), noise_chi2(runs, problem, &x, noise)) {
+            let mut grad = vec![0.0; p];
+            for (q, par) in problem.free.iter().enumerate() {
+                if par.role != Role::Path || e0 == 0.0 {
+                    continue;
+                }
+                let h = step(par, x[q]);
+                let mut xp = x.clone();
+                xp[q] += h;
+                if let Ok(e1) = noise_chi2(runs, problem, &xp, noise) {
+                    grad[q] = (e1 - e0) / h;
+                }
+            }
+            for i in 0..p {
+                eiv_correction[i] = 0.5 * (0..p).map(|k| inv[i][k] * grad[k]).sum::<f64>();
+            }
+            if eiv_correction.iter().any(|d| *d != 0.0) {
+                let mut xc: Vec<f64> = x.iter().zip(&eiv_correction).map(|(a, d)| a + d).collect();
+                clamp(&mut xc);
+                let evals = eval_all(runs, problem, &xc, true, rest, settings.threads)?;
+                evaluations += 1;
+                rest_g = evals.iter().map(|e| e.rest_g.clone()).collect();
+                pr = project(runs, evals);
+                nm = normal(runs, &pr, noise, settings.block_readings);
+                x = xc;
+            }
+        }
+    }
     let (sigma, sigma_white, correlation) = match invert(&nm.a) {
         Some(inv) => {
             let cov: Vec<Vec<f64>> = (0..p)
@@ -585,9 +621,22 @@ pub fn fit(
         iterations,
         evaluations,
         converged,
+        eiv_correction,
         residual_g: pr.residual_g,
         rest_g,
     })
+}
+
+/// `sum over runs of eval::sensor_noise_chi2` at `x`.
+fn noise_chi2(runs: &[PreparedRun], problem: &Problem, x: &[f64], noise: &Noise) -> Result<f64> {
+    let (tables, delay) = problem.at(x);
+    let w = noise.sigma_g.map(|s| 1.0 / (s * s));
+    let mut total = 0.0;
+    for run in runs {
+        let built = Built::new(&tables, &run.passports, delay)?;
+        total += eval::sensor_noise_chi2(run, &built, w)?;
+    }
+    Ok(total)
 }
 
 /// The noise of each unit's residual: from the quiet readings when the runs have
@@ -629,7 +678,8 @@ pub struct LackOfFit {
     /// (correlation-consistent): above 3, the model misses something.
     pub z: f64,
     /// The residual's correlation inflation: the variance of a block's mean over the
-    /// white-noise one, from the quiet readings (1 for white noise).
+    /// white-noise one, from the quiet readings (the vibrating ones when there are
+    /// none), 1 for white noise.
     pub inflation: f64,
     pub vibrating: usize,
     pub quiet: usize,
@@ -698,12 +748,14 @@ pub fn lack_of_fit(
     } else {
         (mv - 1.0) / sv
     };
-    // Inflation: block sums of z against their white-noise variance.
+    // Inflation: block sums of z against their white-noise variance, over the quiet
+    // readings, or the vibrating ones when there are no quiet ones.
+    let c = if blocks[1].len() >= 10 { 1 } else { 0 };
     let inflation = {
-        let b = &blocks[1];
+        let b = &blocks[c];
         let tot: usize = b.iter().map(|x| x.2).sum();
         if b.len() >= 10 && tot > 0 {
-            let var_z = zz[1] / nn[1].max(1) as f64;
+            let var_z = zz[c] / nn[c].max(1) as f64;
             let v: f64 = b.iter().map(|x| x.1 * x.1).sum::<f64>() / tot as f64;
             (v / var_z.max(1e-300)).max(1.0)
         } else {

@@ -8,9 +8,12 @@
 //! interpolated there band-limited (the compensator's Kaiser-windowed sinc,
 //! `vibro_waveform::kernel`), at the stamps `t_i + delay0` (a sample stamped `s` saw
 //! the base at `s - delay`). The record of `J` readings is then one period of `N = J M`
-//! points for the FFT: a shaker run starts and ends still, so the wrap joins two quiet
-//! ends; readings within `guard_s` of the record's ends or of a gap in the samples are
-//! left out (a path filter's ringing and the interpolation's half-width).
+//! points for the FFT. Each stretch the samples cover is tapered to 0 over `taper_s`
+//! at its ends (raised cosine): a flight's record does not end where it began, and the
+//! wrap's step, through the AC coupling's inverse (an integrator below the corner),
+//! would spread over a second on each side. Readings within `guard_s` of the record's
+//! ends or of a gap (the taper, the high-pass's settling, a path filter's ringing, the
+//! interpolation's half-width) are left out.
 //!
 //! The chain is undone per bin: the sensitivity divided out and the AC coupling's
 //! analog high-pass `s / (s + wc)` inverted exactly (a real sensor's coupling is an RC
@@ -77,6 +80,8 @@ pub struct PrepareOptions {
     /// Readings this close to the record's ends or to a gap in the samples are left
     /// out, s.
     pub guard_s: f64,
+    /// Each covered stretch is tapered to 0 over this at its ends, s.
+    pub taper_s: f64,
     /// The sensors' band starts at this multiple of the AC corner.
     pub band_floor_factor: f64,
     /// Readings this close to the vibration's start or end (a used reading next to a
@@ -93,7 +98,8 @@ impl Default for PrepareOptions {
     fn default() -> Self {
         Self {
             min_grid_rate_hz: 25_600.0,
-            guard_s: 0.05,
+            guard_s: 0.5,
+            taper_s: 0.2,
             band_floor_factor: 2.0,
             transition_guard_s: 0.3,
             max_grid_points: 1 << 26,
@@ -151,6 +157,9 @@ pub struct PreparedRun {
     pub band_hz: (f64, f64),
     /// The bins the linear response is predicted from, `0..lin_bins` ([`signal_bins`]).
     pub lin_bins: usize,
+    /// Per sensor, its own noise per bin, `E|S_k|^2` (g^2, [`signal_bins`]); 0 where
+    /// not measured.
+    pub noise_per_bin_g2: [f64; 3],
     pub counts: PrepareCounts,
 }
 
@@ -242,7 +251,8 @@ pub fn prepare(input: &RunInput, options: &PrepareOptions) -> Result<PreparedRun
             covered[i] = true;
         }
     }
-    // Mean of the covered points out (the FFT's DC, and a gap's fill, at 0).
+    // Mean of the covered points out (the FFT's DC, and a gap's fill, at 0), and each
+    // covered stretch tapered at its ends (module doc).
     for g in grid.iter_mut() {
         let (sum, cnt) = g
             .iter()
@@ -252,6 +262,27 @@ pub fn prepare(input: &RunInput, options: &PrepareOptions) -> Result<PreparedRun
         let mean = sum / cnt.max(1) as f64;
         for (x, &c) in g.iter_mut().zip(&covered) {
             *x = if c { *x - mean } else { 0.0 };
+        }
+    }
+    let taper_n = ((options.taper_s / dt_s).round() as usize).max(1);
+    let mut i = 0;
+    while i < n {
+        if !covered[i] {
+            i += 1;
+            continue;
+        }
+        let start = i;
+        while i < n && covered[i] {
+            i += 1;
+        }
+        let len = i - start;
+        let t = taper_n.min(len / 2);
+        for k in 0..t {
+            let w = 0.5 - 0.5 * (PI * (k as f64 + 0.5) / t as f64).cos();
+            for g in grid.iter_mut() {
+                g[start + k] *= w;
+                g[start + len - 1 - k] *= w;
+            }
         }
     }
     let mut planner = RealFftPlanner::<f64>::new();
@@ -298,7 +329,8 @@ pub fn prepare(input: &RunInput, options: &PrepareOptions) -> Result<PreparedRun
         }
     }
     let band_hz = power_band(&sensors, df);
-    let lin_bins = signal_bins(&sensors);
+    let nyquist_bin = (0.5 * sensor_rate_hz / df).floor() as usize;
+    let (lin_bins, noise_per_bin_g2) = signal_bins(&sensors, nyquist_bin);
     // Readings: reference, coverage with the guard.
     let guard = (options.guard_s / period_s).ceil() as usize;
     let mut counts = PrepareCounts {
@@ -403,41 +435,51 @@ pub fn prepare(input: &RunInput, options: &PrepareOptions) -> Result<PreparedRun
         signals_cache: Default::default(),
         band_hz,
         lin_bins,
+        noise_per_bin_g2,
         counts,
     })
 }
 
-/// The bins that carry the vibration: up to 1.25 times the highest frequency whose
-/// power (over blocks of 64 bins) exceeds 3 times the sensors' own noise floor (the
-/// median block from half to 0.8 of the sensors' Nyquist frequency, when that part is
-/// flat within a factor 10); all bins otherwise. Above it the sensors record their own noise only: a
-/// linear response predicted from there would put that noise into every reading's
-/// prediction (with 1 mg of sensor noise at 25.6 kHz, 180 ug per 800 Hz reading where
-/// the vibration's band alone leaves 60 ug).
-pub fn signal_bins(sensors: &[Vec<Complex<f64>>; 3]) -> usize {
+/// The bins that carry the vibration, and each sensor's noise per bin (`E|S_k|^2`, the
+/// unnormalised spectrum's, g^2). The noise floor: the median over blocks of 64 bins
+/// from half to 0.8 of the sensors' Nyquist frequency (below the interpolation kernel's
+/// roll-off), when that part is flat within a factor 10; the bins: up to 1.25 times the
+/// highest block whose power exceeds 3 times the floor. Above it the sensors record
+/// their own noise only: a linear response predicted from there would put that noise
+/// into every reading's prediction. All bins and no floor when the part is not flat (a
+/// vibration that reaches the sensors' Nyquist frequency).
+pub fn signal_bins(
+    sensors: &[Vec<Complex<f64>>; 3],
+    sensor_nyquist_bin: usize,
+) -> (usize, [f64; 3]) {
     let nb = sensors[0].len();
     const B: usize = 64;
-    let blocks: Vec<f64> = (0..nb / B)
-        .map(|b| {
-            (b * B..(b + 1) * B)
-                .map(|k| sensors.iter().map(|s| s[k].norm_sqr()).sum::<f64>())
-                .sum::<f64>()
-                / B as f64
-        })
+    let power = |s: &[Complex<f64>], b: usize| -> f64 {
+        (b * B..(b + 1) * B).map(|k| s[k].norm_sqr()).sum::<f64>() / B as f64
+    };
+    let top = sensor_nyquist_bin.min(nb) / B;
+    let blocks: Vec<f64> = (0..top)
+        .map(|b| sensors.iter().map(|s| power(s, b)).sum())
         .collect();
     if blocks.len() < 16 {
-        return nb;
+        return (nb, [0.0; 3]);
     }
-    // The upper half below the interpolation kernel's roll-off near Nyquist.
-    let mut upper: Vec<f64> = blocks[blocks.len() / 2..blocks.len() * 4 / 5].to_vec();
+    let range = blocks.len() / 2..blocks.len() * 4 / 5;
+    let mut upper: Vec<f64> = blocks[range.clone()].to_vec();
     upper.sort_by(f64::total_cmp);
     let floor = upper[upper.len() / 2];
     let (lo, hi) = (upper[upper.len() / 10], upper[upper.len() * 9 / 10]);
     if !(floor > 0.0 && hi < 10.0 * lo) {
-        return nb;
+        return (nb, [0.0; 3]);
     }
+    let per_sensor: [f64; 3] = std::array::from_fn(|s| {
+        let mut v: Vec<f64> = range.clone().map(|b| power(&sensors[s], b)).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    });
     let last = blocks.iter().rposition(|&p| p > 3.0 * floor).unwrap_or(0);
-    (((last + 1) * B) as f64 * 1.25).ceil().min(nb as f64) as usize
+    let bins = (((last + 1) * B) as f64 * 1.25).ceil().min(nb as f64) as usize;
+    (bins, per_sensor)
 }
 
 /// The inverse of the AC coupling `s / (s + wc)` at `f`, tapered to 0 from the corner

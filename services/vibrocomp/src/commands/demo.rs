@@ -358,6 +358,7 @@ fn scenario_chain(scenario: &Scenario) -> SensorChain {
         sensitivity_v_per_g: [s.sensitivity_v_per_g; 3],
         ac_corner_hz: (s.ac_corner_hz > 0.0).then_some(s.ac_corner_hz),
         delay_s: 0.0,
+        delay_stated: true,
         rate_hz: Some(scenario.rates.sensor_hz),
     }
 }

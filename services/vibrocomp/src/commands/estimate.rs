@@ -9,7 +9,6 @@ use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
 use indicatif::ProgressBar;
 use serde::Serialize;
-use std::fmt::Write as _;
 use std::path::PathBuf;
 use vibro_dsp::{Counters, Estimate, Estimator, EstimatorConfig, EstimatorConfigRaw};
 use vibro_log::samples;
@@ -138,7 +137,21 @@ pub fn run(args: EstimateArgs) -> anyhow::Result<()> {
         });
     }
     let mut out = std::io::stdout().lock();
-    match write_table(&mut out, &args, &columns, rows, &estimates) {
+    let file = args.file.display().to_string();
+    let header = vibro_dsp::text::TableHeader {
+        file: &file,
+        rows,
+        rate_hz: args.rate_hz,
+        columns: &columns,
+        units: match args.units {
+            Units::G => "g",
+            Units::V => "V",
+        },
+        window_s: args.window_s,
+        overlap: args.overlap,
+        band_hz: [args.band_hz[0], args.band_hz[1]],
+    };
+    match vibro_dsp::text::write_table(&mut out, &header, &estimates) {
         // The reader went away (`| head`): nothing left to tell it.
         Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
         other => other.context("writing the table to stdout"),
@@ -277,95 +290,6 @@ fn parse_band(text: &str) -> anyhow::Result<[f64; 2]> {
     })
 }
 
-fn write_table(
-    out: &mut impl std::io::Write,
-    args: &EstimateArgs,
-    columns: &[String; 3],
-    rows: u64,
-    estimates: &[Estimate],
-) -> std::io::Result<()> {
-    let [lo, hi] = [args.band_hz[0], args.band_hz[1]];
-    writeln!(
-        out,
-        "{}: {rows} rows at {} Hz, columns {} in {}; window {} s, overlap {}: {} windows",
-        args.file.display(),
-        args.rate_hz,
-        columns.join(", "),
-        match args.units {
-            Units::G => "g",
-            Units::V => "V",
-        },
-        args.window_s,
-        args.overlap,
-        estimates.len()
-    )?;
-    writeln!(
-        out,
-        "{:>9} {:>9}  {:>27}  {:>20}  {:<12} tones: f Hz [amplitude per column, g]",
-        "start_s",
-        "end_s",
-        format!("rms {lo}..{hi} Hz per column, g"),
-        "kurtosis per column",
-        "flags"
-    )?;
-    for e in estimates {
-        let rms = e.broadband.rms_g.map(fmt_num);
-        let kurt = e.broadband.kurtosis.map(|k| fmt_fixed(k, 2));
-        let mut tones = String::new();
-        for t in e.tones.iter() {
-            let a = t.amplitude_g.map(fmt_num);
-            let _ = write!(
-                tones,
-                "{:.3} [{}, {}, {}]  ",
-                t.frequency_hz, a[0], a[1], a[2]
-            );
-        }
-        if tones.is_empty() {
-            tones.push('-');
-        }
-        writeln!(
-            out,
-            "{:>9.3} {:>9.3}  {:>27}  {:>20}  {:<12} {}",
-            e.start_ns as f64 * 1e-9,
-            e.end_ns as f64 * 1e-9,
-            rms.join(", "),
-            kurt.join(", "),
-            flags_text(e),
-            tones.trim_end()
-        )?;
-    }
-    out.flush()
-}
-
-/// A value with four significant digits, or `-` when not estimated.
-fn fmt_num(v: f64) -> String {
-    if !v.is_finite() {
-        "-".to_string()
-    } else if v != 0.0 && (v.abs() < 1e-3 || v.abs() >= 1e4) {
-        format!("{v:.3e}")
-    } else {
-        let digits = (3 - v.abs().log10().floor().max(-3.0) as i32).clamp(0, 6) as usize;
-        format!("{v:.digits$}")
-    }
-}
-
-fn fmt_fixed(v: f64, decimals: usize) -> String {
-    if v.is_finite() {
-        format!("{v:.decimals$}")
-    } else {
-        "-".to_string()
-    }
-}
-
-fn flags_text(e: &Estimate) -> String {
-    let labels = e.flags.labels();
-    if labels.is_empty() {
-        "-".to_string()
-    } else {
-        labels.join(",")
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -377,15 +301,6 @@ mod tests {
             .map(|x| x.parse().unwrap())
             .collect();
         assert_eq!(parsed, vibro_dsp::DEFAULT_BROADBAND_BAND_HZ);
-    }
-
-    #[test]
-    fn numbers_keep_four_significant_digits() {
-        assert_eq!(fmt_num(1.23456), "1.235");
-        assert_eq!(fmt_num(0.0123456), "0.01235");
-        assert_eq!(fmt_num(123.456), "123.5");
-        assert_eq!(fmt_num(1.5e-5), "1.500e-5");
-        assert_eq!(fmt_num(f64::NAN), "-");
     }
 
     #[test]

@@ -66,11 +66,9 @@ pub struct Input {
     pub mode: super::model::ModeArg,
     #[command(flatten)]
     pub log: LogArgs,
-    /// How readings are predicted (docs/lab.md, "Which evaluation"): `waveform`, every
-    /// reading of an MCAP log from its vibration samples through the model (default when
-    /// every input is a log); `statistics`, each window's VE from the estimate's
-    /// statistics (tables and manifests); `windows` (`compare`), a log's windows by the
-    /// compensator's stage over its samples.
+    /// `waveform`: every reading of a log from its samples (default for logs);
+    /// `statistics`: windows' VE from estimates (tables); `windows`: `compare` by the
+    /// compensator's stage (docs/lab.md, "Which evaluation").
     #[arg(long, value_enum)]
     pub path: Option<EvaluationPath>,
     /// Print JSON.
@@ -87,7 +85,6 @@ pub struct CompareArgs {
     pub all: bool,
 }
 
-/// `lab ... --path`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum EvaluationPath {
     Waveform,
@@ -291,11 +288,10 @@ fn load_input(i: &Input) -> anyhow::Result<Loaded> {
 
 fn compare(a: &CompareArgs) -> anyhow::Result<()> {
     if super::lab_wave::takes_waveform(&a.input.input, a.input.path)? {
-        return super::lab_wave::compare(&a.input);
+        return super::lab_wave::diagnose(&a.input, &[], 0);
     }
     let Loaded { model, table, log } = load_input(&a.input)?;
-    // `windows`: a log's windows as the compensator evaluates them (the waveform stage
-    // over its samples); tables, manifests and uncovered windows on the statistics path.
+    // `windows`: a log's windows by the compensator's stage over its samples.
     let c = match a.input.path {
         Some(EvaluationPath::Windows) => vibro_lab::compare_evaluated(&model, &table, &log)?,
         _ => vibro_lab::compare(&model, &table)?,

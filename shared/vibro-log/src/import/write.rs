@@ -345,7 +345,7 @@ fn rate_against_rig(
 
 /// The log's `rig` metadata: the rig file, its reference, and the sensor settings the
 /// lab's estimator takes from a log (`sensor_hz`, `sensor_sensitivity_v_per_g` per
-/// sensor, `sensor_ac_corner_hz`, `sensor_delay_s`; the keys of a simulated log's
+/// sensor, `sensor_ac_corner_hz`, `sensor_delay_s` when the rig file states it; the keys of a simulated log's
 /// `scenario`, plus the chain's delay: a sample stamped `s` saw the base at
 /// `s - sensor_delay_s`).
 fn rig_metadata(
@@ -369,11 +369,11 @@ fn rig_metadata(
             "sensor_ac_corner_hz".to_string(),
             rig.sensors.ac_corner_hz.unwrap_or(0.0).to_string(),
         ),
-        (
-            "sensor_delay_s".to_string(),
-            rig.sensors.delay_s.to_string(),
-        ),
     ]);
+    // Only a delay the rig file states: absent, the lab on the waveform fits it.
+    if rig.sensors.delay_stated {
+        m.insert("sensor_delay_s".into(), rig.sensors.delay_s.to_string());
+    }
     if let Some(r) = &plan.reference {
         m.insert("reference_file".into(), r.display().to_string());
     }
