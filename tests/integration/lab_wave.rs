@@ -277,8 +277,8 @@ fn compensated_rms(log: &Path, truth_csv: &Path, model: Option<&Path>) -> f64 {
             let Some(w) = sums.get_mut(i / n) else {
                 continue;
             };
-            for u in 0..3 {
-                w.0[u] += b.a4_g[k][u] - sensed[i][u];
+            for (sum, (a4, s)) in w.0.iter_mut().zip(b.a4_g[k].iter().zip(&sensed[i])) {
+                *sum += a4 - s;
             }
             w.1 += 1;
             w.2 &= b.flags & cf::WAVEFORM != 0;

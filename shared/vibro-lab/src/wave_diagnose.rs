@@ -927,21 +927,47 @@ fn fit_candidate(
         }
     };
     let index = state.problem.tables.len();
-    let mut problem = state.problem.clone();
-    problem.tables.push(table);
-    for p in &specs {
-        problem.free.push(FreeParam {
+    let own: Vec<FreeParam> = specs
+        .iter()
+        .map(|p| FreeParam {
             kind: c.kind.into(),
             name: p.name.into(),
             effect: Some(index),
             scale: p.scale,
             bounds: p.bounds,
             role,
-        });
+        })
+        .collect();
+    // The candidate is fitted beside the effects found so far at their values (the
+    // joint refit with everything free follows for the one added); a path candidate
+    // with the delay, which its phase trades with.
+    let (tables_now, delay_now) = state.problem.at(&state.x);
+    let delay_q = state.problem.free.iter().position(|p| p.effect.is_none());
+    let mut problem = Problem {
+        tables: tables_now,
+        delay_s: delay_now,
+        free: Vec::new(),
+    };
+    problem.tables.push(table.clone());
+    let with_delay = role == Role::Path && delay_q.is_some();
+    if let (true, Some(q)) = (with_delay, delay_q) {
+        problem.free.push(state.problem.free[q].clone());
     }
-    let settings = options.fit;
+    let lead = problem.free.len();
+    problem.free.extend(own.iter().cloned());
+    // A candidate's rank needs its fit's chi2 to a few percent of its step, not to the
+    // last digit: at most 8 steps here (the one added is refitted jointly to
+    // convergence).
+    let settings = FitSettings {
+        max_iterations: options.fit.max_iterations.min(8),
+        ..options.fit
+    };
     let x_with = |s: &[f64]| -> Vec<f64> {
-        let mut x = state.x.clone();
+        let mut x = if with_delay {
+            vec![delay_now]
+        } else {
+            Vec::new()
+        };
         x.extend_from_slice(s);
         x
     };
@@ -1017,12 +1043,21 @@ fn fit_candidate(
     };
     let (chi2, _, rest) =
         evaluate(runs, &problem, &f.x, noise, &settings, Rest::Compute).map_err(err)?;
+    // The state with every parameter free again, at these values.
+    let mut full = state.problem.clone();
+    full.tables.push(table);
+    full.free.extend(own);
+    let mut x_full = state.x.clone();
+    if let (true, Some(q)) = (with_delay, delay_q) {
+        x_full[q] = f.x[0];
+    }
+    x_full.extend_from_slice(&f.x[lead..]);
     let mut labels = state.labels.clone();
     labels.push((c.kind.into(), unit));
     Ok((
         State {
-            problem,
-            x: f.x.clone(),
+            problem: full,
+            x: x_full,
             chi2,
             rest,
             fit: Some(f),

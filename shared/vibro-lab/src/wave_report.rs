@@ -931,9 +931,9 @@ pub fn render_waveform(d: &WaveDiagnosis, model: &LabModel) -> Result<Report> {
     residual_section(&mut h, &mut plots, d)?;
     windows_section(&mut h, &mut plots, d)?;
     rounds_section(&mut h, &mut plots, d)?;
-    let _ = write!(
+    let _ = writeln!(
         h,
-        "<h2>The diagnosis in full</h2><pre>{}</pre></body></html>\n",
+        "<h2>The diagnosis in full</h2><pre>{}</pre></body></html>",
         esc(&{
             let mut text = String::new();
             wave_text::write_wave_diagnosis(&mut text, d);

@@ -377,7 +377,7 @@ pub fn solve(m: &[Vec<f64>], b: &[f64]) -> Option<Vec<f64>> {
         .collect();
     for c in 0..n {
         let piv = (c..n).max_by(|&i, &j| a[i][c].abs().total_cmp(&a[j][c].abs()))?;
-        if !(a[piv][c].abs() > 1e-300) {
+        if a[piv][c].abs() <= 1e-300 || a[piv][c].is_nan() {
             return None;
         }
         a.swap(c, piv);
@@ -441,6 +441,9 @@ pub struct Fit {
     pub rest_g: Vec<Vec<[f64; 3]>>,
 }
 
+/// [`evaluate`]'s result: chi2, the projected residuals, per run the rectified part.
+pub type Evaluated = (f64, Projected, Vec<Vec<[f64; 3]>>);
+
 /// Evaluates the model at `x` without fitting: residuals and chi2.
 pub fn evaluate(
     runs: &[PreparedRun],
@@ -449,7 +452,7 @@ pub fn evaluate(
     noise: &Noise,
     settings: &FitSettings,
     rest: Rest<'_>,
-) -> Result<(f64, Projected, Vec<Vec<[f64; 3]>>)> {
+) -> Result<Evaluated> {
     let evals = eval_all(runs, problem, x, false, rest, settings.threads)?;
     let rest_g: Vec<Vec<[f64; 3]>> = evals.iter().map(|e| e.rest_g.clone()).collect();
     let pr = project(runs, evals);

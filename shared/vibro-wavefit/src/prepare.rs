@@ -542,7 +542,7 @@ fn quiet_readings(rms: &[f64], used: &[bool]) -> Vec<bool> {
     v.sort_by(f64::total_cmp);
     let p5 = v[v.len() / 20];
     let p95 = v[v.len() * 19 / 20];
-    if !(p95 > 100.0 * p5) {
+    if p95.partial_cmp(&(100.0 * p5)) != Some(std::cmp::Ordering::Greater) {
         return vec![false; rms.len()];
     }
     // Near the floor: the ramps into and out of the vibration are not quiet.
