@@ -234,14 +234,16 @@ fn lab_compare(
     path: &str,
     progress: Option<Py<PyAny>>,
 ) -> PyResult<String> {
-    // `lab compare --path`: the logs' windows predicted as the compensator evaluates
-    // them (the waveform stage over their samples), or from the estimates' statistics.
+    // `lab compare --path windows`: the logs' windows predicted as the compensator
+    // evaluates them (the waveform stage over their samples), or from the estimates'
+    // statistics. ("waveform" is the package's earlier name for it; the command line's
+    // `--path waveform`, every reading fitted, is not in the package yet.)
     let waveform = match path {
-        "waveform" => true,
+        "waveform" | "windows" => true,
         "statistics" => false,
         other => {
             return Err(pyo3::exceptions::PyValueError::new_err(format!(
-                "path = {other:?}: must be \"waveform\" or \"statistics\""
+                "path = {other:?}: must be \"windows\" (or \"waveform\") or \"statistics\""
             )))
         }
     };

@@ -164,7 +164,7 @@ def test_a_manifest_of_raw_runs_is_the_command_lines(cli, tmp_path):
 def test_a_log_with_a_reference_is_the_command_lines(cli, demo_dir):
     flight = demo_dir / "flight.mcap"
     c = vc.lab.compare(flight, pool_windows=2)
-    want = cli("lab", "compare", flight, "--pool-windows", "2")
+    want = cli("lab", "compare", flight, "--pool-windows", "2", "--path", "windows")
     assert c.to_dict() == want
     assert c.log is not None and c.log["conditions"] == c.summary.n
     both = vc.lab.compare(flight, CAMPAIGN)

@@ -437,9 +437,11 @@ def compare(
 ) -> Comparison:
     """`vibrocomp lab compare`: measured against predicted VE per condition.
 
-    `path`: ``"waveform"`` (default) predicts a log's windows as the compensator
-    evaluates the model, from the vibration samples (MODEL.md section 12); tables and
-    logs without samples use the statistics path, as ``"statistics"`` does for all.
+    `path`: ``"waveform"`` (default; also ``"windows"``, the command line's
+    ``--path windows``) predicts a log's windows as the compensator evaluates the model,
+    from the vibration samples (MODEL.md section 12); tables and logs without samples use
+    the statistics path, as ``"statistics"`` does for all. The command line's default
+    for logs, every reading fitted (``--path waveform``), is not in the package yet.
     """
     log = _log_args(triad, estimator_config, batches, max_al_span_g, pool_windows)
     text = _native.lab_compare(_inputs(inputs), _model(model), mode, log, path, progress)

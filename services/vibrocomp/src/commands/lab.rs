@@ -66,9 +66,8 @@ pub struct Input {
     pub mode: super::model::ModeArg,
     #[command(flatten)]
     pub log: LogArgs,
-    /// `waveform`: every reading of a log from its samples (default for logs);
-    /// `statistics`: windows' VE from estimates (tables); `windows`: `compare` by the
-    /// compensator's stage (docs/lab.md, "Which evaluation").
+    /// `waveform`: every reading from its samples (logs' default); `statistics`;
+    /// `windows`: `compare` by the stage (docs/lab.md, "Which evaluation").
     #[arg(long, value_enum)]
     pub path: Option<EvaluationPath>,
     /// Print JSON.
@@ -291,10 +290,10 @@ fn compare(a: &CompareArgs) -> anyhow::Result<()> {
         return super::lab_wave::diagnose(&a.input, &[], 0);
     }
     let Loaded { model, table, log } = load_input(&a.input)?;
-    // `windows`: a log's windows by the compensator's stage over its samples.
+    // `windows` (and the default beside tables): a log's windows by the stage.
     let c = match a.input.path {
-        Some(EvaluationPath::Windows) => vibro_lab::compare_evaluated(&model, &table, &log)?,
-        _ => vibro_lab::compare(&model, &table)?,
+        Some(EvaluationPath::Statistics) => vibro_lab::compare(&model, &table)?,
+        _ => vibro_lab::compare_evaluated(&model, &table, &log)?,
     };
     print_result(a.input.json, &c, &log, |o| {
         text::write_comparison(o, &c, a.all)

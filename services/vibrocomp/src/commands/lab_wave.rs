@@ -54,6 +54,11 @@ fn run(
     Ok((model, d?))
 }
 
+fn run_input(i: &Input, options: WaveOptions) -> anyhow::Result<(LabModel, WaveDiagnosis)> {
+    let (m, mode) = (i.model.as_deref(), base_mode(i.mode));
+    run(&i.input, m, mode, &i.log, options)
+}
+
 /// `lab compare` (the model as is, its delay fitted when no log states it: `max_effects
 /// = 0`) or `lab diagnose` on the waveform.
 pub fn diagnose(i: &Input, effects: &[String], max_effects: usize) -> anyhow::Result<()> {
@@ -62,13 +67,7 @@ pub fn diagnose(i: &Input, effects: &[String], max_effects: usize) -> anyhow::Re
         max_effects,
         ..WaveOptions::default()
     };
-    let (_, d) = run(
-        &i.input,
-        i.model.as_deref(),
-        base_mode(i.mode),
-        &i.log,
-        options,
-    )?;
+    let (_, d) = run_input(i, options)?;
     if i.json {
         return print_json(&d);
     }
@@ -90,20 +89,14 @@ pub fn add(a: &AddArgs) -> anyhow::Result<()> {
         true => WaveOptions::default(),
         false => WaveOptions::adding(&a.effects),
     };
-    let (_, d) = run(
-        &a.from,
-        a.model.as_deref(),
-        BaseMode::Exact,
-        &a.log,
-        options,
-    )?;
+    let (m, mode) = (a.model.as_deref(), BaseMode::Exact);
+    let (_, d) = run(&a.from, m, mode, &a.log, options)?;
     let missing: Vec<&String> = a.effects.iter().filter(|k| !d.found.contains(k)).collect();
     if !missing.is_empty() {
         bail!("could not fit {missing:?} to the readings (see `lab diagnose --path waveform`)");
     }
-    d.model
-        .save(&a.out, a.force)
-        .context("writing the extended model")?;
+    let saved = d.model.save(&a.out, a.force);
+    saved.context("writing the extended model")?;
     let out = a.out.display().to_string();
     if a.json {
         let effects = d.model.effect_kinds();
@@ -123,26 +116,15 @@ pub fn report(a: &super::lab::ReportArgs) -> anyhow::Result<()> {
         max_effects: a.max_effects,
         ..WaveOptions::default()
     };
-    let (model, d) = run(
-        &i.input,
-        i.model.as_deref(),
-        base_mode(i.mode),
-        &i.log,
-        options,
-    )?;
+    let (model, d) = run_input(i, options)?;
     let page = vibro_lab::wave_report::render_waveform(&d, &model)?;
     let written = write_report(&a.out, a.force, page)?;
     if i.json {
         return print_json(&written);
     }
+    let (html, plots, found) = (&written.html, written.summary.plots, d.found.join(" + "));
     print_text(&format!(
-        "wrote {} ({} plots): {} ({})\n",
-        written.html,
-        written.summary.plots,
-        d.verdict,
-        match d.found.is_empty() {
-            true => "no effect added".to_string(),
-            false => d.found.join(" + "),
-        }
+        "wrote {html} ({plots} plots): {} ({found})\n",
+        d.verdict
     ))
 }
