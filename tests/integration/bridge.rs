@@ -1053,6 +1053,9 @@ fn compensated_of(session: &Path) -> Vec<Vec<u8>> {
 /// is the one-host run's, bit for bit, and the same table is printed.
 #[test]
 fn the_two_host_demo_is_bit_identical_to_the_one_host_demo() {
+    // Not beside the lab's heavy tests: under their load the compensator's wall-clock
+    // rules (a held block given up after 1 s of silence) differ between the two runs.
+    let _quiet = crate::common::heavy();
     let dir = Dir::new("demo");
     let text = std::fs::read_to_string(repo_path("config/scenarios/cyclone-4-short.toml"))
         .unwrap()

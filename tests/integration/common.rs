@@ -4,6 +4,16 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+/// Held by the tests that keep both cores busy for a minute or more (the lab on the
+/// waveform's rigs and battery) and by the test that compares two timed runs of the
+/// services (the two-host demo, whose compensator's wall-clock rules see the load):
+/// they do not run beside each other. A test that panicked while holding it leaves it
+/// usable.
+pub fn heavy() -> std::sync::MutexGuard<'static, ()> {
+    static HEAVY: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    HEAVY.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// The `vibrocomp` binary built for these tests.
 pub fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_vibrocomp"))

@@ -153,6 +153,7 @@ fn mount_logs(dir: &Path, mount: bool) -> Vec<PathBuf> {
 /// seeds without it are "noise".
 #[test]
 fn a_hidden_mount_is_found_alone_from_every_reading_and_nothing_without_it() {
+    let _heavy = crate::common::heavy();
     let dir = TempDir::new("labwv", "mount");
     let logs = mount_logs(&dir.0, true);
     let d = diagnose(&logs);
@@ -192,6 +193,7 @@ fn a_hidden_mount_is_found_alone_from_every_reading_and_nothing_without_it() {
 /// filter's): fitted within 20 us and 3 sigma, beside the mount.
 #[test]
 fn an_unstated_delay_is_fitted_beside_the_mount() {
+    let _heavy = crate::common::heavy();
     let dir = TempDir::new("labwv", "delay");
     let extra: Vec<&str> = ["--tone-hz", "30,60,120", "--daq-delay-s", "0.00156"]
         .into_iter()
@@ -298,6 +300,7 @@ fn compensated_rms(log: &Path, truth_csv: &Path, model: Option<&Path>) -> f64 {
 /// mount in the model it leaves far more (the test can fail).
 #[test]
 fn the_diagnosed_model_takes_the_compensator_to_the_rigs_noise() {
+    let _heavy = crate::common::heavy();
     let dir = TempDir::new("labwv", "add");
     let logs = mount_logs(&dir.0, true);
     let model = dir.0.join("model.toml");

@@ -30,6 +30,7 @@ mount_resonance+sensor_error";
 
 #[test]
 fn the_waveform_lab_finds_each_hidden_effect_and_pair_at_the_ci_size() {
+    let _heavy = crate::common::heavy();
     let dir = TempDir::new("wavebat", "ci");
     let out = Command::new("python3")
         .arg(repo_path("tests/python/waveform_battery.py"))
