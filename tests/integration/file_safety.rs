@@ -71,6 +71,7 @@ fn writers(inputs: &Inputs) -> Vec<Writer> {
         file(&["up", "--prefix", &prefix, "--record", "OUT"]),
         file(&["log", "import", "--accel", csv, "--out", "OUT"]),
         file(&["log", "recover", log, "OUT"]),
+        file(&["log", "compensate", log, "--out", "OUT"]),
         file(&[
             "sim",
             "cyclone-4-short",

@@ -1,5 +1,6 @@
 //! Integration tests of vibrocomp: one binary, a module per topic.
 
+mod archive;
 mod bad_input;
 mod bridge;
 mod campaign;
@@ -25,6 +26,7 @@ mod lab_waveform;
 mod latency;
 mod line_cap;
 mod log;
+mod log_compensate;
 mod log_errors;
 mod measure_timed;
 mod model;

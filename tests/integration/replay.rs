@@ -39,7 +39,12 @@ fn start(spec: &SystemSpec, role: Role, log: &Path) -> Process {
     spec.spawn(role, Some(log)).unwrap()
 }
 
-fn wait_up(prefix: &str, services: &[ServiceId], procs: &mut [&mut Process], log: &Path) {
+pub(crate) fn wait_up(
+    prefix: &str,
+    services: &[ServiceId],
+    procs: &mut [&mut Process],
+    log: &Path,
+) {
     let names = ServiceNames::new(prefix).unwrap();
     if let Err(e) = wait_for_heartbeats(&names, services, Duration::from_secs(30), || {
         for p in procs.iter_mut() {
@@ -54,7 +59,7 @@ fn wait_up(prefix: &str, services: &[ServiceId], procs: &mut [&mut Process], log
     }
 }
 
-fn replay(prefix: &str, log: &Path, extra: &[&str]) -> serde_json::Value {
+pub(crate) fn replay(prefix: &str, log: &Path, extra: &[&str]) -> serde_json::Value {
     let out = bin()
         .arg("replay")
         .arg(log)
@@ -71,7 +76,7 @@ fn replay(prefix: &str, log: &Path, extra: &[&str]) -> serde_json::Value {
 }
 
 /// The /compensated blocks of a recording, in order.
-fn compensated(path: &Path) -> Vec<CompensatedBlock> {
+pub(crate) fn compensated(path: &Path) -> Vec<CompensatedBlock> {
     Reader::open(path)
         .unwrap()
         .map(|r| r.unwrap())
@@ -138,7 +143,7 @@ fn bits(rows: &[[f64; 3]], n: u32) -> Vec<u64> {
 /// Compares everything a compensated block carries but the timestamps of its trip
 /// (publish/receive times) and the counters that continue across replays, which are
 /// compared relative to the run's first.
-fn assert_same(
+pub(crate) fn assert_same(
     run: &[CompensatedBlock],
     reference: &[CompensatedBlock],
     what: &str,
@@ -217,7 +222,7 @@ fn start_recorded(p: &str, session: &Path, services_log: &Path) -> [Process; 3] 
     [est, comp, rec]
 }
 
-fn stop_all(procs: Vec<Process>) -> Vec<serde_json::Value> {
+pub(crate) fn stop_all(procs: Vec<Process>) -> Vec<serde_json::Value> {
     procs
         .into_iter()
         .map(|p| p.stop(Duration::from_secs(20)).unwrap().summary().unwrap())

@@ -46,6 +46,10 @@ pub enum Command {
     /// effect, fit it and add it to the model (docs/lab.md).
     #[command(subcommand)]
     Lab(commands::lab::LabCommand),
+    /// A batch over an archive: every log with every model, every unit through the lab,
+    /// resumable, into one Parquet table and a report (docs/archive.md).
+    #[command(subcommand)]
+    Archive(commands::archive::ArchiveCommand),
     /// Estimate vibration parameters (tones, band RMS, covariance) from a recorded stream.
     Estimate(commands::estimate::EstimateArgs),
     /// Simulate a rig: flights to MCAP or live over iceoryx2, shake-table campaigns to CSV.
@@ -156,6 +160,10 @@ pub fn error_location(e: &anyhow::Error) -> Option<vibro_toml::Location> {
             ) => return Some(vibro_lab::errors::file_only(file.clone())),
             _ => {}
         }
+        let archive = cause.downcast_ref::<vibro_archive::Error>();
+        if let Some(l) = archive.and_then(vibro_archive::Error::location) {
+            return Some(l);
+        }
         vibro_lab::errors::cause_location(cause)
     })
 }
@@ -169,6 +177,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Require(args) => commands::require::run(args),
         Command::Estimate(args) => commands::estimate::run(args),
         Command::Lab(cmd) => commands::lab::run(&cmd),
+        Command::Archive(cmd) => commands::archive::run(&cmd),
         Command::Sim(args) => commands::sim::run(&args),
         Command::Log(cmd) => commands::log::run(cmd),
         Command::Service(cmd) => commands::service::run(&cmd),

@@ -105,7 +105,7 @@ impl Default for DiagnoseOptions {
             candidates: Vec::new(),
             max_effects: 4,
             rank_when_noise: false,
-            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            threads: crate::parallel::available(),
             budget: Budget::default(),
             progress: Progress::default(),
         }

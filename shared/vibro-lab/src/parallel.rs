@@ -25,7 +25,25 @@ pub(crate) fn in_parallel<T: Sync, R: Send>(
     v.into_iter().map(|(_, r)| r).collect()
 }
 
-/// The threads this machine runs at once (1 when it cannot tell).
+/// The most threads the lab's fits use at once in this process (0: no limit): see
+/// [`limit_threads`].
+static LIMIT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+/// Caps the threads every fit of this process spreads its work over (`n = 0` lifts the
+/// cap): a batch that runs one job per core in several processes (`vibro-archive`'s
+/// workers, a Dask worker's task) gives each job one thread, so that its processes do
+/// not compete for the cores. The results do not depend on it (work is spread in
+/// order-preserving chunks).
+pub fn limit_threads(n: usize) {
+    LIMIT.store(n, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// The threads this machine runs at once (1 when it cannot tell), within
+/// [`limit_threads`]'s cap.
 pub(crate) fn available() -> usize {
-    std::thread::available_parallelism().map_or(1, |n| n.get())
+    let machine = std::thread::available_parallelism().map_or(1, |n| n.get());
+    match LIMIT.load(std::sync::atomic::Ordering::Relaxed) {
+        0 => machine,
+        cap => machine.min(cap),
+    }
 }

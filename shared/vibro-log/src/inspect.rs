@@ -132,6 +132,105 @@ pub struct RecoverOutput {
     pub exit_code: u8,
 }
 
+impl RecoverOutput {
+    /// The text `vibrocomp log recover` prints: what was read and written, the
+    /// channels kept, what was lost and why, the verdict.
+    pub fn write_text(&self, out: &mut impl std::fmt::Write) -> std::fmt::Result {
+        let o = self;
+        let r = &o.report;
+        writeln!(
+            out,
+            "Recovered {} ({} bytes) into {} ({} bytes)",
+            r.input.display(),
+            r.input_bytes,
+            r.output.display(),
+            r.output_bytes
+        )?;
+        writeln!(
+            out,
+            "  kept: {} messages in {} complete chunks, {} attachment(s), {} metadata record(s)",
+            r.messages_recovered, r.chunks_recovered, r.attachments, r.metadata
+        )?;
+        for c in &o.channels {
+            let sequence = match (c.first_sequence, c.last_sequence) {
+                (Some(a), Some(b)) => format!("sequence {a}..{b}"),
+                _ => "no messages".to_string(),
+            };
+            writeln!(
+                out,
+                "    {:<14} {:>9} messages, {sequence}, log time {} .. {}",
+                c.topic,
+                c.messages,
+                vibro_mcap::fmt_opt_log_ns(c.first_log_time_ns),
+                vibro_mcap::fmt_opt_log_ns(c.last_log_time_ns)
+            )?;
+        }
+        let chunk_loss = if r.chunks_skipped > 0 {
+            format!(
+                "{} messages in {} chunk(s) whose CRC or compression was broken; ",
+                r.messages_in_skipped_chunks, r.chunks_skipped
+            )
+        } else {
+            String::new()
+        };
+        if r.input_complete && r.damage.is_empty() {
+            writeln!(
+                out,
+                "  lost: nothing (the file was complete: its data section ends with a data-end record)"
+            )?;
+        } else if r.input_complete {
+            writeln!(
+                out,
+                "  lost: {chunk_loss}{} damaged region(s) skipped; the file's end was read (it ends with a data-end record)",
+                r.damage.len()
+            )?;
+        } else {
+            if !r.damage.is_empty() {
+                writeln!(
+                    out,
+                    "  lost: {chunk_loss}{} damaged region(s) skipped",
+                    r.damage.len()
+                )?;
+            }
+            writeln!(
+                out,
+                "  lost: {} bytes after byte {}{}",
+                o.lost_bytes,
+                r.valid_prefix_bytes,
+                r.stop_reason
+                    .as_ref()
+                    .map(|s| format!(" ({s})"))
+                    .unwrap_or_default()
+            )?;
+        }
+        for d in &r.damage {
+            let messages = d
+                .messages
+                .map_or_else(String::new, |m| format!(", {m} messages"));
+            writeln!(
+                out,
+                "  damaged: bytes {}..{}{messages}: {}",
+                d.start_byte, d.end_byte, d.what
+            )?;
+        }
+        if r.messages_orphaned > 0 {
+            writeln!(
+                out,
+                "  dropped: {} messages whose channel, or its schema, survives nowhere intact",
+                r.messages_orphaned
+            )?;
+        }
+        if r.chunks_repaired > 0 {
+            writeln!(
+                out,
+                "  repaired: {} chunk(s) whose header was damaged, read all the same (their CRC proves their records)",
+                r.chunks_repaired
+            )?;
+        }
+        writeln!(out, "  result: {}", o.result)
+    }
+}
+
 /// `log recover`'s exit status when it wrote the new file but lost some of the damaged
 /// one (a skipped chunk, a damaged region, messages without their channel): neither
 /// success (0) nor failure (1, nothing written), so that a script can tell them apart.

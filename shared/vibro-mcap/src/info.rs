@@ -452,6 +452,174 @@ fn summarise(record: McapRecord<'_>, summary: &mut Summary<'_>) -> Result<()> {
 
 /// The text `vibrocomp log info` prints of a log's losses and recoveries.
 impl LogInfo {
+    /// The whole text `vibrocomp log info` prints: the file, its messages and times,
+    /// its losses and recoveries, a line per channel, the metadata and the attachments.
+    pub fn write_text(&self, out: &mut impl std::fmt::Write) -> std::fmt::Result {
+        let info = self;
+        writeln!(
+            out,
+            "{}: {} bytes, profile {:?}, written by {:?}",
+            info.path.display(),
+            info.file_bytes,
+            info.profile,
+            info.library
+        )?;
+        let chunks = info.chunks.map_or_else(
+            || "no statistics record".to_string(),
+            |c| format!("{c} chunks"),
+        );
+        writeln!(
+            out,
+            "  {} messages on {} channels, {chunks}; log time {} .. {} ({:.3} s)",
+            info.messages,
+            info.channels.len(),
+            fmt_opt_log_ns(info.first_log_time_ns),
+            fmt_opt_log_ns(info.last_log_time_ns),
+            info.duration_s
+        )?;
+        // The two clocks (docs/logs.md, "Time"): the data's (log time) and, in a recording,
+        // the recorder's receive time (publish time), which a replay compresses.
+        writeln!(
+            out,
+            "  publish time {} .. {} ({:.3} s; in a recording the receive time, the log time \
+             the data's)",
+            fmt_opt_log_ns(info.first_publish_time_ns),
+            fmt_opt_log_ns(info.last_publish_time_ns),
+            info.publish_span_s
+        )?;
+        let gaps: u64 = info.channels.iter().map(|c| c.gaps).sum();
+        let out_of_order: u64 = info.channels.iter().map(|c| c.out_of_order).sum();
+        let resyncs: u64 = info.channels.iter().map(|c| c.resyncs).sum();
+        let restarts: u64 = info.channels.iter().map(|c| c.restarts).sum();
+        if info.lost == 0 && out_of_order == 0 && info.jumps == 0 && resyncs == 0 && restarts == 0 {
+            self.write_no_losses(out)?;
+        } else {
+            // Each loss once (vibro_mcap::LogInfo::lost): by sequence, and the blocks in
+            // the file that got no output.
+            let by_sequence = info.lost.saturating_sub(info.inputs_without_output);
+            write!(
+                out,
+                "  losses: {by_sequence} messages lost in {gaps} sequence gaps, {out_of_order} out of order"
+            )?;
+            if restarts > 0 {
+                write!(out, "; {restarts} restarts (a sequence back to 0)")?;
+            }
+            if resyncs > 0 {
+                write!(
+                    out,
+                    "; {resyncs} resyncs, {} counted lost at a seq ahead of its stream and taken back when it resumed",
+                    info.retracted
+                )?;
+            }
+            // Which blocks: every compensated channel's, by seq (all are in --json).
+            for c in info.channels.iter().filter(|c| c.inputs_without_output > 0) {
+                write!(
+                    out,
+                    "; {} accelerometer blocks without compensated output on {} ({}{})",
+                    c.inputs_without_output,
+                    c.topic,
+                    c.unanswered,
+                    c.inputs_topic
+                        .as_deref()
+                        .map_or_else(String::new, |t| format!(" on {t}"))
+                )?;
+            }
+            if info.jumps > 0 {
+                write!(
+                    out,
+                    "; {} sequence jumps too big to be losses (over {} messages skipped: a corrupt or renumbered sequence, not counted)",
+                    info.jumps,
+                    crate::MAX_LOST_MESSAGES
+                )?;
+            }
+            if info.inputs_without_output > 0 {
+                write!(out, "; {} lost in all", info.lost)?;
+            }
+            writeln!(out)?;
+        }
+        self.write_recoveries(out)?;
+        // Topics as wide as the longest (`/heartbeat/compensator` is 22 characters).
+        let tw = info
+            .channels
+            .iter()
+            .map(|c| c.topic.len())
+            .max()
+            .unwrap_or(0)
+            .max(6);
+        let kind_of = |c: &ChannelInfo| {
+            c.kind.clone().unwrap_or_else(|| {
+                // A view channel's schema without its package (docs/view.md).
+                c.message_type
+                    .strip_prefix("vibrocomp.view.v1.")
+                    .map_or_else(|| c.message_type.clone(), |t| format!("view {t}"))
+            })
+        };
+        let kw = info
+            .channels
+            .iter()
+            .map(|c| kind_of(c).len())
+            .max()
+            .unwrap_or(0)
+            .max(17);
+        if !info.channels.is_empty() {
+            writeln!(
+                out,
+                "  {:<tw$} {:<kw$} {:>9}  {:>21}  {:>21}  {:>11}  {:>21}  {:>6}  {:>5}  {:>12}",
+                "topic",
+                "type",
+                "messages",
+                "first log time, s",
+                "last log time, s",
+                "span, s",
+                "sequence",
+                "lost",
+                "gaps",
+                "out of order"
+            )?;
+        }
+        for c in &info.channels {
+            let kind = kind_of(c);
+            let sequence = match (c.first_sequence, c.last_sequence) {
+                (Some(a), Some(b)) => format!("{a}..{b}"),
+                _ => "-".to_string(),
+            };
+            writeln!(
+                out,
+                "  {:<tw$} {:<kw$} {:>9}  {:>21}  {:>21}  {:>11.3}  {:>21}  {:>6}  {:>5}  {:>12}",
+                c.topic,
+                kind,
+                c.messages,
+                c.first_log_time_ns.map_or_else(|| "-".to_string(), fmt_log_ns),
+                c.last_log_time_ns.map_or_else(|| "-".to_string(), fmt_log_ns),
+                c.span_s,
+                sequence,
+                c.lost,
+                c.gaps,
+                c.out_of_order
+            )?;
+        }
+        if info.metadata.is_empty() {
+            writeln!(out, "  metadata: none")?;
+        } else {
+            writeln!(out, "  metadata:")?;
+            for m in &info.metadata {
+                writeln!(out, "    {} ({} entries)", m.name, m.entries.len())?;
+                for (k, v) in &m.entries {
+                    writeln!(out, "      {k} = {v}")?;
+                }
+            }
+        }
+        if info.attachments.is_empty() {
+            writeln!(out, "  attachments: none")?;
+        } else {
+            writeln!(out, "  attachments:")?;
+            for a in &info.attachments {
+                writeln!(out, "    {} ({}, {} bytes)", a.name, a.media_type, a.bytes)?;
+            }
+        }
+        Ok(())
+    }
+
     /// The losses line of a file whose sequences show none: a recovered file's losses are
     /// in its recovery records, not in its sequences (a chunk dropped at the start of the
     /// streams leaves no gap).
@@ -520,6 +688,16 @@ impl LogInfo {
         }
         Ok(())
     }
+}
+
+/// A time on the data time base, in seconds with every nanosecond shown.
+pub fn fmt_log_ns(ns: u64) -> String {
+    format!("{}.{:09}", ns / 1_000_000_000, ns % 1_000_000_000)
+}
+
+/// [`fmt_log_ns`] with its unit, or `-` when there is no time.
+pub fn fmt_opt_log_ns(ns: Option<u64>) -> String {
+    ns.map_or_else(|| "-".to_string(), |t| format!("{} s", fmt_log_ns(t)))
 }
 
 #[cfg(test)]

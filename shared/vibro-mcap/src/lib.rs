@@ -90,7 +90,10 @@ pub mod foxglove_proto {
 }
 
 pub use convert::{last_sample_ns, Message};
-pub use info::{info, info_from_reader, AttachmentInfo, ChannelInfo, LogInfo, MetadataInfo};
+pub use info::{
+    fmt_log_ns, fmt_opt_log_ns, info, info_from_reader, AttachmentInfo, ChannelInfo, LogInfo,
+    MetadataInfo,
+};
 pub use losses::{
     unwrap_sequence, Answers, SeqRange, SeqRanges, MAX_LISTED_UNANSWERED, MAX_PENDING_ANSWERS,
 };

@@ -1,5 +1,6 @@
 //! One module per command.
 
+pub mod archive;
 pub mod bridge;
 pub mod demo;
 pub mod estimate;

@@ -1,0 +1,287 @@
+//! The session log an offline run writes: what `vibrocomp record` writes during a
+//! lock-stepped replay (`vibro_log::record`), with the data time for both of MCAP's
+//! times and no heartbeat or log line.
+
+use crate::{Outputs, Setup};
+use anyhow::Context;
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::Duration;
+use vibro_log::attachments::{LogExtras, RECORDER_METADATA, RECORDING_METADATA};
+use vibro_log::{topic, Placement, Timeline};
+use vibro_mcap::{ChannelId, Compression, Message, Recorder, RecorderOptions, ViewChannelId};
+use vibro_msgs::{CompensatedBlock, Stream, VibEstimate};
+use vibro_view::{ViewBuilder, ViewMessage, UNIT_NAMES};
+
+/// How the session is written.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OutputOptions {
+    /// Replace an existing regular file.
+    pub force: bool,
+    /// Write the view channels beside the wire streams (docs/view.md), as the recorder
+    /// does by default.
+    pub view: bool,
+    /// zstd chunks, the recorder's default (else uncompressed: larger, less CPU).
+    pub compress: bool,
+}
+
+impl Default for OutputOptions {
+    fn default() -> Self {
+        Self {
+            force: false,
+            view: true,
+            compress: true,
+        }
+    }
+}
+
+/// The streams of the session, in the recorder's order (`DEFAULT_RECORD_STREAMS`
+/// without the services' heartbeats and log lines: no service runs).
+const STREAMS: [Stream; 5] = [
+    Stream::Vib,
+    Stream::Accel,
+    Stream::Truth,
+    Stream::Estimate,
+    Stream::Compensated,
+];
+
+/// What was written.
+pub(crate) struct Written {
+    pub messages: BTreeMap<String, u64>,
+    pub off_timeline: u64,
+    pub bytes: u64,
+}
+
+/// The view channels: the units' (fed by `/compensated`) and the axes' (by
+/// `/estimate`), as the recorder opens them for these streams.
+struct View {
+    builder: ViewBuilder,
+    channels: BTreeMap<String, (ViewChannelId, u32)>,
+    out: Vec<ViewMessage>,
+}
+
+pub(crate) struct SessionWriter {
+    recorder: Recorder,
+    channels: [ChannelId; STREAMS.len()],
+    counts: [u64; STREAMS.len()],
+    view: Option<View>,
+    view_counts: BTreeMap<String, u64>,
+    timeline: Timeline,
+    off_timeline: u64,
+}
+
+impl SessionWriter {
+    /// Creates `path` (a part file the caller made: replaced) and writes the header
+    /// records: channels, the `recording` and `recorder` metadata, the configurations
+    /// and the compensator's passports (as `vibrocomp record` attaches them).
+    pub(crate) fn create(
+        path: &Path,
+        log: &Path,
+        setup: &Setup,
+        options: &OutputOptions,
+    ) -> anyhow::Result<Self> {
+        let recorder_options = RecorderOptions {
+            compression: if options.compress {
+                Compression::Zstd
+            } else {
+                Compression::None
+            },
+            ..RecorderOptions::default()
+        };
+        let mut recorder = Recorder::create(path, recorder_options)?;
+        let mut channels = Vec::with_capacity(STREAMS.len());
+        for s in STREAMS {
+            channels.push(recorder.add_channel(&topic(s), s.kind())?);
+        }
+        let channels: [ChannelId; STREAMS.len()] = channels
+            .try_into()
+            .map_err(|_| anyhow::anyhow!("channel count"))?;
+        let view = if options.view {
+            let mut list = BTreeMap::new();
+            for (t, schema) in vibro_view::topics(UNIT_NAMES) {
+                let fed = t.starts_with("/view/vibration/")
+                    || UNIT_NAMES.iter().any(|u| t == format!("/view/{u}"));
+                if fed {
+                    let id = recorder.add_view_channel(&t, schema)?;
+                    list.insert(t, (id, 0u32));
+                }
+            }
+            let mut builder = ViewBuilder::new(UNIT_NAMES);
+            let mut out = Vec::new();
+            // A log with a reference: compensated blocks wait for theirs in the view,
+            // as in a replay that publishes `/truth`.
+            let reference = has_truth(log);
+            builder.expect_reference(reference, &mut out);
+            Some(View {
+                builder,
+                channels: list,
+                out,
+            })
+        } else {
+            None
+        };
+        let mut extras = LogExtras::generated();
+        extras.metadata(
+            RECORDING_METADATA,
+            BTreeMap::from([
+                ("source".to_string(), log.display().to_string()),
+                ("topics".to_string(), STREAMS.map(topic).join(", ")),
+                (
+                    "log_time".to_string(),
+                    "data time, ns: a block's last sample, an estimate's window end \
+                     (docs/logs.md, Time)"
+                        .to_string(),
+                ),
+                (
+                    "publish_time".to_string(),
+                    "the data time as well: an offline run (`vibrocomp log compensate`) \
+                     has no receive time"
+                        .to_string(),
+                ),
+            ]),
+        );
+        extras.metadata(
+            RECORDER_METADATA,
+            BTreeMap::from([(
+                "program".to_string(),
+                format!("vibrocomp {} log compensate", env!("CARGO_PKG_VERSION")),
+            )]),
+        );
+        extras.service_config(
+            "estimator",
+            &setup.estimator_source,
+            setup.estimator_text.clone(),
+        );
+        extras.service_config(
+            "compensator",
+            &setup.compensator_source,
+            setup.compensator_text.clone(),
+        );
+        for (i, p) in setup.compensator.model.triad.passports.iter().enumerate() {
+            let text = toml::to_string(&p.to_spec()).context("passport as TOML")?;
+            extras.passport(i, p.id(), text);
+        }
+        extras.write_to(&recorder)?;
+        Ok(Self {
+            recorder,
+            channels,
+            counts: [0; STREAMS.len()],
+            view,
+            view_counts: BTreeMap::new(),
+            timeline: Timeline::default(),
+            off_timeline: 0,
+        })
+    }
+
+    /// Writes one message at its data time, as the recorder places it, and its view
+    /// messages; waits for room in the writer's queue (the writer thread compresses).
+    fn write(&mut self, at: usize, message: Message, seq: u64) -> anyhow::Result<()> {
+        let (log_time_ns, on_timeline) = match message.data_ns() {
+            Some(t) => match self.timeline.place(t) {
+                Placement::On(t) | Placement::Resync(t) => (t, true),
+                Placement::Off(now) => {
+                    self.off_timeline += 1;
+                    (now, false)
+                }
+            },
+            None => (self.timeline.now_ns().unwrap_or(0), true),
+        };
+        if on_timeline {
+            if let Some(v) = self.view.as_mut() {
+                v.builder.on_message(&message, &mut v.out);
+                write_view(&self.recorder, v, &mut self.view_counts, log_time_ns)?;
+            }
+        }
+        let channel = &self.channels[at];
+        loop {
+            match self
+                .recorder
+                .write_to(channel, log_time_ns, log_time_ns, seq as u32, message)
+            {
+                Ok(()) => break,
+                Err(vibro_mcap::Error::QueueFull { .. }) => {
+                    std::thread::sleep(Duration::from_micros(100));
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+        self.counts[at] += 1;
+        Ok(())
+    }
+
+    /// Flushes the view and finishes the file (its summary section).
+    pub(crate) fn finish(mut self) -> anyhow::Result<Written> {
+        if let Some(mut v) = self.view.take() {
+            v.builder.flush(&mut v.out);
+            let at = self.timeline.now_ns().unwrap_or(0);
+            write_view(&self.recorder, &mut v, &mut self.view_counts, at)?;
+        }
+        let finished = self.recorder.finish()?;
+        let mut messages: BTreeMap<String, u64> = STREAMS
+            .iter()
+            .zip(self.counts)
+            .map(|(s, n)| (topic(*s), n))
+            .collect();
+        messages.extend(self.view_counts);
+        Ok(Written {
+            messages,
+            off_timeline: self.off_timeline,
+            bytes: finished.bytes,
+        })
+    }
+}
+
+/// Whether the log has a `/truth` channel (a reference the view waits for).
+fn has_truth(log: &Path) -> bool {
+    let truth = topic(Stream::Truth);
+    vibro_mcap::Reader::open(log)
+        .map(|r| r.channels().iter().any(|(t, _)| *t == truth))
+        .unwrap_or(false)
+}
+
+/// Writes what the view builder made; publish time: the data time of the message that
+/// made them.
+fn write_view(
+    recorder: &Recorder,
+    v: &mut View,
+    counts: &mut BTreeMap<String, u64>,
+    publish_ns: u64,
+) -> anyhow::Result<()> {
+    for m in v.out.drain(..) {
+        let Some((channel, seq)) = v.channels.get_mut(&m.topic) else {
+            continue;
+        };
+        recorder.write_view(channel, m.log_time_ns, publish_ns, *seq, m.data)?;
+        *seq = seq.wrapping_add(1);
+        match counts.get_mut(&m.topic) {
+            Some(n) => *n += 1,
+            None => {
+                counts.insert(m.topic, 1);
+            }
+        }
+    }
+    Ok(())
+}
+
+impl Outputs for SessionWriter {
+    fn input(&mut self, stream: Stream, message: &Message) -> anyhow::Result<()> {
+        let Some(at) = STREAMS.iter().position(|s| *s == stream) else {
+            return Ok(());
+        };
+        let seq = match message {
+            Message::VibBlock(b) => b.seq,
+            Message::AccelBlock(b) => b.seq,
+            Message::TruthBlock(b) => b.seq,
+            _ => 0,
+        };
+        self.write(at, *message, seq)
+    }
+
+    fn estimate(&mut self, estimate: &VibEstimate) -> anyhow::Result<()> {
+        self.write(3, Message::VibEstimate(*estimate), estimate.seq)
+    }
+
+    fn compensated(&mut self, block: &CompensatedBlock) -> anyhow::Result<()> {
+        self.write(4, Message::CompensatedBlock(*block), block.seq)
+    }
+}
