@@ -7,9 +7,12 @@
 //!   conditions, the requirements (`vibro_physics`, `vibro_effects`).
 //! - [`lab`]: compare, diagnose and add on tables, manifests and logs (`vibro_lab`).
 //! - [`logs`]: an MCAP log read per stream into arrays (`vibro_mcap`, `vibro_log`).
+//! - [`archive`]: an archive's batch, its journal here and its jobs as JSON for any
+//!   process to run (`vibro_archive`).
 //! - [`errors`]: every failure as `vibrocomp.errors.VibrocompError`, with the command
 //!   line's message, file, line and key.
 
+mod archive;
 mod arrays;
 mod errors;
 mod lab;
@@ -24,5 +27,6 @@ fn _vibrocomp(m: &Bound<'_, PyModule>) -> PyResult<()> {
     model::register(m)?;
     lab::register(m)?;
     logs::register(m)?;
+    archive::register(m)?;
     Ok(())
 }

@@ -287,7 +287,7 @@ pub fn run_local(
 }
 
 /// Hands the batch to the Python package's Dask engine: `PYTHON -m vibrocomp.archive
-/// MANIFEST --out DIR --dask ADDRESS [--restart]`, its exit status returned. Fails
+/// MANIFEST --out DIR --dask ADDRESS [--restart] [--json]`, its exit status returned. Fails
 /// clearly when the interpreter cannot be started or has no `vibrocomp.archive`.
 pub fn run_dask(
     python: &OsStr,
@@ -295,6 +295,7 @@ pub fn run_dask(
     out: &Path,
     address: &str,
     restart: bool,
+    json: bool,
 ) -> Result<std::process::ExitStatus> {
     let name = python.to_string_lossy().into_owned();
     let check = Command::new(python)
@@ -324,6 +325,9 @@ pub fn run_dask(
         .args(["--dask", address]);
     if restart {
         cmd.arg("--restart");
+    }
+    if json {
+        cmd.arg("--json");
     }
     cmd.status().map_err(|e| Error::Python {
         problem: format!("cannot run {name:?}: {e}"),

@@ -6,6 +6,7 @@
     d = vc.lab.diagnose("campaign.csv")                            # the lab, typed results
     log = vc.Log("vibrocomp-demo/session.mcap")                    # a log, stream by stream
     accel = log.stream("/accel").samples                           # numpy arrays
+    s = vc.archive.run("archive.toml", "results")                  # a whole archive, Parquet
 
 The numbers are the command line's (the same libraries); errors are
 `vibrocomp.VibrocompError` with the command line's message, file, line and key.
@@ -31,6 +32,18 @@ from . import lab
 from .lab import Model
 from .logs import Log, Stream
 
+
+def __getattr__(name):
+    # `vibrocomp.archive` is imported on first use, not here: `python -m
+    # vibrocomp.archive` (what `vibrocomp archive run --dask` runs) would otherwise
+    # find it imported already and warn that it runs a second copy.
+    if name == "archive":
+        import importlib
+
+        return importlib.import_module(".archive", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = [
     "__version__",
     "VibrocompError",
@@ -47,6 +60,7 @@ __all__ = [
     "compensate",
     "require",
     "lab",
+    "archive",
     "Model",
     "Log",
     "Stream",
