@@ -386,16 +386,29 @@ struct ToneMoments {
 
 impl ToneMoments {
     fn new(omega_t: f64) -> Self {
+        // The tone at point `u` and phase `theta` by angle addition,
+        // `sin(theta + w T u) = sin(theta) cos(w T u) + cos(theta) sin(w T u)`: the same
+        // moments as `sin(theta + w T u)` point by point (to rounding, ~1e-16), with one
+        // `sin_cos` per point and per phase instead of two `sin` per point and phase
+        // (257 x 128 x 2 per table, rebuilt per estimate, was the hot path's largest
+        // cost).
+        let mut point_sin = [0.0; MOMENT_POINTS];
+        let mut point_cos = [0.0; MOMENT_POINTS];
+        for (i, (s, c)) in point_sin.iter_mut().zip(point_cos.iter_mut()).enumerate() {
+            let u = (i as f64 + 0.5) / MOMENT_POINTS as f64 - 0.5;
+            (*s, *c) = (omega_t * u).sin_cos();
+        }
+        let mut x = [0.0; MOMENT_POINTS];
         let mut mu = [[0.0; 3]; MOMENT_PHASES + 1];
         for (j, m) in mu.iter_mut().enumerate() {
             let theta = std::f64::consts::TAU * j as f64 / MOMENT_PHASES as f64;
-            let x = |i: usize| {
-                let u = (i as f64 + 0.5) / MOMENT_POINTS as f64 - 0.5;
-                (theta + omega_t * u).sin()
-            };
-            let mean = (0..MOMENT_POINTS).map(x).sum::<f64>() / MOMENT_POINTS as f64;
-            for i in 0..MOMENT_POINTS {
-                let d = x(i) - mean;
+            let (sin_theta, cos_theta) = theta.sin_cos();
+            for ((x, s), c) in x.iter_mut().zip(&point_sin).zip(&point_cos) {
+                *x = sin_theta * c + cos_theta * s;
+            }
+            let mean = x.iter().sum::<f64>() / MOMENT_POINTS as f64;
+            for &xi in &x {
+                let d = xi - mean;
                 let d3 = d * d * d;
                 m[0] += d3;
                 m[1] += d3 * d;
@@ -1058,7 +1071,16 @@ impl Compensation {
                         .as_ref()
                         .is_none_or(|m| m.omega_t != omega_t)
                     {
-                        self.tone_moments[i] = Some(ToneMoments::new(omega_t));
+                        // Units that see the same tone share its table (a copy: the
+                        // same numbers as building it again).
+                        let shared = self
+                            .tone_moments
+                            .iter()
+                            .flatten()
+                            .find(|m| m.omega_t == omega_t)
+                            .copied();
+                        self.tone_moments[i] =
+                            Some(shared.unwrap_or_else(|| ToneMoments::new(omega_t)));
                     }
                 }
                 _ => self.tone_moments[i] = None,

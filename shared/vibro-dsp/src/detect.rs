@@ -349,19 +349,35 @@ fn estimate_floor(power: &[f64], floor: &mut [f64], scratch: &mut [u64], node_fl
     }
     let span = FLOOR_SPAN_BINS.min(bins);
     let nodes = floor_nodes(bins).min(node_floor.len());
+    // The last hop block sorted, and which it is: a span on the hop grid is two whole
+    // blocks, each under two medians, so each is sorted once.
+    let mut sorted_prev: Option<(usize, [u64; FLOOR_HOP_BINS])> = None;
     for (n, nf) in node_floor[..nodes].iter_mut().enumerate() {
         let centre = (n * FLOOR_HOP_BINS).min(bins - 1);
         // A full span around the centre, shifted inwards at the ends.
         let lo = centre.saturating_sub(span / 2).min(bins - span);
-        let s = &mut scratch[..span];
-        // Powers are squared magnitudes, >= +0: their bits order as the values do, and
-        // an integer selection is about twice as fast as one by `total_cmp`.
-        for (b, p) in s.iter_mut().zip(&power[lo..lo + span]) {
-            *b = p.to_bits();
-        }
         let mid = span / 2;
-        let (_, median, _) = s.select_nth_unstable(mid);
-        *nf = f64::from_bits(*median) / std::f64::consts::LN_2;
+        // Powers are squared magnitudes, >= +0: their bits order as the values do, and
+        // integer comparisons are about twice as fast as `total_cmp`.
+        let median = if span == 2 * FLOOR_HOP_BINS && lo % FLOOR_HOP_BINS == 0 {
+            // The same element of rank `mid` as a selection over the span, read off
+            // its two sorted halves.
+            let block = lo / FLOOR_HOP_BINS;
+            let first = match sorted_prev {
+                Some((b, sorted)) if b == block => sorted,
+                _ => sorted_bits(&power[lo..lo + FLOOR_HOP_BINS]),
+            };
+            let second = sorted_bits(&power[lo + FLOOR_HOP_BINS..lo + span]);
+            sorted_prev = Some((block + 1, second));
+            rank_of_two_sorted(&first, &second, mid)
+        } else {
+            let s = &mut scratch[..span];
+            for (b, p) in s.iter_mut().zip(&power[lo..lo + span]) {
+                *b = p.to_bits();
+            }
+            *s.select_nth_unstable(mid).1
+        };
+        *nf = f64::from_bits(median) / std::f64::consts::LN_2;
     }
     for (k, f) in floor.iter_mut().enumerate() {
         let i = (k / FLOOR_HOP_BINS).min(nodes - 1);
@@ -376,8 +392,108 @@ fn estimate_floor(power: &[f64], floor: &mut [f64], scratch: &mut [u64], node_fl
     }
 }
 
+/// Batcher's odd-even merge sort of 16 elements: 63 compare-exchanges in a fixed
+/// order (branch-free: a median's blocks are random, so an insertion sort's branches
+/// mispredict).
+#[rustfmt::skip]
+const SORT16_NETWORK: [(usize, usize); 63] = [
+    (0, 1), (2, 3), (0, 2), (1, 3), (1, 2), (4, 5), (6, 7), (4, 6),
+    (5, 7), (5, 6), (0, 4), (2, 6), (2, 4), (1, 5), (3, 7), (3, 5),
+    (1, 2), (3, 4), (5, 6), (8, 9), (10, 11), (8, 10), (9, 11), (9, 10),
+    (12, 13), (14, 15), (12, 14), (13, 15), (13, 14), (8, 12), (10, 14), (10, 12),
+    (9, 13), (11, 15), (11, 13), (9, 10), (11, 12), (13, 14), (0, 8), (4, 12),
+    (4, 8), (2, 10), (6, 14), (6, 10), (2, 4), (6, 8), (10, 12), (1, 9),
+    (5, 13), (5, 9), (3, 11), (7, 15), (7, 11), (3, 5), (7, 9), (11, 13),
+    (1, 2), (3, 4), (5, 6), (7, 8), (9, 10), (11, 12), (13, 14),
+];
+
+/// One hop block of powers (`FLOOR_HOP_BINS` of them, >= +0) as sorted bits.
+#[inline]
+fn sorted_bits(power: &[f64]) -> [u64; FLOOR_HOP_BINS] {
+    let mut b = [0u64; FLOOR_HOP_BINS];
+    for (b, p) in b.iter_mut().zip(power) {
+        *b = p.to_bits();
+    }
+    for &(i, j) in SORT16_NETWORK.iter() {
+        let (x, y) = (b[i], b[j]);
+        b[i] = x.min(y);
+        b[j] = x.max(y);
+    }
+    b
+}
+
+/// The element of rank `k` (from 0) of the multiset union of the sorted `a` and `b`,
+/// `k < a.len() + b.len()`: the number `i` of the `k` smallest that come from `a` by
+/// bisection (the smallest `i` with `a[i] >= b[k - i - 1]`), then the smaller of the
+/// next ones.
+fn rank_of_two_sorted(a: &[u64], b: &[u64], k: usize) -> u64 {
+    let (mut lo, mut hi) = (k.saturating_sub(b.len()), k.min(a.len()));
+    while lo < hi {
+        let i = (lo + hi) / 2;
+        if a[i] < b[k - i - 1] {
+            lo = i + 1;
+        } else {
+            hi = i;
+        }
+    }
+    match (a.get(lo), b.get(k - lo)) {
+        (Some(&x), Some(&y)) => x.min(y),
+        (Some(&x), None) => x,
+        (None, Some(&y)) => y,
+        (None, None) => u64::MAX,
+    }
+}
+
 #[cfg(test)]
 mod tests {
+    /// The sorting network against a sort, with ties and without.
+    #[test]
+    fn sort16_network_sorts() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        for trial in 0..5000 {
+            let distinct = if trial % 2 == 0 { 3 } else { u64::MAX };
+            let powers: [f64; 16] = std::array::from_fn(|_| {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state % distinct) as f64 * 0.37
+            });
+            let mut want: Vec<u64> = powers.iter().map(|p| p.to_bits()).collect();
+            want.sort_unstable();
+            assert_eq!(super::sorted_bits(&powers).to_vec(), want);
+        }
+    }
+
+    /// The rank selection over two sorted halves against a plain sort of the whole,
+    /// with ties (a few distinct values) and without.
+    #[test]
+    fn rank_of_two_sorted_matches_a_sort() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for trial in 0..2000 {
+            let distinct = if trial % 2 == 0 { 4 } else { u64::MAX };
+            let (na, nb) = (1 + (next() % 20) as usize, 1 + (next() % 20) as usize);
+            let mut a: Vec<u64> = (0..na).map(|_| next() % distinct).collect();
+            let mut b: Vec<u64> = (0..nb).map(|_| next() % distinct).collect();
+            let mut all: Vec<u64> = a.iter().chain(&b).copied().collect();
+            a.sort_unstable();
+            b.sort_unstable();
+            all.sort_unstable();
+            for (k, want) in all.iter().enumerate() {
+                assert_eq!(
+                    super::rank_of_two_sorted(&a, &b, k),
+                    *want,
+                    "{a:?} {b:?} {k}"
+                );
+            }
+        }
+    }
+
     use super::*;
 
     #[test]

@@ -87,16 +87,198 @@ impl Kernel {
     /// `get(k)` (three axes at once). The caller guarantees that the taps
     /// `floor(x) - W + 1 ..= floor(x) + W` exist.
     #[inline]
-    pub fn interpolate(&self, x: f64, mut get: impl FnMut(i64) -> [f64; 3]) -> [f64; 3] {
+    pub fn interpolate(&self, x: f64, get: impl FnMut(i64) -> [f64; 3]) -> [f64; 3] {
+        let k0 = x.floor();
+        let weights = self.weights(x - k0);
+        weights.interpolate(k0 as i64, get)
+    }
+
+    /// The taps' weights at fractional offset `frac` in `[0, 1)`: tap `i` (sample
+    /// `floor(x) - W + 1 + i`) weighs `h(frac + W - 1 - i)`, and their sum's inverse.
+    pub fn weights(&self, frac: f64) -> Weights {
+        let w = HALF_WIDTH as i64;
+        let mut h = [0.0; 2 * HALF_WIDTH];
+        let mut sum_w = 0.0;
+        // The same operations in the same order as a tap-by-tap evaluation.
+        for (i, hi) in h.iter_mut().enumerate() {
+            *hi = self.at(frac + (w - 1 - i as i64) as f64);
+            sum_w += *hi;
+        }
+        Weights {
+            frac_bits: frac.to_bits(),
+            h,
+            inv_sum: 1.0 / sum_w,
+        }
+    }
+}
+
+/// The kernel's normalised taps at one fractional offset ([`Kernel::weights`]). A grid
+/// whose step is a fraction of the sample period meets the same few offsets again and
+/// again: a caller keeps these and interpolates with them, bit for bit what
+/// [`Kernel::interpolate`] gives at that offset.
+#[derive(Debug, Clone, Copy)]
+pub struct Weights {
+    frac_bits: u64,
+    h: [f64; 2 * HALF_WIDTH],
+    inv_sum: f64,
+}
+
+impl Weights {
+    /// The offset these weights are for, as `f64::to_bits`.
+    #[inline]
+    pub fn frac_bits(&self) -> u64 {
+        self.frac_bits
+    }
+
+    /// The interpolated value between samples `k0 - W + 1 ..= k0 + W` of `get(k)`.
+    #[inline]
+    pub fn interpolate(&self, k0: i64, mut get: impl FnMut(i64) -> [f64; 3]) -> [f64; 3] {
+        let mut acc = [0.0; 3];
+        let first = k0 - HALF_WIDTH as i64 + 1;
+        for (i, h) in self.h.iter().enumerate() {
+            let s = get(first + i as i64);
+            acc[0] += h * s[0];
+            acc[1] += h * s[1];
+            acc[2] += h * s[2];
+        }
+        let inv = self.inv_sum;
+        [acc[0] * inv, acc[1] * inv, acc[2] * inv]
+    }
+
+    /// [`Self::interpolate_slice`] at two points at once, `(self, taps)` and `(other,
+    /// other_taps)`: each point's sums in the same order as alone (bit for bit), the
+    /// two interleaved so that neither waits on its own additions.
+    #[inline]
+    pub fn interpolate_pair(
+        &self,
+        taps: &[[f64; 3]; 2 * HALF_WIDTH],
+        other: &Weights,
+        other_taps: &[[f64; 3]; 2 * HALF_WIDTH],
+    ) -> ([f64; 3], [f64; 3]) {
+        let (mut a, mut b) = ([0.0; 3], [0.0; 3]);
+        for i in 0..2 * HALF_WIDTH {
+            let (ha, sa) = (self.h[i], taps[i]);
+            let (hb, sb) = (other.h[i], other_taps[i]);
+            a[0] += ha * sa[0];
+            a[1] += ha * sa[1];
+            a[2] += ha * sa[2];
+            b[0] += hb * sb[0];
+            b[1] += hb * sb[1];
+            b[2] += hb * sb[2];
+        }
+        let (ia, ib) = (self.inv_sum, other.inv_sum);
+        (
+            [a[0] * ia, a[1] * ia, a[2] * ia],
+            [b[0] * ib, b[1] * ib, b[2] * ib],
+        )
+    }
+
+    /// [`Self::interpolate`] over `2 W` consecutive samples.
+    #[inline]
+    pub fn interpolate_slice(&self, taps: &[[f64; 3]; 2 * HALF_WIDTH]) -> [f64; 3] {
+        let mut acc = [0.0; 3];
+        for (h, s) in self.h.iter().zip(taps) {
+            acc[0] += h * s[0];
+            acc[1] += h * s[1];
+            acc[2] += h * s[2];
+        }
+        let inv = self.inv_sum;
+        [acc[0] * inv, acc[1] * inv, acc[2] * inv]
+    }
+}
+
+/// The last few offsets' [`Weights`] (a fixed ring, allocated once): the grid's points
+/// repeat a short cycle of offsets when its step is a whole fraction of the sample
+/// period (one offset when they coincide with samples).
+#[derive(Debug, Clone)]
+pub struct WeightsCache {
+    entries: Vec<Weights>,
+    /// The slot that answered last, and the next slot to fill.
+    last: usize,
+    next: usize,
+}
+
+/// Offsets a [`WeightsCache`] holds.
+pub const CACHED_OFFSETS: usize = 64;
+
+impl Default for WeightsCache {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl WeightsCache {
+    pub fn new() -> Self {
+        Self {
+            entries: Vec::with_capacity(CACHED_OFFSETS),
+            last: 0,
+            next: 0,
+        }
+    }
+
+    /// The weights at offset `frac` (bit for bit [`Kernel::weights`]).
+    #[inline]
+    pub fn get(&mut self, kernel: &Kernel, frac: f64) -> &Weights {
+        let i = self.slot(kernel, frac);
+        &self.entries[i]
+    }
+
+    /// The weights in slot `i` of [`Self::slot`]: valid through the next lookup (a miss
+    /// never replaces the slot the previous lookup returned), not beyond.
+    #[inline]
+    pub fn entry(&self, i: usize) -> &Weights {
+        &self.entries[i]
+    }
+
+    /// The slot holding the weights at offset `frac`, computed if missing.
+    #[inline]
+    pub fn slot(&mut self, kernel: &Kernel, frac: f64) -> usize {
+        let bits = frac.to_bits();
+        let n = self.entries.len();
+        // The offsets cycle: the slot after the last hit is the likely one.
+        for step in 0..n {
+            let i = (self.last + step) % n;
+            if self.entries[i].frac_bits == bits {
+                self.last = i;
+                return i;
+            }
+        }
+        let w = kernel.weights(frac);
+        let i = if n < CACHED_OFFSETS {
+            self.entries.push(w);
+            n
+        } else {
+            // Never the slot the previous lookup returned: two slots looked up in a
+            // row both stay valid (the stage interpolates two points at once).
+            let mut i = self.next;
+            if i == self.last {
+                i = (i + 1) % CACHED_OFFSETS;
+            }
+            self.entries[i] = w;
+            self.next = (i + 1) % CACHED_OFFSETS;
+            i
+        };
+        self.last = i;
+        i
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    /// The tap-by-tap evaluation the cached weights replace.
+    fn interpolate_tap_by_tap(k: &Kernel, x: f64, get: impl Fn(i64) -> [f64; 3]) -> [f64; 3] {
         let k0 = x.floor();
         let frac = x - k0;
         let k0 = k0 as i64;
         let w = HALF_WIDTH as i64;
         let mut acc = [0.0; 3];
         let mut sum_w = 0.0;
-        for k in (k0 - w + 1)..=(k0 + w) {
-            let h = self.at(frac + (k0 - k) as f64);
-            let s = get(k);
+        for j in (k0 - w + 1)..=(k0 + w) {
+            let h = k.at(frac + (k0 - j) as f64);
+            let s = get(j);
             acc[0] += h * s[0];
             acc[1] += h * s[1];
             acc[2] += h * s[2];
@@ -105,12 +287,66 @@ impl Kernel {
         let inv = 1.0 / sum_w;
         [acc[0] * inv, acc[1] * inv, acc[2] * inv]
     }
-}
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use std::f64::consts::PI;
+    #[test]
+    fn cached_weights_interpolate_bit_for_bit() {
+        let k = Kernel::new();
+        let s = |i: i64| {
+            let t = i as f64 * 0.013;
+            [t.sin(), (1.7 * t).cos() * 3.0, 1e-3 * t * t]
+        };
+        let mut cache = WeightsCache::new();
+        // Offsets that repeat (a quarter-sample grid) and ones that do not, past the
+        // cache's size so that slots are replaced.
+        for j in 0..600 {
+            let x = if j % 2 == 0 {
+                40.0 + j as f64 * 0.25
+            } else {
+                40.0 + j as f64 * 0.137
+            };
+            let want = interpolate_tap_by_tap(&k, x, s);
+            let k0 = x.floor();
+            let via_cache = cache.get(&k, x - k0).interpolate(k0 as i64, s);
+            let first = k0 as i64 - HALF_WIDTH as i64 + 1;
+            let taps: [[f64; 3]; 2 * HALF_WIDTH] = std::array::from_fn(|i| s(first + i as i64));
+            let via_slice = k.weights(x - k0).interpolate_slice(&taps);
+            let other: [[f64; 3]; 2 * HALF_WIDTH] =
+                std::array::from_fn(|i| s(first + 7 + i as i64));
+            let (via_pair, other_pair) =
+                k.weights(x - k0)
+                    .interpolate_pair(&taps, &k.weights(0.3), &other);
+            let other_alone = k.weights(0.3).interpolate_slice(&other);
+            for a in 0..3 {
+                assert_eq!(want[a].to_bits(), via_cache[a].to_bits(), "x {x} axis {a}");
+                assert_eq!(want[a].to_bits(), via_slice[a].to_bits(), "x {x} axis {a}");
+                assert_eq!(want[a].to_bits(), via_pair[a].to_bits(), "x {x} axis {a}");
+                assert_eq!(other_alone[a].to_bits(), other_pair[a].to_bits(), "x {x}");
+                assert_eq!(want[a].to_bits(), k.interpolate(x, s)[a].to_bits(), "x {x}");
+            }
+        }
+    }
+
+    /// Two lookups in a row, the second a miss on a full cache, leave the first's slot
+    /// holding its offset's weights.
+    #[test]
+    fn a_miss_keeps_the_previous_lookups_slot() {
+        let k = Kernel::new();
+        let mut cache = WeightsCache::new();
+        let fracs: Vec<f64> = (0..CACHED_OFFSETS + 40)
+            .map(|i| i as f64 / 1000.0)
+            .collect();
+        for &f in &fracs[..CACHED_OFFSETS] {
+            cache.slot(&k, f);
+        }
+        // Each old offset is the next to be replaced when it is looked up again.
+        for (n, &new) in fracs[CACHED_OFFSETS..].iter().enumerate() {
+            let old = fracs[n];
+            let a = cache.slot(&k, old);
+            let b = cache.slot(&k, new);
+            assert_eq!(cache.entry(a).frac_bits(), old.to_bits(), "{n}");
+            assert_eq!(cache.entry(b).frac_bits(), new.to_bits(), "{n}");
+        }
+    }
 
     #[test]
     fn reproduces_samples_and_a_band_limited_tone() {

@@ -21,7 +21,7 @@
 //! rate). It saw the base at that time minus the chain's delay.
 
 use crate::chain::{ChainInverse, SensorChain};
-use crate::kernel::{Kernel, HALF_WIDTH};
+use crate::kernel::{Kernel, WeightsCache, HALF_WIDTH};
 use vibro_effects::effect::{BlockCtx, Effect};
 use vibro_physics::fp;
 use vibro_physics::passport::Passport;
@@ -138,6 +138,8 @@ pub struct WaveformStage {
     effects: [Vec<Box<dyn Effect>>; 3],
     has_effects: [bool; 3],
     kernel: Kernel,
+    /// The kernel's weights at the grid's recent offsets between samples.
+    weights_cache: WeightsCache,
     ring: Vec<[f64; 3]>,
     seg: Option<Segment>,
     inverse: Option<ChainInverse>,
@@ -150,6 +152,13 @@ pub struct WaveformStage {
     /// its deviations from the interval's mean, and the output effects' part.
     vib: [Vec<[f64; 3]>; 3],
     dev: [Vec<[f64; 3]>; 3],
+    /// The sensors' samples interpolated at the grid's points (`[IA of unit 0, 1, 2]`).
+    sensors: Vec<[f64; 3]>,
+    /// `dev` by axis (`[unit][axis][point]`), for Newton's sums.
+    dev_axes: [[Vec<f64>; 3]; 3],
+    /// Newton's weighted terms per point (FP and its slope), summed in point order.
+    term_f: Vec<f64>,
+    term_g: Vec<f64>,
     eff: [Vec<f64>; 3],
     /// Gregory's weights of the interval's mean on its `m + 1` points.
     weights: Vec<f64>,
@@ -188,6 +197,7 @@ impl WaveformStage {
             effects,
             has_effects,
             kernel: Kernel::new(),
+            weights_cache: WeightsCache::new(),
             ring: Vec::new(),
             seg: None,
             inverse: None,
@@ -196,6 +206,10 @@ impl WaveformStage {
             grid: None,
             vib: [Vec::new(), Vec::new(), Vec::new()],
             dev: [Vec::new(), Vec::new(), Vec::new()],
+            dev_axes: Default::default(),
+            sensors: Vec::new(),
+            term_f: Vec::new(),
+            term_g: Vec::new(),
             eff: [Vec::new(), Vec::new(), Vec::new()],
             weights: Vec::new(),
             carry: false,
@@ -477,6 +491,7 @@ impl WaveformStage {
                 // Allocates: at the first block and when the grid changes size.
                 self.vib[u] = vec![[0.0; 3]; m + 1];
                 self.dev[u] = vec![[0.0; 3]; m + 1];
+                self.dev_axes[u] = std::array::from_fn(|_| vec![0.0; m + 1]);
                 self.eff[u] = vec![0.0; m + 1];
             }
             for e in self.effects[u].iter_mut() {
@@ -488,6 +503,9 @@ impl WaveformStage {
             self.input = vec![[0.0; 3]; m + 1];
             self.out = vec![0.0; m + 1];
             self.fp_out = vec![0.0; m + 1];
+            self.sensors = vec![[0.0; 3]; m + 1];
+            self.term_f = vec![0.0; m + 1];
+            self.term_g = vec![0.0; m + 1];
         }
         self.counters.effect_resets += 1;
         self.carry = false;
@@ -570,12 +588,44 @@ impl WaveformStage {
         let rel_start = (end_ns - s.t0_ns) as f64 - period_ns as f64 + delay_ns;
         let mask = self.ring.len() as u64 - 1;
         let ring = &self.ring;
-        for j in first_point..=m {
+        let (kernel, cache) = (&self.kernel, &mut self.weights_cache);
+        let sensors = &mut self.sensors[..=m];
+        // `Kernel::interpolate` at the point with the offset's weights looked up (bit
+        // for bit the same: crate::kernel's test): its first tap and weights' slot.
+        let tap = |cache: &mut WeightsCache, j: usize| {
             let x = Self::position(&s, rel_start + j as f64 * h);
-            let sensors = self
-                .kernel
-                .interpolate(x, |k| ring[(k as u64 & mask) as usize]);
-            let body = self.axes.body_from_ia(&sensors);
+            let k0 = x.floor();
+            let slot = cache.slot(kernel, x - k0);
+            (k0 as i64, slot)
+        };
+        // The taps of a point as one slice of the ring (`None`: they wrap around its end).
+        let taps = |k0: i64| -> Option<&[[f64; 3]; 2 * HALF_WIDTH]> {
+            let first = ((k0 - HALF_WIDTH as i64 + 1) as u64 & mask) as usize;
+            ring.get(first..first + 2 * HALF_WIDTH)
+                .and_then(|t| t.try_into().ok())
+        };
+        let mut j = first_point;
+        while j <= m {
+            let (ka, slot_a) = tap(cache, j);
+            if j < m {
+                // Two points at a time (independent sums).
+                let (kb, slot_b) = tap(cache, j + 1);
+                if let (Some(ta), Some(tb)) = (taps(ka), taps(kb)) {
+                    let (wa, wb) = (cache.entry(slot_a), cache.entry(slot_b));
+                    (sensors[j], sensors[j + 1]) = wa.interpolate_pair(ta, wb, tb);
+                    j += 2;
+                    continue;
+                }
+            }
+            let w = cache.entry(slot_a);
+            sensors[j] = match taps(ka) {
+                Some(t) => w.interpolate_slice(t),
+                None => w.interpolate(ka, |k| ring[(k as u64 & mask) as usize]),
+            };
+            j += 1;
+        }
+        for (j, sensors) in self.sensors[..=m].iter().enumerate().skip(first_point) {
+            let body = self.axes.body_from_ia(sensors);
             for u in 0..3 {
                 self.vib[u][j] = self.axes.units[u].to_unit(&body);
             }
@@ -594,8 +644,14 @@ impl WaveformStage {
                     mean[i] += w * v[i];
                 }
             }
-            for (d, v) in self.dev[u][..=m].iter_mut().zip(&self.vib[u][..=m]) {
+            let [d0, d1, d2] = &mut self.dev_axes[u];
+            for (j, (d, v)) in self.dev[u][..=m]
+                .iter_mut()
+                .zip(&self.vib[u][..=m])
+                .enumerate()
+            {
                 *d = [v[0] - mean[0], v[1] - mean[1], v[2] - mean[2]];
+                (d0[j], d1[j], d2[j]) = (d[0], d[1], d[2]);
             }
         }
         self.carry_effects = self.carry;
@@ -675,11 +731,21 @@ impl WaveformStage {
                 let body = self.axes.body_from_ia(&m3);
                 let a = self.axes.units[u].to_unit(&body);
                 let p = &self.passports[u];
+                // The weighted terms point by point (independent: they vectorise),
+                // then summed in point order: the same sums as one loop, bit for bit.
+                let [d0, d1, d2] = &self.dev_axes[u];
+                newton_terms(
+                    p,
+                    a,
+                    [&d0[..=m], &d1[..=m], &d2[..=m]],
+                    &self.weights[..=m],
+                    &mut self.term_f[..=m],
+                    &mut self.term_g[..=m],
+                );
                 let (mut f, mut g) = (0.0, 0.0);
-                for (d, w) in self.dev[u][..=m].iter().zip(&self.weights) {
-                    let x = [a[0] + d[0], a[1] + d[1], a[2] + d[2]];
-                    f += w * fp::output_g(p, x[0], x[1], x[2]);
-                    g += w * fp::gradient_g(p, x[0], x[1], x[2])[2];
+                for (tf, tg) in self.term_f[..=m].iter().zip(&self.term_g[..=m]) {
+                    f += tf;
+                    g += tg;
                 }
                 let step = (f + effects_g[u] - r[u]) / g;
                 m3[u] -= step;
@@ -700,6 +766,62 @@ impl WaveformStage {
             self.correction_g[u] = Some(r[u] - m3[u]);
         }
         m3
+    }
+}
+
+/// Newton's weighted terms at each grid point, `w FP(a + d)` and `w dFP/da3(a + d)`,
+/// into `term_f`, `term_g` (independent per point: they vectorise; the caller sums them
+/// in point order).
+fn newton_terms(
+    p: &Passport,
+    a: [f64; 3],
+    dev: [&[f64]; 3],
+    weights: &[f64],
+    term_f: &mut [f64],
+    term_g: &mut [f64],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, the only feature this copy is compiled for.
+        return unsafe { newton_terms_avx2(p, a, dev, weights, term_f, term_g) };
+    }
+    newton_terms_portable(p, a, dev, weights, term_f, term_g)
+}
+
+/// [`newton_terms`] compiled for AVX2 (4 points per instruction instead of 2): the
+/// same IEEE operations (no FMA), so the same numbers bit for bit.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn newton_terms_avx2(
+    p: &Passport,
+    a: [f64; 3],
+    dev: [&[f64]; 3],
+    weights: &[f64],
+    term_f: &mut [f64],
+    term_g: &mut [f64],
+) {
+    newton_terms_portable(p, a, dev, weights, term_f, term_g)
+}
+
+#[inline(always)]
+fn newton_terms_portable(
+    p: &Passport,
+    a: [f64; 3],
+    dev: [&[f64]; 3],
+    weights: &[f64],
+    term_f: &mut [f64],
+    term_g: &mut [f64],
+) {
+    let [d0, d1, d2] = dev;
+    let points = term_f
+        .iter_mut()
+        .zip(term_g.iter_mut())
+        .zip(weights)
+        .zip(d0.iter().zip(d1).zip(d2));
+    for (((tf, tg), w), ((x0, x1), x2)) in points {
+        let x = [a[0] + x0, a[1] + x1, a[2] + x2];
+        *tf = w * fp::output_g(p, x[0], x[1], x[2]);
+        *tg = w * fp::gradient_g(p, x[0], x[1], x[2])[2];
     }
 }
 
