@@ -589,8 +589,10 @@ impl LogInfo {
                 c.topic,
                 kind,
                 c.messages,
-                c.first_log_time_ns.map_or_else(|| "-".to_string(), fmt_log_ns),
-                c.last_log_time_ns.map_or_else(|| "-".to_string(), fmt_log_ns),
+                c.first_log_time_ns
+                    .map_or_else(|| "-".to_string(), fmt_log_ns),
+                c.last_log_time_ns
+                    .map_or_else(|| "-".to_string(), fmt_log_ns),
                 c.span_s,
                 sequence,
                 c.lost,

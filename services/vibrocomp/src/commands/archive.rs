@@ -55,7 +55,8 @@ pub fn run(cmd: &ArchiveCommand) -> anyhow::Result<()> {
 fn run_batch(a: &RunArgs) -> anyhow::Result<()> {
     if let Some(address) = &a.dask {
         let python = std::env::var_os("VIBROCOMP_PYTHON").unwrap_or_else(|| "python3".into());
-        let status = vibro_archive::run_dask(&python, &a.manifest, &a.out, address, a.restart, a.json)?;
+        let status =
+            vibro_archive::run_dask(&python, &a.manifest, &a.out, address, a.restart, a.json)?;
         return match status.code() {
             Some(0) => Ok(()),
             Some(code) => Err(crate::output::ExitStatus(code.clamp(1, 255) as u8).into()),
