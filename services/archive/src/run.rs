@@ -103,7 +103,9 @@ pub fn run_job(job: &Job) -> JobResult {
     let started = Instant::now();
     // One job, one core: a batch's parallelism is its processes (the local workers, a
     // Dask cluster's), and a lab fit spread over every core would compete with them.
-    vibro_lab::limit_threads(1);
+    // Put back afterwards: a job may run in a caller's own process (a Python session),
+    // whose later fits must not stay capped.
+    let cap_before = vibro_lab::limit_threads(1);
     let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| match &job.task {
         Task::Compensate(c) => compensate(&job.id, c),
         Task::Lab(l) => lab(&job.id, l),
@@ -120,6 +122,7 @@ pub fn run_job(job: &Job) -> JobResult {
             vec![failed_row(job, format!("internal error (panic): {what}"))]
         }
     };
+    vibro_lab::limit_threads(cap_before);
     JobResult {
         job: job.id.clone(),
         rows,
@@ -352,4 +355,33 @@ fn lab_rows(id: &str, unit: &str, d: &vibro_lab::Diagnosis, problem: Option<Stri
         });
     }
     rows
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plan::plan;
+    use crate::Manifest;
+
+    /// A job caps the lab's threads at one while it runs and puts the caller's cap back:
+    /// a Python session that ran an archive in its own process (`workers=1`) must not
+    /// have its later diagnoses capped (they echo their thread count, and took one
+    /// where the command line took every core).
+    #[test]
+    fn a_job_leaves_the_callers_thread_cap_as_it_was() {
+        let dir = tempfile::TempDir::new().unwrap();
+        std::fs::write(dir.path().join("a.mcap"), "not a log").unwrap();
+        std::fs::write(dir.path().join("t.csv"), "not a table").unwrap();
+        let text = "format = \"vibrocomp-archive/1\"\n[[model]]\nname = \"one\"\n\
+                    [[log]]\npath = \"a.mcap\"\nunits = [\"U1\"]\n\
+                    [[table]]\npath = \"t.csv\"\nunit = \"U1\"\n";
+        let m = Manifest::parse(text, &dir.path().join("m.toml")).unwrap();
+        let before = vibro_lab::limit_threads(0);
+        for job in plan(&m, &dir.path().join("sessions")) {
+            let r = run_job(&job);
+            assert!(r.failed(), "{}: {:?}", job.id, r.rows);
+            assert_eq!(vibro_lab::thread_limit(), 0, "{}", job.id);
+        }
+        vibro_lab::limit_threads(before);
+    }
 }

@@ -44,7 +44,7 @@ pub mod inputs;
 pub mod library;
 pub mod log_table;
 mod parallel;
-pub use parallel::limit_threads;
+pub use parallel::{limit_threads, thread_limit};
 pub mod report;
 /// The spectrum behind an estimate's band powers (moved to `vibro_effects`, shared with the
 /// compensator).

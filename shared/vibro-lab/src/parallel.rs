@@ -33,9 +33,15 @@ static LIMIT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::n
 /// cap): a batch that runs one job per core in several processes (`vibro-archive`'s
 /// workers, a Dask worker's task) gives each job one thread, so that its processes do
 /// not compete for the cores. The results do not depend on it (work is spread in
-/// order-preserving chunks).
-pub fn limit_threads(n: usize) {
-    LIMIT.store(n, std::sync::atomic::Ordering::Relaxed);
+/// order-preserving chunks). Returns the cap it replaces, for the caller to put back:
+/// a job run inside someone else's process (a Python session's) leaves it as it was.
+pub fn limit_threads(n: usize) -> usize {
+    LIMIT.swap(n, std::sync::atomic::Ordering::Relaxed)
+}
+
+/// The cap [`limit_threads`] set (0: none).
+pub fn thread_limit() -> usize {
+    LIMIT.load(std::sync::atomic::Ordering::Relaxed)
 }
 
 /// The threads this machine runs at once (1 when it cannot tell), within
