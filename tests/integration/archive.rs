@@ -470,60 +470,14 @@ fn an_archive_runs_every_log_with_every_model_resumes_after_a_kill_and_reports()
     }
 }
 
-/// The browser: Debian's `chromium`, or `VIBROCOMP_CHROMIUM`.
-fn chromium() -> PathBuf {
-    if let Some(p) = std::env::var_os("VIBROCOMP_CHROMIUM") {
-        return p.into();
-    }
-    for p in [
-        "/usr/bin/chromium",
-        "/usr/bin/chromium-browser",
-        "/usr/bin/google-chrome",
-    ] {
-        if Path::new(p).exists() {
-            return p.into();
-        }
-    }
-    panic!("no Chromium for the report's browser test: install Debian's `chromium` or set VIBROCOMP_CHROMIUM");
-}
-
 /// A headless-Chromium screenshot of the report: the plots' colours (the models' blue
 /// and orange points, the effects' green bars) cover thousands of pixels; the page's
 /// text is black on white, so an empty plot fails.
 fn report_shows_its_plots(html: &Path, png: &Path) {
-    let profile = png.with_extension("profile");
-    let out = Command::new(chromium())
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--hide-scrollbars",
-        ])
-        .arg(format!("--user-data-dir={}", profile.display()))
-        .arg("--window-size=1400,2600")
-        .arg(format!("--screenshot={}", png.display()))
-        .arg(format!("file://{}", html.display()))
-        .output()
-        .expect("chromium runs");
-    assert!(
-        out.status.success() && png.exists(),
-        "chromium failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(png).unwrap()));
-    let mut reader = decoder.read_info().unwrap();
-    let mut buf = vec![0; reader.output_buffer_size()];
-    let info = reader.next_frame(&mut buf).unwrap();
-    assert_eq!((info.width, info.height), (1400, 2600));
-    let channels = info.color_type.samples();
-    let near = |px: &[u8], c: [u8; 3]| (0..3).all(|i| (px[i] as i32 - c[i] as i32).abs() <= 30);
+    let (pixels, channels) = crate::common::screenshot(html, png);
+    let near = crate::common::near;
     let (mut blue, mut orange, mut green) = (0usize, 0usize, 0usize);
-    for px in buf[..info.buffer_size()].chunks(channels) {
+    for px in pixels.chunks(channels) {
         blue += usize::from(near(px, [31, 119, 180]));
         orange += usize::from(near(px, [255, 127, 14]));
         green += usize::from(near(px, [44, 160, 44]));

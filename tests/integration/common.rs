@@ -112,3 +112,67 @@ pub fn rig_campaign(dir: &Path, args: &[&str]) -> Vec<BTreeMap<String, String>> 
         })
         .collect()
 }
+
+/// The browser of the reports' screenshot tests: Debian's `chromium` (installed by
+/// `.ci/run`), or `VIBROCOMP_CHROMIUM`.
+fn chromium() -> PathBuf {
+    if let Some(p) = std::env::var_os("VIBROCOMP_CHROMIUM") {
+        return p.into();
+    }
+    for p in [
+        "/usr/bin/chromium",
+        "/usr/bin/chromium-browser",
+        "/usr/bin/google-chrome",
+    ] {
+        if Path::new(p).exists() {
+            return p.into();
+        }
+    }
+    panic!(
+        "no Chromium for the report's browser test: install Debian's `chromium` \
+         (.ci/run does) or set VIBROCOMP_CHROMIUM"
+    );
+}
+
+/// A headless-Chromium screenshot of the page `html` in a 1400 x 2600 window, written
+/// to `png` and decoded: its pixels row by row, and the samples per pixel.
+pub fn screenshot(html: &Path, png: &Path) -> (Vec<u8>, usize) {
+    let profile = png.with_extension("profile");
+    let out = Command::new(chromium())
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--hide-scrollbars",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg("--window-size=1400,2600")
+        .arg(format!("--screenshot={}", png.display()))
+        .arg(format!("file://{}", html.display()))
+        .output()
+        .expect("chromium runs");
+    assert!(
+        out.status.success() && png.exists(),
+        "chromium failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let decoder = png::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(png).expect("the screenshot opens"),
+    ));
+    let mut reader = decoder.read_info().expect("a PNG");
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).expect("a frame");
+    assert_eq!((info.width, info.height), (1400, 2600));
+    buf.truncate(info.buffer_size());
+    (buf, info.color_type.samples())
+}
+
+/// Whether pixel `px` is within 30 of colour `c` in each channel.
+pub fn near(px: &[u8], c: [u8; 3]) -> bool {
+    (0..3).all(|i| (i32::from(px[i]) - i32::from(c[i])).abs() <= 30)
+}

@@ -127,26 +127,6 @@ fn the_walkthrough_finds_the_hidden_resonance_and_the_error_falls() {
     screenshot_shows_the_plots(&report_dir.join("index.html"), &dir.path("report.png"));
 }
 
-/// The browser: Debian's `chromium` (installed by `.ci/run`), or `VIBROCOMP_CHROMIUM`.
-fn chromium() -> std::path::PathBuf {
-    if let Some(p) = std::env::var_os("VIBROCOMP_CHROMIUM") {
-        return p.into();
-    }
-    for p in [
-        "/usr/bin/chromium",
-        "/usr/bin/chromium-browser",
-        "/usr/bin/google-chrome",
-    ] {
-        if std::path::Path::new(p).exists() {
-            return p.into();
-        }
-    }
-    panic!(
-        "no Chromium for the report's browser test: install Debian's `chromium` \
-         (.ci/run does) or set VIBROCOMP_CHROMIUM"
-    );
-}
-
 /// Takes a headless-Chromium screenshot of `html` and checks the plots are drawn:
 /// the page has the window's size; the residual panels stand in pairs, before (the
 /// model as given, red points and bars) on the left half and after (the effects
@@ -156,42 +136,13 @@ fn chromium() -> std::path::PathBuf {
 /// noise floor (pale green). The page's text is black on white; only the plots use
 /// those colours, so empty plots fail.
 fn screenshot_shows_the_plots(html: &std::path::Path, png: &std::path::Path) {
-    let profile = png.with_extension("profile");
-    let out = std::process::Command::new(chromium())
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--hide-scrollbars",
-        ])
-        .arg(format!("--user-data-dir={}", profile.display()))
-        .arg("--window-size=1400,2600")
-        .arg(format!("--screenshot={}", png.display()))
-        .arg(format!("file://{}", html.display()))
-        .output()
-        .expect("chromium runs");
-    assert!(
-        out.status.success() && png.exists(),
-        "chromium failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(png).unwrap()));
-    let mut reader = decoder.read_info().unwrap();
-    let mut buf = vec![0; reader.output_buffer_size()];
-    let info = reader.next_frame(&mut buf).unwrap();
-    assert_eq!((info.width, info.height), (1400, 2600));
-    let channels = info.color_type.samples();
-    let near = |px: &[u8], c: [u8; 3]| (0..3).all(|i| (px[i] as i32 - c[i] as i32).abs() <= 30);
+    let (pixels, channels) = crate::common::screenshot(html, png);
+    let near = crate::common::near;
     // The page's body is 1340 px wide from x = 24: the left panels end before 700.
     let half = 700;
     let (mut red, mut blue, mut band, mut ink) = (0usize, 0usize, 0usize, 0usize);
-    for (i, px) in buf[..info.buffer_size()].chunks(channels).enumerate() {
-        let left = (i % info.width as usize) < half;
+    for (i, px) in pixels.chunks(channels).enumerate() {
+        let left = (i % 1400) < half;
         if left && near(px, [214, 39, 40]) {
             red += 1;
         }
