@@ -70,6 +70,16 @@ fn svg(
     Ok(out)
 }
 
+/// The label of category `x` on an axis of categories at 0, 1, ...: empty between them.
+fn index_label(labels: &[String], x: f64) -> String {
+    let i = x.round();
+    if (x - i).abs() < 1e-6 && i >= 0.0 {
+        labels.get(i as usize).cloned().unwrap_or_default()
+    } else {
+        String::new()
+    }
+}
+
 fn quantile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
@@ -234,14 +244,7 @@ fn per_model_plot(rows: &[&Row], models: &[String]) -> Result<String> {
         chart
             .configure_mesh()
             .x_labels(n + 1)
-            .x_label_formatter(&|x| {
-                let i = x.round();
-                if (x - i).abs() < 1e-6 && i >= 0.0 {
-                    labels.get(i as usize).cloned().unwrap_or_default()
-                } else {
-                    String::new()
-                }
-            })
+            .x_label_formatter(&|x| index_label(&labels, *x))
             .y_label_formatter(&|y| eng_g(*y))
             .y_desc("RMS error")
             .draw()?;
@@ -306,14 +309,7 @@ fn per_unit_plot(rows: &[&Row], models: &[String]) -> Result<String> {
         chart
             .configure_mesh()
             .x_labels((n + 1).min(40))
-            .x_label_formatter(&|x| {
-                let i = x.round();
-                if (x - i).abs() < 1e-6 && i >= 0.0 {
-                    labels.get(i as usize).cloned().unwrap_or_default()
-                } else {
-                    String::new()
-                }
-            })
+            .x_label_formatter(&|x| index_label(&labels, *x))
             .y_label_formatter(&|y| eng_g(*y))
             .y_desc("RMS error")
             .draw()?;
@@ -563,14 +559,7 @@ fn param_plot(
         chart
             .configure_mesh()
             .x_labels((n + 1).min(40))
-            .x_label_formatter(&|x| {
-                let i = x.round();
-                if (x - i).abs() < 1e-6 && i >= 0.0 {
-                    labels.get(i as usize).cloned().unwrap_or_default()
-                } else {
-                    String::new()
-                }
-            })
+            .x_label_formatter(&|x| index_label(&labels, *x))
             .y_label_formatter(&|y| tick(*y, lo, hi))
             .draw()?;
         if rs > 0.0 {
