@@ -407,6 +407,20 @@ fn misuse_is_reported_with_the_values_involved() {
             },
             "recorder option chunk_size_bytes = 0: must be > 0",
         ),
+        (
+            RecorderOptions {
+                zstd_level: 0,
+                ..RecorderOptions::default()
+            },
+            "recorder option zstd_level = 0: must be 1..=22",
+        ),
+        (
+            RecorderOptions {
+                zstd_level: 23,
+                ..RecorderOptions::default()
+            },
+            "recorder option zstd_level = 23: must be 1..=22",
+        ),
     ] {
         let e = Recorder::create(dir.join("x.mcap"), options).err().unwrap();
         assert_eq!(e.to_string(), text);
