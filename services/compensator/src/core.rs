@@ -10,6 +10,7 @@ use crate::reload::ModelUpdate;
 use crate::spectrum::{sensor_spectrum, unit_bands, SpectrumSolver};
 use crate::waveform::WaveformPath;
 use tracing::{info, warn};
+#[cfg(feature = "ipc")]
 use vibro_ipc::StreamPublisher;
 use vibro_msgs::compensation_flags as cf;
 use vibro_msgs::{
@@ -139,6 +140,7 @@ impl Summary {
     }
 }
 
+#[cfg(feature = "ipc")]
 impl vibro_service::ServiceSummary for Summary {
     fn to_json(&self) -> String {
         Summary::to_json(self)
@@ -155,6 +157,7 @@ pub trait OutputSink {
     ) -> vibro_ipc::Result<usize>;
 }
 
+#[cfg(feature = "ipc")]
 impl OutputSink for StreamPublisher<CompensatedBlock> {
     fn publish_with(
         &mut self,

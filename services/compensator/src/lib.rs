@@ -45,6 +45,9 @@
 //! References: MODEL.md sections 3 and 7, RIG.md (the accelerometer block),
 //! `docs/services.md` (streams, flags, staleness, loss accounting, hot reload).
 
+// Without the feature `ipc` (the Python package's build) the service is left out, and
+// what only it uses (the model reload, a few accessors) with it.
+#![cfg_attr(not(feature = "ipc"), allow(dead_code))]
 // Per-axis and per-unit index loops mirror the formulas' subscripts (and index several
 // arrays at once); iterator chains would hide the indices.
 #![allow(clippy::needless_range_loop)]
@@ -52,6 +55,7 @@
 mod config;
 mod core;
 mod reload;
+#[cfg(feature = "ipc")]
 mod service;
 pub mod waveform;
 
@@ -61,6 +65,7 @@ pub use config::{
     DEFAULT_CONFIG_PATH,
 };
 pub use mapping::{unit_vibrations, EstimateMapping, KurtosisUse, MappingError, UnitVibrations};
+#[cfg(feature = "ipc")]
 pub use service::{run, run_async};
 /// From an estimate to each unit's vibration, shared with the lab (`vibro_effects`).
 pub use vibro_effects::{interval, mapping, spectrum};

@@ -40,9 +40,11 @@
 //! (the estimator), MODEL.md section 7 (what the compensator does with the estimates).
 
 mod config;
+#[cfg(feature = "ipc")]
 mod service;
 
 pub use config::{Config, RawConfig, DEFAULT_CONFIG_PATH};
+#[cfg(feature = "ipc")]
 pub use service::{run, run_async};
 /// The transport-free core, shared with offline users (`shared/vibro-estimator-core`).
 pub use vibro_estimator_core::{mirror_estimate, Counters, EstimateSink, InProcess, Summary};

@@ -28,10 +28,11 @@
 
 use tracing::warn;
 use vibro_dsp::{Estimate, Estimator, EstimatorConfig, SampleBlock};
+#[cfg(feature = "ipc")]
 use vibro_ipc::StreamPublisher;
 use vibro_msgs::{estimate_flags, vib_flags, VibBlock, VibEstimate, WireMessage};
 use vibro_service::{
-    count_first, now_ns, Continuity, CountersJson, DisorderLog, JsonObject, Latency, Quantiles,
+    count_first, Continuity, CountersJson, DisorderLog, JsonObject, Latency, Quantiles,
     StreamCounters,
 };
 
@@ -100,6 +101,7 @@ impl Summary {
     }
 }
 
+#[cfg(feature = "ipc")]
 impl vibro_service::ServiceSummary for Summary {
     fn to_json(&self) -> String {
         Summary::to_json(self)
@@ -189,8 +191,9 @@ pub trait EstimateSink {
     ) -> (u64, vibro_ipc::Result<usize>);
 }
 
+#[cfg(feature = "ipc")]
 impl EstimateSink for StreamPublisher<VibEstimate> {
-    /// Stamps `publish_ns` with [`now_ns`] once the estimate is written, right before
+    /// Stamps `publish_ns` with [`vibro_service::now_ns`] once the estimate is written, right before
     /// it is sent.
     fn publish_with(
         &mut self,
@@ -199,7 +202,7 @@ impl EstimateSink for StreamPublisher<VibEstimate> {
         let mut publish_ns = 0;
         let result = StreamPublisher::publish_with(self, |m| {
             fill(m);
-            publish_ns = now_ns();
+            publish_ns = vibro_service::now_ns();
             m.publish_ns = publish_ns;
         });
         (publish_ns, result)

@@ -19,12 +19,16 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 use vibro_mcap::{Recorder, RecorderOptions};
-use vibro_msgs::{ServiceNames, Stream};
+#[cfg(feature = "ipc")]
+use vibro_msgs::ServiceNames;
+use vibro_msgs::Stream;
 use vibro_sim::{FlightStats, Scenario, Simulator, UnitReport};
 
 use crate::attachments::{effect_metadata_name, LogExtras, SCENARIO_METADATA};
 use crate::rig::{Packetizer, RigChunk, RigMessage, TruthSample};
-use crate::{topic, Error, Pace, Result};
+#[cfg(feature = "ipc")]
+use crate::Pace;
+use crate::{topic, Error, Result};
 
 /// What a flight made, and each unit's mean error against the exact model.
 #[derive(Debug, Clone, Serialize)]
@@ -64,7 +68,20 @@ pub struct FlightOutput<'a> {
     pub force: bool,
 }
 
+/// Live publishers of the rig streams: none without the feature `ipc` (a build that
+/// leaves iceoryx2 out writes flights into logs only).
+#[cfg(not(feature = "ipc"))]
+pub enum LivePublishers {}
+
+#[cfg(not(feature = "ipc"))]
+impl LivePublishers {
+    fn publish(&mut self, _: RigMessage<'_>) -> Result<()> {
+        match *self {}
+    }
+}
+
 /// Live publishers of the rig streams, paced at a multiple of real time.
+#[cfg(feature = "ipc")]
 pub struct LivePublishers {
     _node: vibro_ipc::IpcNode,
     vib: vibro_ipc::StreamPublisher<vibro_msgs::VibBlock>,
@@ -74,6 +91,7 @@ pub struct LivePublishers {
     rate: f64,
 }
 
+#[cfg(feature = "ipc")]
 impl LivePublishers {
     /// Opens the rig streams' publishers under `prefix`, paced at `rate` times real
     /// time (the rule of [`Pace::rate_problem`]).

@@ -94,19 +94,22 @@ pub mod import;
 pub mod inspect;
 pub mod linear;
 pub mod output;
+#[cfg(feature = "ipc")]
 mod record;
+#[cfg(feature = "ipc")]
 mod replay;
 pub mod rig;
 pub mod samples;
 pub mod session;
 pub mod text;
+mod timeline;
 mod topics;
 
-pub use record::{
-    record, Placement, RecordOptions, RecordSummary, Timeline, TopicCounts, MAX_TIMELINE_STEP_NS,
-    TIMELINE_RESYNC_AFTER,
-};
+#[cfg(feature = "ipc")]
+pub use record::{record, RecordOptions, RecordSummary, TopicCounts};
+#[cfg(feature = "ipc")]
 pub use replay::{replay, Pace, ReplayOptions, ReplaySummary};
+pub use timeline::{Placement, Timeline, MAX_TIMELINE_STEP_NS, TIMELINE_RESYNC_AFTER};
 pub use topics::{rig_streams, stream_of_topic, topic, DEFAULT_RECORD_STREAMS};
 
 use std::borrow::Cow;
@@ -325,6 +328,7 @@ pub enum Error {
 /// `Result` with this crate's [`Error`].
 pub type Result<T> = std::result::Result<T, Error>;
 
+#[cfg(feature = "ipc")]
 /// An error and its sources in one line, each source added only where the text
 /// before does not already end with it (`vibro_mcap` errors show their source in their
 /// own message, `mcap`'s I/O error only in its source).
@@ -350,6 +354,7 @@ pub(crate) fn fmt_sig(x: f64) -> String {
         .map_or_else(|_| x.to_string(), |r| r.to_string())
 }
 
+#[cfg(feature = "ipc")]
 /// The operating system's error inside `e`, if any (the innermost one).
 pub(crate) fn io_cause<'a>(e: &'a (dyn std::error::Error + 'static)) -> Option<&'a std::io::Error> {
     let mut found = None;

@@ -32,6 +32,7 @@ pub const DEFAULT_RECORD_STREAMS: [Stream; 9] = [
     Stream::Log(ServiceId::Compensator),
 ];
 
+#[cfg(feature = "ipc")]
 /// Every known topic, for error messages.
 pub(crate) fn known_topics() -> String {
     Stream::all()

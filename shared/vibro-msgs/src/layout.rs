@@ -137,8 +137,8 @@ macro_rules! wire_struct {
     ) => {
         $(#[$smeta])*
         #[repr(C)]
-        #[derive(Clone, Copy, Debug, PartialEq, ZeroCopySend)]
-        #[type_name($tn)]
+        #[derive(Clone, Copy, Debug, PartialEq)]
+        #[cfg_attr(feature = "ipc", derive(::iceoryx2::prelude::ZeroCopySend), type_name($tn))]
         pub struct $name {
             $( $(#[$fmeta])* pub $field: $ty, )*
         }

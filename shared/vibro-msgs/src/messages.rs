@@ -8,6 +8,7 @@
 
 use crate::layout::wire_struct;
 use crate::{Error, Result, ACCEL_BLOCK_MAX, MAX_BANDS, MAX_TONES, UNITS, VIB_BLOCK_MAX};
+#[cfg(feature = "ipc")]
 use iceoryx2::prelude::ZeroCopySend;
 
 /// Flag bits of [`AccelBlock::flags`]. Bits not listed are reserved and zero.
@@ -602,8 +603,21 @@ impl std::fmt::Display for MessageKind {
     }
 }
 
+/// What iceoryx2 needs of a payload: `ZeroCopySend` with the feature `ipc`, nothing
+/// without it (a build that leaves iceoryx2 out, such as the Python package's).
+#[cfg(feature = "ipc")]
+pub trait Payload: ZeroCopySend {}
+#[cfg(feature = "ipc")]
+impl<T: ZeroCopySend> Payload for T {}
+/// What iceoryx2 needs of a payload: `ZeroCopySend` with the feature `ipc`, nothing
+/// without it (a build that leaves iceoryx2 out, such as the Python package's).
+#[cfg(not(feature = "ipc"))]
+pub trait Payload {}
+#[cfg(not(feature = "ipc"))]
+impl<T> Payload for T {}
+
 /// What every wire type offers to generic code.
-pub trait WireMessage: Copy + std::fmt::Debug + ZeroCopySend + 'static {
+pub trait WireMessage: Copy + std::fmt::Debug + Payload + 'static {
     /// Which wire type this is.
     const KIND: MessageKind;
 

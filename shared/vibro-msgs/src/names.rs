@@ -211,16 +211,19 @@ impl ServiceNames {
     }
 
     /// The iceoryx2 name of `stream`'s publish-subscribe service.
+    #[cfg(feature = "ipc")]
     pub fn service_name(&self, stream: Stream) -> Result<iceoryx2::prelude::ServiceName> {
         to_service_name(&self.stream(stream))
     }
 
     /// The iceoryx2 name of the event service beside `stream`.
+    #[cfg(feature = "ipc")]
     pub fn event_service_name(&self, stream: Stream) -> Result<iceoryx2::prelude::ServiceName> {
         to_service_name(&self.event(stream))
     }
 }
 
+#[cfg(feature = "ipc")]
 fn to_service_name(name: &str) -> Result<iceoryx2::prelude::ServiceName> {
     iceoryx2::prelude::ServiceName::new(name).map_err(|e| Error::ServiceName {
         name: name.to_string(),

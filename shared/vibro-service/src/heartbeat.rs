@@ -1,9 +1,15 @@
 //! The periodic [`Heartbeat`] every service publishes on `{prefix}heartbeat/{service}`.
 
-use crate::{now_ns, Quantiles};
+#[cfg(feature = "ipc")]
+use crate::now_ns;
+use crate::Quantiles;
+#[cfg(feature = "ipc")]
 use anyhow::Context;
+#[cfg(feature = "ipc")]
 use vibro_ipc::{IpcNode, StreamPublisher};
-use vibro_msgs::{Heartbeat, ServiceId, ServiceNames, ServiceState, Stream};
+use vibro_msgs::ServiceState;
+#[cfg(feature = "ipc")]
+use vibro_msgs::{Heartbeat, ServiceId, ServiceNames, Stream};
 
 /// What a service reports in one heartbeat (cumulative counters).
 #[derive(Debug, Clone, Copy)]
@@ -28,6 +34,7 @@ pub struct HeartbeatReport {
     pub resyncs: u64,
 }
 
+#[cfg(feature = "ipc")]
 /// Publishes one service's heartbeats.
 pub struct HeartbeatPublisher {
     publisher: StreamPublisher<Heartbeat>,
@@ -36,6 +43,7 @@ pub struct HeartbeatPublisher {
     seq: u64,
 }
 
+#[cfg(feature = "ipc")]
 impl HeartbeatPublisher {
     pub fn create(
         node: &IpcNode,

@@ -71,15 +71,17 @@ mod continuity;
 mod heartbeat;
 mod json;
 mod latency;
+#[cfg(feature = "ipc")]
 pub mod logstream;
 pub mod realtime;
 mod recurring;
+#[cfg(feature = "ipc")]
 mod runtime;
 mod settings;
 mod shutdown;
 mod stop;
 pub mod supervise;
-#[cfg(feature = "testing")]
+#[cfg(all(feature = "testing", feature = "ipc"))]
 pub mod testing;
 
 pub use cli::ServiceArgs;
@@ -89,10 +91,13 @@ pub use continuity::{
     Arrival, Continuity, CountersJson, StreamCounters, MAX_LOST_MESSAGES, MAX_LOST_SAMPLES,
     RESYNC_AFTER,
 };
-pub use heartbeat::{HeartbeatPublisher, HeartbeatReport};
+#[cfg(feature = "ipc")]
+pub use heartbeat::HeartbeatPublisher;
+pub use heartbeat::HeartbeatReport;
 pub use json::JsonObject;
 pub use latency::{Latency, Quantiles};
 pub use recurring::{DisorderLog, Recurring};
+#[cfg(feature = "ipc")]
 pub use runtime::{
     init_tracing, main_with, on_own_thread, run_service, ServiceSummary, SAME_REQUEST,
 };

@@ -11,7 +11,9 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 use tracing::{error, info, warn};
+#[cfg(feature = "ipc")]
 use vibro_ipc::{cleanup_dead_nodes, create_node, StreamSubscriber};
+#[cfg(feature = "ipc")]
 use vibro_msgs::{Heartbeat, ServiceId, ServiceNames, Stream};
 
 /// Makes the child receive SIGTERM when the thread that starts it ends, so that a
@@ -39,6 +41,7 @@ pub fn stop_with_parent(c: &mut Command) {
     }
 }
 
+#[cfg(feature = "ipc")]
 /// Waits until `service`'s heartbeat says it has published `count` messages (the
 /// compensator: one block per accelerometer block, the ones its waveform stage held
 /// included), at most `timeout`: past it the caller goes on, and what is missing shows
@@ -67,6 +70,7 @@ pub fn wait_for_published(
     Ok(())
 }
 
+#[cfg(feature = "ipc")]
 /// Waits until each of `services` has published a heartbeat under `names` (their
 /// ports then exist), or fails after `timeout` naming the ones that did not.
 /// `alive` is asked between looks (to fail early when a child has died).
@@ -112,6 +116,7 @@ pub fn wait_for_heartbeats(
     Ok(())
 }
 
+#[cfg(feature = "ipc")]
 /// A service found running under a prefix by [`running_on`].
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Running {
@@ -125,6 +130,7 @@ pub struct Running {
     pub heartbeat_seen: bool,
 }
 
+#[cfg(feature = "ipc")]
 impl std::fmt::Display for Running {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let pids: Vec<String> = self.pids.iter().map(u32::to_string).collect();
@@ -147,6 +153,7 @@ impl std::fmt::Display for Running {
     }
 }
 
+#[cfg(feature = "ipc")]
 /// Which of `services` already run under `names`: a heartbeat publisher of an alive
 /// process (dead nodes are cleaned up first), or a heartbeat within `wait`. Returns
 /// at once when nobody publishes there; otherwise waits up to `wait` for a heartbeat
