@@ -1133,6 +1133,15 @@ fn log_commands_refuse_malformed_files_naming_file_and_problem() {
             magic.display()
         )],
     );
+    // The lab reads a log as `log info` does: a text file is not a damaged log.
+    assert_refused(
+        "lab diagnose of a text file named .mcap",
+        &fail(&["lab", "diagnose", s(&text)]),
+        &[&format!(
+            "{}: not an MCAP log: it does not start with the MCAP magic bytes",
+            text.display()
+        )],
+    );
     let nowhere = dir.path("missing/out.mcap");
     assert_refused(
         "log recover into a missing folder",

@@ -138,7 +138,15 @@ readings: 20 kHz), ``n = 0..N`` with ``N = T_run * fs``; ``truth.json``'s ``rate
    the periodic random vibration by ``e^{-j w D}`` on the run's DFT bins (delay and AC
    coupling commute). The reference and the accelerometers are not delayed.
 7. **Reference accelerometer** (base, body x, y, z, DC-coupled, in g): the total base
-   acceleration at the sensor rate plus white noise ``ref_noise_g`` RMS.
+   acceleration at the sensor rate plus white noise ``ref_noise_g`` RMS. With
+   ``--ref-sens-v-per-g S`` it is recorded as a rig records a piezoelectric reference
+   (``ref_chain``): AC-coupled, in V, ``V = S * (HP(v_base(t - D)) + noise)``, ``HP(s) =
+   s / (s + 2 pi f_r)`` (``--ref-hp-hz f_r``, first order, exact as step 6's), the sample
+   stamped ``s`` holding the base at ``s - D`` (``--ref-delay-s D``, exact as step 6's
+   delay); gravity gives 0 (the rig stood still long before the record). Columns
+   ``ax_v, ay_v, az_v``. ``--write-rig`` writes ``rig.toml`` beside it: the vibration
+   sensors' chain, the orientation as a static ``[reference]`` segment over the run and
+   the reference's chain ``[reference.chain]`` (docs/logs.md, "A rig's own data").
 
 Runs are ``still_s`` still / ``vib_s`` vibrating / ``still_s`` still (8/8/8 s by
 default), or vibrating throughout (flight-like; the filters then start in the periodic
@@ -471,10 +479,14 @@ class RunConfig:
     vib_sens_v_per_g: float = 0.1
     vib_hp_hz: float = 2.0
     daq_delay_s: float = 0.0  # vibration sensors' acquisition delay: sample stamped s holds time s - D
+    ref_sens_v_per_g: float | None = None  # None: DC-coupled reference in g; else AC-coupled in V (step 7)
+    ref_hp_hz: float = 0.5  # the AC-coupled reference's first-order corner, Hz
+    ref_delay_s: float = 0.0  # the AC-coupled reference's delay: sample stamped s holds time s - D
     unit_drift_ug_per_s: float = 0.0  # |r_u| of each unit's linear drift r_u t; signs from the seed
     unit_response: "UnitResponse | None" = None  # the units' own IA response (docs/effects.md unit_response)
     sensor_gain_error: tuple = (0.0, 0.0, 0.0)  # vibration sensor k reads (1 + G_k) x the vibration on unit k's IA
     effects: list = field(default_factory=list)  # OutputEffect, docs/effects.md at_unit_output effects
+    write_rig: bool = False  # write rig.toml beside the CSVs (write_rig)
     seed: int = 30
     run_index: int = 0
     repeat: int = 0
@@ -531,6 +543,14 @@ class RunConfig:
             raise ValueError(f"the fine rate {fs} Hz is not a multiple of the accel and sensor rates")
         if abs(self.t_run * self.sensor_rate_hz - round(self.t_run * self.sensor_rate_hz)) > 1e-9:
             raise ValueError(f"run time {self.t_run} s is not a whole number of sensor periods")
+        if self.ref_sens_v_per_g is not None and not (
+            math.isfinite(self.ref_sens_v_per_g) and self.ref_sens_v_per_g != 0
+            and 0 < self.ref_hp_hz < fs / 2 and 0.0 <= self.ref_delay_s <= min(1.0, self.still_s)
+            and not self.vibrate_throughout
+        ):
+            raise ValueError(f"reference chain S = {self.ref_sens_v_per_g} V/g, f_r = {self.ref_hp_hz} Hz, "
+                             f"D = {self.ref_delay_s} s: S finite and nonzero, 0 < f_r < fs/2, "
+                             "0 <= D <= min(1 s, still_s), a shaker run")
         if not (0.0 <= self.daq_delay_s <= 1.0):
             raise ValueError(f"daq_delay_s = {self.daq_delay_s}: must be 0 <= D <= 1 s")
         if not self.vibrate_throughout and self.daq_delay_s > self.still_s:
@@ -994,6 +1014,21 @@ def simulate(cfg: RunConfig, triad=None, keep_fine=False) -> RunResult:
     # step 7: reference accelerometer on the base
     rng_r = np.random.default_rng(_seedseq(cfg, 1, cfg.repeat, STREAM_REF_NOISE))
     ref_g = a_base[:, 0 : ns * r : r].T + cfg.ref_noise_g * rng_r.standard_normal((ns, 3))
+    if cfg.ref_sens_v_per_g is not None:
+        # AC-coupled in V (step 7, ``ref_chain``): the base vibration delayed by D (tone
+        # and envelope at t - D, the periodic random vibration by e^{-j w D}), through
+        # the first-order high-pass exactly (the run starts and ends still), at the
+        # sensor rate; the same noise draws as the DC-coupled reference, referred to
+        # the input.
+        d_r = cfg.ref_delay_s
+        env_r = envelope(cfg, t - d_r)
+        rand_r = (delay_periodic(rand_raw, fs, d_r) if d_r else rand_raw) * env_r if has_random \
+            else np.zeros((3, n + 1))
+        hp_r = Lti([1.0, 0.0], [1.0, 2 * math.pi * cfg.ref_hp_hz], cfg.ref_hp_hz, cfg.filter_method)
+        ref_hp = hp_r.apply(tone(cfg, t - d_r) * env_r + rand_r, fs)
+        ref_g = cfg.ref_sens_v_per_g * (
+            ref_hp[:, 0 : ns * r : r].T + cfg.ref_noise_g * rng_r.standard_normal((ns, 3))
+        )
 
     fine = {"t": t, "a_base": a_base, "a_unit": a_unit, "rand_unit": rand_u, "tone_unit": tone_u,
             "nonlin_readings_g": nonlin_read, "vib_unit_readings_g": box_u,
@@ -1674,7 +1709,11 @@ def make_truth(res: RunResult):
             "(exact: tone and envelope analytically, random vibration by e^{-j w D} on the run's DFT bins); "
             "the reference and the accelerometers are not delayed",
         },
-        "reference": {"axes": "body x, y, z on the base, DC-coupled, g", "noise_g_rms": cfg.ref_noise_g},
+        "reference": {"axes": "body x, y, z on the base, DC-coupled, g", "noise_g_rms": cfg.ref_noise_g}
+        if cfg.ref_sens_v_per_g is None else
+        {"axes": "body x, y, z on the base, AC-coupled, V", "noise_g_rms": cfg.ref_noise_g,
+         "ref_chain": {"sensitivity_v_per_g": cfg.ref_sens_v_per_g, "ac_corner_hz": cfg.ref_hp_hz,
+                       "delay_s": cfg.ref_delay_s}},
         "unit_noise_g_rms": cfg.unit_noise_g,
         "unit_drift": {
             "ug_per_s": cfg.unit_drift_ug_per_s,
@@ -1786,14 +1825,22 @@ def write_run(res: RunResult, folder, digits=None):
         res.vib_v,
         digits,
     )
+    if cfg.ref_sens_v_per_g is None:
+        ref_what, ref_cols = "DC-coupled, g", ["time_s", "ax_g", "ay_g", "az_g"]
+    else:
+        ref_what = (f"AC-coupled {cfg.ref_hp_hz:g} Hz, {cfg.ref_sens_v_per_g:g} V/g, delay "
+                    f"{cfg.ref_delay_s:g} s, V")
+        ref_cols = ["time_s", "ax_v", "ay_v", "az_v"]
     write_csv(
         os.path.join(folder, "reference.csv"),
-        [desc, f"reference accelerometer on the base, body x y z, DC-coupled, g, {cfg.sensor_rate_hz:g} Hz"],
-        ["time_s", "ax_g", "ay_g", "az_g"],
+        [desc, f"reference accelerometer on the base, body x y z, {ref_what}, {cfg.sensor_rate_hz:g} Hz"],
+        ref_cols,
         res.t_vib,
         res.ref_g,
         digits,
     )
+    if cfg.write_rig:
+        write_rig(cfg, os.path.join(folder, "rig.toml"))
     write_csv(
         os.path.join(folder, "readings_truth.csv"),
         [desc, f"per reading (time = end of the 1/{cfg.accel_rate_hz:g} s interval, as accel.csv): "
@@ -1806,6 +1853,39 @@ def write_run(res: RunResult, folder, digits=None):
     with open(os.path.join(folder, "truth.json"), "w") as f:
         json.dump(res.truth, f, indent=1, default=_json_default)
         f.write("\n")
+
+
+def write_rig(cfg, path):
+    """A rig file (docs/logs.md, "A rig's own data") stating what this run's rig knows:
+    the vibration sensors' chain, the orientation over the whole run (a static
+    reference's one segment) and, for an AC-coupled reference, its chain."""
+    up = ", ".join(repr(float(v)) for v in cfg.orientation)
+    lines = [
+        'format = "vibrocomp-rig/1"',
+        'triad = "default"',
+        "",
+        "[sensors]",
+        f"sensitivity_v_per_g = {float(cfg.vib_sens_v_per_g)!r}",
+        f"ac_corner_hz = {float(cfg.vib_hp_hz)!r}",
+        f"delay_s = {float(cfg.daq_delay_s)!r}",
+        "",
+        "[reference]",
+        'kind = "static"',
+        f"gravity_g = {float(cfg.gravity_g)!r}",
+        "[[reference.segment]]",
+        "from_s = 0.0",
+        f"to_s = {float(cfg.t_run)!r}",
+        f"up = [{up}]",
+    ]
+    if cfg.ref_sens_v_per_g is not None:
+        lines += [
+            "[reference.chain]",
+            f"sensitivity_v_per_g = {float(cfg.ref_sens_v_per_g)!r}",
+            f"ac_corner_hz = {float(cfg.ref_hp_hz)!r}",
+            f"delay_s = {float(cfg.ref_delay_s)!r}",
+        ]
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
 
 
 def run_repeats(cfg, triad, out, repeats=1, digits=None):
@@ -2152,6 +2232,14 @@ def build_parser():
         g.add_argument("--daq-delay-s", type=_delay_s, default=0.0, metavar="D",
                        help="vibration sensors' acquisition delay, 0 <= D <= 1 s: the sample stamped s in "
                        "vib.csv holds the signal at s - D (reference and accelerometers not delayed)")
+        g.add_argument("--ref-sens-v-per-g", type=float, default=None, metavar="S",
+                       help="record the reference AC-coupled in V at S V/g (columns ax_v..az_v; "
+                       "default: DC-coupled in g)")
+        g.add_argument("--ref-hp-hz", type=float, default=0.5, help="the AC-coupled reference's corner, Hz")
+        g.add_argument("--ref-delay-s", type=_delay_s, default=0.0, metavar="D",
+                       help="the AC-coupled reference's delay: its sample stamped s holds the base at s - D")
+        g.add_argument("--write-rig", action="store_true",
+                       help="write rig.toml per run: the chains and the orientation (write_rig)")
         g.add_argument("--unit-drift-ug-per-s", type=float, default=0.0, metavar="R",
                        help="each unit's readings drift by +-R ug/s from the run start (sign per unit from the seed)")
         h = p.add_argument_group("hidden effects (docs/effects.md; recorded in truth.json 'effects')")
@@ -2240,6 +2328,10 @@ def config_from_args(a):
         vib_sens_v_per_g=a.vib_sens_v_per_g,
         vib_hp_hz=a.vib_hp_hz,
         daq_delay_s=a.daq_delay_s,
+        ref_sens_v_per_g=a.ref_sens_v_per_g,
+        ref_hp_hz=a.ref_hp_hz,
+        ref_delay_s=a.ref_delay_s,
+        write_rig=a.write_rig,
         unit_drift_ug_per_s=a.unit_drift_ug_per_s,
         seed=a.seed,
     )

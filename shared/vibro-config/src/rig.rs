@@ -23,6 +23,17 @@
 //! up = "+z"                         # the body direction pointing up: "+x".."-z" or [x, y, z]
 //! ```
 //!
+//! A reference accelerometer recorded as a rig records a piezoelectric one (AC-coupled,
+//! in V; RIG.md's B&K 8503 through a charge converter) states its chain under the
+//! static or centrifuge reference; its gravity then comes from the stated orientation:
+//!
+//! ```toml
+//! [reference.chain]                 # absent: the reference CSV is DC-coupled, in g
+//! sensitivity_v_per_g = 0.01        # one value or [x, y, z] (body axes); a negative one flips
+//! ac_corner_hz = 0.5                # first-order AC coupling; absent or 0: DC-coupled
+//! delay_s = 0.0013                  # a sample stamped s saw the table at s - delay_s (0..1 s)
+//! ```
+//!
 //! A centrifuge (`kind = "centrifuge"`) states `gravity_g`, `up`, `radius_m`,
 //! `rate_rad_s` and `toward_centre` (the body direction pointing at the axis of
 //! rotation): the specific force is `gravity_g up + rate^2 radius / g0 toward_centre`.
@@ -165,6 +176,102 @@ impl ReferenceSpec {
     }
 }
 
+/// The chain of a reference accelerometer recorded in V (`[reference.chain]` of a rig
+/// file, `[reference_chain]` of a campaign manifest): what turns its volts into g, body
+/// axes x, y, z. Undone by `vibro_ident::chain` (MODEL.md section 12's sensor chain).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ReferenceChain {
+    /// Volts per g per body axis; a negative value flips the axis.
+    pub sensitivity_v_per_g: [f64; 3],
+    /// Corner of the first-order AC coupling, Hz; `None`: DC-coupled.
+    pub ac_corner_hz: Option<f64>,
+    /// A sample stamped `s` saw the table at `s - delay_s`, s (0..=[`MAX_DELAY_S`]).
+    pub delay_s: f64,
+}
+
+/// The largest sensitivity a chain may state, V/g (as `vibro_waveform::chain`'s).
+pub const MAX_SENSITIVITY_V_PER_G: f64 = 1e6;
+
+/// The highest AC corner a chain may state, Hz (as `vibro_waveform::chain`'s).
+pub const MAX_AC_CORNER_HZ: f64 = 1e3;
+
+/// A reference chain as written in a file (`deny_unknown_fields`): validated by
+/// [`ReferenceChain::from_raw`].
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawReferenceChain {
+    sensitivity_v_per_g: Option<OneOrThree>,
+    ac_corner_hz: Option<f64>,
+    delay_s: Option<f64>,
+}
+
+impl ReferenceChain {
+    /// Validates `raw`, each broken rule added to `problems` as `KEY.field = value: rule`
+    /// (`key`: where the table sits, `reference.chain` or `reference_chain`); `None`
+    /// when any rule is broken.
+    pub fn from_raw(
+        raw: &RawReferenceChain,
+        key: &str,
+        problems: &mut Vec<String>,
+    ) -> Option<ReferenceChain> {
+        let start = problems.len();
+        let sensitivity = match &raw.sensitivity_v_per_g {
+            None => {
+                problems.push(format!(
+ "{key}.sensitivity_v_per_g: missing: the reference's V/g (one value or [x, y, z])"
+                ));
+                None
+            }
+            Some(s) => {
+                let v = match s {
+                    OneOrThree::One(x) => Some([*x; 3]),
+                    OneOrThree::Three(v) => <[f64; 3]>::try_from(v.as_slice()).ok(),
+                };
+                match v {
+                    Some(v)
+                        if v.iter().all(|x| {
+                            x.is_finite() && *x != 0.0 && x.abs() <= MAX_SENSITIVITY_V_PER_G
+                        }) =>
+                    {
+                        Some(v)
+                    }
+                    _ => {
+                        problems.push(format!(
+ "{key}.sensitivity_v_per_g = {}: must be one or three finite non-zero numbers of at most {MAX_SENSITIVITY_V_PER_G:e} V/g in size (a negative one flips the axis)",
+                            s.show()
+                        ));
+                        None
+                    }
+                }
+            }
+        };
+        let ac_corner_hz = match raw.ac_corner_hz {
+            None | Some(0.0) => None,
+            Some(x) if x.is_finite() && x > 0.0 && x <= MAX_AC_CORNER_HZ => Some(x),
+            Some(x) => {
+                problems.push(format!(
+ "{key}.ac_corner_hz = {x}: must be finite, > 0 and <= {MAX_AC_CORNER_HZ} Hz (absent or 0: DC-coupled)"
+                ));
+                None
+            }
+        };
+        let delay_s = raw.delay_s.unwrap_or(0.0);
+        if !(delay_s.is_finite() && (0.0..=MAX_DELAY_S).contains(&delay_s)) {
+            problems.push(format!(
+ "{key}.delay_s = {delay_s}: must be finite and 0 <= delay <= {MAX_DELAY_S} s (a sample stamped s saw the table at s - delay_s)"
+            ));
+        }
+        match (problems.len() == start, sensitivity) {
+            (true, Some(sensitivity_v_per_g)) => Some(ReferenceChain {
+                sensitivity_v_per_g,
+                ac_corner_hz,
+                delay_s,
+            }),
+            _ => None,
+        }
+    }
+}
+
 /// A validated rig file.
 #[derive(Debug, Clone)]
 pub struct RigConfig {
@@ -173,6 +280,9 @@ pub struct RigConfig {
     pub triad: TriadConfig,
     pub sensors: SensorChain,
     pub reference: ReferenceSpec,
+    /// The reference accelerometer's chain (`[reference.chain]`): its CSV is in V;
+    /// `None`: DC-coupled, in g.
+    pub reference_chain: Option<ReferenceChain>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -193,11 +303,20 @@ struct RawSensors {
     rate_hz: Option<f64>,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 #[serde(untagged)]
 enum OneOrThree {
     One(f64),
     Three(Vec<f64>),
+}
+
+impl OneOrThree {
+    fn show(&self) -> String {
+        match self {
+            OneOrThree::One(x) => x.to_string(),
+            OneOrThree::Three(v) => format!("{v:?}"),
+        }
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -212,6 +331,7 @@ struct RawReference {
     rate_rad_s: Option<f64>,
     toward_centre: Option<Direction>,
     columns: Option<Vec<String>>,
+    chain: Option<RawReferenceChain>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -302,6 +422,13 @@ fn check_sizes(raw: &RawRig, p: &mut Vec<String>) -> bool {
     if let Some(c) = &r.columns {
         ok &= texts("reference.columns", c, 3, MAX_NAME_BYTES, p);
     }
+    if let Some(OneOrThree::Three(v)) = r
+        .chain
+        .as_ref()
+        .and_then(|c| c.sensitivity_v_per_g.as_ref())
+    {
+        ok &= list("reference.chain.sensitivity_v_per_g", v.len(), 3, p);
+    }
     ok
 }
 
@@ -389,6 +516,18 @@ pub fn parse_rig(text: &str, file: &str) -> Result<RigConfig> {
     };
 
     let reference = reference(&raw.reference, &mut problems);
+    let reference_chain = match &raw.reference.chain {
+        None => Some(None),
+        Some(_) if raw.reference.kind == "stream" => {
+            problems.push(
+                "reference.chain: not a key of kind = \"stream\" (a stream is in g; a chain \
+                 goes with a static or centrifuge reference, whose orientation gives gravity)"
+                    .into(),
+            );
+            None
+        }
+        Some(c) => ReferenceChain::from_raw(c, "reference.chain", &mut problems).map(Some),
+    };
     if let (
         true,
         Some(triad),
@@ -397,6 +536,7 @@ pub fn parse_rig(text: &str, file: &str) -> Result<RigConfig> {
         Some(delay_s),
         Some(rate_hz),
         Some(reference),
+        Some(reference_chain),
     ) = (
         problems.is_empty(),
         triad,
@@ -405,6 +545,7 @@ pub fn parse_rig(text: &str, file: &str) -> Result<RigConfig> {
         delay_s,
         rate_hz,
         reference,
+        reference_chain,
     ) {
         return Ok(RigConfig {
             file: file.to_string(),
@@ -417,6 +558,7 @@ pub fn parse_rig(text: &str, file: &str) -> Result<RigConfig> {
                 rate_hz,
             },
             reference,
+            reference_chain,
         });
     }
     Err(ConfigError::Invalid {
@@ -693,6 +835,72 @@ mod tests {
             panic!("{e}")
         };
         assert_eq!(problems.len(), 2, "{e}");
+    }
+
+    /// Issue "round two", item 9: `[reference.chain]` states an AC-coupled reference's
+    /// sensitivity, corner and delay; absent, the reference is DC-coupled in g.
+    #[test]
+    fn a_reference_chain_is_read() {
+        assert_eq!(parse_rig(GOOD, "r.toml").unwrap().reference_chain, None);
+        let text = format!(
+            "{GOOD}[reference.chain]\nsensitivity_v_per_g = [0.01, -0.01, 0.02]\n\
+             ac_corner_hz = 0.5\ndelay_s = 0.0013\n"
+        );
+        let chain = parse_rig(&text, "r.toml").unwrap().reference_chain.unwrap();
+        assert_eq!(chain.sensitivity_v_per_g, [0.01, -0.01, 0.02]);
+        assert_eq!((chain.ac_corner_hz, chain.delay_s), (Some(0.5), 0.0013));
+        let dc = format!("{GOOD}[reference.chain]\nsensitivity_v_per_g = 0.01\nac_corner_hz = 0\n");
+        let chain = parse_rig(&dc, "r.toml").unwrap().reference_chain.unwrap();
+        assert_eq!((chain.ac_corner_hz, chain.delay_s), (None, 0.0));
+    }
+
+    /// Every bad chain value at once, each with the file, the key, the value and the rule.
+    #[test]
+    fn bad_reference_chain_values_are_listed_at_once() {
+        let text = format!(
+            "{GOOD}[reference.chain]\nsensitivity_v_per_g = [0.01, 0.0, 0.01]\n\
+             ac_corner_hz = -2.0\ndelay_s = 1.5\n"
+        );
+        let e = parse_rig(&text, "bad.toml").unwrap_err();
+        let ConfigError::Invalid { file, problems } = &e else {
+            panic!("{e}")
+        };
+        assert_eq!(file, "bad.toml");
+        assert_eq!(problems.len(), 3, "{e}");
+        assert!(
+            problems[0].starts_with(
+                "reference.chain.sensitivity_v_per_g = [0.01, 0.0, 0.01]: must be one or three \
+             finite non-zero numbers"
+            ),
+            "{e}"
+        );
+        assert!(problems[1].starts_with("reference.chain.ac_corner_hz = -2: must be finite, > 0"));
+        assert!(problems[2]
+            .starts_with("reference.chain.delay_s = 1.5: must be finite and 0 <= delay <= 1 s"));
+        let e = parse_rig(
+            &format!("{GOOD}[reference.chain]\nac_corner_hz = 0.5\n"),
+            "m.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.starts_with("m.toml") && e.contains("reference.chain.sensitivity_v_per_g: missing"),
+            "{e}"
+        );
+        let e = parse_rig(
+            &format!("{GOOD}[reference.chain]\nsensitivity_v_per_g = 0.01\ncorner = 1\n"),
+            "u.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("corner"), "{e}");
+        let stream = "format = \"vibrocomp-rig/1\"\n[sensors]\nsensitivity_v_per_g = 0.1\n\
+            [reference]\nkind = \"stream\"\n[reference.chain]\nsensitivity_v_per_g = 0.01\n";
+        let e = parse_rig(stream, "s.toml").unwrap_err().to_string();
+        assert!(
+            e.contains("reference.chain: not a key of kind = \"stream\""),
+            "{e}"
+        );
     }
 
     #[test]

@@ -62,6 +62,7 @@
 //! "equivalent to least squares"; it is unbiased but is not the least-squares
 //! solution for `d0` and `delta(2)`, see [`closed_form`]).
 
+pub mod chain;
 mod closed_form;
 mod components;
 mod linalg;

@@ -36,6 +36,7 @@ use realfft::num_complex::Complex;
 use serde::Serialize;
 use vibro_physics::passport::Passport;
 
+use crate::chain::{reference_in_g, ReferenceChainRequest};
 use crate::reference::{response_knots_hz, IntervalMeans, LinearFit, ResponseBasis};
 use crate::table::{read_timed, Timed};
 use crate::{
@@ -345,6 +346,9 @@ pub struct ReferenceRequest {
     /// The top of the fitted response, Hz; at most
     /// [`RESPONSE_TOP_FRACTION_OF_RATE`] of the reference's rate is used.
     pub response_top_hz: f64,
+    /// An AC-coupled reference in V: its chain and orientation ([`crate::chain`]);
+    /// `None`: DC-coupled, in g.
+    pub chain: Option<ReferenceChainRequest>,
 }
 
 /// What to measure from a rig's files (validated by the caller: [`TimedRequest::problems`]).
@@ -411,11 +415,17 @@ pub struct TimedRequestRaw {
     pub oa: Option<String>,
     pub pa: Option<String>,
     pub response_top_hz: Option<f64>,
+    /// An AC-coupled reference in V (a rig file's `[reference.chain]`): its columns
+    /// then default to [`DEFAULT_REFERENCE_VOLT_COLUMNS`].
+    pub reference_chain: Option<ReferenceChainRequest>,
     pub options: MeasureOptions,
 }
 
 /// The reference's columns when none are named: body x, y, z in g.
 pub const DEFAULT_REFERENCE_COLUMNS: [&str; 3] = ["ax_g", "ay_g", "az_g"];
+
+/// An AC-coupled reference's columns when none are named: body x, y, z in V.
+pub const DEFAULT_REFERENCE_VOLT_COLUMNS: [&str; 3] = ["ax_v", "ay_v", "az_v"];
 
 impl TimedRequestRaw {
     /// The request, or [`Error::Request`] with every problem: a missing part, a value
@@ -466,6 +476,7 @@ impl TimedRequestRaw {
                     ("oa", self.oa.is_some()),
                     ("pa", self.pa.is_some()),
                     ("response_top_hz", self.response_top_hz.is_some()),
+                    ("rig", self.reference_chain.is_some()),
                 ];
                 for (key, given) in with_reference {
                     if given {
@@ -499,7 +510,11 @@ impl TimedRequestRaw {
                     );
                     said.push("ia");
                 }
-                let default_columns = DEFAULT_REFERENCE_COLUMNS.map(String::from);
+                let default_columns = match self.reference_chain {
+                    None => DEFAULT_REFERENCE_COLUMNS,
+                    Some(_) => DEFAULT_REFERENCE_VOLT_COLUMNS,
+                }
+                .map(String::from);
                 let columns = match self.reference_columns {
                     None => default_columns,
                     Some(names) => <[String; 3]>::try_from(names.clone()).unwrap_or_else(|_| {
@@ -520,6 +535,7 @@ impl TimedRequestRaw {
                         pa,
                     },
                     response_top_hz: self.response_top_hz.unwrap_or(default_response_top_hz),
+                    chain: self.reference_chain,
                 })
             }
         };
@@ -567,6 +583,19 @@ pub struct ReferenceReport {
     pub response_top_hz: f64,
     /// The reference's still mean along the unit's axes `[a1, a2, a3]`, g.
     pub still_unit_g: [f64; 3],
+    /// The chain undone when the reference is AC-coupled in V; `None`: DC-coupled in g.
+    pub chain: Option<ChainReport>,
+}
+
+/// The chain of an AC-coupled reference, as undone ([`crate::chain`]).
+#[derive(Debug, Clone, Serialize)]
+pub struct ChainReport {
+    /// Where it is stated (the rig file).
+    pub source: String,
+    pub sensitivity_v_per_g: [f64; 3],
+    /// 0: DC-coupled.
+    pub ac_corner_hz: f64,
+    pub delay_s: f64,
 }
 
 /// The VE measured from a rig's files ([`measure_timed_file`]).
@@ -636,6 +665,20 @@ pub fn measure_timed_file(request: &TimedRequest, passport: &Passport) -> Result
                 r.columns[2].as_str(),
             ];
             let reference = read_timed(&r.file, &columns)?;
+            // An AC-coupled reference in V: into the DC-coupled one in g (crate::chain).
+            let reference = match &r.chain {
+                None => reference,
+                Some(c) => reference_in_g(
+                    &reference,
+                    &c.chain,
+                    &[
+                        request.segments.still_before_s,
+                        request.segments.still_after_s,
+                    ],
+                    |t| c.gravity_body_g(t),
+                    &r.file,
+                )?,
+            };
             let response_top_hz = r
                 .response_top_hz
                 .min(RESPONSE_TOP_FRACTION_OF_RATE * reference.rate_hz());
@@ -660,6 +703,12 @@ pub fn measure_timed_file(request: &TimedRequest, passport: &Passport) -> Result
                 weights_v_per_g,
                 response_top_hz,
                 still_unit_g,
+                chain: r.chain.as_ref().map(|c| ChainReport {
+                    source: c.source.clone(),
+                    sensitivity_v_per_g: c.chain.sensitivity_v_per_g,
+                    ac_corner_hz: c.chain.ac_corner_hz,
+                    delay_s: c.chain.delay_s,
+                }),
             };
             (unit.measurement, unit.linear_response, Some(report))
         }

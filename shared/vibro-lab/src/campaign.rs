@@ -16,7 +16,8 @@
 //! triad = "default"                  # a triad file (relative to the manifest) or "default"
 //! gravity_g = 1.0                    # the local gravity, g (default 1)
 //! unit_columns = ["u1_v", "u2_v", "u3_v"]          # the triad's outputs, V (default)
-//! reference_columns = ["ax_g", "ay_g", "az_g"]     # body x, y, z, g, DC-coupled (default)
+//! reference_columns = ["ax_g", "ay_g", "az_g"]     # body x, y, z, g, DC-coupled (default;
+//!                                                  # with [reference_chain]: ax_v, ay_v, az_v)
 //! batches = 20                       # batch means per record (default 20)
 //! tilt_limit_rad = 1e-4              # [P2] (default)
 //! runs = "runs.csv"                  # the runs as a CSV (below), or [[run]] blocks
@@ -33,7 +34,18 @@
 //! # reference = "run000/reference.csv" # time_s and the reference columns
 //! # up = "+z"                          # the body direction pointing up: "+x".."-z" or [x, y, z]
 //! # segments = { ... }                 # this run's own windows
+//!
+//! # A piezoelectric reference recorded AC-coupled in V (RIG.md's B&K 8503): its chain,
+//! # as a rig file's [reference.chain] states it; gravity then comes from each run's `up`.
+//! # [reference_chain]
+//! # sensitivity_v_per_g = 0.01       # one value or [x, y, z]
+//! # ac_corner_hz = 0.5               # first-order AC coupling (absent or 0: DC-coupled)
+//! # delay_s = 0.0013                 # a sample stamped s saw the table at s - delay_s
 //! ```
+//!
+//! The estimator's bands are clipped to what the reference can see: a broadband band
+//! (or a PSD band) reaching past [`BAND_TOP_FRACTION_OF_RATE`] of the reference's rate
+//! stops there, and the run's summary says so ([`RunSummary::band_clipped`]).
 //!
 //! # The runs as a CSV
 //!
@@ -132,8 +144,9 @@ struct RawManifest {
     gravity_g: f64,
     #[serde(default = "default_unit_columns")]
     unit_columns: Vec<String>,
-    #[serde(default = "default_reference_columns")]
-    reference_columns: Vec<String>,
+    reference_columns: Option<Vec<String>>,
+    /// An AC-coupled reference in V: its chain (module docs).
+    reference_chain: Option<vibro_config::rig::RawReferenceChain>,
     #[serde(default = "default_batches")]
     batches: usize,
     #[serde(default = "default_tilt_limit")]
@@ -153,7 +166,8 @@ impl RawManifest {
             triad: default_triad(),
             gravity_g: default_gravity(),
             unit_columns: default_unit_columns(),
-            reference_columns: default_reference_columns(),
+            reference_columns: None,
+            reference_chain: None,
             batches: default_batches(),
             tilt_limit_rad: default_tilt_limit(),
             segments: None,
@@ -172,8 +186,13 @@ fn default_gravity() -> f64 {
 fn default_unit_columns() -> Vec<String> {
     ["u1_v", "u2_v", "u3_v"].map(String::from).to_vec()
 }
-fn default_reference_columns() -> Vec<String> {
-    ["ax_g", "ay_g", "az_g"].map(String::from).to_vec()
+fn default_reference_columns(chain: bool) -> Vec<String> {
+    match chain {
+        false => vibro_ident::rig::DEFAULT_REFERENCE_COLUMNS,
+        true => vibro_ident::rig::DEFAULT_REFERENCE_VOLT_COLUMNS,
+    }
+    .map(String::from)
+    .to_vec()
 }
 fn default_batches() -> usize {
     MeasureOptions::default().n_batches
@@ -219,6 +238,8 @@ pub struct Manifest {
     pub gravity_g: f64,
     pub unit_columns: [String; 3],
     pub reference_columns: [String; 3],
+    /// An AC-coupled reference's chain (`[reference_chain]`); `None`: DC-coupled, in g.
+    pub reference_chain: Option<vibro_config::rig::ReferenceChain>,
     pub measure: MeasureOptions,
     pub runs: Vec<Run>,
 }
@@ -351,7 +372,20 @@ impl Manifest {
                 }
             };
         let unit_columns = columns("unit_columns", &raw.unit_columns, &mut problems);
-        let reference_columns = columns("reference_columns", &raw.reference_columns, &mut problems);
+        let reference_columns = columns(
+            "reference_columns",
+            &raw.reference_columns
+                .clone()
+                .unwrap_or_else(|| default_reference_columns(raw.reference_chain.is_some())),
+            &mut problems,
+        );
+        let reference_chain = match &raw.reference_chain {
+            None => Some(None),
+            Some(c) => {
+                vibro_config::rig::ReferenceChain::from_raw(c, "reference_chain", &mut problems)
+                    .map(Some)
+            }
+        };
         let measure = MeasureOptions {
             n_batches: raw.batches,
             tilt_limit_rad: raw.tilt_limit_rad,
@@ -398,14 +432,17 @@ impl Manifest {
             }
             (false, None) => runs_from_toml(&raw.run, dir, raw.segments, &mut problems),
         };
-        match (triad, unit_columns, reference_columns) {
-            (Some(triad), Some(unit_columns), Some(reference_columns)) if problems.is_empty() => {
+        match (triad, unit_columns, reference_columns, reference_chain) {
+            (Some(triad), Some(unit_columns), Some(reference_columns), Some(reference_chain))
+                if problems.is_empty() =>
+            {
                 Ok(Self {
                     path: path.to_path_buf(),
                     triad,
                     gravity_g: raw.gravity_g,
                     unit_columns,
                     reference_columns,
+                    reference_chain,
                     measure,
                     runs,
                 })
@@ -428,13 +465,9 @@ fn check_sizes(raw: &RawManifest, p: &mut Vec<String>) -> bool {
     ok &= text("triad", &raw.triad, MAX_PATH_BYTES, p);
     // One column per unit, or per body axis.
     ok &= texts("unit_columns", &raw.unit_columns, 3, MAX_NAME_BYTES, p);
-    ok &= texts(
-        "reference_columns",
-        &raw.reference_columns,
-        3,
-        MAX_NAME_BYTES,
-        p,
-    );
+    if let Some(c) = &raw.reference_columns {
+        ok &= texts("reference_columns", c, 3, MAX_NAME_BYTES, p);
+    }
     if let Some(runs) = &raw.runs {
         ok &= path("runs", runs, MAX_PATH_BYTES, p);
     }
@@ -962,6 +995,56 @@ pub struct RunSummary {
     pub windows_used: usize,
     /// The reference's still mean, body axes, g (against `gravity_g * up`).
     pub reference_still_g: [f64; 3],
+    /// The estimator's bands clipped to what the reference can see, when they were.
+    pub band_clipped: Option<BandClip>,
+}
+
+/// The estimator's bands reach past what the reference can see: clipped to
+/// [`BAND_TOP_FRACTION_OF_RATE`] of its rate.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct BandClip {
+    /// The reference's rate, Hz.
+    pub reference_rate_hz: f64,
+    /// The estimator's broadband band as stated, and as used, Hz.
+    pub broadband_stated_hz: [f64; 2],
+    pub broadband_used_hz: [f64; 2],
+    /// PSD bands cut at the top, and left out (wholly above it).
+    pub psd_bands_cut: usize,
+    pub psd_bands_left_out: usize,
+}
+
+/// The top of the estimator's bands on a reference, as a fraction of its rate: the
+/// fitted response's (`vibro_ident::rig::RESPONSE_TOP_FRACTION_OF_RATE`), below Nyquist.
+pub const BAND_TOP_FRACTION_OF_RATE: f64 = vibro_ident::rig::RESPONSE_TOP_FRACTION_OF_RATE;
+
+/// `raw`'s bands clipped to [`BAND_TOP_FRACTION_OF_RATE`] of `rate_hz`; what was
+/// clipped, `None` when nothing was.
+pub fn clip_bands(raw: &mut EstimatorConfigRaw, rate_hz: f64) -> Option<BandClip> {
+    let top_hz = BAND_TOP_FRACTION_OF_RATE * rate_hz;
+    let stated = raw.broadband_band_hz;
+    let mut clip = BandClip {
+        reference_rate_hz: rate_hz,
+        broadband_stated_hz: stated,
+        broadband_used_hz: stated,
+        psd_bands_cut: 0,
+        psd_bands_left_out: 0,
+    };
+    if stated[1] > top_hz && stated[0] < top_hz {
+        clip.broadband_used_hz[1] = top_hz;
+        raw.broadband_band_hz[1] = top_hz;
+    }
+    let before = raw.psd_bands_hz.len();
+    raw.psd_bands_hz.retain(|b| b[0] < top_hz);
+    clip.psd_bands_left_out = before - raw.psd_bands_hz.len();
+    for b in &mut raw.psd_bands_hz {
+        if b[1] > top_hz {
+            b[1] = top_hz;
+            clip.psd_bands_cut += 1;
+        }
+    }
+    let clipped =
+        clip.broadband_used_hz != stated || clip.psd_bands_cut > 0 || clip.psd_bands_left_out > 0;
+    clipped.then_some(clip)
 }
 
 /// A campaign measured: the lab's table and, per run and unit, the measurement.
@@ -1047,6 +1130,19 @@ fn measure_run(
         vibro_ident::read_timed(&run.accel, &cols(&manifest.unit_columns)).map_err(ident)?;
     let reference = vibro_ident::read_timed(&run.reference, &cols(&manifest.reference_columns))
         .map_err(ident)?;
+    // An AC-coupled reference in V: into the DC-coupled one in g, gravity from `up`.
+    let stated_g = run.up.map(|u| u * manifest.gravity_g);
+    let reference = match &manifest.reference_chain {
+        None => reference,
+        Some(chain) => vibro_ident::chain::reference_in_g(
+            &reference,
+            &vibro_ident::chain::sensor_chain(chain),
+            &[run.segments.still_before_s, run.segments.still_after_s],
+            |_| Some(stated_g),
+            &run.reference,
+        )
+        .map_err(ident)?,
+    };
     let seg = run.segments;
     check_segments(&accel, &run.accel, &seg).map_err(ident)?;
     // The reference's body axes prepared for each reading's interval mean, and the
@@ -1068,7 +1164,7 @@ fn measure_run(
         sum / n.max(1) as f64
     };
     let reference_still_g = [still_mean(0), still_mean(1), still_mean(2)];
-    let stated = run.up.map(|u| u * manifest.gravity_g);
+    let stated = stated_g;
     let off = (0..3)
         .map(|i| (reference_still_g[i] - stated[i]).powi(2))
         .sum::<f64>()
@@ -1092,7 +1188,7 @@ fn measure_run(
         )));
     }
     let triad = &manifest.triad;
-    let (windows, vibs) = estimate_run(run, &reference, triad, base)?;
+    let (windows, vibs, band_clipped) = estimate_run(run, &reference, triad, base)?;
     let windows_used = vibs.len();
     let mut out = Vec::new();
     for (u, passport) in passports.iter().enumerate() {
@@ -1129,6 +1225,7 @@ fn measure_run(
             windows,
             windows_used,
             reference_still_g,
+            band_clipped,
         },
         out,
     ))
@@ -1149,9 +1246,10 @@ fn estimate_run(
     reference: &vibro_ident::Timed,
     triad: &TriadConfig,
     base: &EstimatorConfig,
-) -> Result<(usize, Vec<Window>)> {
+) -> Result<(usize, Vec<Window>, Option<BandClip>)> {
     let mut raw: EstimatorConfigRaw = base.raw().clone();
     raw.sample_rate_hz = reference.rate_hz();
+    let band_clipped = clip_bands(&mut raw, reference.rate_hz());
     raw.sensitivity_raw_per_g = [1.0; 3];
     raw.ac_corner_hz = None;
     raw.response = Vec::new();
@@ -1232,7 +1330,7 @@ fn estimate_run(
             config.raw().window_s
         )));
     }
-    Ok((windows, used))
+    Ok((windows, used, band_clipped))
 }
 
 /// The table row of unit `u`: the pooled vibration and spectrum of the run's windows,
@@ -1329,6 +1427,29 @@ fn unit_condition(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Item 9 of "round two": the shipped band (20..2000 Hz) on a 3.2 kHz reference is
+    /// clipped to 0.45 of its rate (1440 Hz), a PSD band across the top cut, one above
+    /// it left out, and the configuration then valid; at 25.6 kHz nothing is clipped.
+    #[test]
+    fn the_estimators_bands_are_clipped_to_what_the_reference_sees() {
+        let mut raw = EstimatorConfigRaw::new(3200.0, [1.0; 3]);
+        raw.psd_bands_hz
+            .extend([[1000.0, 2000.0], [1500.0, 1600.0]]);
+        assert!(
+            EstimatorConfig::try_from(raw.clone()).is_err(),
+            "refused as stated"
+        );
+        let clip = clip_bands(&mut raw, 3200.0).expect("clipped");
+        assert_eq!(clip.broadband_stated_hz, [20.0, 2000.0]);
+        assert_eq!(clip.broadband_used_hz, [20.0, 0.45 * 3200.0]);
+        assert_eq!((clip.psd_bands_cut, clip.psd_bands_left_out), (1, 1));
+        assert_eq!(raw.psd_bands_hz.last(), Some(&[1000.0, 1440.0]));
+        assert!(EstimatorConfig::try_from(raw).is_ok());
+        let mut fast = EstimatorConfigRaw::new(25_600.0, [1.0; 3]);
+        assert_eq!(clip_bands(&mut fast, 25_600.0), None);
+        assert_eq!(fast.broadband_band_hz, [20.0, 2000.0]);
+    }
 
     /// A folder of its own under the system's temporary one, removed at the end.
     struct Dir(PathBuf);

@@ -55,6 +55,30 @@ pub fn write_log_summary(o: &mut String, s: &LogTableSummary) {
     );
 }
 
+/// One line on a manifest whose estimator bands were clipped to what its reference can
+/// see; nothing when none were.
+pub fn write_manifest_summary(o: &mut String, s: &crate::inputs::ManifestSummary) {
+    let Some(c) = &s.band_clipped else {
+        return;
+    };
+    p!(
+        o,
+        "{}: the estimator's broadband band {}..{} Hz clipped to {}..{} Hz ({} of the \
+         reference's {} Hz) in {} of {} runs; PSD bands cut: {}, left out: {}",
+        s.manifest,
+        c.broadband_stated_hz[0],
+        c.broadband_stated_hz[1],
+        c.broadband_used_hz[0],
+        c.broadband_used_hz[1],
+        crate::campaign::BAND_TOP_FRACTION_OF_RATE,
+        c.reference_rate_hz,
+        s.runs_band_clipped,
+        s.runs,
+        c.psd_bands_cut,
+        c.psd_bands_left_out
+    );
+}
+
 fn g(x: f64) -> String {
     format!("{x:>11.3e}")
 }

@@ -47,6 +47,8 @@ pub fn read_log(path: &Path, options: &LogOptions) -> Result<WaveLog> {
         log: name.clone(),
         ..Default::default()
     };
+    // A text file named `.mcap` is "not an MCAP log", not a damaged one.
+    vibro_log::inspect::check_mcap_file(path)?;
     let mut reader = Reader::open(path)?;
     let units = log_units(&mut reader, options, &mut summary)?;
     let config = estimator_config(&options.estimator, &mut reader, &mut summary)?;

@@ -318,6 +318,12 @@ fn run_campaign(args: CampaignArgs) -> anyhow::Result<()> {
         result.runs.len(),
         result.units.len()
     )?;
+    let summary = vibro_lab::inputs::ManifestSummary::new(&args.manifest, &result);
+    let mut clip = String::new();
+    vibro_lab::text::write_manifest_summary(&mut clip, &summary);
+    if !clip.is_empty() {
+        out!("{clip}")?;
+    }
     outln!()?;
     outln!(
         "{:<16} {:<5} {:>7} {:>24} {:>24} {:>8} {:>8} {:>8}",

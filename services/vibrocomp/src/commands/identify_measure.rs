@@ -52,7 +52,14 @@ pub struct MeasureArgs {
     /// without it the batch means carry that response and overstate it.
     #[arg(long)]
     pub reference: Option<PathBuf>,
-    /// With `--reference`: its body x, y, z columns, g (default: ax_g,ay_g,az_g).
+    /// With `--reference`: the rig file (docs/logs.md, "A rig's own data") whose
+    /// `[reference.chain]` states the reference's chain (an AC-coupled piezoelectric
+    /// reference in V: sensitivity, AC corner, delay) and whose `[reference]` states the
+    /// orientation its gravity comes from. The chain is undone before the fit.
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
+    /// With `--reference`: its body x, y, z columns, g (default: ax_g,ay_g,az_g; with
+    /// `--rig`: ax_v,ay_v,az_v in V).
     #[arg(long, value_delimiter = ',')]
     pub reference_columns: Option<Vec<String>>,
     /// With `--reference`: the unit's input axis in the body frame: x, +y, -z or a unit
@@ -85,7 +92,8 @@ enum Request {
 }
 
 /// The flags the library's rule keys stand for (`vibro_ident::rig::TimedRequest::problems`).
-const KEY_FLAGS: [(&str, &str); 11] = [
+const KEY_FLAGS: [(&str, &str); 12] = [
+    ("rig", "--rig"),
     ("still_before_s", "--still-before-s"),
     ("vibrating_s", "--vibrating-s"),
     ("still_after_s", "--still-after-s"),
@@ -147,6 +155,7 @@ fn request(args: &MeasureArgs) -> anyhow::Result<Request> {
         ("--oa", args.oa.is_some()),
         ("--pa", args.pa.is_some()),
         ("--response-top-hz", args.response_top_hz.is_some()),
+        ("--rig", args.rig.is_some()),
     ];
     if !timed {
         for (flag, given) in rig_only {
@@ -173,6 +182,12 @@ fn request(args: &MeasureArgs) -> anyhow::Result<Request> {
         oa: args.oa.clone(),
         pa: args.pa.clone(),
         response_top_hz: args.response_top_hz,
+        reference_chain: match &args.rig {
+            None => None,
+            Some(rig) => Some(vibro_ident::chain::ReferenceChainRequest::from_rig(
+                &vibro_config::load_rig(rig)?,
+            )?),
+        },
         options,
     };
     // As `identify campaign`: the shipped estimator's broadband top.
@@ -330,6 +345,16 @@ fn print_timed(r: &vibro_ident::rig::TimedReport) -> anyhow::Result<()> {
                     " (IA alone: m1, m2 left out of the response; give --oa and --pa)"
                 }
             )?;
+            if let Some(c) = &reference.chain {
+                outln!(
+                    "reference chain undone ({}): {:?} V/g, AC corner {} Hz, delay {} s; \
+                     gravity from the stated orientation",
+                    c.source,
+                    c.sensitivity_v_per_g,
+                    c.ac_corner_hz,
+                    c.delay_s
+                )?;
+            }
             outln!("linear response removed: {how}")?;
         }
         (None, _) => outln!(

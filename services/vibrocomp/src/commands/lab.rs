@@ -173,7 +173,14 @@ pub fn run(cmd: &LabCommand) -> anyhow::Result<()> {
 struct Loaded {
     model: LabModel,
     table: CampaignTable,
+    read: Read,
+}
+
+/// What became of each log's windows, and each manifest's summary (its estimator bands
+/// clipped to its reference's rate).
+struct Read {
     log: Vec<LogTableSummary>,
+    manifests: Vec<vibro_lab::inputs::ManifestSummary>,
 }
 
 fn load(
@@ -209,17 +216,21 @@ fn load(
         },
     );
     bar.finish_and_clear();
-    let vibro_lab::inputs::Loaded { table, logs } = loaded?;
+    let vibro_lab::inputs::Loaded {
+        table,
+        logs,
+        manifests,
+    } = loaded?;
     if let Some(out) = &log_args.table_out {
         let mut bytes = Vec::new();
         table.write_csv(&mut bytes).context("--table-out")?;
         crate::files::write_bytes(out, false, &bytes)?;
     }
-    Ok(Loaded {
-        model,
-        table,
+    let read = Read {
         log: logs,
-    })
+        manifests,
+    };
+    Ok(Loaded { model, table, read })
 }
 
 /// A progress bar over the candidates' fits (a long log's diagnosis takes minutes),
@@ -245,37 +256,20 @@ pub(super) fn fit_progress() -> (ProgressBar, Progress) {
     (bar, progress)
 }
 
-/// A command's JSON with the logs' summaries beside it when inputs were logs (`log`:
-/// the one log's, `logs`: every log's when there are several).
-#[derive(serde::Serialize)]
-struct WithLog<'a, T: serde::Serialize> {
-    #[serde(flatten)]
-    inner: &'a T,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    log: Option<&'a LogTableSummary>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    logs: Option<&'a [LogTableSummary]>,
-}
-
 /// Prints `inner` as JSON with the logs' summaries beside it, or the logs' summary
 /// lines followed by the text `write` appends.
 fn print_result<T: serde::Serialize>(
     json: bool,
     inner: &T,
-    logs: &[LogTableSummary],
+    read: &Read,
     write: impl FnOnce(&mut String),
 ) -> anyhow::Result<()> {
+    let with = vibro_lab::inputs::WithInputs::new(inner, &read.log, &read.manifests);
     if json {
-        return print_json(&WithLog {
-            inner,
-            log: (logs.len() == 1).then(|| &logs[0]),
-            logs: (logs.len() > 1).then_some(logs),
-        });
+        return print_json(&with);
     }
     let mut o = String::new();
-    for s in logs {
-        text::write_log_summary(&mut o, s);
-    }
+    with.write_text(&mut o);
     write(&mut o);
     print_text(&o)
 }
@@ -289,13 +283,13 @@ fn compare(a: &CompareArgs) -> anyhow::Result<()> {
     if super::lab_wave::takes_waveform(&a.input.input, a.input.path)? {
         return super::lab_wave::diagnose(&a.input, &[], 0);
     }
-    let Loaded { model, table, log } = load_input(&a.input)?;
+    let Loaded { model, table, read } = load_input(&a.input)?;
     // `windows` (and the default beside tables): a log's windows by the stage.
     let c = match a.input.path {
         Some(EvaluationPath::Statistics) => vibro_lab::compare(&model, &table)?,
-        _ => vibro_lab::compare_evaluated(&model, &table, &log)?,
+        _ => vibro_lab::compare_evaluated(&model, &table, &read.log)?,
     };
-    print_result(a.input.json, &c, &log, |o| {
+    print_result(a.input.json, &c, &read, |o| {
         text::write_comparison(o, &c, a.all)
     })
 }
@@ -304,7 +298,7 @@ fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
     if super::lab_wave::takes_waveform(&a.input.input, a.input.path)? {
         return super::lab_wave::diagnose(&a.input, &a.effects, a.max_effects);
     }
-    let Loaded { model, table, log } = load_input(&a.input)?;
+    let Loaded { model, table, read } = load_input(&a.input)?;
     let (bar, progress) = fit_progress();
     let opts = DiagnoseOptions {
         candidates: a.effects.clone(),
@@ -315,7 +309,7 @@ fn diagnose(a: &DiagnoseArgs) -> anyhow::Result<()> {
     let d = vibro_lab::diagnose(&model, &table, &opts);
     bar.finish_and_clear();
     let d = d?;
-    print_result(a.input.json, &d, &log, |o| text::write_diagnosis(o, &d))
+    print_result(a.input.json, &d, &read, |o| text::write_diagnosis(o, &d))
 }
 
 #[derive(serde::Serialize)]
@@ -336,7 +330,7 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
     let mut inputs: Vec<&Path> = a.from.iter().map(PathBuf::as_path).collect();
     inputs.extend(a.model.as_deref());
     crate::files::check(&a.out, &inputs, a.force)?;
-    let Loaded { model, table, log } = load(&a.from, a.model.as_deref(), BaseMode::Exact, &a.log)?;
+    let Loaded { model, table, read } = load(&a.from, a.model.as_deref(), BaseMode::Exact, &a.log)?;
     let effects = if a.diagnosed {
         vibro_lab::add::Effects::Diagnosed
     } else {
@@ -367,7 +361,7 @@ fn add(a: &AddArgs) -> anyhow::Result<()> {
         fit: fit.as_ref(),
         empirical: correction.as_ref(),
     };
-    print_result(a.json, &report, &log, |o| {
+    print_result(a.json, &report, &read, |o| {
         text::write_added(o, &extended, &table.path, fit.as_ref(), correction.as_ref());
         let _ = writeln!(
             o,
@@ -383,7 +377,7 @@ fn report(a: &ReportArgs) -> anyhow::Result<()> {
         return super::lab_wave::report(a);
     }
     crate::files::check_dir(&a.out, vibro_lab::report::REPORT_FILES, a.force)?;
-    let Loaded { model, table, log } = load_input(&a.input)?;
+    let Loaded { model, table, read } = load_input(&a.input)?;
     let (bar, progress) = fit_progress();
     let opts = DiagnoseOptions {
         progress,
@@ -405,7 +399,7 @@ fn report(a: &ReportArgs) -> anyhow::Result<()> {
     })?;
     let written = write_report(&a.out, a.force, report)?;
     let s = &written.summary;
-    print_result(a.input.json, &written, &log, |o| {
+    print_result(a.input.json, &written, &read, |o| {
         let added = if s.effects_added.is_empty() {
             "no effect added".to_string()
         } else {
