@@ -127,29 +127,13 @@ impl Archive {
 }
 
 /// An error of opening an archive as `VibrocompError`: a manifest's problems carry
-/// their file, line and key (`vibro_archive::Error::location`), which the other
-/// bindings' errors find in their chain instead (`errors::to_py`).
+/// their file, line and key (`vibro_archive::Error::location`, which
+/// `errors::location` finds in the chain as the command line does).
 fn archive_error(e: vibro_archive::Error, manifest: &Path) -> PyErr {
-    let location = e.location();
-    let e = anyhow::Error::from(e).context(format!("archive {}", manifest.display()));
-    let Some(l) = location else {
-        return crate::errors::to_py(&e);
-    };
-    let chain: Vec<String> = e.chain().map(ToString::to_string).collect();
-    let message = format!("{e:#}");
-    Python::attach(|py| {
-        let made = py
-            .import("vibrocomp.errors")
-            .and_then(|m| m.getattr("VibrocompError"))
-            .and_then(|class| class.call1((message, chain, Some(l.file), l.line, l.column, l.key)));
-        match made {
-            Ok(exception) => PyErr::from_value(exception),
-            Err(import_failed) => import_failed,
-        }
-    })
+    crate::errors::to_py(&anyhow::Error::from(e).context(format!("archive {}", manifest.display())))
 }
 
-/// Runs one job (`Archive.pending`'s JSON) with the GIL released; returns its result's
+/// Runs one job (`Archive.pending`'s JSON), the GIL released; returns its result's
 /// JSON for `Archive.record`. A log the job cannot read is a result with `problem`
 /// rows, not an error: only JSON that is not a job is refused.
 #[pyfunction]
@@ -157,7 +141,9 @@ fn archive_job(py: Python<'_>, job: &str) -> PyResult<String> {
     let job: Job = serde_json::from_str(job)
         .context("archive job: not the library's job JSON")
         .py_err()?;
-    let result = py.detach(|| vibro_archive::run_job(&job));
+    // On a thread of its own: Ctrl-C raises `KeyboardInterrupt` at once in the process
+    // running the job (a local run's own), the job's work dropped.
+    let result = crate::lab::stoppable(py, None, move |_, _| Ok(vibro_archive::run_job(&job)))?;
     serde_json::to_string(&result)
         .context("archive job: its result as JSON")
         .py_err()

@@ -28,8 +28,9 @@ macro_rules! native {
     };
 }
 
+// No uint64: a difference of two would wrap (to 1.8e19) where it should be negative;
+// times, indices and counters go out as int64 (src/logs.rs).
 native!(f64, "=f8");
-native!(u64, "=u8");
 native!(i64, "=i8");
 native!(u32, "=u4");
 

@@ -3,15 +3,17 @@
 //! reference, each result as the JSON `vibrocomp lab ... --json` prints.
 
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::mpsc::{self, RecvTimeoutError};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use pyo3::prelude::*;
 use serde::Serialize;
 use vibro_lab::diagnose::Progress;
 use vibro_lab::inputs::{Input, Loaded};
-use vibro_lab::log_table::{LogOptions, LogTableSummary};
-use vibro_lab::{BaseMode, DiagnoseOptions, LabModel};
+use vibro_lab::log_table::LogOptions;
+use vibro_lab::{BaseMode, DiagnoseOptions, LabModel, Stop};
 use vibro_service::ServiceConfig;
 
 use crate::errors::IntoPy;
@@ -128,24 +130,9 @@ fn model_effects(text: &str, name: &str) -> PyResult<(String, Vec<String>)> {
     Ok((m.mode.name().to_string(), m.effect_kinds()))
 }
 
-/// A Python callable `progress(done, of, what)` as the lab's progress.
-fn progress(callback: Option<Py<PyAny>>) -> Progress {
-    Progress(callback.map(|f| {
-        let f = Arc::new(f);
-        Arc::new(move |done: usize, of: usize, what: &str| {
-            Python::attach(|py| {
-                // A failing callback must not stop the fit: its error is shown, as
-                // Python shows an exception it cannot raise.
-                if let Err(e) = f.call1(py, (done, of, what)) {
-                    e.write_unraisable(py, None);
-                }
-            });
-        }) as Arc<vibro_lab::diagnose::ProgressFn>
-    }))
-}
-
-/// Reads the inputs for `model` (the GIL released), the command's name leading the
-/// errors as on the command line.
+/// Reads the inputs for `model`, the command's name leading the errors as on the
+/// command line (a text file named `.mcap` is "not an MCAP log" there too:
+/// `vibro_lab::inputs::load` checks a log first).
 fn load(
     inputs: Vec<PyInput>,
     model: &LabModel,
@@ -160,41 +147,32 @@ fn load(
     })
 }
 
-/// A result's JSON with the logs' summaries beside it, as the command line prints it
-/// (`log`: the one log's, `logs`: every log's when there are several).
-fn with_logs<T: Serialize>(inner: &T, logs: &[LogTableSummary]) -> anyhow::Result<String> {
-    let mut v = serde_json::to_value(inner)?;
-    if let Some(map) = v.as_object_mut() {
-        match logs {
-            [] => {}
-            [one] => {
-                map.insert("log".into(), serde_json::to_value(one)?);
-            }
-            many => {
-                map.insert("logs".into(), serde_json::to_value(many)?);
-            }
-        }
-    }
-    Ok(serde_json::to_string(&v)?)
+/// A result's JSON with what became of its inputs beside it (`log`, `logs`,
+/// `manifests`), as the command line prints it (`vibro_lab::inputs::WithInputs`).
+fn with_inputs<T: Serialize>(inner: &T, loaded: &Loaded) -> anyhow::Result<String> {
+    let with = vibro_lab::inputs::WithInputs::new(inner, &loaded.logs, &loaded.manifests);
+    Ok(serde_json::to_string(&with)?)
 }
 
-/// Runs `command` on the loaded inputs with the GIL released; its errors lead with
-/// `lab NAME`, as the command line's do.
-fn with_loaded<T: Send>(
+/// Runs `command` on the loaded inputs on a thread of its own ([`stoppable`]: Ctrl-C
+/// and a failing `progress` stop it); its errors lead with `lab NAME`, as the command
+/// line's do.
+fn with_loaded<T: Send + 'static>(
     py: Python<'_>,
     name: &str,
     (inputs, model, mode, log): (Vec<PyInput>, Option<(String, String)>, &str, LogArgs),
     progress: Option<Py<PyAny>>,
-    command: impl FnOnce(&LabModel, Loaded, &Progress) -> anyhow::Result<T> + Send,
+    command: impl FnOnce(&LabModel, Loaded, &Progress, &Stop) -> anyhow::Result<T> + Send + 'static,
 ) -> PyResult<T> {
-    let p = self::progress(progress);
-    let run = || -> anyhow::Result<T> {
-        let model = lab_model(model, mode)?;
-        let loaded = load(inputs, &model, &log, &p)?;
-        command(&model, loaded, &p)
-    };
-    py.detach(|| run().with_context(|| format!("lab {name}")))
-        .py_err()
+    let (name, mode) = (name.to_string(), mode.to_string());
+    stoppable(py, progress, move |p, stop| {
+        let run = || -> anyhow::Result<T> {
+            let model = lab_model(model, &mode)?;
+            let loaded = load(inputs, &model, &log, p)?;
+            command(&model, loaded, p, stop)
+        };
+        run().with_context(|| format!("lab {name}"))
+    })
 }
 
 /// `lab --table-out`: the inputs as the lab's CSV table.
@@ -213,7 +191,7 @@ fn lab_table(
         "table",
         (inputs, model, mode, log),
         progress,
-        |_, loaded, _| {
+        |_, loaded, _, _| {
             let mut bytes = Vec::new();
             loaded.table.write_csv(&mut bytes)?;
             Ok(String::from_utf8(bytes)?)
@@ -252,13 +230,13 @@ fn lab_compare(
         "compare",
         (inputs, model, mode, log),
         progress,
-        move |model, loaded, _| {
+        move |model, loaded, _, _| {
             let c = if waveform {
                 vibro_lab::compare_evaluated(model, &loaded.table, &loaded.logs)?
             } else {
                 vibro_lab::compare(model, &loaded.table)?
             };
-            with_logs(&c, &loaded.logs)
+            with_inputs(&c, &loaded)
         },
     )
 }
@@ -283,15 +261,16 @@ fn lab_diagnose(
         "diagnose",
         (inputs, model, mode, log),
         progress,
-        |model, loaded, p| {
+        move |model, loaded, p, stop| {
             let opts = DiagnoseOptions {
                 candidates: effects,
                 max_effects,
                 progress: p.clone(),
+                stop: stop.clone(),
                 ..DiagnoseOptions::default()
             };
             let d = vibro_lab::diagnose(model, &loaded.table, &opts)?;
-            with_logs(&d, &loaded.logs)
+            with_inputs(&d, &loaded)
         },
     )
 }
@@ -323,7 +302,7 @@ fn lab_add(
     progress: Option<Py<PyAny>>,
 ) -> PyResult<(String, String)> {
     let setup = (inputs, model, "exact", log);
-    with_loaded(py, "add", setup, progress, |model, loaded, p| {
+    with_loaded(py, "add", setup, progress, move |model, loaded, p, stop| {
         let request = if diagnosed {
             vibro_lab::add::Effects::Diagnosed
         } else {
@@ -331,6 +310,7 @@ fn lab_add(
         };
         let opts = DiagnoseOptions {
             progress: p.clone(),
+            stop: stop.clone(),
             ..DiagnoseOptions::default()
         };
         let added = vibro_lab::add::add(model, &loaded.table, &request, freeze, &opts)?;
@@ -339,6 +319,110 @@ fn lab_add(
             fit: added.fit.as_ref(),
             empirical: added.empirical.as_ref(),
         };
-        Ok((with_logs(&report, &loaded.logs)?, added.model.to_toml()))
+        Ok((with_inputs(&report, &loaded)?, added.model.to_toml()))
     })
+}
+
+// ---------------------------------------------------------------------------------
+// Long calls: stopped by Ctrl-C and by a failing progress callback
+
+/// How often the calling thread checks for signals (Ctrl-C) while a long call runs.
+const SIGNAL_TICK: Duration = Duration::from_millis(100);
+
+/// Most time between two calls of a `progress` callback while a long call runs (the
+/// last count repeated when the work has not moved): a progress bar stays alive, and
+/// its exception stops the work within this.
+const PROGRESS_TICK: Duration = Duration::from_millis(250);
+
+/// How long a stopped call waits for its work to end before it returns anyway: the
+/// lab's fits end within one model evaluation (`vibro_lab::Stop`); a stage that does
+/// not poll the stop (reading one log) finishes on its own, its result dropped.
+const STOP_GRACE: Duration = Duration::from_millis(200);
+
+/// Runs `work` on a thread of its own while the calling thread, the GIL released
+/// between ticks, keeps Python responsive: every [`SIGNAL_TICK`] it checks for
+/// signals (Ctrl-C raises `KeyboardInterrupt` here), and when the lab's count moved,
+/// or [`PROGRESS_TICK`] after its last call, it calls `progress(done, of, what)` with
+/// the latest count (`(0, 0, "starting")` before the first; the count at the end
+/// before the result). An exception from either
+/// stops the work ([`Stop`], polled by the lab's fits) and is raised as it is, no
+/// result returned. The work never touches Python, so it cannot wait for the GIL.
+///
+/// Called from a thread other than the main one, Ctrl-C is not seen there (Python
+/// delivers signals to the main thread); a failing `progress` still stops the call.
+pub(crate) fn stoppable<T: Send + 'static>(
+    py: Python<'_>,
+    progress: Option<Py<PyAny>>,
+    work: impl FnOnce(&Progress, &Stop) -> anyhow::Result<T> + Send + 'static,
+) -> PyResult<T> {
+    type Count = Option<(usize, usize, String)>;
+    let latest: Arc<Mutex<Count>> = Arc::default();
+    let seen = latest.clone();
+    let lab_progress = Progress(Some(Arc::new(move |done: usize, of: usize, what: &str| {
+        *seen.lock().unwrap_or_else(PoisonError::into_inner) = Some((done, of, what.to_string()));
+    }) as Arc<vibro_lab::diagnose::ProgressFn>));
+    let stop = Stop::new();
+    let worker_stop = stop.clone();
+    let (tx, rx) = mpsc::channel();
+    // Waited on with the GIL released, which needs it shared (`Sync`); only this
+    // thread takes it.
+    let rx = Mutex::new(rx);
+    let wait = |timeout: Duration| {
+        rx.lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .recv_timeout(timeout)
+    };
+    std::thread::Builder::new()
+        .name("vibrocomp-work".into())
+        .spawn(move || {
+            // The receiver gone (the call stopped and returned): nothing to tell.
+            let _ = tx.send(work(&lab_progress, &worker_stop));
+        })
+        .map_err(|e| {
+            pyo3::exceptions::PyRuntimeError::new_err(format!(
+                "cannot start the work's thread: {e}"
+            ))
+        })?;
+    let mut reported: Count = None;
+    let mut last_call = Instant::now();
+    let mut tell = |py: Python<'_>| -> PyResult<()> {
+        let Some(f) = &progress else { return Ok(()) };
+        let now = latest
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone();
+        let moved = now.is_some() && now != reported;
+        if !(moved || last_call.elapsed() >= PROGRESS_TICK) {
+            return Ok(());
+        }
+        let (done, of, what) = now.clone().unwrap_or((0, 0, "starting".to_string()));
+        reported = now;
+        last_call = Instant::now();
+        f.call1(py, (done, of, what)).map(drop)
+    };
+    let mut checked = Ok(());
+    loop {
+        if let Err(e) = checked {
+            stop.request();
+            // Give the work a moment to see the stop, so that it does not run on behind
+            // the exception; its result, if any, is dropped.
+            let _ = py.detach(|| wait(STOP_GRACE));
+            return Err(e);
+        }
+        match py.detach(|| wait(SIGNAL_TICK)) {
+            Ok(result) => {
+                // The last count (the candidates all fitted) before the result.
+                tell(py)?;
+                return result.py_err();
+            }
+            Err(RecvTimeoutError::Timeout) => {
+                checked = py.check_signals().and_then(|()| tell(py));
+            }
+            Err(RecvTimeoutError::Disconnected) => {
+                return Err(pyo3::exceptions::PyRuntimeError::new_err(
+                    "the work's thread ended without a result (a panic in vibrocomp: please report it)",
+                ));
+            }
+        }
+    }
 }

@@ -3,7 +3,8 @@
 //! (`vibro_mcap::Reader::select_topics`). Blocks become one row per sample on the data
 //! timeline (`t_ns = t0_ns + i * sample_period_ns`) beside one row per block; the other
 //! streams one row per message. Array slots beyond a message's count (tones, bands)
-//! are NaN.
+//! are NaN. Integers are int64 (times in ns, indices, counters), the `flags` bit fields
+//! uint32; a value an int64 cannot hold refuses the read, naming it.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -24,10 +25,11 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     Ok(())
 }
 
-/// One column's values, by type.
+/// One column's values, by type. Every integer is an int64 (numpy's and pandas'
+/// default, so that a difference of two times or counters is negative where it should
+/// be, never a wrapped uint64), apart from the `flags` bit fields (uint32, as sent).
 enum Data {
     F64(Vec<f64>),
-    U64(Vec<u64>),
     I64(Vec<i64>),
     U32(Vec<u32>),
     Bool(Vec<bool>),
@@ -39,6 +41,19 @@ enum Data {
 struct Cols {
     rows: usize,
     cols: Vec<(&'static str, Vec<usize>, Data)>,
+    /// The first value pushed that an int64 cannot hold (`name = value`): the read
+    /// that pushed it is refused (see [`beyond_int64`]).
+    beyond: Option<String>,
+}
+
+/// Why a value is refused: nanoseconds since the log's epoch fit an int64 for 292
+/// years, so a value beyond it is a damaged or forged field, not a time to wrap or clip.
+fn beyond_int64(what: &str) -> String {
+    format!(
+        "{what} is beyond the int64 columns of the package (at most {} = 2^63 - 1; \
+         as nanoseconds, 292 years after the log's epoch)",
+        i64::MAX
+    )
 }
 
 impl Cols {
@@ -63,32 +78,44 @@ impl Cols {
         self.f64s(name, &[], std::iter::once(value));
     }
 
-    fn u64(&mut self, name: &'static str, value: u64) {
-        if let Data::U64(v) = self.slot(name, &[], || Data::U64(Vec::new())) {
-            v.push(value);
-        }
-    }
-
-    fn u64s(&mut self, name: &'static str, values: impl Iterator<Item = u64>) {
-        if let Data::U64(v) = self.slot(name, &[], || Data::U64(Vec::new())) {
+    fn i64s(&mut self, name: &'static str, shape: &[usize], values: impl Iterator<Item = i64>) {
+        if let Data::I64(v) = self.slot(name, shape, || Data::I64(Vec::new())) {
             v.extend(values);
         }
     }
 
     fn i64(&mut self, name: &'static str, value: i64) {
-        if let Data::I64(v) = self.slot(name, &[], || Data::I64(Vec::new())) {
-            v.push(value);
-        }
+        self.i64s(name, &[], std::iter::once(value));
+    }
+
+    /// An unsigned 64-bit field as an int64; one beyond `i64::MAX` is noted in
+    /// `beyond` (the read is refused) and stands as -1 until then.
+    fn u64(&mut self, name: &'static str, value: u64) {
+        let v = i64::try_from(value).unwrap_or_else(|_| {
+            self.beyond
+                .get_or_insert_with(|| beyond_int64(&format!("{name} = {value}")));
+            -1
+        });
+        self.i64(name, v);
     }
 
     fn u32s(&mut self, name: &'static str, shape: &[usize], values: impl Iterator<Item = u32>) {
-        if let Data::U32(v) = self.slot(name, shape, || Data::U32(Vec::new())) {
-            v.extend(values);
-        }
+        self.i64s(name, shape, values.map(i64::from));
     }
 
     fn u32(&mut self, name: &'static str, value: u32) {
         self.u32s(name, &[], std::iter::once(value));
+    }
+
+    /// A bit field, kept as the uint32 it is sent as.
+    fn bits(&mut self, name: &'static str, values: impl Iterator<Item = u32>) {
+        if let Data::U32(v) = self.slot(name, &[], || Data::U32(Vec::new())) {
+            v.extend(values);
+        }
+    }
+
+    fn flags(&mut self, value: u32) {
+        self.bits("flags", std::iter::once(value));
     }
 
     fn bool(&mut self, name: &'static str, value: bool) {
@@ -111,7 +138,6 @@ impl Cols {
             let n = rows.saturating_mul(shape.iter().product::<usize>());
             match data {
                 Data::F64(v) => v.reserve(n),
-                Data::U64(v) => v.reserve(n),
                 Data::I64(v) => v.reserve(n),
                 Data::U32(v) => v.reserve(n),
                 Data::Bool(v) => v.reserve(n),
@@ -133,7 +159,6 @@ impl Cols {
             dims.extend(&shape);
             let array = match data {
                 Data::F64(v) => crate::arrays::out(py, &v, dims)?,
-                Data::U64(v) => crate::arrays::out(py, &v, dims)?,
                 Data::I64(v) => crate::arrays::out(py, &v, dims)?,
                 Data::U32(v) => crate::arrays::out(py, &v, dims)?,
                 Data::Bool(v) => crate::arrays::out(py, &v, dims)?,
@@ -188,7 +213,7 @@ impl BlockStream {
     /// arrays (each `count` rows of the units' values).
     fn push(&mut self, r: &RawRecord, h: &BlockHead, values: impl FnOnce(&mut Cols, usize)) {
         let n = h.count as usize;
-        let row = self.blocks.rows as u64;
+        let row = i64::try_from(self.blocks.rows).unwrap_or(i64::MAX);
         let b = &mut self.blocks;
         b.header(r);
         b.u64("seq", h.seq);
@@ -198,20 +223,37 @@ impl BlockStream {
         b.u64("publish_ns", h.publish_ns);
         b.u32("count", h.count);
         b.u32("source_id", h.source_id);
-        b.u32("flags", h.flags);
+        b.flags(h.flags);
         b.rows += 1;
         let s = &mut self.samples;
-        let (t0, dt) = (h.t0_ns, h.sample_period_ns);
-        s.u64s(
-            "t_ns",
-            (0..n as u64).map(|i| t0.saturating_add(i.saturating_mul(dt))),
-        );
-        s.u64s(
-            "sample_index",
-            (0..n as u64).map(|i| h.first_sample_index.saturating_add(i)),
-        );
-        s.u64s("block", std::iter::repeat_n(row, n));
-        s.u32s("flags", &[], std::iter::repeat_n(h.flags, n));
+        // The last sample's time and index bound the others: if they fit an int64,
+        // every sample's does (computed wide, so that nothing wraps on the way).
+        let last = n.saturating_sub(1) as u128;
+        let t_last = u128::from(h.t0_ns) + last * u128::from(h.sample_period_ns);
+        let index_last = u128::from(h.first_sample_index) + last;
+        let max = i64::MAX as u128;
+        if t_last > max || index_last > max {
+            let what = if t_last > max {
+                format!(
+                    "t_ns of its last sample = t0_ns {} + {last} x sample_period_ns {} = {t_last}",
+                    h.t0_ns, h.sample_period_ns
+                )
+            } else {
+                format!(
+                    "sample_index of its last sample = first_sample_index {} + {last} = {index_last}",
+                    h.first_sample_index
+                )
+            };
+            s.beyond.get_or_insert_with(|| beyond_int64(&what));
+        } else {
+            // Both fit: no product or sum below overflows an int64.
+            let (t0, dt) = (h.t0_ns as i64, h.sample_period_ns as i64);
+            let first = h.first_sample_index as i64;
+            s.i64s("t_ns", &[], (0..n as i64).map(|i| t0 + i * dt));
+            s.i64s("sample_index", &[], (0..n as i64).map(|i| first + i));
+        }
+        s.i64s("block", &[], std::iter::repeat_n(row, n));
+        s.bits("flags", std::iter::repeat_n(h.flags, n));
         values(s, n);
         s.rows += n;
     }
@@ -296,17 +338,21 @@ fn push_estimate(c: &mut Cols, r: &RawRecord, e: &VibEstimate) {
     c.u32s("saturated_samples", U, e.saturated_samples.iter().copied());
     c.u32("broadband_welch_segments", e.broadband_welch_segments);
     c.u32("welch_segment_samples", e.welch_segment_samples);
-    c.u32("flags", e.flags);
+    c.flags(e.flags);
     c.rows += 1;
 }
 
-/// A protobuf timestamp on the data timeline, ns (negative or absent: 0).
-fn timestamp_ns(t: Option<&prost_types::Timestamp>) -> u64 {
-    t.map_or(0, |t| {
-        let s = u64::try_from(t.seconds).unwrap_or(0);
-        let n = u64::try_from(t.nanos).unwrap_or(0);
-        s.saturating_mul(1_000_000_000).saturating_add(n)
-    })
+/// A protobuf timestamp on the data timeline as `t_ns` (absent: 0; one an int64
+/// cannot hold refuses the read, as [`Cols::u64`]).
+fn push_timestamp(c: &mut Cols, t: Option<&prost_types::Timestamp>) {
+    let (s, n) = t.map_or((0, 0), |t| (t.seconds, t.nanos));
+    let ns = i128::from(s) * 1_000_000_000 + i128::from(n);
+    let v = i64::try_from(ns).unwrap_or_else(|_| {
+        c.beyond
+            .get_or_insert_with(|| beyond_int64(&format!("t_ns = {s} s + {n} ns = {ns} ns")));
+        -1
+    });
+    c.i64("t_ns", v);
 }
 
 fn push_stage(c: &mut Cols, names: [&'static str; 3], s: Option<&Stage>) {
@@ -323,7 +369,7 @@ fn push_view(c: &mut Cols, r: &RawRecord) -> anyhow::Result<()> {
     match &*r.schema {
         "vibrocomp.view.v1.UnitStages" => {
             let m = UnitStages::decode(r.data.as_slice()).map_err(bad)?;
-            c.u64("t_ns", timestamp_ns(m.timestamp.as_ref()));
+            push_timestamp(c, m.timestamp.as_ref());
             c.str("unit", m.unit);
             c.u32("unit_index", m.unit_index);
             c.u32("samples", m.samples);
@@ -350,11 +396,11 @@ fn push_view(c: &mut Cols, r: &RawRecord) -> anyhow::Result<()> {
                 main_removed_error_g,
                 compensated_error_g
             );
-            c.u32("flags", m.flags);
+            c.flags(m.flags);
         }
         "vibrocomp.view.v1.VibrationAxis" => {
             let m = VibrationAxis::decode(r.data.as_slice()).map_err(bad)?;
-            c.u64("t_ns", timestamp_ns(m.timestamp.as_ref()));
+            push_timestamp(c, m.timestamp.as_ref());
             c.str("axis", m.axis);
             c.u32("axis_index", m.axis_index);
             c.u32("tone_count", m.tone_count);
@@ -363,12 +409,12 @@ fn push_view(c: &mut Cols, r: &RawRecord) -> anyhow::Result<()> {
             c.f64("tone_phase_rad", m.tone_phase_rad);
             c.f64("broadband_rms_g", m.broadband_rms_g);
             c.f64("kurtosis", m.kurtosis);
-            c.u32("flags", m.flags);
+            c.flags(m.flags);
             c.bool("saturated", m.saturated);
         }
         "vibrocomp.view.v1.ServiceHealth" => {
             let m = ServiceHealth::decode(r.data.as_slice()).map_err(bad)?;
-            c.u64("t_ns", timestamp_ns(m.timestamp.as_ref()));
+            push_timestamp(c, m.timestamp.as_ref());
             c.str("service", m.service().as_str_name().to_string());
             c.str("state", m.state().as_str_name().to_string());
             c.f64("uptime_s", m.uptime_s);
@@ -383,7 +429,7 @@ fn push_view(c: &mut Cols, r: &RawRecord) -> anyhow::Result<()> {
         }
         "foxglove.Log" => {
             let m = FoxgloveLog::decode(r.data.as_slice()).map_err(bad)?;
-            c.u64("t_ns", timestamp_ns(m.timestamp.as_ref()));
+            push_timestamp(c, m.timestamp.as_ref());
             c.str("level", m.level().as_str_name().to_string());
             c.str("message", m.message);
             c.str("name", m.name);
@@ -538,6 +584,9 @@ fn read_stream(path: &std::path::Path, topic: &str) -> anyhow::Result<Stream> {
             }
             None => push_view(&mut data.blocks, &r)?,
         }
+        if let Some(why) = data.blocks.beyond.take().or(data.samples.beyond.take()) {
+            anyhow::bail!("{topic} message {}: {why}", r.sequence);
+        }
         if first {
             let more = expected.saturating_sub(1);
             data.blocks.reserve(more);
@@ -599,7 +648,6 @@ fn empty_columns(schema: &str, wire: Option<vibro_msgs::MessageKind>) -> BlockSt
         for (_, _, d) in &mut cols.cols {
             match d {
                 Data::F64(v) => v.clear(),
-                Data::U64(v) => v.clear(),
                 Data::I64(v) => v.clear(),
                 Data::U32(v) => v.clear(),
                 Data::Bool(v) => v.clear(),
@@ -644,11 +692,12 @@ impl LogFile {
 
     /// `vibrocomp log info --json`.
     fn info(&self, py: Python<'_>) -> PyResult<String> {
-        py.detach(|| {
-            let info = vibro_log::inspect::read_info(&self.path)?;
+        // On a thread of its own, as `read`: Ctrl-C is not held up by a long scan.
+        let path = self.path.clone();
+        crate::lab::stoppable(py, None, move |_, _| {
+            let info = vibro_log::inspect::read_info(&path)?;
             Ok(serde_json::to_string(&info)?)
         })
-        .py_err()
     }
 
     /// Every channel's `(topic, schema name)`, from the summary.
@@ -703,10 +752,12 @@ impl LogFile {
         py: Python<'py>,
         topic: &str,
     ) -> PyResult<(String, Option<Bound<'py, PyDict>>, Bound<'py, PyDict>)> {
-        let stream = py
-            .detach(|| read_stream(&self.path, topic))
-            .with_context(|| format!("log {}", self.path.display()))
-            .py_err()?;
+        // On a thread of its own: Ctrl-C raises `KeyboardInterrupt` at once (the
+        // reading ends on its own behind it, its result dropped).
+        let (path, topic) = (self.path.clone(), topic.to_string());
+        let stream = crate::lab::stoppable(py, None, move |_, _| {
+            read_stream(&path, &topic).with_context(|| format!("log {}", path.display()))
+        })?;
         let samples = if stream.block {
             Some(stream.data.samples.into_dict(py)?)
         } else {

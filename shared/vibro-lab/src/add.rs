@@ -76,7 +76,8 @@ pub fn add(
         });
     }
     let refs: Vec<&str> = kinds.iter().map(String::as_str).collect();
-    let (extended, fit) = diagnose::add_effects(model, table, &refs, freeze)?;
+    let (extended, fit) =
+        diagnose::add_effects_stoppable(model, table, &refs, freeze, &options.stop)?;
     Ok(Added {
         model: extended,
         fit: Some(fit),

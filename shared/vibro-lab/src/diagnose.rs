@@ -28,7 +28,7 @@
 
 use crate::fit::{
     chi2_sf, fit_joint, fit_prepared, fit_reweighted, fit_screen, fit_set, Budget, BudgetUsed,
-    EffectFit, Meter, NotApplicable, Prepared,
+    EffectFit, Meter, NotApplicable, Prepared, Stop,
 };
 use crate::library::{self, Candidate, LIBRARY};
 use crate::table::{CampaignTable, Condition, RandomCondition, ToneCondition};
@@ -74,6 +74,10 @@ pub struct DiagnoseOptions {
     /// Told after each candidate's fit (for a progress display).
     #[serde(skip)]
     pub progress: Progress,
+    /// Polled by the fits: once requested, the call ends within one model evaluation
+    /// with a partial result (the caller who stopped it discards it).
+    #[serde(skip)]
+    pub stop: Stop,
 }
 
 /// What [`Progress`] calls: `(fitted, of, kind)`.
@@ -108,6 +112,7 @@ impl Default for DiagnoseOptions {
             threads: crate::parallel::available(),
             budget: Budget::default(),
             progress: Progress::default(),
+            stop: Stop::default(),
         }
     }
 }
@@ -1088,7 +1093,7 @@ pub fn diagnose(
     let residual_g = prep.residual_g();
     let trends_before = trends(table, &residual_g, &prep.uncertainty_g);
     let lack_of_fit = lack_of_fit(table, &residual_g, &prep.uncertainty_g);
-    let meter = Meter::new(opts.budget);
+    let meter = Meter::stoppable(opts.budget, opts.stop.clone());
     let mut cut_short = Vec::new();
     let s = comparison.summary.clone();
     let rms0 = s.rms_residual_g;
@@ -1606,6 +1611,17 @@ pub fn add_effects(
     kinds: &[&str],
     freeze: bool,
 ) -> Result<(LabModel, EffectFit)> {
+    add_effects_stoppable(model, table, kinds, freeze, &Stop::default())
+}
+
+/// [`add_effects`], its fits ending once `stop` is requested (an error then).
+pub fn add_effects_stoppable(
+    model: &LabModel,
+    table: &CampaignTable,
+    kinds: &[&str],
+    freeze: bool,
+    stop: &Stop,
+) -> Result<(LabModel, EffectFit)> {
     if kinds.is_empty() {
         return Err(Error::Invalid("no effect to add".into()));
     }
@@ -1646,7 +1662,7 @@ pub fn add_effects(
     }
     let before = compare(model, table)?;
     let mut prep = Prepared::new(&frozen, table)?;
-    let meter = Meter::new(Budget::default());
+    let meter = Meter::stoppable(Budget::default(), stop.clone());
     let (fit, terms) = final_fit(&frozen, table, &mut prep, &terms, &known, &[], &meter)?;
     let mut fit = fit;
     crate::fit::profile(&frozen, table, &prep, &terms, &mut fit, &meter)?;

@@ -80,9 +80,40 @@ pub struct StageUse {
     pub elapsed_s: f64,
 }
 
+/// A request to stop a long call from outside (a front end's Ctrl-C, a Python
+/// progress callback that raised): once [`Stop::request`]ed, every model evaluation
+/// fails as if the budget ran out (`Error::Budget`, "stopped"), so that the fits in
+/// flight end within one evaluation and the search runs out of work at once. The
+/// call's result is then partial: the one who asked discards it. None by default.
+#[derive(Debug, Clone, Default)]
+pub struct Stop(pub Option<std::sync::Arc<std::sync::atomic::AtomicBool>>);
+
+impl Stop {
+    /// A stop that can be requested (by this value or a clone of it).
+    pub fn new() -> Self {
+        Self(Some(std::sync::Arc::default()))
+    }
+
+    /// Asks the calls polling this stop (and its clones) to stop.
+    pub fn request(&self) {
+        if let Some(flag) = &self.0 {
+            flag.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    }
+
+    /// Whether a stop was requested.
+    pub fn requested(&self) -> bool {
+        self.0
+            .as_ref()
+            .is_some_and(|flag| flag.load(std::sync::atomic::Ordering::Relaxed))
+    }
+}
+
 /// A [`Budget`] running: the deadline and the evaluations over all fits.
 pub(crate) struct Meter {
     pub(crate) budget: Budget,
+    /// The caller's request to stop ([`Stop`]), polled before every evaluation.
+    pub(crate) stop: Stop,
     pub(crate) start: std::time::Instant,
     pub(crate) evaluations: std::sync::atomic::AtomicUsize,
     /// The stages closed so far and where the last one ended (evaluations, s).
@@ -91,8 +122,14 @@ pub(crate) struct Meter {
 
 impl Meter {
     pub(crate) fn new(budget: Budget) -> Self {
+        Self::stoppable(budget, Stop::default())
+    }
+
+    /// A meter whose evaluations fail once `stop` is requested.
+    pub(crate) fn stoppable(budget: Budget, stop: Stop) -> Self {
         Self {
             budget,
+            stop,
             start: std::time::Instant::now(),
             evaluations: std::sync::atomic::AtomicUsize::new(0),
             stages: std::sync::Mutex::new((Vec::new(), 0, 0.0)),
@@ -1062,6 +1099,12 @@ impl<'a> Problem<'a> {
                     "{} model evaluations used of max_evaluations = {}",
                     self.evaluations, b.max_evaluations
                 ),
+            });
+        }
+        if self.meter.stop.requested() {
+            return Err(Error::Budget {
+                what: self.what.clone(),
+                reason: "stopped by the caller".into(),
             });
         }
         let elapsed_s = self.meter.elapsed_s();

@@ -63,7 +63,7 @@ pub use diagnose::{
     fit_effect, Comparison, DiagnoseOptions, Diagnosis, LadderStep, Verdict,
 };
 pub use empirical::{fit_empirical, EmpiricalFit};
-pub use fit::{Budget, BudgetUsed, EffectFit};
+pub use fit::{Budget, BudgetUsed, EffectFit, Stop};
 pub use table::{CampaignTable, Condition, REQUIRED_COLUMNS};
 // The extended model file the lab writes and its prediction live in the effects
 // library (the compensator reads them too); the lab's API hands them out.

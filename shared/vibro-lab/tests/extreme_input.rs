@@ -259,3 +259,54 @@ fn diagnose_reports_its_budget_and_stops_when_it_runs_out() {
     let d = diagnose(&model(), &t, &no_time).expect("diagnosis");
     assert!(d.budget.exhausted && d.candidates.iter().all(|c| c.fit.is_none()));
 }
+
+/// A stop requested from outside (here by the progress callback after the first
+/// candidate, as the Python package does on Ctrl-C) ends every fit at its next model
+/// evaluation: the diagnosis returns at once, the later candidates cut short as
+/// "stopped by the caller", with far fewer evaluations than the whole search takes;
+/// `add` with a stop requested fails with the same reason.
+#[test]
+fn a_requested_stop_ends_the_fits_at_their_next_evaluation() {
+    let t = parse(SMALL).expect("SMALL parses");
+    let whole = diagnose(&model(), &t, &DiagnoseOptions::default()).expect("diagnosis");
+    let stop = vibro_lab::Stop::new();
+    let asked = stop.clone();
+    let opts = DiagnoseOptions {
+        threads: 1,
+        stop: stop.clone(),
+        progress: vibro_lab::diagnose::Progress(Some(std::sync::Arc::new(move |_, _, _| {
+            asked.request()
+        }))),
+        ..DiagnoseOptions::default()
+    };
+    let d = bounded("stopped", move || diagnose(&model(), &t, &opts)).expect("diagnosis");
+    assert!(stop.requested());
+    assert!(d.budget.exhausted, "{:?}", d.budget);
+    assert!(
+        d.budget.evaluations < whole.budget.evaluations / 2,
+        "{} evaluations stopped, {} whole",
+        d.budget.evaluations,
+        whole.budget.evaluations
+    );
+    let stopped = d
+        .candidates
+        .iter()
+        .filter(|c| {
+            c.not_applicable
+                .as_deref()
+                .is_some_and(|why| why.contains("stopped by the caller"))
+        })
+        .count();
+    assert!(stopped + 1 >= d.candidates.len(), "{:?}", d.candidates);
+
+    let t = parse(SMALL).expect("SMALL parses");
+    let stop = vibro_lab::Stop::new();
+    stop.request();
+    let opts = DiagnoseOptions {
+        stop,
+        ..DiagnoseOptions::default()
+    };
+    let kinds = vibro_lab::add::Effects::Kinds(vec!["mount_resonance".into()]);
+    let e = vibro_lab::add::add(&model(), &t, &kinds, false, &opts).expect_err("stopped");
+    assert!(e.to_string().contains("stopped by the caller"), "{e}");
+}

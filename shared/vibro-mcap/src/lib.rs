@@ -146,12 +146,12 @@ pub enum Error {
     #[error("{path}: {reason}")]
     Malformed { path: PathBuf, reason: String },
     /// The file ends in the middle of a record (a crash, or a copy in progress).
-    #[error("{path}: file ends in the middle of a record; `vibro_mcap::recover` rewrites it up to its last complete chunk")]
+    #[error("{path}: file ends in the middle of a record; `vibrocomp log recover {path} OUT.mcap` rewrites it up to its last complete chunk")]
     Truncated { path: PathBuf },
     /// The file has no footer: its writer stopped before finishing it (killed, out of
     /// disk), so its last record is cut short or its summary is missing. Found by
     /// [`info`]; the complete chunks before the cut can be recovered.
-    #[error("{path}: unfinished MCAP file (no footer: the writer stopped before finishing it, e.g. killed or out of disk): {chunks} complete chunk(s) readable; `vibro_mcap::recover` keeps them")]
+    #[error("{path}: unfinished MCAP file (no footer: the writer stopped before finishing it, e.g. killed or out of disk): {chunks} complete chunk(s) readable; `vibrocomp log recover {path} OUT.mcap` keeps them")]
     Unfinished { path: PathBuf, chunks: u64 },
     /// The `mcap` library reported an error reading or writing a file.
     #[error("{path}: {source}")]
@@ -163,7 +163,7 @@ pub enum Error {
     /// The file has no summary section or no chunk index, so it cannot be read in
     /// log-time order.
     #[error(
-        "{path}: {what} (the file was not finished); `vibro_mcap::recover` rewrites it with one"
+        "{path}: {what} (the file was not finished); `vibrocomp log recover {path} OUT.mcap` rewrites it with one"
     )]
     NotFinished { path: PathBuf, what: &'static str },
     /// A topic asked for that the log has no channel on.

@@ -4,6 +4,7 @@ PyPI `mcap` reader; the values decoded by `mcap-protobuf-support` (message class
 built from the schemas the file carries) equal the arrays bit for bit; the times are
 the data timeline; damaged and foreign files are errors, never a crash."""
 
+import keyword
 import os
 import random
 import struct
@@ -93,7 +94,7 @@ def test_block_samples_are_the_protobuf_values_on_the_data_timeline(session):
     assert np.array_equal(comp.rows["mode"], [d.mode for d in decoded])
     assert np.array_equal(comp.rows["estimate_age_ns"], [d.estimate_age_ns for d in decoded])
     frame = comp.to_frame()
-    assert len(frame) == len(comp.samples["t_ns"]) and "a4_g[2]" in frame.columns
+    assert len(frame) == len(comp.samples["t_ns"]) and "a4_g_2" in frame.columns
 
 
 def test_estimates_are_the_protobuf_values_with_nan_beyond_the_counts(session):
@@ -130,9 +131,9 @@ def test_view_channels_heartbeats_and_log_lines_are_the_protobuf_values(session)
     h = log.stream("/heartbeat/estimator")
     assert list(h.rows["received"]) == [d.received for _, _, d in ref["/heartbeat/estimator"]]
     lines = log.stream("/log/estimator")
-    assert lines.rows["text"] == [d.text for _, _, d in ref["/log/estimator"]]
+    assert list(lines.rows["text"]) == [d.text for _, _, d in ref["/log/estimator"]]
     fox = log.stream("/log")
-    assert fox.rows["message"] == [d.message for _, _, d in ref["/log"]]
+    assert list(fox.rows["message"]) == [d.message for _, _, d in ref["/log"]]
     health = log.stream("/view/health/compensator")
     assert list(health.rows["state"]) == [type(d).State.Name(d.state) for _, _, d in ref["/view/health/compensator"]]
 
@@ -234,3 +235,102 @@ def test_opening_a_log_reads_its_summary_only(session, tmp_path):
     topic = next(summary.channels[c].topic for c in chunk.message_index_offsets)
     with pytest.raises(vc.VibrocompError):
         d.stream(topic)
+
+
+def test_integers_are_int64_so_that_differences_are_signed(session):
+    """Times, indices and counters are int64 (a difference of two times is negative
+    where it should be, never a uint64 wrapped to 1.8e19); the `flags` bit fields
+    uint32; values the `mcap` reader's."""
+    path, log, ref = session
+    for topic in log.topics:
+        s = log.stream(topic)
+        for table in (s.samples, s.rows):
+            for name, a in table.items():
+                if a.dtype.kind in "iu":
+                    want = np.uint32 if name == "flags" else np.int64
+                    assert a.dtype == want, (topic, name, a.dtype)
+                if name.endswith("_ns"):
+                    assert a.dtype == np.int64, (topic, name, a.dtype)
+    accel = log.stream("/accel")
+    decoded = [d for _, _, d in ref["/accel"]]
+    t = accel.samples["t_ns"]
+    assert t[0] - t[1] == -decoded[0].sample_period_ns < 0
+    last = decoded[-1]
+    assert t[0] == decoded[0].t0_ns
+    assert t[-1] == last.t0_ns + (len(last.output_v) // 3 - 1) * last.sample_period_ns
+    log_time = accel.rows["log_time_ns"]
+    assert (np.diff(log_time[::-1]) < 0).all()
+    first_message, last_message = ref["/accel"][0][1], ref["/accel"][-1][1]
+    assert log_time[0] - log_time[-1] == first_message.log_time - last_message.log_time < 0
+    frame = accel.to_frame()
+    assert frame["t_ns"].dtype == np.int64 and frame["sample_index"].dtype == np.int64
+
+
+def test_frame_columns_are_identifiers_with_the_readers_values(session):
+    """`to_frame` names an (N, 3) column's parts `name_0 .. name_2` and an (N, k, 3)
+    one's `name_j_u`: attributes of the frame, with the protobuf values."""
+    path, log, ref = session
+    comp = log.stream("/compensated")
+    frame = comp.to_frame()
+    assert all(c.isidentifier() and not keyword.iskeyword(c) for c in frame.columns), list(frame.columns)
+    decoded = [d for _, _, d in ref["/compensated"]]
+    for u in range(3):
+        want = np.concatenate([np.asarray(d.a4_g, dtype=np.float64)[u::3] for d in decoded])
+        assert np.array_equal(bits(getattr(frame, f"a4_g_{u}")), bits(want))
+    est = log.stream("/estimate")
+    rows = est.to_frame("rows")
+    assert all(c.isidentifier() and not keyword.iskeyword(c) for c in rows.columns), list(rows.columns)
+    for i, (_, _, d) in enumerate(ref["/estimate"]):
+        for j, tone in enumerate(d.tones):
+            assert bits(rows[f"tone_amplitude_g_{j}_2"].iloc[i]) == bits(tone.amplitude_g[2])
+        assert bits(rows.broadband_covariance_g2_2_0.iloc[i]) == bits(d.broadband.covariance_g2[6])
+    assert list(log.stream("/log").to_frame().message) == [d.message for _, _, d in ref["/log"]]
+    with pytest.raises(ValueError, match="what = 'sample'"):
+        est.to_frame("sample")
+
+
+def one_message_log(path, session_path, topic, edit, log_time=None):
+    """A log holding the first message of `topic` in `session_path`, its decoded
+    protobuf changed by `edit` (and its log time by `log_time`)."""
+    from mcap.writer import Writer
+
+    with open(session_path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        schema, channel, message, decoded = next(reader.iter_decoded_messages(topics=[topic]))
+    edit(decoded)
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="vibrocomp", library="test")
+        sid = w.register_schema(schema.name, schema.encoding, schema.data)
+        cid = w.register_channel(topic, channel.message_encoding, sid)
+        w.add_message(cid, log_time=message.log_time if log_time is None else log_time,
+                      data=decoded.SerializeToString(), publish_time=message.publish_time, sequence=7)
+        w.finish()
+    return path
+
+
+def test_values_beyond_int64_are_refused_and_negative_times_kept(session, tmp_path):
+    """Nanoseconds since the epoch fit an int64 for 292 years: a time beyond (a damaged
+    or forged field) is refused, naming it, never wrapped or clipped; a time before the
+    epoch is negative, as it is."""
+    path, log, ref = session
+    cases = [
+        ("/accel", lambda d: setattr(d, "t0_ns", 2**63), None, "t0_ns = 9223372036854775808"),
+        ("/accel", lambda d: setattr(d, "t0_ns", 2**63 - 5), None,
+         "t_ns of its last sample = t0_ns 9223372036854775803 + "),
+        ("/estimate", lambda d: setattr(d, "end_ns", 2**64 - 1), None, "end_ns = 18446744073709551615"),
+        ("/accel", lambda d: None, 2**63 + 1, "log_time_ns = 9223372036854775809"),
+    ]
+    for i, (topic, edit, log_time, what) in enumerate(cases):
+        bad = one_message_log(tmp_path / f"beyond-{i}.mcap", path, topic, edit, log_time)
+        with pytest.raises(vc.VibrocompError) as e:
+            vc.Log(bad).stream(topic)
+        msg = str(e.value)
+        assert f"{topic} message 7: {what}" in msg and "beyond the int64 columns" in msg, msg
+        assert "9223372036854775807" in msg, msg
+
+    def before_epoch(d):
+        d.timestamp.seconds, d.timestamp.nanos = -2, 5
+
+    early = one_message_log(tmp_path / "early.mcap", path, "/view/AK1", before_epoch)
+    assert vc.Log(early).stream("/view/AK1").rows["t_ns"].tolist() == [-2 * 10**9 + 5]

@@ -9,6 +9,7 @@ Everything the test writes goes under pytest's temporary folder: the demo, the
 figures, matplotlib's cache (when matplotlib is first imported here).
 """
 
+import base64
 import csv
 import json
 import math
@@ -118,15 +119,6 @@ def campaign_freq_hz():
     with open(CAMPAIGN, newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
     return {r["run_id"]: float(r["freq_hz"]) if r["freq_hz"] else math.nan for r in rows}
-
-
-def test_the_notebook_is_stored_without_outputs():
-    nb = json.loads(NOTEBOOK.read_text(encoding="utf-8"))
-    assert nb["nbformat"] == 4
-    code = [c for c in nb["cells"] if c["cell_type"] == "code"]
-    assert code and len(nb["cells"]) <= 16
-    for c in code:
-        assert c["outputs"] == [] and c["execution_count"] is None
 
 
 def test_a_missing_demo_is_explained(tmp_path, monkeypatch):
@@ -239,3 +231,35 @@ def test_the_notebook_writes_its_figures_only(notebook):
     """The two figures in the output folder, nothing next to the notebook."""
     assert sorted(p.name for p in notebook.out.iterdir()) == ["residuals.png", "stages.png"]
     assert notebook.files_after == notebook.files_before
+
+
+def test_the_committed_notebook_shows_its_results_and_plots(notebook):
+    """The notebook is committed with its outputs, so that a forge shows its plots: run
+    top to bottom once (execution counts 1..n), both figures as PNG, no progress-bar
+    noise (stderr), and the figures it printed are the ones this run of its code gives
+    (an edit to the code without running the notebook again fails here)."""
+    nb = json.loads(NOTEBOOK.read_text(encoding="utf-8"))
+    assert nb["nbformat"] == 4
+    code = [c for c in nb["cells"] if c["cell_type"] == "code"]
+    assert code and len(nb["cells"]) <= 16
+    assert [c["execution_count"] for c in code] == list(range(1, len(code) + 1))
+    outputs = [o for c in code for o in c["outputs"]]
+    assert all(c["outputs"] for c in code), "a code cell without output"
+    assert not [o for o in outputs if o.get("name") == "stderr"]
+    pngs = [o["data"]["image/png"] for o in outputs if "image/png" in o.get("data", {})]
+    assert len(pngs) == 2
+    for png in pngs:
+        raw = base64.b64decode(png)
+        assert raw[:8] == b"\x89PNG\r\n\x1a\n"
+        width, height = struct.unpack(">II", raw[16:24])  # the IHDR chunk
+        assert width >= 400 and height >= 300, (width, height)
+    printed = "".join("".join(o["text"]) for o in outputs if o["output_type"] == "stream")
+    ns = notebook.ns
+    before, after, a = ns["before"], ns["after"], ns["a"]
+    assert (
+        f"chi2/dof: {before.summary.chi2_per_dof:.4g} with the passport alone, "
+        f"{after.summary.chi2_per_dof:.3f} with {a.model.effects}"
+    ) in printed
+    for p in a.fit.params:
+        assert f"{p.effect:<25} {p.name:<15} {p.value:12.6g} {p.sigma:10.2g}" in printed
+    assert "session:  vibrocomp-demo/session.mcap" in printed  # no machine's own paths

@@ -8,12 +8,26 @@
     accel = log.stream("/accel").samples                           # numpy arrays
     s = vc.archive.run("archive.toml", "results")                  # a whole archive, Parquet
 
-The numbers are the command line's (the same libraries); errors are
-`vibrocomp.VibrocompError` with the command line's message, file, line and key.
+The numbers are the command line's (the same libraries). The package is typed
+(PEP 561: `py.typed`, the native module's stubs): results are dataclasses of floats
+and numpy arrays that `mypy --strict` and pyright check, and `ve` and `compensate`
+name each argument with its unit. Errors are `vibrocomp.VibrocompError` with the
+command line's message, file, line and key, its subclasses also `FileNotFoundError`,
+`PermissionError`, `OSError` or `ValueError` (`vibrocomp.errors`).
 """
 
+from typing import TYPE_CHECKING, Any
+
 from ._vibrocomp import __version__
-from .errors import VibrocompError
+from .errors import (
+    ConfigError,
+    FilePermissionError,
+    FileSystemError,
+    InvalidInputError,
+    LogFormatError,
+    MissingFileError,
+    VibrocompError,
+)
 from .model import (
     ExtendedStages,
     ExtendedVe,
@@ -33,20 +47,31 @@ from .lab import Model
 from .logs import Log, Stream
 
 
-def __getattr__(name):
+if TYPE_CHECKING:
+    from . import archive
+else:
     # `vibrocomp.archive` is imported on first use, not here: `python -m
     # vibrocomp.archive` (what `vibrocomp archive run --dask` runs) would otherwise
-    # find it imported already and warn that it runs a second copy.
-    if name == "archive":
-        import importlib
+    # find it imported already and warn that it runs a second copy. Type checkers see
+    # the import above instead: a module `__getattr__` would make every misspelt
+    # `vibrocomp.name` an `Any` to them.
+    def __getattr__(name: str) -> Any:
+        if name == "archive":
+            import importlib
 
-        return importlib.import_module(".archive", __name__)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+            return importlib.import_module(".archive", __name__)
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 __all__ = [
     "__version__",
     "VibrocompError",
+    "MissingFileError",
+    "FilePermissionError",
+    "FileSystemError",
+    "InvalidInputError",
+    "ConfigError",
+    "LogFormatError",
     "Passport",
     "Triad",
     "TriadUnit",

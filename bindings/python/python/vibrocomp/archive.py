@@ -87,6 +87,16 @@ class ArchiveSummary:
         paths = {"manifest", "out_dir", "results", "report", "journal"}
         return cls(**{k: Path(v) if k in paths else v for k, v in d.items()}, **extra)
 
+    def __repr__(self) -> str:
+        """One line: the folder, the jobs by outcome, the table's rows and the time, s
+        (every field: `to_dict()`)."""
+        given_up = f", {self.given_up} given up" if self.given_up else ""
+        return (
+            f"ArchiveSummary({str(self.out_dir)!r}: {self.jobs_total} jobs, {self.done_now} done now, "
+            f"{self.skipped} skipped, {self.failed} failed, {self.pending} pending{given_up}; "
+            f"{self.rows} rows; {self.elapsed_s:.1f} s on {self.scheduler or '?'})"
+        )
+
     def table(self):
         """`results.parquet` as a pandas DataFrame (read with pyarrow)."""
         try:
@@ -98,6 +108,8 @@ class ArchiveSummary:
         return pq.read_table(self.results).to_pandas()
 
     def to_dict(self) -> dict:
+        """The summary as the command line's JSON (`archive run --json`): every field,
+        paths as strings."""
         return {f.name: str(v) if isinstance(v, Path) else v for f in fields(self) for v in [getattr(self, f.name)]}
 
 
@@ -324,6 +336,10 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Optional[Iterable[str]] = None) -> int:
+    """`python -m vibrocomp.archive MANIFEST --out DIR [--dask ADDR | --workers N]`
+    (what `vibrocomp archive run --dask` runs): `run` with the command line's
+    arguments (`argv`, default `sys.argv[1:]`); prints the summary (or, with `--json`,
+    the summary or the error as JSON) and returns the exit code."""
     args = _parser().parse_args(None if argv is None else list(argv))
     if args.workers is not None and args.workers < 1:
         _parser().error(f"--workers {args.workers}: must be at least 1")
