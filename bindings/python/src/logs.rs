@@ -555,7 +555,13 @@ struct Stream {
 }
 
 /// Reads every message of `topic` into columns.
-fn read_stream(path: &std::path::Path, topic: &str) -> anyhow::Result<Stream> {
+/// `topic`'s messages of the log at `path` as columns. `stop` is looked at before each
+/// message: a call stopped (Ctrl-C) does not go on reading behind its exception.
+fn read_stream(
+    path: &std::path::Path,
+    topic: &str,
+    stop: &vibro_lab::Stop,
+) -> anyhow::Result<Stream> {
     let mut reader = Reader::open(path)?;
     let wire = reader
         .channels()
@@ -571,6 +577,9 @@ fn read_stream(path: &std::path::Path, topic: &str) -> anyhow::Result<Stream> {
     let mut data = BlockStream::default();
     let mut kind = None;
     while let Some(r) = reader.next_raw() {
+        if stop.requested() {
+            anyhow::bail!("stopped");
+        }
         let r = r?;
         let first = kind.is_none();
         if first {
@@ -752,11 +761,11 @@ impl LogFile {
         py: Python<'py>,
         topic: &str,
     ) -> PyResult<(String, Option<Bound<'py, PyDict>>, Bound<'py, PyDict>)> {
-        // On a thread of its own: Ctrl-C raises `KeyboardInterrupt` at once (the
-        // reading ends on its own behind it, its result dropped).
+        // On a thread of its own: Ctrl-C raises `KeyboardInterrupt` at once, and the
+        // reading stops at its next message.
         let (path, topic) = (self.path.clone(), topic.to_string());
-        let stream = crate::lab::stoppable(py, None, move |_, _| {
-            read_stream(&path, &topic).with_context(|| format!("log {}", path.display()))
+        let stream = crate::lab::stoppable(py, None, move |_, stop| {
+            read_stream(&path, &topic, stop).with_context(|| format!("log {}", path.display()))
         })?;
         let samples = if stream.block {
             Some(stream.data.samples.into_dict(py)?)

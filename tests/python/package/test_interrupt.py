@@ -185,3 +185,59 @@ def test_the_real_tqdm_draws_the_bar(capsys):
 def test_a_progress_that_is_not_callable_is_refused():
     with pytest.raises(TypeError, match="progress = 3"):
         vc.lab.compare(CAMPAIGN, progress=3)
+
+
+@pytest.fixture(scope="module")
+def long_log(tmp_path_factory):
+    """A 400 s simulated flight (129 MB): its /vib stream takes about a second to read."""
+    from conftest import binary
+
+    exe = binary()
+    if not exe.is_file():
+        pytest.skip(f"{exe} is missing")
+    out = tmp_path_factory.mktemp("long-log") / "flight.mcap"
+    subprocess.run([str(exe), "-q", "sim", "cyclone-4", "--duration-s", "400", "--out", str(out)],
+                   check=True, capture_output=True, cwd=REPO)
+    return out
+
+
+def test_ctrl_c_stops_reading_a_log_and_the_reading_behind_it(long_log):
+    """`Log.stream` raises `KeyboardInterrupt` at once, and the reading on its own
+    thread stops at its next message: the process is idle after the exception."""
+    script = textwrap.dedent(
+        f"""
+        import sys, time
+        import vibrocomp as vc
+        log = vc.Log({str(long_log)!r})
+        t0 = time.monotonic()
+        log.stream("/vib")
+        full_s = time.monotonic() - t0
+        print("start", full_s, flush=True)
+        try:
+            log.stream("/vib")
+            print("finished", time.monotonic(), 0.0, flush=True)
+        except KeyboardInterrupt:
+            at = time.monotonic()
+            cpu_s = time.process_time()
+            time.sleep(0.5)
+            print("interrupted", at, time.process_time() - cpu_s, flush=True)
+        """
+    )
+    p = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        what, full_s = p.stdout.readline().split()
+        assert what == "start"
+        if float(full_s) < 0.6:
+            pytest.skip(f"reading the stream takes {float(full_s):.2f} s here: too short to stop")
+        time.sleep(float(full_s) / 5)  # most of the reading still ahead
+        sent = time.monotonic()
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=60)
+    finally:
+        p.kill()
+    what, when, cpu_after_s = out.split()
+    print(f"KeyboardInterrupt {(float(when) - sent) * 1e3:.0f} ms after SIGINT; "
+          f"CPU in the 0.5 s after it {float(cpu_after_s):.3f} s (whole read {float(full_s):.2f} s)")
+    assert what == "interrupted", (out, err)
+    assert float(when) - sent < 0.5
+    assert float(cpu_after_s) < 0.05, "the reading goes on behind the exception"
