@@ -122,9 +122,6 @@ pub fn load<E: From<crate::Error>>(
                 tables.push(CampaignTable::parse(text, Path::new(name), dir, model)?);
             }
             Input::Path(path) if is_log(path) => {
-                // A text file named `.mcap` is "not an MCAP log", not a log that ends
-                // in the middle of a record.
-                vibro_log::inspect::check_mcap_file(path).map_err(crate::Error::from)?;
                 let (table, mut summary) =
                     crate::log_table::table_from_log(path, model, &log_options()?)?;
                 // `CampaignTable::joined` keeps the tables' rows in input order.

@@ -253,6 +253,14 @@ pub(crate) fn estimator_config(
     })
 }
 
+/// Opens a log the lab reads (the statistics and the waveform path alike): a file that
+/// is not an MCAP log at all (a text file named `.mcap`) is said to be so, as
+/// `log info` says it, not reported as a damaged log ending mid-record.
+pub(crate) fn open_log(path: &Path) -> Result<Reader> {
+    vibro_log::inspect::check_mcap_file(path)?;
+    Ok(Reader::open(path)?)
+}
+
 /// Reads `path` and builds the lab's table (module doc).
 pub fn table_from_log(
     path: &Path,
@@ -275,7 +283,7 @@ pub fn table_from_log(
         log: path.display().to_string(),
         ..Default::default()
     };
-    let mut reader = Reader::open(path)?;
+    let mut reader = open_log(path)?;
     let units = log_units(&mut reader, args, &mut summary)?;
     let config = estimator_config(&args.estimator, &mut reader, &mut summary)?;
     let mut estimator =

@@ -18,7 +18,7 @@ use crate::{Error, Result};
 use std::collections::BTreeMap;
 use std::path::Path;
 use vibro_log::topic;
-use vibro_mcap::{Message, Reader};
+use vibro_mcap::Message;
 use vibro_msgs::{vib_flags, Stream};
 use vibro_wavefit::{RunInput, VibSegment};
 
@@ -47,9 +47,7 @@ pub fn read_log(path: &Path, options: &LogOptions) -> Result<WaveLog> {
         log: name.clone(),
         ..Default::default()
     };
-    // A text file named `.mcap` is "not an MCAP log", not a damaged one.
-    vibro_log::inspect::check_mcap_file(path)?;
-    let mut reader = Reader::open(path)?;
+    let mut reader = crate::log_table::open_log(path)?;
     let units = log_units(&mut reader, options, &mut summary)?;
     let config = estimator_config(&options.estimator, &mut reader, &mut summary)?;
     let delay = summary.sensor_from_log.get("sensor_delay_s").copied();
