@@ -1035,7 +1035,10 @@ mod tests {
             .contains("must be finite and >= 0"));
         // Good options: the missing file is what is wrong, named.
         let e = table_from_log(path, &model, &options()).unwrap_err();
-        assert!(matches!(e, Error::Mcap(_)), "{e:?}");
+        assert!(
+            matches!(&e, Error::Log(b) if matches!(**b, vibro_log::Error::ReadInput { .. })),
+            "{e:?}"
+        );
         assert!(e.to_string().contains("/nonexistent/flight.mcap"), "{e}");
     }
 
