@@ -206,6 +206,42 @@ fn a_config_syntax_error_shows_the_line_and_a_caret() {
     assert_eq!(v["error"]["line"], line_of(&typed, "k2_ppm_per_g"), "{v}");
 }
 
+/// Issue 47, item 5: a model file's problem found after parsing (an effect's unknown
+/// parameter, a value against its rule) gives `--json` the file, the first problem's
+/// key (`effect[1].foo`) and its line, as a parse error does.
+#[test]
+fn a_model_files_effect_problem_has_its_key_and_line() {
+    let dir = crate::processes::Dir::new("conv-effect");
+    let text = "mode = \"exact\"\n\n[[effect]]\nkind = \"anisoelastic\"\nk_ae_per_g = 1e-5\n\n\
+                [[effect]]\nkind = \"mount_resonance\"\nfreq_hz = 100.0\nq = 5.0\nfoo = 1\n";
+    let file = dir.path("model.toml");
+    std::fs::write(&file, text).unwrap();
+    let f = file.to_str().unwrap();
+    let table = crate::common::repo_path("shared/vibro-lab/tests/data/walkthrough-14-rows.csv");
+    let out = bin()
+        .args([
+            "lab",
+            "compare",
+            "--model",
+            f,
+            table.to_str().unwrap(),
+            "--json",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)));
+    let e = &v["error"];
+    assert_eq!(e["file"], f, "{v}");
+    assert_eq!(e["key"], "effect[1].foo", "{v}");
+    assert_eq!(e["line"], line_of(text, "foo ="), "{v}");
+    assert!(
+        e["message"].as_str().unwrap().contains("unknown parameter"),
+        "{v}"
+    );
+}
+
 /// An error about no file (a flag's value) has no `file`, `line` or `key` in its JSON
 /// error object: they are absent, not null.
 #[test]

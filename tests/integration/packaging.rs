@@ -1,8 +1,10 @@
 //! The Python package's build (bindings/python/Cargo.toml).
 //!
-//! - A user's wheel (`pip install .`) links no iceoryx2: the package neither publishes
-//!   nor subscribes (docs/python.md).
-//! - CI's wheel (.ci/run: the dev profile, the feature `test-build`) reuses the
+//! - A user's wheel (`pip install .`) links only what the package calls: no iceoryx2
+//!   (the package neither publishes nor subscribes, docs/python.md), no service runtime
+//!   (clap, tracing-subscriber, tokio's scheduler) and no live view's server (the
+//!   Foxglove SDK's WebSocket server).
+//! - CI's wheel (.ci/wheel.py: the test profile, the feature `test-build`) reuses the
 //!   libraries `cargo test --workspace` compiled only when cargo resolves the same
 //!   features for them in both builds. A feature that only the tests' build turns on (a
 //!   dev-dependency's, another member's) makes the wheel compile that library and
@@ -85,24 +87,62 @@ fn wheel_shares_the_test_build() {
     );
 }
 
+/// Libraries of a running service or of the live view, which the package never calls.
+const SERVICE_ONLY: [&str; 6] = [
+    "iceoryx2",
+    "clap ",
+    "tracing-subscriber ",
+    "foxglove ",
+    "tungstenite ",
+    "mio ",
+];
+
+/// The service-only libraries `wheel` links, and tokio's features beyond the
+/// shutdown token's `sync`.
+fn service_only(wheel: &BTreeMap<String, BTreeSet<String>>) -> Vec<String> {
+    let mut found: Vec<String> = wheel
+        .keys()
+        .filter(|l| SERVICE_ONLY.iter().any(|s| l.starts_with(s)))
+        .cloned()
+        .collect();
+    for (lib, f) in wheel.iter().filter(|(l, _)| l.starts_with("tokio ")) {
+        let runtime: Vec<&String> = f
+            .iter()
+            .filter(|f| !["default", "sync"].contains(&f.as_str()))
+            .collect();
+        if !runtime.is_empty() {
+            found.push(format!("{lib} with {runtime:?}"));
+        }
+    }
+    found
+}
+
 #[test]
-fn a_users_wheel_links_no_iceoryx2() {
+fn a_users_wheel_links_only_what_the_package_calls() {
     let wheel = features(&["-p", "vibrocomp-python"], "normal");
     assert!(
         wheel.len() > 100,
         "cargo tree listed {} libraries",
         wheel.len()
     );
-    let ipc: Vec<&String> = wheel.keys().filter(|l| l.starts_with("iceoryx2")).collect();
+    let extra = service_only(&wheel);
     assert!(
-        ipc.is_empty(),
-        "the Python package's own build links {ipc:?}: a library it depends on asks for \
-         the feature `ipc` of a vibro crate (bindings/python/Cargo.toml)"
+        extra.is_empty(),
+        "the Python package's own build links {extra:?}: a library it depends on asks for \
+         the feature `ipc` of a vibro crate, or `live` of vibro-view \
+         (bindings/python/Cargo.toml)"
     );
-    // And the feature CI builds with does bring them in (the check above can fail).
+    // And the feature CI builds with does bring each of them in (the check can fail).
     let ci = features(
         &["-p", "vibrocomp-python", "--features", "test-build"],
         "normal",
     );
-    assert!(ci.keys().any(|l| l.starts_with("iceoryx2 ")));
+    let in_ci = service_only(&ci);
+    for lib in SERVICE_ONLY {
+        assert!(
+            in_ci.iter().any(|l| l.starts_with(lib)),
+            "{lib} not in CI's build: {in_ci:?}"
+        );
+    }
+    assert!(in_ci.iter().any(|l| l.starts_with("tokio ")), "{in_ci:?}");
 }

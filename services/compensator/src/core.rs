@@ -6,7 +6,6 @@
 use crate::config::{Config, Model};
 use crate::interval::{within_fraction, within_output_interval, within_spectrum};
 use crate::mapping::{sensor_map, unit_vibrations, UnitVibrations};
-use crate::reload::ModelUpdate;
 use crate::spectrum::{sensor_spectrum, unit_bands, SpectrumSolver};
 use crate::waveform::WaveformPath;
 use tracing::{info, warn};
@@ -23,6 +22,13 @@ use vibro_service::{
     count_first, now_ns, Continuity, CountersJson, DisorderLog, JsonObject, Latency, Quantiles,
     StreamCounters,
 };
+
+/// A new model for the hot thread, with its compensator already built (by hot reload
+/// off the hot thread, `reload.rs`).
+pub(crate) struct ModelUpdate {
+    pub model: Model,
+    pub compensator: TriadCompensator,
+}
 
 /// Readings beyond this magnitude are treated like NaN: no accelerometer measures them,
 /// and the model's fifth powers would overflow.

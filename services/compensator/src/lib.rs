@@ -54,6 +54,7 @@
 
 mod config;
 mod core;
+#[cfg(feature = "ipc")]
 mod reload;
 #[cfg(feature = "ipc")]
 mod service;

@@ -4,7 +4,7 @@
 //! hot thread through a channel that the hot loop looks at once per wake-up. An invalid
 //! file is logged (file, key, value, rule) and the running model kept.
 
-use crate::config::{Config, Model};
+use crate::config::Config;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::Sender;
@@ -12,14 +12,9 @@ use std::sync::Arc;
 use std::time::{Duration, SystemTime};
 use tokio::time::MissedTickBehavior;
 use tracing::{error, info, warn};
-use vibro_physics::compensation::TriadCompensator;
 use vibro_service::{ServiceConfig, Shutdown};
 
-/// A new model for the hot thread, with its compensator already built.
-pub(crate) struct ModelUpdate {
-    pub model: Model,
-    pub compensator: TriadCompensator,
-}
+pub(crate) use crate::core::ModelUpdate;
 
 type Fingerprint = Vec<Option<(SystemTime, u64)>>;
 

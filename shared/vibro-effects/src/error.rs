@@ -27,9 +27,16 @@ pub enum Error {
     /// The physics core refused an input.
     #[error(transparent)]
     Physics(#[from] vibro_physics::Error),
-    /// A model file with problems: every problem, one per line.
+    /// A model file with problems: every problem, one per line. `line` and `key`
+    /// locate the first problem whose key is known (`effect[0].foo`), where the file
+    /// has it.
     #[error("{path}: {}", problems.join("\n  "))]
-    Model { path: String, problems: Vec<String> },
+    Model {
+        path: String,
+        problems: Vec<String>,
+        line: Option<usize>,
+        key: Option<String>,
+    },
     /// A model file that does not parse, or has unknown keys (every one of them).
     #[error(transparent)]
     Toml(#[from] vibro_toml::Error),
@@ -55,7 +62,15 @@ impl Error {
     pub fn location(&self) -> Option<vibro_toml::Location> {
         match self {
             Error::Toml(e) => Some(e.location()),
-            Error::Model { path, .. } | Error::Io { path, .. } => Some(vibro_toml::Location {
+            Error::Model {
+                path, line, key, ..
+            } => Some(vibro_toml::Location {
+                file: path.clone(),
+                line: *line,
+                column: None,
+                key: key.clone(),
+            }),
+            Error::Io { path, .. } => Some(vibro_toml::Location {
                 file: path.clone(),
                 ..Default::default()
             }),

@@ -137,24 +137,33 @@ impl LabModel {
     /// reported at once. The model's `passport` (a shipped id or a file) is resolved
     /// as every passport reference is, by `vibro_config::resolve_passport`.
     pub fn parse(text: &str, file: &str) -> Result<Self> {
-        let bad = |problems: Vec<String>| Error::Model {
+        // The first problem whose key is known locates the error (line and key).
+        let mut first_key: Option<String> = None;
+        let bad = |problems: Vec<String>, key: Option<String>| Error::Model {
             path: file.to_string(),
             problems,
+            line: key
+                .as_deref()
+                .and_then(|k| vibro_toml::key_position(text, k))
+                .map(|(line, _)| line),
+            key,
         };
         let raw: RawModel = vibro_toml::from_str(text, file)?;
         let mut problems = Vec::new();
         // Sizes first: a value over its bound is not looked at further.
         if !check_sizes(&raw, &mut problems) {
-            return Err(bad(problems));
+            return Err(bad(problems, None));
         }
         if let Some(f) = &raw.format {
             if f != FORMAT {
+                first_key.get_or_insert_with(|| "format".into());
                 problems.push(format!("format = {f:?}: must be {FORMAT:?}"));
             }
         }
         let mode = match raw.mode.as_deref() {
             None => BaseMode::Exact,
             Some(m) => BaseMode::parse(m).unwrap_or_else(|| {
+                first_key.get_or_insert_with(|| "mode".into());
                 problems.push(format!(
                     "mode = {m:?}: must be one of \"exact\", \"paper\", \"as-published\""
                 ));
@@ -163,17 +172,22 @@ impl LabModel {
         };
         if let Some(p) = &raw.passport {
             if let Err(e) = resolve_passport(p) {
+                first_key.get_or_insert_with(|| "passport".into());
                 problems.push(format!("passport = {p:?}: {e}"));
             }
         }
         let rig = validation_rig();
         for (i, t) in raw.effect.iter().enumerate() {
             if let Err(e) = build_one(t, &rig) {
-                problems.push(format!("effect[{i}]: {e}"));
+                first_key.get_or_insert_with(|| match &e.param {
+                    Some(param) => format!("effect[{i}].{param}"),
+                    None => format!("effect[{i}]"),
+                });
+                problems.push(format!("effect[{i}]: {}", e.message));
             }
         }
         if !problems.is_empty() {
-            return Err(bad(problems));
+            return Err(bad(problems, first_key));
         }
         Ok(Self {
             mode,
@@ -248,9 +262,9 @@ pub fn build_effects(tables: &[toml::Table], passport: &Passport) -> Result<Vec<
         .iter()
         .enumerate()
         .map(|(i, t)| {
-            build_one(t, &rig).map_err(|reason| Error::Predict {
+            build_one(t, &rig).map_err(|e| Error::Predict {
                 what: format!("effect[{i}]"),
-                reason,
+                reason: e.message,
             })
         })
         .collect()
@@ -259,13 +273,42 @@ pub fn build_effects(tables: &[toml::Table], passport: &Passport) -> Result<Vec<
 /// One `[[effect]]` table of a model: an effect of the library, or an empirical
 /// correction (`kind = "empirical"`, [`crate::empirical`]: a model file may carry one,
 /// a simulator scenario may not).
-fn build_one(t: &toml::Table, rig: &Rig) -> std::result::Result<Box<dyn Effect>, String> {
+fn build_one(t: &toml::Table, rig: &Rig) -> std::result::Result<Box<dyn Effect>, BuildProblem> {
+    let problem = |e: Error| BuildProblem {
+        param: problem_param(&e),
+        message: e.to_string(),
+    };
     if t.get("kind").and_then(|k| k.as_str()) == Some(crate::empirical::KIND) {
         return crate::empirical::Empirical::from_table(t)
             .map(|e| Box::new(e) as Box<dyn Effect>)
-            .map_err(|e| e.to_string());
+            .map_err(problem);
     }
-    effect_spec(t).and_then(|s| build_for_rig(&s, rig).map_err(|e| e.to_string()))
+    let spec = effect_spec(t).map_err(|message| BuildProblem {
+        message,
+        param: None,
+    })?;
+    build_for_rig(&spec, rig).map_err(problem)
+}
+
+/// Why an `[[effect]]` table could not be built: the message, and the parameter it
+/// names when it names one (to locate it in the file).
+struct BuildProblem {
+    message: String,
+    param: Option<String>,
+}
+
+/// The parameter an effect's problem names: `freq` of
+/// `effect[mount_resonance].freq`, `kind` of `effect.kind`; the first of several.
+fn problem_param(e: &Error) -> Option<String> {
+    match e {
+        Error::Invalid { key, .. } => key
+            .split_once('.')
+            .map(|(_, param)| param)
+            .filter(|param| !param.is_empty())
+            .map(str::to_string),
+        Error::Several(all) => all.iter().find_map(problem_param),
+        _ => None,
+    }
 }
 
 /// Most `[[effect]]` tables of a model, and `[[fit]]` records: the catalogue has
@@ -442,6 +485,34 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("line 1, column 1: speed: unknown key"), "{e}");
+    }
+
+    /// Issue 47, item 5: a problem found after parsing (an effect's parameter against
+    /// its rule) is located: the first such problem's key and the line it is on.
+    #[test]
+    fn a_problem_is_located_at_its_key_and_line() {
+        let locate = |text: &str| {
+            let e = LabModel::parse(text, "m.toml").unwrap_err();
+            let at = e.location().unwrap();
+            assert_eq!(at.file, "m.toml");
+            (at.line, at.key)
+        };
+        let unknown = "mode = \"exact\"\n[[effect]]\nkind = \"mount_resonance\"\nfreq_hz = 100.0\n\
+                       q = 5.0\nfoo = 1\n";
+        assert_eq!(locate(unknown), (Some(6), Some("effect[0].foo".into())));
+        // The second effect's bad value, after a good first effect.
+        let second = "[[effect]]\nkind = \"anisoelastic\"\nk_ae_per_g = 1e-5\n\n[[effect]]\n\
+                      kind = \"mount_resonance\"\nq = 1.0\nfreq_hz = -3.0\n";
+        assert_eq!(locate(second), (Some(8), Some("effect[1].freq_hz".into())));
+        // An unknown kind; the first problem in the file's order of checks wins.
+        assert_eq!(
+            locate("[[effect]]\nkind = \"warp_drive\"\n"),
+            (Some(2), Some("effect[0].kind".into()))
+        );
+        assert_eq!(
+            locate("mode = \"fast\"\n[[effect]]\nkind = \"warp_drive\"\n"),
+            (Some(1), Some("mode".into()))
+        );
     }
 
     /// An empirical correction is a model's effect like any other (and its bad keys

@@ -64,6 +64,7 @@
 /// Adversarial input sequences (`vibro_msgs::adversary`, with the `testing` feature).
 #[cfg(feature = "testing")]
 pub use vibro_msgs::adversary;
+#[cfg(feature = "ipc")]
 mod cli;
 mod clock;
 mod config;
@@ -84,6 +85,7 @@ pub mod supervise;
 #[cfg(all(feature = "testing", feature = "ipc"))]
 pub mod testing;
 
+#[cfg(feature = "ipc")]
 pub use cli::ServiceArgs;
 pub use clock::now_ns;
 pub use config::ServiceConfig;

@@ -4,12 +4,14 @@
 //! `demo` and `latency` run the estimator, the compensator and the recorder this way;
 //! what to start (the executable and its arguments) is theirs.
 
+#[cfg(feature = "ipc")]
 use crate::Shutdown;
 use anyhow::{bail, Context};
 use serde::Serialize;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
+#[cfg(feature = "ipc")]
 use tracing::{error, info, warn};
 #[cfg(feature = "ipc")]
 use vibro_ipc::{cleanup_dead_nodes, create_node, StreamSubscriber};
@@ -481,6 +483,7 @@ pub struct ProcessReport {
     pub gave_up: bool,
 }
 
+#[cfg(feature = "ipc")]
 /// Runs the process `command()` makes until `shutdown`, restarting it when it dies
 /// (with a back-off of 0.2 s per crash in the window) unless `restart` is false; too
 /// many crashes within the window trigger `shutdown` for the whole system. On

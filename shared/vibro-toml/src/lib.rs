@@ -326,6 +326,43 @@ fn unknown_field(message: &str) -> Option<(String, Vec<String>)> {
     Some((name.to_string(), known))
 }
 
+/// Where the key at `path` (a dotted path with array indices: `effect[0].freq_hz`) is
+/// written in `text`: its line and column (1-based), or `None` when the text does not
+/// parse or holds no such key. A path that ends at an element of an array of tables
+/// (`effect[1]`) points at where that element starts. For problems found after
+/// deserialization (a value against its rule), which serde's spans do not reach.
+pub fn key_position(text: &str, path: &str) -> Option<(usize, usize)> {
+    let root = DeTable::parse(text).ok()?;
+    let mut table = root.get_ref();
+    let mut segments = path.split('.').peekable();
+    while let Some(segment) = segments.next() {
+        let (name, index) = match segment.split_once('[') {
+            Some((name, rest)) => (name, Some(rest.strip_suffix(']')?.parse::<usize>().ok()?)),
+            None => (segment, None),
+        };
+        let (key, value) = table.get_key_value(name)?;
+        let last = segments.peek().is_none();
+        let (start, value) = match index {
+            None => (key.span().start, value),
+            Some(i) => match value.get_ref() {
+                DeValue::Array(items) => {
+                    let item = items.get(i)?;
+                    (item.span().start, item)
+                }
+                _ => return None,
+            },
+        };
+        if last {
+            return Some(position(text, start));
+        }
+        match value.get_ref() {
+            DeValue::Table(t) => table = t,
+            _ => return None,
+        }
+    }
+    None
+}
+
 /// Removes the entry whose key is at `span`; its dotted path.
 fn take_key(table: &mut DeTable<'_>, span: &Range<usize>, path: &str) -> Option<String> {
     let hit = table
@@ -444,6 +481,31 @@ fn edit_distance(a: &str, b: &str) -> usize {
 mod tests {
     use super::*;
     use serde::Deserialize;
+
+    #[test]
+    fn a_key_path_is_found_where_it_is_written() {
+        let text = "mode = \"exact\"\n[[effect]]\nkind = \"a\"\n\n[[effect]]\nkind = \"b\"\n  \
+                    foo = 1\ninline = { x = { y = 2 } }\n[rates]\nsensor_hz = 5\n";
+        assert_eq!(key_position(text, "mode"), Some((1, 1)));
+        assert_eq!(key_position(text, "effect[1].foo"), Some((7, 3)));
+        assert_eq!(key_position(text, "effect[0].kind"), Some((3, 1)));
+        assert_eq!(key_position(text, "effect[1].inline.x.y"), Some((8, 18)));
+        assert_eq!(key_position(text, "rates.sensor_hz"), Some((10, 1)));
+        // An element of an array of tables: where it starts.
+        let (line, _) = key_position(text, "effect[1]").unwrap();
+        assert!((5..=6).contains(&line), "{line}");
+        assert_eq!(key_position(text, "rates"), Some((9, 2)));
+        for absent in [
+            "effect[2].kind",
+            "effect[0].foo",
+            "mode.x",
+            "effect[x]",
+            "nope",
+        ] {
+            assert_eq!(key_position(text, absent), None, "{absent}");
+        }
+        assert_eq!(key_position("= broken", "mode"), None);
+    }
 
     #[derive(Debug, Deserialize)]
     #[serde(deny_unknown_fields)]

@@ -34,6 +34,7 @@
 //! assert_eq!(out[0].topic, "/view/health/compensator");
 //! ```
 
+#[cfg(feature = "live")]
 pub mod live;
 
 use prost::Message as _;
@@ -46,6 +47,7 @@ use vibro_msgs::{
 };
 
 /// What the live view's server can fail with.
+#[cfg(feature = "live")]
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     #[error("listening on {addr}")]
@@ -71,6 +73,7 @@ pub enum Error {
     Task(&'static str),
 }
 
+#[cfg(feature = "live")]
 pub type Result<T> = std::result::Result<T, Error>;
 
 /// The triad's unit names when no other are given (RIG.md's AK1..AK3).

@@ -95,9 +95,6 @@ def test_an_unknown_model_key_has_its_line_and_key(bad):
     assert (err.file, err.line, err.column, err.key) == (str(bad / "model-key.toml"), 2, 1, "bogus")
 
 
-@pytest.mark.xfail(strict=True, reason="the effects library keeps a model's problems as text "
-                   "(vibro_effects::Error::Model): neither the command line nor the package "
-                   "knows an effect parameter's key and line")
 def test_an_unknown_effect_parameter_has_its_line_and_key(tmp_path):
     path = tmp_path / "model.toml"
     path.write_text('mode = "exact"\n[[effect]]\nkind = "mount_resonance"\nfreq_hz = 100.0\n'
