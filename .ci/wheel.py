@@ -1,13 +1,17 @@
 """CI's wheel of the Python package, from the native module of the test build.
 
-`pip install .` builds the wheel with maturin (pyproject.toml). CI cannot: maturin
-runs `cargo rustc` with its own profile, and `cargo rustc --profile test` builds a test
-harness, so a maturin build compiles the workspace's crates a second time (about three
-minutes of CI's 2 cores). CI instead builds the module with the test profile and the
-feature `test-build` (bindings/python/Cargo.toml), which reuses everything `cargo test`
-compiled (this script runs that build), and lays it out as maturin does (`[tool.maturin]`'s
+`pip install .` builds the wheel with maturin (pyproject.toml). CI does not: maturin
+runs `cargo rustc -p vibrocomp-python` with its own profile, so cargo resolves the
+package's graph alone (other features than the whole workspace's) under another profile,
+and compiles about 40 of the libraries `cargo test --workspace` had just compiled again
+(three minutes of CI's 2 cores; `cargo rustc --profile test` would build a test harness,
+not the module). This script builds the module within the test build itself: the same
+profile, the same selection of packages and targets as `cargo test --workspace` (hence
+the same features) plus the package's library, so that only pyo3 and the module
+compile. It then lays the wheel out as maturin does (`[tool.maturin]`'s
 `python-source` and `module-name`, `[project]`'s metadata, an abi3 tag), so that the
-tests install and import a wheel like a user's.
+tests install and import a wheel like a user's. The module links what the workspace
+links (iceoryx2 among them); a user's does not (tests/integration/packaging.rs).
 
     python3 .ci/wheel.py OUT_DIR   # prints the wheel's path
 """
@@ -28,15 +32,24 @@ ROOT = Path(__file__).resolve().parent.parent
 TAG = "cp39-abi3-linux_x86_64"
 
 
+def native_name() -> str:
+    """The native module's name (`_vibrocomp`), which is its library's name."""
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    return pyproject["tool"]["maturin"]["module-name"].rpartition(".")[2]
+
+
 def native_module() -> Path:
-    """Builds the module as the tests' build does, and returns the library's path."""
+    """Builds the module within the test build, and returns the library's path."""
+    # `cargo test --workspace`'s selection (libraries, binaries, tests, examples, with
+    # the dev-dependencies): everything but the package's library is already built.
     build = subprocess.run(
-        ["cargo", "build", "--profile", "test", "-p", "vibrocomp-python",
-         "--features", "test-build", "--message-format=json-render-diagnostics"],
+        ["cargo", "build", "--profile", "test", "--workspace", "--lib", "--bins",
+         "--tests", "--examples", "--message-format=json-render-diagnostics"],
         cwd=ROOT, stdout=subprocess.PIPE, text=True, check=True)
     for line in build.stdout.splitlines():
         message = json.loads(line)
         if (message.get("reason") == "compiler-artifact"
+                and message["target"]["name"] == native_name()
                 and "cdylib" in message["target"]["crate_types"]):
             return Path(message["filenames"][0])
     sys.exit("cargo built no cdylib for vibrocomp-python")
