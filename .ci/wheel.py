@@ -14,6 +14,9 @@ tests install and import a wheel like a user's. The module links what the worksp
 links (iceoryx2 among them); a user's does not (tests/integration/packaging.rs).
 
     python3 .ci/wheel.py OUT_DIR   # prints the wheel's path
+
+Run it in the test build's environment: `CARGO_INCREMENTAL=0`, as .ci/run exports it
+(cargo builds the workspace's crates again when the setting differs).
 """
 
 from __future__ import annotations
