@@ -242,6 +242,33 @@ fn a_model_files_effect_problem_has_its_key_and_line() {
     );
 }
 
+/// A log that cannot be read gives `--json` its file, as a configuration does: missing,
+/// not an MCAP log, cut short (before: only the message named it).
+#[test]
+fn a_logs_json_error_names_the_file() {
+    let dir = crate::processes::Dir::new("conv-logfile");
+    let missing = dir.path("missing.mcap");
+    let text = dir.path("text.mcap");
+    std::fs::write(&text, "not a log\n").unwrap();
+    let cut = dir.path("cut.mcap");
+    // MCAP's magic and the start of a header record, then nothing.
+    std::fs::write(&cut, b"\x89MCAP0\r\n\x01\x10\x00\x00").unwrap();
+    for (args, file) in [
+        (vec!["log", "info"], &missing),
+        (vec!["log", "errors"], &missing),
+        (vec!["log", "errors"], &text),
+        (vec!["log", "errors"], &cut),
+        (vec!["lab", "diagnose"], &text),
+    ] {
+        let f = file.to_str().unwrap();
+        let out = bin().args(&args).args([f, "--json"]).output().unwrap();
+        assert_eq!(out.status.code(), Some(1), "{args:?} {f}");
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout)
+            .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)));
+        assert_eq!(v["error"]["file"], f, "{args:?}: {v}");
+    }
+}
+
 /// An error about no file (a flag's value) has no `file`, `line` or `key` in its JSON
 /// error object: they are absent, not null.
 #[test]

@@ -5,9 +5,7 @@
 //! `ValueError`), ... (`vibrocomp/errors.py` lists them).
 
 use pyo3::prelude::*;
-use std::error::Error as StdError;
 use std::io::ErrorKind;
-use std::path::Path;
 
 /// Where an error points (`vibro_toml::Location`'s fields: `file`, 1-based `line` and
 /// `column`, the `key`'s dotted path).
@@ -55,57 +53,16 @@ fn message_of(chain: &[String]) -> String {
     message
 }
 
-/// Where `e` points: the command line's rule first (`vibro_lab::errors` and an
-/// archive's manifest, as `vibrocomp ... --json` finds it), then the file a log's
-/// error names (the MCAP reader's and the log library's errors, which the command
-/// line's error object does not locate).
+/// Where `e` points, as `vibrocomp ... --json` finds it: `vibro_lab::errors` (the
+/// libraries' inputs and logs) and an archive's manifest.
 pub fn location(e: &anyhow::Error) -> Option<Where> {
-    e.chain()
-        .find_map(|cause| {
-            let archive = cause.downcast_ref::<vibro_archive::Error>();
-            archive
-                .and_then(vibro_archive::Error::location)
-                .or_else(|| vibro_lab::errors::cause_location(cause))
-                .map(|l| (l.file, l.line, l.column, l.key))
-        })
-        .or_else(|| e.chain().find_map(log_file))
-}
-
-/// The file a log's error names (also under the lab's error, whose `Mcap` and `Log`
-/// are transparent: the inner error itself is not in the chain).
-fn log_file(cause: &(dyn StdError + 'static)) -> Option<Where> {
-    let file = |p: &Path| Some((p.display().to_string(), None, None, None));
-    match cause.downcast_ref::<vibro_lab::Error>() {
-        Some(vibro_lab::Error::Mcap(m)) => return log_file(m.as_ref()),
-        Some(vibro_lab::Error::Log(l)) => return log_file(l.as_ref()),
-        _ => {}
-    }
-    if let Some(m) = cause.downcast_ref::<vibro_mcap::Error>() {
-        use vibro_mcap::Error as M;
-        return match m {
-            M::Io { path, .. }
-            | M::ChunkCrc { path, .. }
-            | M::Malformed { path, .. }
-            | M::Truncated { path }
-            | M::Unfinished { path, .. }
-            | M::Mcap { path, .. }
-            | M::NotFinished { path, .. }
-            | M::NoSuchTopic { path, .. } => file(path),
-            _ => None,
-        };
-    }
-    if let Some(l) = cause.downcast_ref::<vibro_log::Error>() {
-        use vibro_log::Error as L;
-        return match l {
-            L::Empty { path, .. }
-            | L::BadLog { path, .. }
-            | L::ReadInput { path, .. }
-            | L::Unfinished { path, .. }
-            | L::Input { path, .. } => file(path),
-            _ => None,
-        };
-    }
-    None
+    e.chain().find_map(|cause| {
+        let archive = cause.downcast_ref::<vibro_archive::Error>();
+        archive
+            .and_then(vibro_archive::Error::location)
+            .or_else(|| vibro_lab::errors::cause_location(cause))
+            .map(|l| (l.file, l.line, l.column, l.key))
+    })
 }
 
 /// The name of the exception class of `e` in `vibrocomp.errors`: an operating system's

@@ -25,9 +25,21 @@ pub fn cause_location(cause: &(dyn StdError + 'static)) -> Option<Location> {
     if let Some(x) = cause.downcast_ref::<vibro_sim::Error>() {
         return x.location();
     }
-    // A simulated flight's errors from the simulator (`vibro_log::flight`).
-    if let Some(vibro_log::Error::Sim(x)) = cause.downcast_ref::<vibro_log::Error>() {
-        return x.location();
+    // A simulated flight's errors from the simulator (`vibro_log::flight`); a log's
+    // errors name their file.
+    if let Some(x) = cause.downcast_ref::<vibro_log::Error>() {
+        if let vibro_log::Error::Sim(x) = x {
+            return x.location();
+        }
+        if let Some(file) = x.file() {
+            return Some(file_only(file.display().to_string()));
+        }
+    }
+    if let Some(file) = cause
+        .downcast_ref::<vibro_mcap::Error>()
+        .and_then(vibro_mcap::Error::file)
+    {
+        return Some(file_only(file.display().to_string()));
     }
     if let Some(x) = cause.downcast_ref::<vibro_effects::Error>() {
         return x.location();
@@ -46,6 +58,9 @@ pub fn cause_location(cause: &(dyn StdError + 'static)) -> Option<Location> {
         crate::Error::Table { path, .. } | crate::Error::Io { path, .. } => {
             Some(file_only(path.clone()))
         }
+        // Transparent: the inner error is not a cause of its own in the chain.
+        crate::Error::Log(x) => x.file().map(|f| file_only(f.display().to_string())),
+        crate::Error::Mcap(x) => x.file().map(|f| file_only(f.display().to_string())),
         _ => None,
     }
 }

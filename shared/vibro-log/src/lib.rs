@@ -328,6 +328,28 @@ pub enum Error {
 /// `Result` with this crate's [`Error`].
 pub type Result<T> = std::result::Result<T, Error>;
 
+impl Error {
+    /// The file the error is about, where it names one (for the front ends' `file`
+    /// field); an MCAP error's own file where it wraps one.
+    pub fn file(&self) -> Option<&std::path::Path> {
+        match self {
+            Error::Empty { path, .. }
+            | Error::BadLog { path, .. }
+            | Error::DamagedPartWay { path, .. }
+            | Error::Output { path, .. }
+            | Error::ReadInput { path, .. }
+            | Error::LineTooLong { path, .. }
+            | Error::Unfinished { path, .. }
+            | Error::Estimate { path, .. }
+            | Error::Input { path, .. }
+            | Error::CreateLog { path, .. } => Some(path),
+            Error::Mcap(e) | Error::ReadLog { source: e, .. } | Error::FinishLog(e) => e.file(),
+            Error::RecoverInput(e) | Error::ReadBack(e) => e.file(),
+            _ => None,
+        }
+    }
+}
+
 #[cfg(feature = "ipc")]
 /// An error and its sources in one line, each source added only where the text
 /// before does not already end with it (`vibro_mcap` errors show their source in their

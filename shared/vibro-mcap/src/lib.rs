@@ -248,6 +248,24 @@ pub enum Error {
 pub type Result<T> = std::result::Result<T, Error>;
 
 impl Error {
+    /// The file the error is about, where it names one (for the front ends' `file`
+    /// field: the command line's `--json` error, the Python package's exceptions).
+    pub fn file(&self) -> Option<&std::path::Path> {
+        match self {
+            Error::Io { path, .. }
+            | Error::ChunkCrc { path, .. }
+            | Error::Malformed { path, .. }
+            | Error::Truncated { path }
+            | Error::Unfinished { path, .. }
+            | Error::Mcap { path, .. }
+            | Error::NotFinished { path, .. }
+            | Error::NoSuchTopic { path, .. }
+            | Error::RecorderStopped { path, .. }
+            | Error::WriterPanicked { path } => Some(path),
+            _ => None,
+        }
+    }
+
     /// Wraps an `mcap` error for `path`, giving CRC failures and truncation their own
     /// variants.
     pub(crate) fn mcap(path: &std::path::Path, source: mcap::McapError) -> Error {

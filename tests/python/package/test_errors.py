@@ -135,8 +135,8 @@ def test_every_class_is_exported_picklable_and_a_VibrocompError():
 # --- against the command line ----------------------------------------------------------
 
 # (name, Python call on the bad inputs' folder, the command line's arguments, class,
-# the built-in exception it is too, fields the command line does not give but Python
-# does: the log errors' file)
+# the built-in exception it is too, fields both must fill: the log errors' file, which
+# the command line's JSON error left out before)
 CASES = [
     ("missing table", lambda d: vc.lab.compare(d / "missing.csv"),
      lambda d: ["lab", "compare", d / "missing.csv"], vc.MissingFileError, FileNotFoundError, {}),
@@ -182,7 +182,8 @@ def test_each_bad_input_is_the_command_lines_error_as_the_class_to_catch(
     got = err.to_dict()
     for k in FIELDS:
         if k in extra:
-            assert want.get(k) is None and got[k] == str(bad / extra[k]), (k, got, want)
+            # A log's file: the command line's JSON error names it too.
+            assert want.get(k) == got[k] == str(bad / extra[k]), (k, got, want)
         else:
             assert got.get(k) == want.get(k), (k, got, want)
     if name in CHECKED_FIRST:
