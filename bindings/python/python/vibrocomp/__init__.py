@@ -19,6 +19,7 @@ command line's message, file, line and key, its subclasses also `FileNotFoundErr
 from typing import TYPE_CHECKING, Any
 
 from ._vibrocomp import __version__
+from . import errors
 from .errors import (
     ConfigError,
     FilePermissionError,
@@ -65,13 +66,6 @@ else:
 
 __all__ = [
     "__version__",
-    "VibrocompError",
-    "MissingFileError",
-    "FilePermissionError",
-    "FileSystemError",
-    "InvalidInputError",
-    "ConfigError",
-    "LogFormatError",
     "Passport",
     "Triad",
     "TriadUnit",
@@ -90,3 +84,5 @@ __all__ = [
     "Log",
     "Stream",
 ]
+# The exception classes, as `vibrocomp.errors` lists them.
+__all__ += errors.__all__
