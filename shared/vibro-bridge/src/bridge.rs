@@ -391,22 +391,60 @@ macro_rules! with_type {
 trait ExportPort {
     fn listener(&self) -> &iceoryx2::port::listener::Listener<vibro_ipc::Ipc>;
     fn clear_events(&self);
-    /// A progress stream: takes what is there now, sent by the next [`Self::drain`].
-    fn hold(&self) -> Result<()>;
+    /// A held stream: takes what is there now (at most [`HOLD_MAX`]), sent by the next
+    /// [`Self::drain`]. Returns whether it stopped at the bound (more may wait).
+    fn hold(&self) -> Result<bool>;
     fn drain(&self) -> Result<usize>;
     /// At stop: what is still pending never reached anybody.
     fn finish(&self);
 }
 
-/// Most progress messages held through one pass (a stream's subscriber buffer).
+/// Most messages of a stream held through one pass (a stream's subscriber buffer).
 const HOLD_MAX: usize = 256;
+
+/// Passes at most at stop, for what the producers published before it.
+const STOP_PASSES: usize = 4;
+
+/// Where an exported stream goes in each pass of the exporting bridge. The streams
+/// are taken in the reverse of this order and sent in this order, so that a message
+/// is sent after every message of an earlier rank published before it (it was taken
+/// before them, and they are sent first). Each stream keeps its own order; the other
+/// way round (a later rank's message published before an earlier rank's) the order
+/// is not kept, and need not be:
+///
+/// - [`Rank::Samples`]: the sensors' samples (`vib`). Samples may reach the
+///   compensator's waveform stage ahead of the readings they cover, never behind: a
+///   reading that arrives before the samples published ahead of it waits for them,
+///   and an accelerometer block one sensor block past a held reading gives that
+///   reading up (`vibro_compensator::waveform`, "late"). One host's iceoryx2 keeps
+///   publish order; a bridge must too, or the compensator's answer depends on the
+///   network (a lock-stepped replay across two hosts would differ from one host's).
+/// - [`Rank::Data`]: every other stream. Held (taken before the samples) only when
+///   the bridge exports samples too; otherwise taken and sent at once.
+/// - [`Rank::Progress`]: a progress stream says "everything I published before this is
+///   out": taken first and sent last, so that on the other side none overtakes an
+///   output it reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Rank {
+    Samples,
+    Data,
+    Progress,
+}
+
+impl Rank {
+    fn of(stream: Stream) -> Self {
+        match stream {
+            Stream::Vib => Self::Samples,
+            Stream::Progress(_) => Self::Progress,
+            _ => Self::Data,
+        }
+    }
+}
 
 struct Exporter<T: WireMessage> {
     sub: StreamSubscriber<T>,
-    /// A progress stream says "everything I published before this is out": its
-    /// messages are taken first and sent after the other streams' of the same pass,
-    /// so that on the other side none overtakes an output it reports.
-    deferred: bool,
+    /// Taken first in a pass and sent by the next drain ([`Rank`]).
+    held_stream: bool,
     /// Copies (a subscriber may borrow only 2 samples from shared memory at a time).
     held: std::cell::RefCell<Vec<T>>,
     /// A stream with a history for late subscribers (`estimate` 1, `log/*` 32,
@@ -426,17 +464,19 @@ struct Exporter<T: WireMessage> {
 }
 
 impl<T: WireMessage> Exporter<T> {
+    /// The exporter of `stream` by `config`; `with_samples`: the bridge exports the
+    /// sensors' samples too ([`Rank`]).
     fn open(
         node: &vibro_ipc::IpcNode,
-        names: &ServiceNames,
+        config: &BridgeConfig,
         stream: Stream,
         session: &Session,
-        key: String,
-        congestion: Congestion,
         stats: Arc<StreamStats>,
+        with_samples: bool,
     ) -> Result<Self> {
-        let sub = StreamSubscriber::<T>::open(node, names, stream)?;
-        let cc = match congestion {
+        let key = config.key(stream);
+        let sub = StreamSubscriber::<T>::open(node, &config.names, stream)?;
+        let cc = match config.congestion {
             Congestion::Block => CongestionControl::Block,
             Congestion::Drop => CongestionControl::Drop,
         };
@@ -466,7 +506,12 @@ impl<T: WireMessage> Exporter<T> {
                 key: key.clone(),
                 reason: e.to_string(),
             })?;
-        let deferred = matches!(stream, Stream::Progress(_));
+        let rank = Rank::of(stream);
+        let held_stream = match rank {
+            Rank::Samples => false,
+            Rank::Data => with_samples,
+            Rank::Progress => true,
+        };
         let state = is_state(stream);
         // A heartbeat taken before the other side's bridge came up (its host started
         // later) waits for it instead of being lost: the newest one, sent on matching.
@@ -477,11 +522,15 @@ impl<T: WireMessage> Exporter<T> {
         };
         Ok(Self {
             sub,
-            deferred,
+            held_stream,
             history,
             state,
             pending: std::cell::RefCell::new(std::collections::VecDeque::with_capacity(history)),
-            held: std::cell::RefCell::new(Vec::with_capacity(if deferred { HOLD_MAX } else { 0 })),
+            held: std::cell::RefCell::new(Vec::with_capacity(if held_stream {
+                HOLD_MAX
+            } else {
+                0
+            })),
             publisher,
             matched,
             stats,
@@ -507,17 +556,18 @@ impl<T: WireMessage> ExportPort for Exporter<T> {
         StreamStats::add(&self.stats.unmatched, n);
     }
 
-    fn hold(&self) -> Result<()> {
-        if self.deferred {
-            let mut held = self.held.borrow_mut();
-            while held.len() < HOLD_MAX {
-                match self.sub.receive()? {
-                    Some(s) => held.push(*s),
-                    None => break,
-                }
+    fn hold(&self) -> Result<bool> {
+        if !self.held_stream {
+            return Ok(false);
+        }
+        let mut held = self.held.borrow_mut();
+        while held.len() < HOLD_MAX {
+            match self.sub.receive()? {
+                Some(s) => held.push(*s),
+                None => return Ok(false),
             }
         }
-        Ok(())
+        Ok(true)
     }
 
     fn drain(&self) -> Result<usize> {
@@ -527,11 +577,11 @@ impl<T: WireMessage> ExportPort for Exporter<T> {
                 self.send(m.bytes());
             }
         }
-        if self.deferred {
+        if self.held_stream {
             let mut held = self.held.borrow_mut();
             let n = held.len();
             for m in held.iter() {
-                self.send(m.bytes());
+                self.take(m);
             }
             held.clear();
             return Ok(n);
@@ -539,29 +589,34 @@ impl<T: WireMessage> ExportPort for Exporter<T> {
         let mut n = 0;
         while let Some(sample) = self.sub.receive()? {
             n += 1;
-            if self.history > 0 && !self.matched.load(Ordering::Acquire) {
-                let mut pending = self.pending.borrow_mut();
-                if pending.len() == self.history {
-                    pending.pop_front();
-                    StreamStats::add(
-                        if self.state {
-                            &self.stats.superseded
-                        } else {
-                            &self.stats.unmatched
-                        },
-                        1,
-                    );
-                }
-                pending.push_back(*sample);
-                continue;
-            }
-            self.send(sample.bytes());
+            self.take(&sample);
         }
         Ok(n)
     }
 }
 
 impl<T: WireMessage> Exporter<T> {
+    /// One message taken from iceoryx2: sent, or kept for a late peer (`history`).
+    fn take(&self, m: &T) {
+        if self.history > 0 && !self.matched.load(Ordering::Acquire) {
+            let mut pending = self.pending.borrow_mut();
+            if pending.len() == self.history {
+                pending.pop_front();
+                StreamStats::add(
+                    if self.state {
+                        &self.stats.superseded
+                    } else {
+                        &self.stats.unmatched
+                    },
+                    1,
+                );
+            }
+            pending.push_back(*m);
+            return;
+        }
+        self.send(m.bytes());
+    }
+
     fn send(&self, bytes: &[u8]) {
         if !self.matched.load(Ordering::Acquire) {
             // Nobody on the other side: the message is lost, and counted here (the
@@ -591,57 +646,69 @@ fn export_loop(
     let node = create_node("vibrocomp-bridge-out")?;
     // A bridge killed before this one (restarted by `vibrocomp up`) left its ports.
     vibro_ipc::cleanup_dead_nodes(&node);
-    let mut ports: Vec<Box<dyn ExportPort>> = Vec::with_capacity(config.export.len());
-    for (stream, st) in config.export.iter().zip(stats) {
-        let key = config.key(*stream);
+    let with_samples = config.export.iter().any(|s| Rank::of(*s) == Rank::Samples);
+    // In send order ([`Rank`]); taken in the reverse.
+    let mut streams = config.export.iter().zip(stats).collect::<Vec<_>>();
+    streams.sort_by_key(|(s, _)| Rank::of(**s));
+    let mut ports: Vec<Box<dyn ExportPort>> = Vec::with_capacity(streams.len());
+    for &(stream, st) in &streams {
         let port: Box<dyn ExportPort> = with_type!(stream.kind(), T => Box::new(Exporter::<T>::open(
             &node,
-            &config.names,
+            config,
             *stream,
             session,
-            key,
-            config.congestion,
             Arc::clone(st),
+            with_samples,
         )?));
         ports.push(port);
     }
     let waitset = create_waitset()?;
     let mut guards = Vec::with_capacity(ports.len());
-    for (p, s) in ports.iter().zip(&config.export) {
+    for (p, (s, _)) in ports.iter().zip(&streams) {
         guards.push(waitset.attach_notification(p.listener()).map_err(|e| {
             vibro_ipc::Error::Iceoryx {
                 operation: "attach to the wait set",
-                service: config.names.event(*s),
+                service: config.names.event(**s),
                 reason: format!("{e:?}"),
             }
         })?);
     }
+    // One pass: the held streams taken (the last rank first), then every stream sent
+    // in rank order. Whether a held stream stopped at its bound (more is waiting).
+    let pass = |ports: &[Box<dyn ExportPort>]| -> Result<bool> {
+        let mut more = false;
+        for p in ports.iter().rev() {
+            more |= p.hold()?;
+        }
+        for p in ports {
+            p.drain()?;
+        }
+        Ok(more)
+    };
+    let mut more = false;
     while !stopping() {
-        waitset
-            .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, STOP_POLL)
-            .map_err(|e| vibro_ipc::Error::Iceoryx {
-                operation: "wait",
-                service: "bridge wait set".into(),
-                reason: format!("{e:?}"),
-            })?;
+        if !more {
+            waitset
+                .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, STOP_POLL)
+                .map_err(|e| vibro_ipc::Error::Iceoryx {
+                    operation: "wait",
+                    service: "bridge wait set".into(),
+                    reason: format!("{e:?}"),
+                })?;
+        }
         for p in &ports {
             p.clear_events();
         }
-        for p in &ports {
-            p.hold()?;
-        }
-        for p in &ports {
-            p.drain()?;
-        }
+        more = pass(&ports)?;
     }
     drop(guards);
     // What the producers published before the stop and this loop has not taken yet:
-    // sent (or counted), never dropped silently.
-    for p in &ports {
-        p.hold()?;
-    }
-    for p in &ports {
-        p.drain()?;
+    // sent (or counted), never dropped silently (a subscriber's buffer is a few
+    // holds' worth; a producer still publishing cannot keep the bridge from stopping).
+    for _ in 0..STOP_PASSES {
+        if !pass(&ports)? {
+            break;
+        }
     }
     for p in &ports {
         p.finish();
