@@ -59,7 +59,12 @@ impl Kernel {
                 }
                 let r = u / w;
                 let window = bessel_i0(BETA * (1.0 - r * r).max(0.0).sqrt()) / i0_beta;
-                let sinc = if u.abs() < 1e-12 {
+                let sinc = if j % STEPS == 0 && j != STEPS * HALF_WIDTH {
+                    // A whole sample away: the sinc's zero, exactly (`sin(pi u)` would
+                    // leave about 1e-17). So at a point on a sample the weights are
+                    // exactly that sample's 1 and 0 elsewhere (`Weights::unit`).
+                    0.0
+                } else if u.abs() < 1e-12 {
                     1.0
                 } else {
                     let pu = std::f64::consts::PI * u;
@@ -104,10 +109,18 @@ impl Kernel {
             *hi = self.at(frac + (w - 1 - i as i64) as f64);
             sum_w += *hi;
         }
+        let inv_sum = 1.0 / sum_w;
+        // On a sample: one weight 1, the others 0, their sum 1.
+        let ones = h.iter().filter(|x| **x == 1.0).count();
+        let zeros = h.iter().filter(|x| **x == 0.0).count();
+        let unit = (ones == 1 && zeros == h.len() - 1 && inv_sum == 1.0)
+            .then(|| h.iter().position(|x| *x == 1.0))
+            .flatten();
         Weights {
             frac_bits: frac.to_bits(),
             h,
-            inv_sum: 1.0 / sum_w,
+            inv_sum,
+            unit,
         }
     }
 }
@@ -121,6 +134,12 @@ pub struct Weights {
     frac_bits: u64,
     h: [f64; 2 * HALF_WIDTH],
     inv_sum: f64,
+    /// The tap whose weight is 1 when all others are 0 (a point on a sample): the
+    /// interpolation is that sample. `0.0 + s` is what the sum gives, bit for bit,
+    /// for finite taps (each `0 * s` adds +0, and `+0 + -0` is `+0`); a non-finite
+    /// neighbour would make the sum NaN where the exact kernel, whose taps there are
+    /// 0, gives the sample (the stage refuses non-finite blocks before its ring).
+    unit: Option<usize>,
 }
 
 impl Weights {
@@ -133,8 +152,11 @@ impl Weights {
     /// The interpolated value between samples `k0 - W + 1 ..= k0 + W` of `get(k)`.
     #[inline]
     pub fn interpolate(&self, k0: i64, mut get: impl FnMut(i64) -> [f64; 3]) -> [f64; 3] {
-        let mut acc = [0.0; 3];
         let first = k0 - HALF_WIDTH as i64 + 1;
+        if let Some(i) = self.unit {
+            return on_sample(get(first + i as i64));
+        }
+        let mut acc = [0.0; 3];
         for (i, h) in self.h.iter().enumerate() {
             let s = get(first + i as i64);
             acc[0] += h * s[0];
@@ -155,6 +177,9 @@ impl Weights {
         other: &Weights,
         other_taps: &[[f64; 3]; 2 * HALF_WIDTH],
     ) -> ([f64; 3], [f64; 3]) {
+        if let (Some(i), Some(j)) = (self.unit, other.unit) {
+            return (on_sample(taps[i]), on_sample(other_taps[j]));
+        }
         let (mut a, mut b) = ([0.0; 3], [0.0; 3]);
         for i in 0..2 * HALF_WIDTH {
             let (ha, sa) = (self.h[i], taps[i]);
@@ -176,6 +201,9 @@ impl Weights {
     /// [`Self::interpolate`] over `2 W` consecutive samples.
     #[inline]
     pub fn interpolate_slice(&self, taps: &[[f64; 3]; 2 * HALF_WIDTH]) -> [f64; 3] {
+        if let Some(i) = self.unit {
+            return on_sample(taps[i]);
+        }
         let mut acc = [0.0; 3];
         for (h, s) in self.h.iter().zip(taps) {
             acc[0] += h * s[0];
@@ -185,6 +213,13 @@ impl Weights {
         let inv = self.inv_sum;
         [acc[0] * inv, acc[1] * inv, acc[2] * inv]
     }
+}
+
+/// The interpolation at a point on sample `s` (`Weights::unit`): `0.0 + s`, as the
+/// weighted sum gives it.
+#[inline]
+fn on_sample(s: [f64; 3]) -> [f64; 3] {
+    [0.0 + s[0], 0.0 + s[1], 0.0 + s[2]]
 }
 
 /// The last few offsets' [`Weights`] (a fixed ring, allocated once): the grid's points
@@ -322,6 +357,48 @@ mod tests {
                 assert_eq!(want[a].to_bits(), via_pair[a].to_bits(), "x {x} axis {a}");
                 assert_eq!(other_alone[a].to_bits(), other_pair[a].to_bits(), "x {x}");
                 assert_eq!(want[a].to_bits(), k.interpolate(x, s)[a].to_bits(), "x {x}");
+            }
+        }
+    }
+
+    /// On a sample the kernel's weights are exactly 1 there and 0 elsewhere, and the
+    /// shortcut gives what the weighted sum gives, bit for bit: signed zeros, tiny and
+    /// huge values among the taps.
+    #[test]
+    fn a_point_on_a_sample_is_that_sample_bit_for_bit() {
+        let k = Kernel::new();
+        for u in 1..HALF_WIDTH as i64 {
+            assert_eq!(k.at(u as f64).to_bits(), 0.0f64.to_bits(), "u {u}");
+            assert_eq!(k.at(-u as f64).to_bits(), 0.0f64.to_bits(), "u {u}");
+        }
+        assert_eq!(k.at(0.0), 1.0);
+        let w = k.weights(0.0);
+        assert_eq!(w.unit, Some(HALF_WIDTH - 1));
+        assert!(k.weights(0.25).unit.is_none() && k.weights(1e-9).unit.is_none());
+        let values = [-0.0, 0.0, 1e-300, -3.5, 2.0e300, 7.25e-3, -1e-310];
+        let s = |i: i64| {
+            let v = |o: i64| values[(i + o).rem_euclid(values.len() as i64) as usize];
+            [v(0), v(3), v(5)]
+        };
+        let mut cache = WeightsCache::new();
+        for x in 40..60 {
+            let x = x as f64;
+            let want = interpolate_tap_by_tap(&k, x, s);
+            let k0 = x as i64;
+            let first = k0 - HALF_WIDTH as i64 + 1;
+            let taps: [[f64; 3]; 2 * HALF_WIDTH] = std::array::from_fn(|i| s(first + i as i64));
+            let (pair, _) = w.interpolate_pair(&taps, &k.weights(0.0), &taps);
+            let got = [
+                k.interpolate(x, s),
+                cache.get(&k, 0.0).interpolate(k0, s),
+                w.interpolate_slice(&taps),
+                pair,
+            ];
+            for g in got {
+                for a in 0..3 {
+                    assert_eq!(want[a].to_bits(), g[a].to_bits(), "x {x} axis {a}");
+                    assert_eq!(g[a].to_bits(), (0.0 + s(k0)[a]).to_bits(), "x {x} axis {a}");
+                }
             }
         }
     }
