@@ -18,6 +18,11 @@ from conftest import REPO
 
 CAMPAIGN = REPO / "examples" / "python" / "data" / "campaign-mount-k6.csv"
 
+# _CTRL_C: the scripts below install Python's own SIGINT handler, as an interactive
+# session has it. A process started with SIGINT ignored (a background job of a
+# non-interactive shell, `cmd &`, runs so) passes that on to its children, and Python
+# keeps an inherited SIG_IGN: the child would never see the Ctrl-C this test sends.
+
 
 @pytest.fixture(scope="module")
 def long_table(tmp_path_factory):
@@ -50,7 +55,8 @@ def full_s(long_table):
 def test_ctrl_c_stops_a_diagnosis_within_half_a_second(long_table, full_s):
     script = textwrap.dedent(
         f"""
-        import sys, time
+        import signal, sys, time
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # see _CTRL_C
         import vibrocomp as vc
         print("start", flush=True)
         try:
@@ -206,7 +212,8 @@ def test_ctrl_c_stops_reading_a_log_and_the_reading_behind_it(long_log):
     thread stops at its next message: the process is idle after the exception."""
     script = textwrap.dedent(
         f"""
-        import sys, time
+        import signal, sys, time
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # see _CTRL_C
         import vibrocomp as vc
         log = vc.Log({str(long_log)!r})
         t0 = time.monotonic()
