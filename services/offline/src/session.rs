@@ -6,7 +6,6 @@ use crate::{Outputs, Setup};
 use anyhow::Context;
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::time::Duration;
 use vibro_log::attachments::{LogExtras, RECORDER_METADATA, RECORDING_METADATA};
 use vibro_log::{topic, Placement, Timeline};
 use vibro_mcap::{ChannelId, Compression, Message, Recorder, RecorderOptions, ViewChannelId};
@@ -86,6 +85,8 @@ impl SessionWriter {
             } else {
                 Compression::None
             },
+            // One core: the writer on this thread, no hand-over per message.
+            writer_thread: false,
             ..RecorderOptions::default()
         };
         let mut recorder = Recorder::create(path, recorder_options)?;
@@ -192,19 +193,14 @@ impl SessionWriter {
                 write_view(&self.recorder, v, &mut self.view_counts, log_time_ns)?;
             }
         }
-        let channel = &self.channels[at];
-        loop {
-            match self
-                .recorder
-                .write_to(channel, log_time_ns, log_time_ns, seq as u32, message)
-            {
-                Ok(()) => break,
-                Err(vibro_mcap::Error::QueueFull { .. }) => {
-                    std::thread::sleep(Duration::from_micros(100));
-                }
-                Err(e) => return Err(e.into()),
-            }
-        }
+        // The writer on this thread: never `QueueFull`.
+        self.recorder.write_to(
+            &self.channels[at],
+            log_time_ns,
+            log_time_ns,
+            seq as u32,
+            message,
+        )?;
         self.counts[at] += 1;
         Ok(())
     }

@@ -15,6 +15,11 @@
 //! loses at most about that much: [`crate::recover`] restores everything up to the last
 //! closed chunk. Control calls (`add_channel`, `add_attachment`, `add_metadata`) are
 //! rare and must not be lost, so they wait for room in the queue instead.
+//!
+//! An offline run on one core (`log compensate`) has no real-time caller to protect
+//! and pays for the hand-over between the two threads: with
+//! [`RecorderOptions::writer_thread`] off, the same writer runs on the caller's thread
+//! and writes the same file, byte for byte.
 
 use crate::schema::{schema, schema_id, ViewSchema, MESSAGE_ENCODING, SCHEMA_ENCODING};
 use crate::{Error, Message, Result};
@@ -63,6 +68,13 @@ pub struct RecorderOptions {
     pub compression_threads: u32,
     /// The MCAP header's profile (default `vibrocomp`).
     pub profile: String,
+    /// Whether the writer runs on a thread of its own behind the queue (default), or on
+    /// the caller's thread: each call then encodes, compresses and writes before it
+    /// returns, and never fails with [`Error::QueueFull`]. For an offline run on one
+    /// core, where the hand-over between two threads (a wake-up per message, each
+    /// message copied in and out of the queue) costs more than it frees. The flush
+    /// rule is then checked at each call: a chunk stays open while no call comes.
+    pub writer_thread: bool,
 }
 
 impl Default for RecorderOptions {
@@ -75,6 +87,7 @@ impl Default for RecorderOptions {
             queue_capacity: 1024,
             compression_threads: 0,
             profile: "vibrocomp".to_string(),
+            writer_thread: true,
         }
     }
 }
@@ -248,6 +261,54 @@ enum Command {
     },
 }
 
+/// Where the commands go: the writer thread's queue, or the writer itself on the
+/// caller's thread ([`RecorderOptions::writer_thread`]).
+enum Sink {
+    Thread {
+        tx: Option<SyncSender<Command>>,
+        thread: Option<JoinHandle<Result<RecordingSummary>>>,
+    },
+    Inline(Box<std::sync::Mutex<Inline>>),
+}
+
+/// The writer on the caller's thread.
+struct Inline {
+    /// `None` once finished or failed.
+    writer: Option<Writer>,
+    /// The writer's error, returned by `finish` (later calls see
+    /// [`Error::RecorderStopped`] with its cause).
+    failed: Option<Error>,
+    /// When the open chunk got its first message.
+    open_since: Option<Instant>,
+}
+
+impl Inline {
+    /// Hands `command` to the writer, and closes the chunk when the flush rule says so.
+    /// A failure ends the writer (`writer` `None`, `failed` set).
+    fn handle(&mut self, command: Command) {
+        let Some(writer) = self.writer.as_mut() else {
+            return;
+        };
+        let result = writer.handle(command).and_then(|writes_chunk| {
+            if writes_chunk && self.open_since.is_none() {
+                self.open_since = Some(Instant::now());
+            }
+            match self.open_since {
+                Some(since) if since.elapsed() >= writer.flush_interval => {
+                    self.open_since = None;
+                    writer.flush()
+                }
+                _ => Ok(()),
+            }
+        });
+        if let Err(e) = result {
+            let _ = writer.counters.cause.set(describe_cause(&e));
+            self.writer = None;
+            self.failed = Some(e);
+        }
+    }
+}
+
 /// Records wire messages into an MCAP file from any thread; see the module docs for the
 /// threading, back-pressure and flush rules.
 ///
@@ -255,8 +316,7 @@ enum Command {
 /// also finishes the file (waiting for the writer thread) but loses any error.
 pub struct Recorder {
     path: PathBuf,
-    tx: Option<SyncSender<Command>>,
-    thread: Option<JoinHandle<Result<RecordingSummary>>>,
+    sink: Sink,
     channels: HashMap<String, ChannelId>,
     view_channels: HashMap<String, (ViewChannelId, &'static str)>,
     next_channel_id: u16,
@@ -301,26 +361,25 @@ impl Recorder {
             .create(BufWriter::new(file))
             .map_err(|e| write_error(&path, e))?;
 
-        let (tx, rx) = std::sync::mpsc::sync_channel(options.queue_capacity);
         let counters = Arc::new(Counters::default());
-        let thread = {
-            let thread_path = path.clone();
+        let state = Writer {
+            path: path.clone(),
+            writer,
+            flush_interval,
+            counters: Arc::clone(&counters),
+            topics: BTreeMap::new(),
+            view_schemas: BTreeMap::new(),
+            buf: Vec::with_capacity(16 * 1024),
+            attachments: 0,
+            metadata: 0,
+        };
+        let sink = if options.writer_thread {
+            let (tx, rx) = std::sync::mpsc::sync_channel(options.queue_capacity);
             let counters = Arc::clone(&counters);
-            std::thread::Builder::new()
+            let thread = std::thread::Builder::new()
                 .name("mcap-recorder".to_string())
                 .spawn(move || {
-                    let result = WriterThread {
-                        path: thread_path,
-                        writer,
-                        flush_interval,
-                        counters: Arc::clone(&counters),
-                        topics: BTreeMap::new(),
-                        view_schemas: BTreeMap::new(),
-                        buf: Vec::with_capacity(16 * 1024),
-                        attachments: 0,
-                        metadata: 0,
-                    }
-                    .run(&rx);
+                    let result = state.run(&rx);
                     if let Err(e) = &result {
                         let _ = counters.cause.set(describe_cause(e));
                     }
@@ -328,12 +387,21 @@ impl Recorder {
                     drop(rx);
                     result
                 })
-                .map_err(|e| Error::io("start the writer thread for", &path, e))?
+                .map_err(|e| Error::io("start the writer thread for", &path, e))?;
+            Sink::Thread {
+                tx: Some(tx),
+                thread: Some(thread),
+            }
+        } else {
+            Sink::Inline(Box::new(std::sync::Mutex::new(Inline {
+                writer: Some(state),
+                failed: None,
+                open_since: None,
+            })))
         };
         Ok(Recorder {
             path,
-            tx: Some(tx),
-            thread: Some(thread),
+            sink,
             channels: HashMap::new(),
             view_channels: HashMap::new(),
             next_channel_id: 1,
@@ -441,7 +509,6 @@ impl Recorder {
         sequence: u32,
         data: Vec<u8>,
     ) -> Result<bool> {
-        let tx = self.tx.as_ref().ok_or_else(|| self.stopped())?;
         let command = Command::View {
             channel_id: channel.id,
             sequence,
@@ -449,13 +516,22 @@ impl Recorder {
             publish_time_ns,
             data,
         };
-        let waited = match tx.try_send(command) {
-            Ok(()) => false,
-            Err(TrySendError::Full(command)) => {
-                tx.send(command).map_err(|_| self.stopped())?;
-                true
+        let waited = match &self.sink {
+            Sink::Thread { tx, .. } => {
+                let tx = tx.as_ref().ok_or_else(|| self.stopped())?;
+                match tx.try_send(command) {
+                    Ok(()) => false,
+                    Err(TrySendError::Full(command)) => {
+                        tx.send(command).map_err(|_| self.stopped())?;
+                        true
+                    }
+                    Err(TrySendError::Disconnected(_)) => return Err(self.stopped()),
+                }
             }
-            Err(TrySendError::Disconnected(_)) => return Err(self.stopped()),
+            Sink::Inline(_) => {
+                self.inline(command)?;
+                false
+            }
         };
         self.counters.accepted.fetch_add(1, Ordering::Relaxed);
         Ok(waited)
@@ -507,14 +583,22 @@ impl Recorder {
             });
         }
         message.validate()?;
-        let tx = self.tx.as_ref().ok_or_else(|| self.stopped())?;
-        match tx.try_send(Command::Message {
+        let command = Command::Message {
             channel_id: channel.id,
             sequence,
             log_time_ns,
             publish_time_ns,
             message,
-        }) {
+        };
+        let tx = match &self.sink {
+            Sink::Thread { tx, .. } => tx.as_ref().ok_or_else(|| self.stopped())?,
+            Sink::Inline(_) => {
+                self.inline(command)?;
+                self.counters.accepted.fetch_add(1, Ordering::Relaxed);
+                return Ok(());
+            }
+        };
+        match tx.try_send(command) {
             Ok(()) => {
                 self.counters.accepted.fetch_add(1, Ordering::Relaxed);
                 Ok(())
@@ -585,19 +669,68 @@ impl Recorder {
     }
 
     fn close(&mut self) -> Result<RecordingSummary> {
-        // Dropping the sender lets the writer thread drain the queue and finish.
-        self.tx = None;
-        let thread = self.thread.take().ok_or_else(|| self.stopped())?;
-        let mut summary = thread.join().map_err(|_| Error::WriterPanicked {
-            path: self.path.clone(),
-        })??;
+        let mut summary = match &mut self.sink {
+            Sink::Thread { tx, thread } => {
+                // Dropping the sender lets the writer thread drain the queue and finish.
+                *tx = None;
+                let thread = thread.take().ok_or_else(|| self.stopped())?;
+                thread.join().map_err(|_| Error::WriterPanicked {
+                    path: self.path.clone(),
+                })??
+            }
+            Sink::Inline(inline) => {
+                let inline = inline
+                    .get_mut()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
+                if let Some(e) = inline.failed.take() {
+                    return Err(e);
+                }
+                let writer = inline.writer.take().ok_or_else(|| self.stopped())?;
+                writer.finish()?
+            }
+        };
         summary.rejected_full = self.counters.rejected_full.load(Ordering::Relaxed);
         Ok(summary)
     }
 
+    /// Whether the file is still to be finished (by `finish` or on drop).
+    fn unfinished(&self) -> bool {
+        match &self.sink {
+            Sink::Thread { thread, .. } => thread.is_some(),
+            Sink::Inline(inline) => inline
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .writer
+                .is_some(),
+        }
+    }
+
+    /// `command` written on this thread ([`Sink::Inline`]).
+    fn inline(&self, command: Command) -> Result<()> {
+        let Sink::Inline(inline) = &self.sink else {
+            return Err(self.stopped());
+        };
+        let mut inline = inline
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if inline.writer.is_none() {
+            return Err(self.stopped());
+        }
+        inline.handle(command);
+        if inline.writer.is_none() {
+            return Err(self.stopped());
+        }
+        Ok(())
+    }
+
     fn send_control(&self, command: Command) -> Result<()> {
-        let tx = self.tx.as_ref().ok_or_else(|| self.stopped())?;
-        tx.send(command).map_err(|_| self.stopped())
+        match &self.sink {
+            Sink::Thread { tx, .. } => {
+                let tx = tx.as_ref().ok_or_else(|| self.stopped())?;
+                tx.send(command).map_err(|_| self.stopped())
+            }
+            Sink::Inline(_) => self.inline(command),
+        }
     }
 
     fn stopped(&self) -> Error {
@@ -614,7 +747,7 @@ impl Recorder {
 
 impl Drop for Recorder {
     fn drop(&mut self) {
-        if self.thread.is_some() {
+        if self.unfinished() {
             // Best effort: the file is finished, but an error has nobody to go to.
             // `finish()` is the way to see it.
             let _ = self.close();
@@ -625,7 +758,8 @@ impl Drop for Recorder {
 /// The first schema ID of the view schemas (the wire types take 1..=6).
 const VIEW_SCHEMA_ID_BASE: u16 = 32;
 
-struct WriterThread {
+/// The `mcap::Writer` and what goes with it: on the writer thread, or on the caller's.
+struct Writer {
     path: PathBuf,
     writer: mcap::Writer<BufWriter<std::fs::File>>,
     flush_interval: Duration,
@@ -638,7 +772,7 @@ struct WriterThread {
     metadata: u64,
 }
 
-impl WriterThread {
+impl Writer {
     fn run(mut self, rx: &Receiver<Command>) -> Result<RecordingSummary> {
         // When the open chunk got its first message: it must be closed by then + interval.
         let mut open_since: Option<Instant> = None;
@@ -859,7 +993,7 @@ mod tests {
 
     /// `/dev/full` fails every write with ENOSPC, as a full disk does. It is opened for
     /// writing only (no truncation, no replacement), so the device itself is untouched.
-    fn full_disk() -> Recorder {
+    fn full_disk(writer_thread: bool) -> Recorder {
         let path = PathBuf::from("/dev/full");
         let file = std::fs::OpenOptions::new()
             .write(true)
@@ -868,6 +1002,7 @@ mod tests {
         let options = RecorderOptions {
             chunk_size_bytes: 4096,
             flush_interval_s: 0.01,
+            writer_thread,
             ..RecorderOptions::default()
         };
         Recorder::start(file, path, options).expect("the recorder starts")
@@ -876,25 +1011,21 @@ mod tests {
     /// The operating system's reason for ENOSPC, as `io::Error` prints it.
     const ENOSPC: &str = "(os error 28)";
 
+    /// With the writer on its own thread and on the caller's alike.
     #[test]
     fn a_full_disk_is_reported_with_its_cause_by_write_control_calls_and_finish() {
-        let mut rec = full_disk();
-        let accel = rec
-            .add_channel("accel", MessageKind::AccelBlock)
-            .expect("channel");
-        let deadline = Instant::now() + Duration::from_secs(20);
-        let mut seq = 0u32;
-        let stopped = loop {
-            assert!(Instant::now() < deadline, "no write failed on /dev/full");
-            let mut m = AccelBlock::ZEROED;
-            m.seq = u64::from(seq);
-            match rec.write_to(&accel, u64::from(seq), 0, seq, m.into()) {
-                Ok(()) | Err(Error::QueueFull { .. }) => {
-                    std::thread::sleep(Duration::from_micros(100));
-                    seq += 1;
-                }
-                Err(e) => break e,
-            }
+        for writer_thread in [true, false] {
+            full_disk_reported(writer_thread);
+        }
+    }
+
+    fn full_disk_reported(writer_thread: bool) {
+        let mut rec = full_disk(writer_thread);
+        // On the caller's thread the first write to the disk may be the channel's.
+        let stopped = match rec.add_channel("accel", MessageKind::AccelBlock) {
+            Ok(accel) => first_failed_write(&rec, &accel),
+            Err(e) if !writer_thread => e,
+            Err(e) => panic!("channel: {e}"),
         };
         let text = stopped.to_string();
         assert!(
@@ -930,25 +1061,110 @@ mod tests {
         }
     }
 
+    /// Writes until a write fails; that error.
+    fn first_failed_write(rec: &Recorder, accel: &ChannelId) -> Error {
+        let deadline = Instant::now() + Duration::from_secs(20);
+        let mut seq = 0u32;
+        loop {
+            assert!(Instant::now() < deadline, "no write failed on /dev/full");
+            let mut m = AccelBlock::ZEROED;
+            m.seq = u64::from(seq);
+            match rec.write_to(accel, u64::from(seq), 0, seq, m.into()) {
+                Ok(()) | Err(Error::QueueFull { .. }) => {
+                    std::thread::sleep(Duration::from_micros(100));
+                    seq += 1;
+                }
+                Err(e) => break e,
+            }
+        }
+    }
+
     #[test]
     fn finish_alone_reports_a_full_disk_with_its_cause() {
-        // Nothing but the header and a channel: the first write to the disk is finish's.
-        let mut rec = full_disk();
-        rec.add_channel("accel", MessageKind::AccelBlock)
-            .expect("channel");
-        let text = rec
-            .finish()
-            .expect_err("finish reports the full disk")
-            .to_string();
-        assert!(
-            text.contains("/dev/full") && text.contains(ENOSPC),
-            "finish: {text}"
-        );
+        for writer_thread in [true, false] {
+            // Nothing but the header and a channel: the first write to the disk is
+            // finish's.
+            let mut rec = full_disk(writer_thread);
+            if let Err(e) = rec.add_channel("accel", MessageKind::AccelBlock) {
+                // On the caller's thread the channel may meet the full disk first.
+                assert!(!writer_thread && e.to_string().contains(ENOSPC), "{e}");
+            }
+            let text = rec
+                .finish()
+                .expect_err("finish reports the full disk")
+                .to_string();
+            assert!(
+                text.contains("/dev/full") && text.contains(ENOSPC),
+                "finish ({writer_thread}): {text}"
+            );
+        }
     }
 
     /// View channels go into the file with their schema (one schema record for two
     /// channels of the same schema, after the wire types' IDs), their bytes as given;
     /// the wire readers pass over them and list them apart; a topic cannot be both.
+    /// The writer on the caller's thread writes the file the writer thread writes, byte
+    /// for byte (chunks closed by size: the test is over long before the flush
+    /// interval).
+    #[test]
+    fn the_writer_on_the_callers_thread_writes_the_same_file() {
+        use crate::schema::VIEW_UNIT_STAGES;
+        let write = |writer_thread: bool| {
+            let path = std::env::temp_dir().join(format!(
+                "vibro-mcap-inline-{}-{writer_thread}.mcap",
+                std::process::id()
+            ));
+            let options = RecorderOptions {
+                compression: Compression::None,
+                chunk_size_bytes: 64 * 1024,
+                flush_interval_s: 600.0,
+                writer_thread,
+                ..RecorderOptions::default()
+            };
+            let mut rec = Recorder::create(&path, options).expect("create");
+            let accel = rec
+                .add_channel("/accel", MessageKind::AccelBlock)
+                .expect("channel");
+            let view = rec
+                .add_view_channel("/view/AK1", VIEW_UNIT_STAGES)
+                .expect("view channel");
+            rec.add_metadata("run", BTreeMap::from([("k".to_string(), "v".to_string())]))
+                .expect("metadata");
+            rec.add_attachment_at("a.toml", "text/plain", b"x = 1".to_vec(), 5)
+                .expect("attachment");
+            for seq in 0..500u32 {
+                let mut m = AccelBlock::ZEROED;
+                m.seq = u64::from(seq);
+                m.count = 32;
+                m.sample_period_ns = 1_250_000;
+                m.t0_ns = u64::from(seq) * 40_000_000;
+                m.output_v[3][1] = f64::from(seq) * 1e-3;
+                loop {
+                    match rec.write_to(&accel, m.t0_ns, m.t0_ns, seq, m.into()) {
+                        Ok(()) => break,
+                        Err(Error::QueueFull { .. }) => {
+                            std::thread::sleep(Duration::from_micros(50))
+                        }
+                        Err(e) => panic!("write: {e}"),
+                    }
+                }
+                if seq % 100 == 0 {
+                    rec.write_view(&view, m.t0_ns, m.t0_ns, seq / 100, vec![8, seq as u8])
+                        .expect("view");
+                }
+            }
+            let summary = rec.finish().expect("finish");
+            assert_eq!(summary.messages, 505, "{summary:?}");
+            assert!(summary.chunks > 1, "{summary:?}");
+            let bytes = std::fs::read(&path).expect("read back");
+            let _ = std::fs::remove_file(&path);
+            bytes
+        };
+        let (threaded, inline) = (write(true), write(false));
+        assert!(threaded.len() > 100_000);
+        assert!(threaded == inline, "the two files differ");
+    }
+
     #[test]
     fn view_channels_are_written_beside_the_wire_ones_and_read_apart() {
         use crate::schema::{VIEW_SERVICE_HEALTH, VIEW_UNIT_STAGES};
