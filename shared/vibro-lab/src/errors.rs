@@ -31,15 +31,10 @@ pub fn cause_location(cause: &(dyn StdError + 'static)) -> Option<Location> {
         if let vibro_log::Error::Sim(x) = x {
             return x.location();
         }
-        if let Some(file) = x.file() {
-            return Some(file_only(file.display().to_string()));
-        }
+        return x.file().map(path_only);
     }
-    if let Some(file) = cause
-        .downcast_ref::<vibro_mcap::Error>()
-        .and_then(vibro_mcap::Error::file)
-    {
-        return Some(file_only(file.display().to_string()));
+    if let Some(x) = cause.downcast_ref::<vibro_mcap::Error>() {
+        return x.file().map(path_only);
     }
     if let Some(x) = cause.downcast_ref::<vibro_effects::Error>() {
         return x.location();
@@ -59,8 +54,8 @@ pub fn cause_location(cause: &(dyn StdError + 'static)) -> Option<Location> {
             Some(file_only(path.clone()))
         }
         // Transparent: the inner error is not a cause of its own in the chain.
-        crate::Error::Log(x) => x.file().map(|f| file_only(f.display().to_string())),
-        crate::Error::Mcap(x) => x.file().map(|f| file_only(f.display().to_string())),
+        crate::Error::Log(x) => cause_location(x.as_ref()),
+        crate::Error::Mcap(x) => cause_location(x.as_ref()),
         _ => None,
     }
 }
@@ -70,6 +65,11 @@ pub fn location<'a>(
     chain: impl IntoIterator<Item = &'a (dyn StdError + 'static)>,
 ) -> Option<Location> {
     chain.into_iter().find_map(cause_location)
+}
+
+/// [`file_only`] for a path.
+fn path_only(path: &std::path::Path) -> Location {
+    file_only(path.display().to_string())
 }
 
 /// A location naming only a file.

@@ -278,35 +278,6 @@ struct Inline {
     /// The writer's error, returned by `finish` (later calls see
     /// [`Error::RecorderStopped`] with its cause).
     failed: Option<Error>,
-    /// When the open chunk got its first message.
-    open_since: Option<Instant>,
-}
-
-impl Inline {
-    /// Hands `command` to the writer, and closes the chunk when the flush rule says so.
-    /// A failure ends the writer (`writer` `None`, `failed` set).
-    fn handle(&mut self, command: Command) {
-        let Some(writer) = self.writer.as_mut() else {
-            return;
-        };
-        let result = writer.handle(command).and_then(|writes_chunk| {
-            if writes_chunk && self.open_since.is_none() {
-                self.open_since = Some(Instant::now());
-            }
-            match self.open_since {
-                Some(since) if since.elapsed() >= writer.flush_interval => {
-                    self.open_since = None;
-                    writer.flush()
-                }
-                _ => Ok(()),
-            }
-        });
-        if let Err(e) = result {
-            let _ = writer.counters.cause.set(describe_cause(&e));
-            self.writer = None;
-            self.failed = Some(e);
-        }
-    }
 }
 
 /// Records wire messages into an MCAP file from any thread; see the module docs for the
@@ -372,6 +343,7 @@ impl Recorder {
             buf: Vec::with_capacity(16 * 1024),
             attachments: 0,
             metadata: 0,
+            open_since: None,
         };
         let sink = if options.writer_thread {
             let (tx, rx) = std::sync::mpsc::sync_channel(options.queue_capacity);
@@ -396,7 +368,6 @@ impl Recorder {
             Sink::Inline(Box::new(std::sync::Mutex::new(Inline {
                 writer: Some(state),
                 failed: None,
-                open_since: None,
             })))
         };
         Ok(Recorder {
@@ -713,11 +684,12 @@ impl Recorder {
         let mut inline = inline
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if inline.writer.is_none() {
-            return Err(self.stopped());
-        }
-        inline.handle(command);
-        if inline.writer.is_none() {
+        let writer = inline.writer.as_mut().ok_or_else(|| self.stopped())?;
+        if let Err(e) = writer.take(command) {
+            // As the writer thread ends: the cause first, for every later call.
+            let _ = self.counters.cause.set(describe_cause(&e));
+            inline.writer = None;
+            inline.failed = Some(e);
             return Err(self.stopped());
         }
         Ok(())
@@ -770,14 +742,16 @@ struct Writer {
     buf: Vec<u8>,
     attachments: u64,
     metadata: u64,
+    /// When the open chunk got its first message: it is closed by then + interval.
+    open_since: Option<Instant>,
 }
 
 impl Writer {
+    /// The writer thread's loop: takes the queue's commands until every sender is gone,
+    /// and closes an open chunk when its interval ends while nothing comes.
     fn run(mut self, rx: &Receiver<Command>) -> Result<RecordingSummary> {
-        // When the open chunk got its first message: it must be closed by then + interval.
-        let mut open_since: Option<Instant> = None;
         loop {
-            let command = match open_since {
+            let command = match self.open_since {
                 None => match rx.recv() {
                     Ok(c) => c,
                     Err(_) => break,
@@ -789,23 +763,30 @@ impl Writer {
                         Ok(c) => c,
                         Err(RecvTimeoutError::Timeout) => {
                             self.flush()?;
-                            open_since = None;
                             continue;
                         }
                         Err(RecvTimeoutError::Disconnected) => break,
                     }
                 }
             };
-            let writes_chunk = self.handle(command)?;
-            if writes_chunk && open_since.is_none() {
-                open_since = Some(Instant::now());
-            }
-            if open_since.is_some_and(|since| since.elapsed() >= self.flush_interval) {
-                self.flush()?;
-                open_since = None;
-            }
+            self.take(command)?;
         }
         self.finish()
+    }
+
+    /// One command written, and the open chunk closed once its interval is over.
+    fn take(&mut self, command: Command) -> Result<()> {
+        let writes_chunk = self.handle(command)?;
+        if writes_chunk && self.open_since.is_none() {
+            self.open_since = Some(Instant::now());
+        }
+        if self
+            .open_since
+            .is_some_and(|since| since.elapsed() >= self.flush_interval)
+        {
+            self.flush()?;
+        }
+        Ok(())
     }
 
     /// Returns whether the command wrote into the open chunk.
@@ -926,7 +907,9 @@ impl Writer {
         Ok(true)
     }
 
+    /// Closes the open chunk (and hands it to the operating system).
     fn flush(&mut self) -> Result<()> {
+        self.open_since = None;
         self.writer.flush().map_err(|e| write_error(&self.path, e))
     }
 
