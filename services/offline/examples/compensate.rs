@@ -5,7 +5,7 @@
 //! ```text
 //! vibrocomp sim cyclone-4 --out /tmp/cyclone-4.mcap
 //! cargo build --release -p vibro-offline --example compensate
-//! taskset -c 0 target/release/examples/compensate /tmp/cyclone-4.mcap /tmp/session.mcap [--no-view] [--no-compression] [--no-output]
+//! taskset -c 0 target/release/examples/compensate /tmp/cyclone-4.mcap /tmp/session.mcap [--no-view] [--no-compression] [--no-chunk-copy] [--no-output]
 //! ```
 //!
 //! Run from the repository's root: the configurations are the services' default rule
@@ -20,7 +20,7 @@ fn main() -> anyhow::Result<()> {
         args.iter().partition(|a| !a.starts_with("--"));
     let [log, out] = files.as_slice() else {
         anyhow::bail!(
-            "usage: compensate LOG OUT.mcap [--no-view] [--no-compression] [--no-output]"
+            "usage: compensate LOG OUT.mcap [--no-view] [--no-compression] [--no-chunk-copy] [--no-output]"
         );
     };
     let has = |f: &str| flags.iter().any(|a| *a == f);
@@ -28,6 +28,7 @@ fn main() -> anyhow::Result<()> {
         force: true,
         view: !has("--no-view"),
         compress: !has("--no-compression"),
+        copy_chunks: !has("--no-chunk-copy"),
     };
     let setup = Setup::derive(None, None, None, None)?;
     let (log, out) = (PathBuf::from(log), PathBuf::from(out));
@@ -46,13 +47,14 @@ fn main() -> anyhow::Result<()> {
     }
     let s = compensate_log(&log, &setup, &out, &options, &|| None, &mut |_, _| {})?;
     println!(
-        "{:.1} s of data in {:.3} s wall: {:.0}x real time; {} estimates, {} blocks, {:.1} MB written",
+        "{:.1} s of data in {:.3} s wall: {:.0}x real time; {} estimates, {} blocks, {:.1} MB written, {} chunks copied",
         s.flight_s,
         s.wall_s,
         s.real_time_factor,
         s.estimates,
         s.compensated_blocks,
-        s.bytes as f64 / 1e6
+        s.bytes as f64 / 1e6,
+        s.copied_chunks
     );
     Ok(())
 }

@@ -55,6 +55,7 @@
 //! References: docs/logs.md (`log compensate`, "Time"), docs/services.md (streams,
 //! flags), `vibro_log::record` (what a recording holds).
 
+mod copy;
 mod session;
 
 use anyhow::Context;
@@ -63,7 +64,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use vibro_log::{rig_streams, stream_of_topic, topic};
-use vibro_mcap::{Message, Reader};
+use vibro_mcap::{Message, Reader, Record};
 use vibro_msgs::compensation_flags as cf;
 use vibro_msgs::{CompensatedBlock, Stream, VibBlock, VibEstimate};
 use vibro_service::ServiceConfig;
@@ -199,6 +200,8 @@ pub struct OfflineSummary {
     pub real_time_factor: f64,
     /// Bytes of the session written (0 without a file).
     pub bytes: u64,
+    /// The log's chunks copied into the session as they are (`OutputOptions::copy_chunks`).
+    pub copied_chunks: u64,
     /// The configurations used.
     pub estimator_config: String,
     pub compensator_config: String,
@@ -230,6 +233,13 @@ impl OfflineSummary {
             self.waveform_blocks,
             self.fallback_blocks
         )?;
+        if self.copied_chunks > 0 {
+            writeln!(
+                out,
+                "  {} of the log's chunks copied as they are",
+                self.copied_chunks
+            )?;
+        }
         writeln!(
             out,
             "  estimator: {}; compensator: {}",
@@ -242,9 +252,19 @@ impl OfflineSummary {
 /// Where the cores' outputs go, in the order a lock-stepped replay's recorder would
 /// see them: each input, then what it made.
 pub(crate) trait Outputs {
-    fn input(&mut self, stream: Stream, message: &Message) -> anyhow::Result<()>;
+    /// An input taken from the log: `record`, the last one `reader` yielded.
+    fn input(&mut self, stream: Stream, record: &Record, reader: &mut Reader)
+        -> anyhow::Result<()>;
     fn estimate(&mut self, estimate: &VibEstimate) -> anyhow::Result<()>;
     fn compensated(&mut self, block: &CompensatedBlock) -> anyhow::Result<()>;
+    /// The log is read and the cores have given all they will.
+    fn end_of_input(&mut self, _reader: &mut Reader) -> anyhow::Result<()> {
+        Ok(())
+    }
+    /// Whether `reader` should keep what each chunk held, for copying chunks.
+    fn copies_chunks(&self) -> bool {
+        false
+    }
 }
 
 /// The two cores in lock-step, and their output buffers (reused, never per block).
@@ -347,7 +367,10 @@ fn run(
     progress: &mut dyn FnMut(u64, u64),
 ) -> anyhow::Result<OfflineSummary> {
     let started = Instant::now();
-    let reader = open_log(log)?;
+    let mut reader = open_log(log)?;
+    if out.copies_chunks() {
+        reader.keep_chunk_facts();
+    }
     let total = reader.message_count().unwrap_or(0);
     let mut cores = Cores::new(setup)?;
     let (vib, accel, truth) = (
@@ -365,7 +388,7 @@ fn run(
         }
     };
     let mut done = 0u64;
-    for record in reader {
+    while let Some(record) = reader.next() {
         let record = record.with_context(|| {
             format!(
                 "{}: damaged after {done} messages (`vibrocomp log recover {} OUT.mcap` keeps its complete chunks)",
@@ -386,19 +409,19 @@ fn run(
         let taken = match &record.message {
             Message::VibBlock(b) if on == vib => {
                 span(b.t0_ns, b.count, b.sample_period_ns);
-                out.input(Stream::Vib, &record.message)?;
+                out.input(Stream::Vib, &record, &mut reader)?;
                 cores.vib(b, out)?;
                 true
             }
             Message::AccelBlock(b) if on == accel => {
                 span(b.t0_ns, b.count, b.sample_period_ns);
-                out.input(Stream::Accel, &record.message)?;
+                out.input(Stream::Accel, &record, &mut reader)?;
                 cores.compensator.on_accel(b, RECV_NS, &mut cores.blocks);
                 cores.flush(out)?;
                 true
             }
             Message::TruthBlock(_) if on == truth => {
-                out.input(Stream::Truth, &record.message)?;
+                out.input(Stream::Truth, &record, &mut reader)?;
                 true
             }
             _ => false,
@@ -417,6 +440,7 @@ fn run(
     }
     cores.compensator.finish(&mut cores.blocks);
     cores.flush(out)?;
+    out.end_of_input(&mut reader)?;
     progress(done, total.max(done));
     let flight_s = end_ns.saturating_sub(first_ns.min(end_ns)) as f64 * 1e-9;
     let wall_s = started.elapsed().as_secs_f64();
@@ -436,6 +460,7 @@ fn run(
         wall_s,
         real_time_factor: flight_s / wall_s.max(1e-9),
         bytes: 0,
+        copied_chunks: 0,
         estimator_config: setup.estimator_source.clone(),
         compensator_config: setup.compensator_source.clone(),
         estimator: json(cores.estimator.summary().to_json()),
@@ -447,7 +472,7 @@ fn run(
 struct Blocks(Vec<CompensatedBlock>);
 
 impl Outputs for Blocks {
-    fn input(&mut self, _: Stream, _: &Message) -> anyhow::Result<()> {
+    fn input(&mut self, _: Stream, _: &Record, _: &mut Reader) -> anyhow::Result<()> {
         Ok(())
     }
     fn estimate(&mut self, _: &VibEstimate) -> anyhow::Result<()> {
@@ -504,6 +529,7 @@ pub fn compensate_log(
     summary.messages_out = written.messages;
     summary.off_timeline = written.off_timeline;
     summary.bytes = written.bytes;
+    summary.copied_chunks = written.copied_chunks;
     summary.wall_s = started.elapsed().as_secs_f64();
     summary.real_time_factor = summary.flight_s / summary.wall_s.max(1e-9);
     Ok(summary)
@@ -529,6 +555,198 @@ mod tests {
         };
         simulate_flight(&scenario, output, &|| None, &mut |_, _| {}).unwrap();
         out
+    }
+
+    /// Every record of `path` (view channels too) in the reader's order: topic,
+    /// sequence, log and publish time, protobuf bytes.
+    fn all_records(path: &Path) -> Records {
+        let mut reader = Reader::open(path).unwrap();
+        let topics: Vec<String> = reader.topics().into_iter().map(|(t, _)| t).collect();
+        let topics: Vec<&str> = topics.iter().map(String::as_str).collect();
+        reader.select_topics(&topics).unwrap();
+        let mut out = Vec::new();
+        while let Some(r) = reader.next_raw() {
+            let r = r.unwrap();
+            out.push((
+                r.topic.to_string(),
+                r.sequence,
+                r.log_time_ns,
+                r.publish_time_ns,
+                r.data,
+            ));
+        }
+        out
+    }
+
+    /// The records of each topic, in order.
+    type Records = Vec<(String, u32, u64, u64, Vec<u8>)>;
+    fn by_topic(records: &Records) -> BTreeMap<String, Records> {
+        let mut out: BTreeMap<String, Records> = BTreeMap::new();
+        for r in records {
+            out.entry(r.0.clone()).or_default().push(r.clone());
+        }
+        out
+    }
+
+    /// Copying the log's chunks as they are changes the chunking, not the messages:
+    /// the session reads back record for record on every channel (view channels too)
+    /// as one written record by record. A log whose records the session would not
+    /// write as they are (publish time after the data time, as a recorder's receive
+    /// time is) has none of its chunks copied, and gives the same session too.
+    #[test]
+    fn copied_chunks_hold_the_same_records_as_a_session_written_record_by_record() {
+        let dir = tempfile::TempDir::new().unwrap();
+        let log = flight(dir.path(), 4.0);
+        let setup = Setup::derive(None, None, None, None).unwrap();
+        let plain_options = OutputOptions {
+            copy_chunks: false,
+            ..OutputOptions::default()
+        };
+        let (copied, plain) = (
+            dir.path().join("copied.mcap"),
+            dir.path().join("plain.mcap"),
+        );
+        let run = |log: &Path, out: &Path, options: &OutputOptions| {
+            compensate_log(log, &setup, out, options, &|| None, &mut |_, _| {}).unwrap()
+        };
+        let with_copies = run(&log, &copied, &OutputOptions::default());
+        let without = run(&log, &plain, &plain_options);
+        let log_chunks = mcap::Summary::read(&std::fs::read(&log).unwrap())
+            .unwrap()
+            .unwrap()
+            .chunk_indexes
+            .iter()
+            .filter(|c| !c.message_index_offsets.is_empty())
+            .count() as u64;
+        assert!(log_chunks >= 2, "{log_chunks}");
+        assert_eq!(with_copies.copied_chunks, log_chunks);
+        assert_eq!(without.copied_chunks, 0);
+        assert_eq!(with_copies.messages_out, without.messages_out);
+        let (a, b) = (all_records(&copied), all_records(&plain));
+        assert_eq!(a.len(), b.len());
+        assert!(a.len() > 500, "{}", a.len());
+        assert_eq!(by_topic(&a), by_topic(&b));
+        // Both in log-time order; only records of different channels at the same log
+        // time may come in another order (MCAP leaves it open).
+        for records in [&a, &b] {
+            assert!(records.windows(2).all(|w| w[0].2 <= w[1].2));
+        }
+        // The same log with every publish time 1 ns after its data time.
+        let late = dir.path().join("late.mcap");
+        {
+            let mut reader = Reader::open(&log).unwrap();
+            let mut recorder = vibro_mcap::Recorder::create(
+                &late,
+                vibro_mcap::RecorderOptions {
+                    writer_thread: false,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            // The session's channel IDs: only the publish times differ.
+            let mut channels = std::collections::HashMap::new();
+            for s in [Stream::Vib, Stream::Accel, Stream::Truth] {
+                let id = recorder.add_channel(&topic(s), s.kind()).unwrap();
+                channels.insert(topic(s), id);
+            }
+            for r in reader.by_ref() {
+                let r = r.unwrap();
+                let mut data = Vec::new();
+                r.message.encode(&mut data).unwrap();
+                let channel = &channels[&*r.topic];
+                recorder
+                    .write_encoded(channel, r.log_time_ns, r.log_time_ns + 1, r.sequence, &data)
+                    .unwrap();
+            }
+            recorder.finish().unwrap();
+        }
+        let late_session = dir.path().join("late-session.mcap");
+        let from_late = run(&late, &late_session, &OutputOptions::default());
+        assert_eq!(from_late.copied_chunks, 0);
+        assert!(
+            by_topic(&all_records(&late_session)) == by_topic(&b),
+            "a late log gives the same session"
+        );
+    }
+
+    /// A chunk of the log that is taken only at the end (it holds the last `/truth`
+    /// block, written first) keeps what follows it held: within the bound every chunk
+    /// is still copied; beyond it the undecided ones are written record by record.
+    /// The session is the same either way.
+    #[test]
+    fn a_chunk_taken_at_the_end_is_held_within_the_bound_and_written_beyond_it() {
+        let dir = tempfile::TempDir::new().unwrap();
+        let flight_log = flight(dir.path(), 4.0);
+        let mut records: Vec<Record> = Reader::open(&flight_log)
+            .unwrap()
+            .map(|r| r.unwrap())
+            .collect();
+        let last_truth = records.iter().rposition(|r| &*r.topic == "/truth").unwrap();
+        let late = records.remove(last_truth);
+        records.insert(0, late);
+        let log = dir.path().join("late-truth-first.mcap");
+        {
+            let options = vibro_mcap::RecorderOptions {
+                chunk_size_bytes: 64 * 1024,
+                writer_thread: false,
+                ..Default::default()
+            };
+            let mut rec = vibro_mcap::Recorder::create(&log, options).unwrap();
+            let mut channels = std::collections::HashMap::new();
+            for s in [Stream::Vib, Stream::Accel, Stream::Truth] {
+                channels.insert(topic(s), rec.add_channel(&topic(s), s.kind()).unwrap());
+            }
+            // Closes the chunk holding the channels: the next ones hold messages only.
+            rec.add_attachment_at("note.txt", "text/plain", b"x".to_vec(), 0)
+                .unwrap();
+            for r in &records {
+                rec.write_to(
+                    &channels[&*r.topic],
+                    r.log_time_ns,
+                    r.publish_time_ns,
+                    r.sequence,
+                    r.message,
+                )
+                .unwrap();
+            }
+            rec.finish().unwrap();
+        }
+        let setup = Setup::derive(None, None, None, None).unwrap();
+        let run = |out: &str, copy_chunks: bool| {
+            let out = dir.path().join(out);
+            let options = OutputOptions {
+                copy_chunks,
+                ..OutputOptions::default()
+            };
+            let s = compensate_log(&log, &setup, &out, &options, &|| None, &mut |_, _| {}).unwrap();
+            (s.copied_chunks, by_topic(&all_records(&out)))
+        };
+        let (_, plain) = run("plain.mcap", false);
+        let (copied, held) = run("held.mcap", true);
+        let with_messages = mcap::Summary::read(&std::fs::read(&log).unwrap())
+            .unwrap()
+            .unwrap()
+            .chunk_indexes
+            .iter()
+            .filter(|c| !c.message_index_offsets.is_empty())
+            .count() as u64;
+        assert!(with_messages > 10, "{with_messages}");
+        assert_eq!(copied, with_messages);
+        copy::HELD_LIMIT.with(|l| l.set(256 * 1024));
+        let (copied_bounded, bounded) = run("bounded.mcap", true);
+        copy::HELD_LIMIT.with(|l| l.set(copy::MAX_HELD_BYTES));
+        assert!(
+            copied_bounded < with_messages,
+            "{copied_bounded} of {with_messages}"
+        );
+        assert!(
+            held == plain,
+            "held: not the session written record by record"
+        );
+        assert!(
+            bounded == plain,
+            "bounded: not the session written record by record"
+        );
     }
 
     /// The session holds the blocks `compensate_blocks` gives, is the same file on a

@@ -2,13 +2,16 @@
 //! lock-stepped replay (`vibro_log::record`), with the data time for both of MCAP's
 //! times and no heartbeat or log line.
 
+use crate::copy::{Copier, Sink};
 use crate::{Outputs, Setup};
 use anyhow::Context;
 use std::collections::BTreeMap;
 use std::path::Path;
 use vibro_log::attachments::{LogExtras, RECORDER_METADATA, RECORDING_METADATA};
 use vibro_log::{topic, Placement, Timeline};
-use vibro_mcap::{ChannelId, Compression, Message, Recorder, RecorderOptions, ViewChannelId};
+use vibro_mcap::{
+    ChannelId, Compression, Message, Reader, Record, Recorder, RecorderOptions, ViewChannelId,
+};
 use vibro_msgs::{CompensatedBlock, Stream, VibEstimate};
 use vibro_view::{ViewBuilder, ViewMessage, UNIT_NAMES};
 
@@ -22,6 +25,11 @@ pub struct OutputOptions {
     pub view: bool,
     /// zstd chunks, the recorder's default (else uncompressed: larger, less CPU).
     pub compress: bool,
+    /// Copy the log's chunks into the session as they are, still compressed, where
+    /// their records are the bytes the session would hold (a log written as a
+    /// session writes them: the simulator's, a session's); else each record is
+    /// written. The same messages either way; only the chunking differs.
+    pub copy_chunks: bool,
 }
 
 impl Default for OutputOptions {
@@ -30,6 +38,7 @@ impl Default for OutputOptions {
             force: false,
             view: true,
             compress: true,
+            copy_chunks: true,
         }
     }
 }
@@ -44,11 +53,15 @@ const STREAMS: [Stream; 5] = [
     Stream::Compensated,
 ];
 
+/// The session's input streams: the first of `STREAMS`.
+const INPUTS: usize = 3;
+
 /// What was written.
 pub(crate) struct Written {
     pub messages: BTreeMap<String, u64>,
     pub off_timeline: u64,
     pub bytes: u64,
+    pub copied_chunks: u64,
 }
 
 /// The view channels: the units' (fed by `/compensated`) and the axes' (by
@@ -61,6 +74,7 @@ struct View {
 
 pub(crate) struct SessionWriter {
     recorder: Recorder,
+    copier: Option<Copier>,
     channels: [ChannelId; STREAMS.len()],
     counts: [u64; STREAMS.len()],
     view: Option<View>,
@@ -87,6 +101,8 @@ impl SessionWriter {
             },
             // One core: the writer on this thread, no hand-over per message.
             writer_thread: false,
+            // The log's chunks copied as they are where they can be.
+            splice: options.copy_chunks,
             ..RecorderOptions::default()
         };
         let mut recorder = Recorder::create(path, recorder_options)?;
@@ -165,6 +181,9 @@ impl SessionWriter {
         extras.write_to(&recorder)?;
         Ok(Self {
             recorder,
+            copier: options
+                .copy_chunks
+                .then(|| Copier::new(options.compress, INPUTS)),
             channels,
             counts: [0; STREAMS.len()],
             view,
@@ -175,9 +194,51 @@ impl SessionWriter {
     }
 
     /// Writes one message at its data time, as the recorder places it, and its view
-    /// messages; waits for room in the writer's queue (the writer thread compresses).
-    fn write(&mut self, at: usize, message: Message, seq: u64) -> anyhow::Result<()> {
-        let (log_time_ns, on_timeline) = match message.data_ns() {
+    /// messages. `input`: the log's record it is, and the reader that yielded it last,
+    /// for copying the log's chunks (`copy.rs`).
+    fn write(
+        &mut self,
+        at: usize,
+        message: Message,
+        seq: u64,
+        input: Option<(&Record, &mut Reader)>,
+    ) -> anyhow::Result<()> {
+        let (log_time_ns, on_timeline) = self.place(&message);
+        let mut sink = Sink {
+            recorder: &self.recorder,
+            channels: &self.channels,
+            counts: &mut self.counts,
+            view_counts: &mut self.view_counts,
+        };
+        if on_timeline {
+            if let Some(v) = self.view.as_mut() {
+                v.builder.on_message(&message, &mut v.out);
+                write_view(&mut sink, self.copier.as_mut(), v, log_time_ns)?;
+            }
+        }
+        match (self.copier.as_mut(), input) {
+            (Some(c), Some((record, reader))) => {
+                c.input(&mut sink, reader, record, at, log_time_ns, seq as u32)
+            }
+            (Some(c), None) => c.output(&mut sink, at, log_time_ns, seq as u32, &message),
+            (None, _) => {
+                // The writer on this thread: never `QueueFull`.
+                self.recorder.write_to(
+                    &self.channels[at],
+                    log_time_ns,
+                    log_time_ns,
+                    seq as u32,
+                    message,
+                )?;
+                self.counts[at] += 1;
+                Ok(())
+            }
+        }
+    }
+
+    /// Where the timeline places `message`: (log time, on the timeline).
+    fn place(&mut self, message: &Message) -> (u64, bool) {
+        match message.data_ns() {
             Some(t) => match self.timeline.place(t) {
                 Placement::On(t) | Placement::Resync(t) => (t, true),
                 Placement::Off(now) => {
@@ -186,31 +247,25 @@ impl SessionWriter {
                 }
             },
             None => (self.timeline.now_ns().unwrap_or(0), true),
-        };
-        if on_timeline {
-            if let Some(v) = self.view.as_mut() {
-                v.builder.on_message(&message, &mut v.out);
-                write_view(&self.recorder, v, &mut self.view_counts, log_time_ns)?;
-            }
         }
-        // The writer on this thread: never `QueueFull`.
-        self.recorder.write_to(
-            &self.channels[at],
-            log_time_ns,
-            log_time_ns,
-            seq as u32,
-            message,
-        )?;
-        self.counts[at] += 1;
-        Ok(())
     }
 
     /// Flushes the view and finishes the file (its summary section).
     pub(crate) fn finish(mut self) -> anyhow::Result<Written> {
+        anyhow::ensure!(
+            self.copier.as_ref().is_none_or(Copier::is_empty),
+            "records still held for the log's chunks (end_of_input was not called)"
+        );
         if let Some(mut v) = self.view.take() {
             v.builder.flush(&mut v.out);
             let at = self.timeline.now_ns().unwrap_or(0);
-            write_view(&self.recorder, &mut v, &mut self.view_counts, at)?;
+            let mut sink = Sink {
+                recorder: &self.recorder,
+                channels: &self.channels,
+                counts: &mut self.counts,
+                view_counts: &mut self.view_counts,
+            };
+            write_view(&mut sink, self.copier.as_mut(), &mut v, at)?;
         }
         let finished = self.recorder.finish()?;
         let mut messages: BTreeMap<String, u64> = STREAMS
@@ -223,6 +278,7 @@ impl SessionWriter {
             messages,
             off_timeline: self.off_timeline,
             bytes: finished.bytes,
+            copied_chunks: self.copier.as_ref().map_or(0, |c| c.copied_chunks),
         })
     }
 }
@@ -235,49 +291,77 @@ fn has_truth(log: &Path) -> bool {
         .unwrap_or(false)
 }
 
-/// Writes what the view builder made; publish time: the data time of the message that
-/// made them.
+/// Writes what the view builder made (held behind undecided chunks: `copy.rs`);
+/// publish time: the data time of the message that made them.
 fn write_view(
-    recorder: &Recorder,
+    sink: &mut Sink<'_>,
+    mut copier: Option<&mut Copier>,
     v: &mut View,
-    counts: &mut BTreeMap<String, u64>,
     publish_ns: u64,
 ) -> anyhow::Result<()> {
     for m in v.out.drain(..) {
         let Some((channel, seq)) = v.channels.get_mut(&m.topic) else {
             continue;
         };
-        recorder.write_view(channel, m.log_time_ns, publish_ns, *seq, m.data)?;
-        *seq = seq.wrapping_add(1);
-        match counts.get_mut(&m.topic) {
-            Some(n) => *n += 1,
+        match copier.as_deref_mut() {
+            Some(c) => c.view(sink, channel, m.log_time_ns, publish_ns, *seq, m.data)?,
             None => {
-                counts.insert(m.topic, 1);
+                sink.recorder
+                    .write_view(channel, m.log_time_ns, publish_ns, *seq, m.data)?;
+                match sink.view_counts.get_mut(&m.topic) {
+                    Some(n) => *n += 1,
+                    None => {
+                        sink.view_counts.insert(m.topic, 1);
+                    }
+                }
             }
         }
+        *seq = seq.wrapping_add(1);
     }
     Ok(())
 }
 
 impl Outputs for SessionWriter {
-    fn input(&mut self, stream: Stream, message: &Message) -> anyhow::Result<()> {
+    fn input(
+        &mut self,
+        stream: Stream,
+        record: &Record,
+        reader: &mut Reader,
+    ) -> anyhow::Result<()> {
         let Some(at) = STREAMS.iter().position(|s| *s == stream) else {
             return Ok(());
         };
-        let seq = match message {
+        let seq = match &record.message {
             Message::VibBlock(b) => b.seq,
             Message::AccelBlock(b) => b.seq,
             Message::TruthBlock(b) => b.seq,
             _ => 0,
         };
-        self.write(at, *message, seq)
+        self.write(at, record.message, seq, Some((record, reader)))
     }
 
     fn estimate(&mut self, estimate: &VibEstimate) -> anyhow::Result<()> {
-        self.write(3, Message::VibEstimate(*estimate), estimate.seq)
+        self.write(3, Message::VibEstimate(*estimate), estimate.seq, None)
     }
 
     fn compensated(&mut self, block: &CompensatedBlock) -> anyhow::Result<()> {
-        self.write(4, Message::CompensatedBlock(*block), block.seq)
+        self.write(4, Message::CompensatedBlock(*block), block.seq, None)
+    }
+
+    fn end_of_input(&mut self, _reader: &mut Reader) -> anyhow::Result<()> {
+        let Some(c) = self.copier.as_mut() else {
+            return Ok(());
+        };
+        let mut sink = Sink {
+            recorder: &self.recorder,
+            channels: &self.channels,
+            counts: &mut self.counts,
+            view_counts: &mut self.view_counts,
+        };
+        c.end(&mut sink)
+    }
+
+    fn copies_chunks(&self) -> bool {
+        self.copier.is_some()
     }
 }

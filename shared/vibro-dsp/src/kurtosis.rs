@@ -111,24 +111,32 @@ impl Kurtosis {
                 || invalid_prefix[(k + g + 1).min(n)] == invalid_prefix[k.saturating_sub(g)]
         };
         let (mut count, mut sum) = (0usize, 0.0);
-        for (k, y) in self.output.iter().enumerate() {
-            if usable(k) {
-                count += 1;
-                sum += y;
+        if any_invalid {
+            for (k, y) in self.output.iter().enumerate() {
+                if usable(k) {
+                    count += 1;
+                    sum += y;
+                }
             }
+        } else {
+            (count, sum) = (n, crate::sums::sum(&self.output[..n]));
         }
         if count < n / 4 || count == 0 {
             return Ok((f64::NAN, count));
         }
         let mean = sum / count as f64;
         let (mut m2, mut m4) = (0.0, 0.0);
-        for (k, y) in self.output.iter().enumerate() {
-            if usable(k) {
-                let d = y - mean;
-                let d2 = d * d;
-                m2 += d2;
-                m4 += d2 * d2;
+        if any_invalid {
+            for (k, y) in self.output.iter().enumerate() {
+                if usable(k) {
+                    let d = y - mean;
+                    let d2 = d * d;
+                    m2 += d2;
+                    m4 += d2 * d2;
+                }
             }
+        } else {
+            (m2, m4) = crate::sums::central_2_4(&self.output[..n], mean);
         }
         m2 /= count as f64;
         m4 /= count as f64;

@@ -76,6 +76,7 @@ mod leakage;
 mod output;
 mod response;
 mod sinefit;
+mod sums;
 pub mod text;
 mod welch;
 

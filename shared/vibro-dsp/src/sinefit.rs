@@ -120,6 +120,8 @@ pub(crate) struct SineFit {
     /// Data sums: `sum x phi_l` and `[sum n x cos, sum n x sin]` per axis and tone.
     b: [[f64; L_MAX]; 3],
     bn: [[[f64; 2]; MAX_TONES]; 3],
+    /// `sum x` and `sum x^2` per axis: the same in every pass of one fit.
+    sx: [f64; 3],
     sxx: [f64; 3],
     normal: Vec<f64>,
     rhs: Vec<f64>,
@@ -136,6 +138,7 @@ impl SineFit {
             w: [[0.0; MAX_TONES]; MAX_TONES],
             b: [[0.0; L_MAX]; 3],
             bn: [[[0.0; 2]; MAX_TONES]; 3],
+            sx: [0.0; 3],
             sxx: [0.0; 3],
             normal: vec![0.0; P_MAX * P_MAX],
             rhs: vec![0.0; P_MAX],
@@ -164,6 +167,12 @@ impl SineFit {
             ..FitState::default()
         };
         best.omega[..k].copy_from_slice(&omega0[..k]);
+        // The data's own sums, once per fit (each pass needs them).
+        for a in 0..3 {
+            let xa = &x[a][..self.samples];
+            self.sx[a] = crate::sums::sum(xa);
+            self.sxx[a] = crate::sums::sum_sq(xa);
+        }
         self.pass(x, &best.omega[..k]);
         self.build_gram(&best.omega[..k], invalid);
         if !self.solve_linear(k, &mut best.lin) {
@@ -224,14 +233,13 @@ impl SineFit {
         true
     }
 
-    /// One pass over the data at frequencies `omega`: fills `b`, `bn`, `sxx`.
+    /// One pass over the data at frequencies `omega`: fills `b` and `bn` (`sx` and
+    /// `sxx`, which `fit` took first, do not depend on them).
     fn pass(&mut self, x: [&[f64]; 3], omega: &[f64]) {
         let n_samples = self.samples;
         for a in 0..3 {
-            let xa = &x[a][..n_samples];
             self.b[a] = [0.0; L_MAX];
-            self.b[a][0] = xa.iter().sum();
-            self.sxx[a] = xa.iter().map(|v| v * v).sum();
+            self.b[a][0] = self.sx[a];
         }
         for (i, &w) in omega.iter().enumerate() {
             let acc = tone_sums(x, n_samples, self.centre(), w);

@@ -149,7 +149,7 @@ impl Welch {
             }
             for a in 0..3 {
                 let seg = &x[a][start..start + m];
-                let mean = seg.iter().sum::<f64>() / m as f64;
+                let mean = crate::sums::sum(seg) / m as f64;
                 for ((inp, v), w) in self.input.iter_mut().zip(seg).zip(&self.window) {
                     *inp = (v - mean) * w;
                 }

@@ -67,6 +67,7 @@ mod reader;
 mod recorder;
 mod recover;
 mod schema;
+mod splice;
 
 /// The Rust types generated from `proto/vibrocomp/v1/*.proto` by `prost-build`.
 #[allow(clippy::all, clippy::pedantic, missing_docs, rustdoc::all)]
@@ -97,7 +98,7 @@ pub use info::{
 pub use losses::{
     unwrap_sequence, Answers, SeqRange, SeqRanges, MAX_LISTED_UNANSWERED, MAX_PENDING_ANSWERS,
 };
-pub use reader::{RawRecord, Reader, Record};
+pub use reader::{ChunkFacts, RawRecord, Reader, Record};
 pub use recorder::{
     ChannelId, Compression, Recorder, RecorderOptions, RecorderStats, RecordingSummary,
     ViewChannelId,
@@ -145,6 +146,10 @@ pub enum Error {
     /// chunk, a chunk too large or not decompressible (see `guard.rs`).
     #[error("{path}: {reason}")]
     Malformed { path: PathBuf, reason: String },
+    /// A chunk read again (to be copied as it is) is not the bytes read the first
+    /// time: the file was changed while it was being read.
+    #[error("{path}: the chunk at byte {offset} changed while the file was being read")]
+    ChangedWhileRead { path: PathBuf, offset: u64 },
     /// The file ends in the middle of a record (a crash, or a copy in progress).
     #[error("{path}: file ends in the middle of a record; `vibrocomp log recover {path} OUT.mcap` rewrites it up to its last complete chunk")]
     Truncated { path: PathBuf },
@@ -256,6 +261,7 @@ impl Error {
             | Error::ChunkCrc { path, .. }
             | Error::Malformed { path, .. }
             | Error::Truncated { path }
+            | Error::ChangedWhileRead { path, .. }
             | Error::Unfinished { path, .. }
             | Error::Mcap { path, .. }
             | Error::NotFinished { path, .. }

@@ -47,6 +47,8 @@ pub struct Record {
 struct Pending {
     log_time_ns: u64,
     order: u64,
+    /// The chunk it came from: its place in `Reader::chunks`.
+    chunk: u32,
     channel_id: u16,
     sequence: u32,
     publish_time_ns: u64,
@@ -95,6 +97,41 @@ pub struct RawRecord {
     pub data: Vec<u8>,
 }
 
+/// What a chunk held when it was read, for copying it into another file as it is
+/// ([`Reader::keep_chunk_facts`]): its messages as found in its records, not as its
+/// index says.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChunkFacts {
+    /// Where the chunk record starts in the file.
+    pub start: u64,
+    /// The chunk record's length, opcode and length prefix included.
+    pub length: u64,
+    /// CRC32 of the chunk record's bytes as they were read (checked again when they
+    /// are read for copying: [`Reader::read_chunk_record`]).
+    pub record_crc: u32,
+    /// The chunk header's compression (`""` or `"zstd"`).
+    pub compression: String,
+    /// The chunk header's sizes.
+    pub compressed_bytes: u64,
+    pub uncompressed_bytes: u64,
+    /// First and last log time of its messages (0 and 0 without messages).
+    pub message_start_ns: u64,
+    pub message_end_ns: u64,
+    /// The chunk header's times equal them.
+    pub header_times_agree: bool,
+    /// Every record of the chunk is a message (no schema, channel or other record).
+    pub only_messages: bool,
+    /// Message records in the chunk.
+    pub messages: u64,
+    /// Those of a channel this reader yields (queued).
+    pub queued: u64,
+    /// Messages per channel ID.
+    pub channel_counts: BTreeMap<u16, u64>,
+    /// The chunk's message index records (MCAP opcode 0x07, one per channel in ID
+    /// order), made from its records: the file's own are neither read nor trusted.
+    pub message_indexes: Vec<u8>,
+}
+
 /// Iterates over the messages of a finished MCAP file in log-time order (ties in file
 /// order), decoded into [`Message`]s. Channels whose schema is not a `vibrocomp.v1`
 /// message are skipped (see [`Reader::foreign_topics`]).
@@ -118,6 +155,10 @@ pub struct Reader {
     decompressed: Vec<u8>,
     summary: mcap::Summary,
     failed: bool,
+    /// Per chunk (as `chunks`), once read, when [`Reader::keep_chunk_facts`] asked.
+    facts: Option<Vec<Option<ChunkFacts>>>,
+    /// The chunk and protobuf bytes of the last message yielded by `next`.
+    last: Option<(u32, Vec<u8>)>,
 }
 
 impl Reader {
@@ -207,6 +248,8 @@ impl Reader {
             decompressed: Vec::new(),
             summary,
             failed: false,
+            facts: None,
+            last: None,
         })
     }
 
@@ -244,6 +287,52 @@ impl Reader {
                 || c.message_index_offsets.keys().any(|id| ids.contains(id))
         });
         self.selected = Some(ids);
+        Ok(())
+    }
+
+    /// Keeps, for every chunk read from here on, what it held ([`ChunkFacts`]): for
+    /// copying a chunk as it is ([`Reader::read_chunk_record`]) once every one of its
+    /// messages was taken through [`Reader::last_raw`]. Call it before the first
+    /// message is read.
+    pub fn keep_chunk_facts(&mut self) {
+        self.facts = Some(vec![None; self.chunks.len()]);
+    }
+
+    /// What chunk `chunk` (as [`Reader::last_raw`] numbers it) held, once read with
+    /// [`Reader::keep_chunk_facts`] on.
+    pub fn chunk_facts(&self, chunk: u32) -> Option<&ChunkFacts> {
+        self.facts.as_ref()?.get(chunk as usize)?.as_ref()
+    }
+
+    /// The chunk and the protobuf bytes of the last message the iteration yielded.
+    pub fn last_raw(&self) -> Option<(u32, &[u8])> {
+        self.last.as_ref().map(|(c, d)| (*c, d.as_slice()))
+    }
+
+    /// The bytes of chunk `chunk`'s record (opcode and length prefix included) into
+    /// `buf`, read again from the file and checked against the CRC taken when it was
+    /// first read: a file changed since is [`Error::ChangedWhileRead`].
+    pub fn read_chunk_record(&mut self, chunk: u32, buf: &mut Vec<u8>) -> Result<()> {
+        let facts = self.chunk_facts(chunk).ok_or_else(|| Error::Mcap {
+            path: self.path.clone(),
+            source: mcap::McapError::BadIndex,
+        })?;
+        let (start, length, crc) = (facts.start, facts.length, facts.record_crc);
+        read_record(
+            &self.path,
+            &mut self.file,
+            self.file_bytes,
+            buf,
+            start,
+            length,
+            op::CHUNK,
+        )?;
+        if crc32fast::hash(buf) != crc {
+            return Err(Error::ChangedWhileRead {
+                path: self.path.clone(),
+                offset: start,
+            });
+        }
         Ok(())
     }
 
@@ -312,6 +401,11 @@ impl Reader {
                 (c.topic.clone(), schema.to_string())
             })
             .collect()
+    }
+
+    /// The topic of channel `id`, if the file has it.
+    pub fn channel_topic(&self, id: u16) -> Option<&str> {
+        self.summary.channels.get(&id).map(|c| c.topic.as_str())
     }
 
     /// Topics of channels that are not `vibrocomp.v1` messages; their messages are skipped.
@@ -440,7 +534,7 @@ impl Reader {
 
     fn queue_chunk(&mut self, index: &ChunkIndex, buf: &mut Vec<u8>) -> Result<()> {
         let path = self.path.clone();
-        let body = read_record(
+        read_record(
             &path,
             &mut self.file,
             self.file_bytes,
@@ -449,7 +543,9 @@ impl Reader {
             index.chunk_length,
             op::CHUNK,
         )?;
-        let (header, data) = match guard::parse(&path, op::CHUNK, body)? {
+        let keep_facts = self.facts.is_some();
+        let record_crc = if keep_facts { crc32fast::hash(buf) } else { 0 };
+        let (header, data) = match guard::parse(&path, op::CHUNK, &buf[9..])? {
             McapRecord::Chunk { header, data } => (header, data),
             _ => {
                 return Err(Error::Mcap {
@@ -460,24 +556,78 @@ impl Reader {
         };
         // The whole chunk is checked first (CRC, framing: `guard::chunk`), and nothing
         // of a corrupt chunk may be yielded.
+        let mut facts = keep_facts.then(|| ChunkFacts {
+            start: index.chunk_start_offset,
+            length: index.chunk_length,
+            record_crc,
+            compression: header.compression.clone(),
+            compressed_bytes: header.compressed_size,
+            uncompressed_bytes: header.uncompressed_size,
+            message_start_ns: u64::MAX,
+            message_end_ns: 0,
+            header_times_agree: false,
+            only_messages: true,
+            messages: 0,
+            queued: 0,
+            channel_counts: BTreeMap::new(),
+            message_indexes: Vec::new(),
+        });
+        let mut entries: BTreeMap<u16, Vec<(u64, u64)>> = BTreeMap::new();
         let mut messages = Vec::new();
         let mut decompressed = std::mem::take(&mut self.decompressed);
-        let records = guard::chunk(&header, &data, &mut decompressed);
-        for (opcode, body) in records.map_err(|e| Error::chunk(&path, e))? {
+        let records =
+            guard::chunk(&header, &data, &mut decompressed).map_err(|e| Error::chunk(&path, e))?;
+        // The records lie end to end from the start of the uncompressed chunk, each
+        // body 9 bytes (opcode, length) after its record's start.
+        let base = records.first().map_or(0, |(_, b)| b.as_ptr() as usize - 9);
+        for (opcode, body) in records {
             if opcode != op::MESSAGE {
+                if let Some(f) = facts.as_mut() {
+                    f.only_messages = false;
+                }
                 continue;
             }
             if let McapRecord::Message { header, data } = guard::parse(&path, opcode, body)? {
+                if let Some(f) = facts.as_mut() {
+                    // The record starts 9 bytes (opcode, length) before its body.
+                    let offset = (body.as_ptr() as usize - 9 - base) as u64;
+                    entries
+                        .entry(header.channel_id)
+                        .or_default()
+                        .push((header.log_time, offset));
+                    f.messages += 1;
+                    *f.channel_counts.entry(header.channel_id).or_insert(0) += 1;
+                    f.message_start_ns = f.message_start_ns.min(header.log_time);
+                    f.message_end_ns = f.message_end_ns.max(header.log_time);
+                    f.queued += u64::from(self.queued(header.channel_id));
+                }
                 if self.queued(header.channel_id) {
                     messages.push((header, data.into_owned()));
                 }
             }
         }
         self.decompressed = decompressed;
+        if let Some(mut f) = facts {
+            if f.messages == 0 {
+                (f.message_start_ns, f.message_end_ns) = (0, 0);
+            }
+            f.header_times_agree = (header.message_start_time, header.message_end_time)
+                == (f.message_start_ns, f.message_end_ns);
+            f.message_indexes = message_index_records(&entries);
+            if let Some(slot) = self
+                .facts
+                .as_mut()
+                .and_then(|v| v.get_mut(self.next_chunk - 1))
+            {
+                *slot = Some(f);
+            }
+        }
+        let chunk = (self.next_chunk - 1) as u32;
         for (header, data) in messages {
             self.pending.push(Reverse(Pending {
                 log_time_ns: header.log_time,
                 order: self.next_order,
+                chunk,
                 channel_id: header.channel_id,
                 sequence: header.sequence,
                 publish_time_ns: header.publish_time,
@@ -516,14 +666,16 @@ impl Reader {
             let Some(channel) = self.channels.get(&p.channel_id) else {
                 continue;
             };
-            return Ok(Some(Record {
+            let record = Some(Record {
                 topic: Arc::clone(&channel.topic),
                 channel_id: p.channel_id,
                 sequence: p.sequence,
                 log_time_ns: p.log_time_ns,
                 publish_time_ns: p.publish_time_ns,
                 message: Message::decode(channel.kind, &p.data)?,
-            }));
+            });
+            self.last = Some((p.chunk, p.data));
+            return Ok(record);
         }
         Ok(None)
     }
@@ -545,6 +697,24 @@ impl Iterator for Reader {
             }
         }
     }
+}
+
+/// MCAP message index records (opcode 0x07: channel ID, then the byte length and the
+/// `(log time, offset in the uncompressed chunk)` pairs), one per channel in ID order.
+fn message_index_records(entries: &BTreeMap<u16, Vec<(u64, u64)>>) -> Vec<u8> {
+    let mut out = Vec::with_capacity(entries.values().map(|e| 15 + 16 * e.len()).sum());
+    for (channel_id, pairs) in entries {
+        let array_bytes = 16 * pairs.len() as u64;
+        out.push(op::MESSAGE_INDEX);
+        out.extend_from_slice(&(2 + 4 + array_bytes).to_le_bytes());
+        out.extend_from_slice(&channel_id.to_le_bytes());
+        out.extend_from_slice(&(array_bytes as u32).to_le_bytes());
+        for (log_time, offset) in pairs {
+            out.extend_from_slice(&log_time.to_le_bytes());
+            out.extend_from_slice(&offset.to_le_bytes());
+        }
+    }
+    out
 }
 
 /// Reads the record of `length` bytes (opcode and length prefix included) at `offset`
@@ -690,6 +860,104 @@ mod tests {
             op::CHUNK,
         );
         assert_eq!(body.unwrap().len(), 81);
+    }
+
+    /// What `keep_chunk_facts` records of each chunk, against the index and message
+    /// index records `mcap`'s writer made for it (an independent writer); and a chunk
+    /// changed in the file after it was read is refused when read again for a copy.
+    #[test]
+    fn chunk_facts_match_what_mcaps_writer_indexed_and_a_changed_chunk_is_refused() {
+        let path = tempfile::NamedTempFile::new()
+            .expect("temp file")
+            .into_temp_path();
+        let options = crate::RecorderOptions {
+            chunk_size_bytes: 2000,
+            writer_thread: false,
+            ..Default::default()
+        };
+        let mut rec = crate::Recorder::create(&path, options).expect("create");
+        rec.add_channel("/accel", MessageKind::AccelBlock)
+            .expect("channel");
+        rec.add_channel("/heartbeat", MessageKind::Heartbeat)
+            .expect("channel");
+        for i in 0..200u32 {
+            let block = vibro_msgs::AccelBlock {
+                seq: u64::from(i),
+                count: 1 + i % 7,
+                ..Default::default()
+            };
+            // Log times not in file order within a chunk.
+            let t = u64::from(i) * 10 + u64::from(i % 3) * 25;
+            rec.write("/accel", t, t + 1, i, &block).expect("accel");
+            if i % 3 == 0 {
+                let beat = vibro_msgs::Heartbeat {
+                    seq: u64::from(i),
+                    ..Default::default()
+                };
+                rec.write("/heartbeat", t + 2, t + 2, i, &beat)
+                    .expect("heartbeat");
+            }
+        }
+        rec.finish().expect("finish");
+        let bytes = std::fs::read(&path).expect("read");
+        let mut reader = Reader::open(&path).expect("open");
+        reader.keep_chunk_facts();
+        let mut taken: BTreeMap<u32, u64> = BTreeMap::new();
+        while let Some(r) = reader.next() {
+            r.expect("record");
+            let (chunk, _) = reader.last_raw().expect("last raw");
+            *taken.entry(chunk).or_insert(0) += 1;
+        }
+        let chunks = reader.chunks.clone();
+        assert!(chunks.len() > 5, "{}", chunks.len());
+        let mut record = Vec::new();
+        for (k, index) in chunks.iter().enumerate() {
+            let f = reader.chunk_facts(k as u32).expect("facts").clone();
+            let start = index.chunk_start_offset as usize;
+            let end = start + index.chunk_length as usize;
+            let mi_end = end + index.message_index_length as usize;
+            assert_eq!(f.message_indexes, bytes[end..mi_end], "chunk {k}");
+            assert_eq!(
+                (f.start, f.length),
+                (index.chunk_start_offset, index.chunk_length)
+            );
+            assert_eq!(
+                (f.message_start_ns, f.message_end_ns),
+                (index.message_start_time, index.message_end_time)
+            );
+            assert!(f.header_times_agree, "chunk {k}");
+            assert_eq!(f.compression, index.compression);
+            assert_eq!(f.compressed_bytes, index.compressed_size);
+            assert_eq!(f.uncompressed_bytes, index.uncompressed_size);
+            assert_eq!(
+                f.channel_counts.keys().collect::<Vec<_>>(),
+                index.message_index_offsets.keys().collect::<Vec<_>>()
+            );
+            assert_eq!(f.queued, f.messages);
+            assert_eq!(taken.get(&(k as u32)).copied().unwrap_or(0), f.messages);
+            reader
+                .read_chunk_record(k as u32, &mut record)
+                .expect("record");
+            assert_eq!(record, bytes[start..end], "chunk {k}");
+        }
+        // mcap's writer puts the schema and channel records in the first chunk.
+        assert!(!reader.chunk_facts(0).expect("facts").only_messages);
+        assert!(reader.chunk_facts(3).expect("facts").only_messages);
+        // One byte of chunk 3's compressed data changed in the file.
+        let f = reader.chunk_facts(3).expect("facts").clone();
+        let mut changed = bytes.clone();
+        changed[(f.start + f.length - 1) as usize] ^= 0x40;
+        std::fs::write(&path, &changed).expect("write");
+        let e = reader.read_chunk_record(3, &mut record).unwrap_err();
+        assert!(
+            matches!(e, Error::ChangedWhileRead { offset, .. } if offset == f.start),
+            "{e}"
+        );
+        assert!(
+            e.to_string()
+                .contains("changed while the file was being read"),
+            "{e}"
+        );
     }
 
     /// A recording in a temporary file with one message per chunk: accelerometer

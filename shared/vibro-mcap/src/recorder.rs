@@ -20,8 +20,16 @@
 //! and pays for the hand-over between the two threads: with
 //! [`RecorderOptions::writer_thread`] off, the same writer runs on the caller's thread
 //! and writes the same file, byte for byte.
+//!
+//! Such a run can also copy its input's chunks into the file as they are, still
+//! compressed, when the records it would write are the same bytes
+//! ([`RecorderOptions::splice`], [`Recorder::copy_chunk`]): decoding a chunk is
+//! needed to run it through the cores, compressing it again is not. The file is then
+//! written by this crate's own writer (`splice.rs`) instead of `mcap`'s, which has no
+//! way to take a chunk as it is.
 
 use crate::schema::{schema, schema_id, ViewSchema, MESSAGE_ENCODING, SCHEMA_ENCODING};
+use crate::splice::{CopiedChunk, SpliceOptions, SpliceWriter};
 use crate::{Error, Message, Result};
 use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
@@ -75,6 +83,10 @@ pub struct RecorderOptions {
     /// message copied in and out of the queue) costs more than it frees. The flush
     /// rule is then checked at each call: a chunk stays open while no call comes.
     pub writer_thread: bool,
+    /// Write with this crate's own MCAP writer (`splice.rs`), which can also take a
+    /// chunk copied as it is ([`Recorder::copy_chunk`]), instead of `mcap`'s (default
+    /// false). Only with `writer_thread` off: the copy is made on the caller's thread.
+    pub splice: bool,
 }
 
 impl Default for RecorderOptions {
@@ -88,6 +100,7 @@ impl Default for RecorderOptions {
             compression_threads: 0,
             profile: "vibrocomp".to_string(),
             writer_thread: true,
+            splice: false,
         }
     }
 }
@@ -122,6 +135,13 @@ impl RecorderOptions {
                 name: "chunk_size_bytes",
                 value: "0".to_string(),
                 rule: "must be > 0",
+            });
+        }
+        if self.splice && self.writer_thread {
+            return Err(Error::InvalidOption {
+                name: "splice",
+                value: "true".to_string(),
+                rule: "needs writer_thread = false (chunks are copied on the caller's thread)",
             });
         }
         if self.queue_capacity == 0 {
@@ -319,18 +339,37 @@ impl Recorder {
     /// Starts recording into `file`, already open for writing, named `path` in errors.
     fn start(file: std::fs::File, path: PathBuf, options: RecorderOptions) -> Result<Recorder> {
         let flush_interval = options.check()?;
-        let write_options = mcap::WriteOptions::new()
-            .compression(match options.compression {
-                Compression::Zstd => Some(mcap::Compression::Zstd),
-                Compression::None => None,
-            })
-            .chunk_size(Some(options.chunk_size_bytes))
-            .compression_level(options.zstd_level)
-            .compression_threads(options.compression_threads)
-            .profile(options.profile.clone());
-        let writer = write_options
-            .create(BufWriter::new(file))
-            .map_err(|e| write_error(&path, e))?;
+        let writer = if options.splice {
+            let splice_options = SpliceOptions {
+                profile: options.profile.clone(),
+                library: format!("vibrocomp-mcap {}", env!("CARGO_PKG_VERSION")),
+                zstd_level: match options.compression {
+                    // 1..=22, checked.
+                    Compression::Zstd => Some(options.zstd_level as i32),
+                    Compression::None => None,
+                },
+                chunk_size_bytes: options.chunk_size_bytes,
+            };
+            Backend::Splice(Box::new(
+                SpliceWriter::new(BufWriter::new(file), splice_options)
+                    .map_err(|e| Error::io("write", &path, e))?,
+            ))
+        } else {
+            let write_options = mcap::WriteOptions::new()
+                .compression(match options.compression {
+                    Compression::Zstd => Some(mcap::Compression::Zstd),
+                    Compression::None => None,
+                })
+                .chunk_size(Some(options.chunk_size_bytes))
+                .compression_level(options.zstd_level)
+                .compression_threads(options.compression_threads)
+                .profile(options.profile.clone());
+            Backend::Mcap(Box::new(
+                write_options
+                    .create(BufWriter::new(file))
+                    .map_err(|e| write_error(&path, e))?,
+            ))
+        };
 
         let counters = Arc::new(Counters::default());
         let state = Writer {
@@ -586,6 +625,81 @@ impl Recorder {
         }
     }
 
+    /// [`Recorder::write_to`] for a message already encoded (`data`: its protobuf
+    /// bytes, which the caller checked). Waits for room in the queue, as the control
+    /// calls do.
+    pub fn write_encoded(
+        &self,
+        channel: &ChannelId,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+        sequence: u32,
+        data: &[u8],
+    ) -> Result<()> {
+        let header = mcap::records::MessageHeader {
+            channel_id: channel.id,
+            sequence,
+            log_time: log_time_ns,
+            publish_time: publish_time_ns,
+        };
+        match &self.sink {
+            Sink::Inline(_) => self.with_inline(|w| {
+                w.write_record(&header, data)?;
+                w.opened()
+            })?,
+            Sink::Thread { .. } => self.send_control(Command::View {
+                channel_id: channel.id,
+                sequence,
+                log_time_ns,
+                publish_time_ns,
+                data: data.to_vec(),
+            })?,
+        }
+        self.counters.accepted.fetch_add(1, Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// Copies a chunk of another MCAP file into the recording as it is: `record`, its
+    /// bytes (opcode and length prefix included; [`crate::Reader::read_chunk_record`]),
+    /// and what it holds, `facts`. Its channels must be this recording's, with the same
+    /// IDs: the caller checked that the records are the bytes it would write. Needs
+    /// [`RecorderOptions::splice`].
+    pub fn copy_chunk(&self, facts: &crate::ChunkFacts, record: &[u8]) -> Result<()> {
+        self.with_inline(|w| w.copy_chunk(facts, record))?;
+        let n: u64 = facts.channel_counts.values().sum();
+        self.counters.accepted.fetch_add(n, Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// Closes the open chunk now, without flushing the file. Needs the writer on the
+    /// caller's thread.
+    pub fn close_chunk(&self) -> Result<()> {
+        self.with_inline(Writer::close_chunk)
+    }
+
+    /// `f` on the writer on this thread ([`Sink::Inline`]); its error stops the
+    /// recorder as a writer's error does.
+    fn with_inline(&self, f: impl FnOnce(&mut Writer) -> Result<()>) -> Result<()> {
+        let Sink::Inline(inline) = &self.sink else {
+            return Err(Error::InvalidOption {
+                name: "writer_thread",
+                value: "true".to_string(),
+                rule: "copying chunks and closing them on demand need the writer on the caller's thread",
+            });
+        };
+        let mut inline = inline
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let writer = inline.writer.as_mut().ok_or_else(|| self.stopped())?;
+        if let Err(e) = f(writer) {
+            let _ = self.counters.cause.set(describe_cause(&e));
+            inline.writer = None;
+            inline.failed = Some(e);
+            return Err(self.stopped());
+        }
+        Ok(())
+    }
+
     /// Adds a file (a configuration or passport) to the recording. Waits for room in the
     /// queue.
     pub fn add_attachment(&self, name: &str, media_type: &str, data: Vec<u8>) -> Result<()> {
@@ -678,21 +792,8 @@ impl Recorder {
 
     /// `command` written on this thread ([`Sink::Inline`]).
     fn inline(&self, command: Command) -> Result<()> {
-        let Sink::Inline(inline) = &self.sink else {
-            return Err(self.stopped());
-        };
-        let mut inline = inline
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        let writer = inline.writer.as_mut().ok_or_else(|| self.stopped())?;
-        if let Err(e) = writer.take(command) {
-            // As the writer thread ends: the cause first, for every later call.
-            let _ = self.counters.cause.set(describe_cause(&e));
-            inline.writer = None;
-            inline.failed = Some(e);
-            return Err(self.stopped());
-        }
-        Ok(())
+        // As the writer thread ends on an error: the cause first, for every later call.
+        self.with_inline(|w| w.take(command))
     }
 
     fn send_control(&self, command: Command) -> Result<()> {
@@ -730,10 +831,107 @@ impl Drop for Recorder {
 /// The first schema ID of the view schemas (the wire types take 1..=6).
 const VIEW_SCHEMA_ID_BASE: u16 = 32;
 
-/// The `mcap::Writer` and what goes with it: on the writer thread, or on the caller's.
+/// The MCAP writer underneath: `mcap`'s, or this crate's, which can copy chunks.
+enum Backend {
+    Mcap(Box<mcap::Writer<BufWriter<std::fs::File>>>),
+    Splice(Box<SpliceWriter<BufWriter<std::fs::File>>>),
+}
+
+impl Backend {
+    fn add_schema(&mut self, path: &Path, id: u16, name: &str, data: &[u8]) -> Result<u16> {
+        match self {
+            Backend::Mcap(w) => w
+                .add_schema_with_id(id, name, SCHEMA_ENCODING, data)
+                .map_err(|e| write_error(path, e)),
+            Backend::Splice(w) => w
+                .add_schema(id, name, SCHEMA_ENCODING, data)
+                .map(|()| id)
+                .map_err(|e| Error::io("write", path, e)),
+        }
+    }
+
+    fn add_channel(
+        &mut self,
+        path: &Path,
+        id: u16,
+        schema_id: u16,
+        topic: &str,
+        metadata: &BTreeMap<String, String>,
+    ) -> Result<()> {
+        match self {
+            Backend::Mcap(w) => w
+                .add_channel_with_id(id, schema_id, topic, MESSAGE_ENCODING, metadata)
+                .map(|_| ())
+                .map_err(|e| write_error(path, e)),
+            Backend::Splice(w) => w
+                .add_channel(id, schema_id, topic, MESSAGE_ENCODING, metadata)
+                .map_err(|e| Error::io("write", path, e)),
+        }
+    }
+
+    fn write(
+        &mut self,
+        path: &Path,
+        header: &mcap::records::MessageHeader,
+        data: &[u8],
+    ) -> Result<()> {
+        match self {
+            Backend::Mcap(w) => w
+                .write_to_known_channel(header, data)
+                .map_err(|e| write_error(path, e)),
+            Backend::Splice(w) => w
+                .write_message(header, data)
+                .map_err(|e| Error::io("write", path, e)),
+        }
+    }
+
+    fn attach(&mut self, path: &Path, a: &mcap::Attachment<'_>) -> Result<()> {
+        match self {
+            Backend::Mcap(w) => w.attach(a).map_err(|e| write_error(path, e)),
+            Backend::Splice(w) => w.attach(a).map_err(|e| Error::io("write", path, e)),
+        }
+    }
+
+    fn metadata(&mut self, path: &Path, m: &mcap::records::Metadata) -> Result<()> {
+        match self {
+            Backend::Mcap(w) => w.write_metadata(m).map_err(|e| write_error(path, e)),
+            Backend::Splice(w) => w.write_metadata(m).map_err(|e| Error::io("write", path, e)),
+        }
+    }
+
+    fn flush(&mut self, path: &Path) -> Result<()> {
+        match self {
+            Backend::Mcap(w) => w.flush().map_err(|e| write_error(path, e)),
+            Backend::Splice(w) => w.flush().map_err(|e| Error::io("write", path, e)),
+        }
+    }
+
+    /// Writes the summary; returns the chunk count.
+    fn finish(&mut self, path: &Path) -> Result<u64> {
+        match self {
+            Backend::Mcap(w) => w
+                .finish()
+                .map(|s| s.stats.as_ref().map_or(0, |s| s.chunk_count.into()))
+                .map_err(|e| write_error(path, e)),
+            Backend::Splice(w) => w
+                .finish()
+                .map(|s| s.chunk_count.into())
+                .map_err(|e| Error::io("write", path, e)),
+        }
+    }
+
+    fn into_inner(self) -> BufWriter<std::fs::File> {
+        match self {
+            Backend::Mcap(w) => (*w).into_inner(),
+            Backend::Splice(w) => (*w).into_inner(),
+        }
+    }
+}
+
+/// The MCAP writer and what goes with it: on the writer thread, or on the caller's.
 struct Writer {
     path: PathBuf,
-    writer: mcap::Writer<BufWriter<std::fs::File>>,
+    writer: Backend,
     flush_interval: Duration,
     counters: Arc<Counters>,
     topics: BTreeMap<u16, (String, u64)>,
@@ -797,15 +995,13 @@ impl Writer {
                 let s = schema(kind);
                 let schema_id = self
                     .writer
-                    .add_schema_with_id(schema_id(kind), s.name, SCHEMA_ENCODING, s.data)
-                    .map_err(|e| write_error(path, e))?;
+                    .add_schema(path, schema_id(kind), s.name, s.data)?;
                 let metadata = BTreeMap::from([(
                     "vibrocomp.type_name".to_string(),
                     kind.type_name().to_string(),
                 )]);
                 self.writer
-                    .add_channel_with_id(id, schema_id, &topic, MESSAGE_ENCODING, &metadata)
-                    .map_err(|e| write_error(path, e))?;
+                    .add_channel(path, id, schema_id, &topic, &metadata)?;
                 self.topics.insert(id, (topic, 0));
                 Ok(true)
             }
@@ -815,15 +1011,13 @@ impl Writer {
                 let wanted = *self.view_schemas.entry(schema.name).or_insert(next);
                 let schema_id = self
                     .writer
-                    .add_schema_with_id(wanted, schema.name, SCHEMA_ENCODING, schema.data)
-                    .map_err(|e| write_error(path, e))?;
+                    .add_schema(path, wanted, schema.name, schema.data)?;
                 let metadata = BTreeMap::from([(
                     "vibrocomp.view".to_string(),
                     "made to be plotted (docs/view.md)".to_string(),
                 )]);
                 self.writer
-                    .add_channel_with_id(id, schema_id, &topic, MESSAGE_ENCODING, &metadata)
-                    .map_err(|e| write_error(path, e))?;
+                    .add_channel(path, id, schema_id, &topic, &metadata)?;
                 self.topics.insert(id, (topic, 0));
                 Ok(true)
             }
@@ -869,26 +1063,28 @@ impl Writer {
                 time_ns,
             } => {
                 let now_ns = time_ns.unwrap_or_else(unix_time_ns);
-                self.writer
-                    .attach(&mcap::Attachment {
+                self.writer.attach(
+                    path,
+                    &mcap::Attachment {
                         log_time: now_ns,
                         create_time: now_ns,
                         name,
                         media_type,
                         data: Cow::Owned(data),
-                    })
-                    .map_err(|e| write_error(path, e))?;
+                    },
+                )?;
                 self.attachments += 1;
                 // Attachments live outside chunks: the open chunk was closed first.
                 Ok(false)
             }
             Command::Metadata { name, entries } => {
-                self.writer
-                    .write_metadata(&mcap::records::Metadata {
+                self.writer.metadata(
+                    path,
+                    &mcap::records::Metadata {
                         name,
                         metadata: entries,
-                    })
-                    .map_err(|e| write_error(path, e))?;
+                    },
+                )?;
                 self.metadata += 1;
                 Ok(false)
             }
@@ -897,9 +1093,7 @@ impl Writer {
 
     /// Writes one message record into the open chunk and counts it.
     fn write_record(&mut self, header: &mcap::records::MessageHeader, data: &[u8]) -> Result<bool> {
-        self.writer
-            .write_to_known_channel(header, data)
-            .map_err(|e| write_error(&self.path, e))?;
+        self.writer.write(&self.path, header, data)?;
         if let Some((_, n)) = self.topics.get_mut(&header.channel_id) {
             *n += 1;
         }
@@ -907,15 +1101,79 @@ impl Writer {
         Ok(true)
     }
 
+    /// After a message written outside `take`: starts the open chunk's interval and
+    /// applies the flush rule, as `take` does.
+    fn opened(&mut self) -> Result<()> {
+        if self.open_since.is_none() {
+            self.open_since = Some(Instant::now());
+        }
+        if self
+            .open_since
+            .is_some_and(|since| since.elapsed() >= self.flush_interval)
+        {
+            self.flush()?;
+        }
+        Ok(())
+    }
+
+    /// Copies a chunk as it is ([`Recorder::copy_chunk`]) and counts its messages.
+    fn copy_chunk(&mut self, facts: &crate::ChunkFacts, record: &[u8]) -> Result<()> {
+        let Backend::Splice(w) = &mut self.writer else {
+            return Err(Error::InvalidOption {
+                name: "splice",
+                value: "false".to_string(),
+                rule: "copying a chunk needs this crate's writer (splice = true)",
+            });
+        };
+        let index = mcap::records::ChunkIndex {
+            message_start_time: facts.message_start_ns,
+            message_end_time: facts.message_end_ns,
+            chunk_start_offset: facts.start,
+            chunk_length: facts.length,
+            message_index_offsets: message_index_offsets(facts),
+            message_index_length: facts.message_indexes.len() as u64,
+            compression: facts.compression.clone(),
+            compressed_size: facts.compressed_bytes,
+            uncompressed_size: facts.uncompressed_bytes,
+        };
+        w.copy_chunk(&CopiedChunk {
+            record,
+            message_indexes: &facts.message_indexes,
+            index: &index,
+            channel_counts: &facts.channel_counts,
+        })
+        .map_err(|e| Error::io("write", &self.path, e))?;
+        let mut n = 0;
+        for (id, count) in &facts.channel_counts {
+            if let Some((_, written)) = self.topics.get_mut(id) {
+                *written += count;
+            }
+            n += count;
+        }
+        self.counters.written.fetch_add(n, Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// Closes the open chunk without flushing the file ([`Recorder::close_chunk`]).
+    fn close_chunk(&mut self) -> Result<()> {
+        self.open_since = None;
+        match &mut self.writer {
+            Backend::Splice(w) => w
+                .close_chunk()
+                .map_err(|e| Error::io("write", &self.path, e)),
+            Backend::Mcap(w) => w.flush().map_err(|e| write_error(&self.path, e)),
+        }
+    }
+
     /// Closes the open chunk (and hands it to the operating system).
     fn flush(&mut self) -> Result<()> {
         self.open_since = None;
-        self.writer.flush().map_err(|e| write_error(&self.path, e))
+        self.writer.flush(&self.path)
     }
 
     fn finish(mut self) -> Result<RecordingSummary> {
         let path = self.path.clone();
-        let summary = self.writer.finish().map_err(|e| write_error(&path, e))?;
+        let chunks = self.writer.finish(&path)?;
         let file = self
             .writer
             .into_inner()
@@ -935,12 +1193,25 @@ impl Writer {
             messages: messages_per_topic.values().sum(),
             messages_per_topic,
             rejected_full: 0,
-            chunks: summary.stats.as_ref().map_or(0, |s| s.chunk_count.into()),
+            chunks,
             attachments: self.attachments,
             metadata: self.metadata,
             bytes,
         })
     }
+}
+
+/// The file offsets of a chunk's message index records, in the source file: right
+/// after the chunk record, one per channel in ID order (as `ChunkFacts` makes them).
+fn message_index_offsets(facts: &crate::ChunkFacts) -> BTreeMap<u16, u64> {
+    let mut at = facts.start + facts.length;
+    let mut out = BTreeMap::new();
+    for (id, count) in &facts.channel_counts {
+        out.insert(*id, at);
+        // opcode, length, channel ID, array length, (log time, offset) pairs.
+        at += 1 + 8 + 2 + 4 + 16 * count;
+    }
+    out
 }
 
 /// An error of the `mcap` writer for `path`. Its I/O errors become [`Error::Io`], whose
@@ -1146,6 +1417,93 @@ mod tests {
         let (threaded, inline) = (write(true), write(false));
         assert!(threaded.len() > 100_000);
         assert!(threaded == inline, "the two files differ");
+    }
+
+    /// This crate's writer (`splice`) records what `mcap`'s does: every record,
+    /// attachment and metadata read back the same (the chunking may differ), through
+    /// `write_to` and `write_encoded` alike. It needs the writer on the caller's
+    /// thread, and copying a chunk needs it.
+    #[test]
+    fn the_splice_writer_records_what_mcaps_writer_records() {
+        use crate::schema::VIEW_UNIT_STAGES;
+        let dir = tempfile::TempDir::new().expect("temp dir");
+        let write = |splice: bool, compression: Compression| {
+            let path = dir.path().join(format!("{splice}-{compression:?}.mcap"));
+            let options = RecorderOptions {
+                compression,
+                chunk_size_bytes: 16 * 1024,
+                writer_thread: false,
+                splice,
+                ..RecorderOptions::default()
+            };
+            let mut rec = Recorder::create(&path, options).expect("create");
+            let accel = rec
+                .add_channel("/accel", MessageKind::AccelBlock)
+                .expect("channel");
+            let view = rec
+                .add_view_channel("/view/AK1", VIEW_UNIT_STAGES)
+                .expect("view channel");
+            rec.add_metadata("run", BTreeMap::from([("k".to_string(), "v".to_string())]))
+                .expect("metadata");
+            rec.add_attachment_at("a.toml", "text/plain", b"x = 1".to_vec(), 5)
+                .expect("attachment");
+            let mut encoded = Vec::new();
+            for seq in 0..300u32 {
+                let mut m = AccelBlock::ZEROED;
+                m.seq = u64::from(seq);
+                m.count = 32;
+                m.sample_period_ns = 1_250_000;
+                m.t0_ns = u64::from(seq) * 40_000_000;
+                m.output_v[3][1] = f64::from(seq) * 1e-3;
+                let message: Message = m.into();
+                if seq % 2 == 0 {
+                    rec.write_to(&accel, m.t0_ns, m.t0_ns + 7, seq, message)
+                        .expect("write");
+                } else {
+                    message.encode(&mut encoded).expect("encode");
+                    rec.write_encoded(&accel, m.t0_ns, m.t0_ns + 7, seq, &encoded)
+                        .expect("write encoded");
+                }
+                if seq % 50 == 0 {
+                    rec.write_view(&view, m.t0_ns, m.t0_ns, seq / 50, vec![8, seq as u8])
+                        .expect("view");
+                }
+            }
+            let summary = rec.finish().expect("finish");
+            assert_eq!(summary.messages, 306, "{summary:?}");
+            assert!(summary.chunks > 3, "{summary:?}");
+            let mut reader = crate::Reader::open(&path).expect("open");
+            reader
+                .select_topics(&["/accel", "/view/AK1"])
+                .expect("select");
+            let mut records = Vec::new();
+            while let Some(r) = reader.next_raw() {
+                records.push(r.expect("record"));
+            }
+            let attachment = reader.read_attachment("a.toml").expect("attachment");
+            (records, attachment, reader.metadata().expect("metadata"))
+        };
+        for compression in [Compression::Zstd, Compression::None] {
+            let ours = write(true, compression);
+            assert_eq!(ours.0.len(), 306);
+            assert!(ours == write(false, compression), "{compression:?}");
+        }
+        let threaded = RecorderOptions {
+            splice: true,
+            ..RecorderOptions::default()
+        };
+        let Err(e) = Recorder::create(dir.path().join("t.mcap"), threaded) else {
+            panic!("splice with the writer thread was accepted");
+        };
+        assert!(
+            e.to_string()
+                .contains("splice = true: needs writer_thread = false"),
+            "{e}"
+        );
+        let rec = Recorder::create(dir.path().join("m.mcap"), RecorderOptions::default())
+            .expect("create");
+        let e = rec.close_chunk().unwrap_err();
+        assert!(e.to_string().contains("writer_thread = true"), "{e}");
     }
 
     #[test]

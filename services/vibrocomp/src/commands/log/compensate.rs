@@ -36,6 +36,11 @@ pub struct CompensateArgs {
     /// Write uncompressed chunks (larger, less CPU) instead of zstd.
     #[arg(long)]
     pub no_compression: bool,
+    /// Write every record, instead of copying the log's chunks as they are (still
+    /// compressed) where their records are what the session holds. The same messages
+    /// either way.
+    #[arg(long)]
+    pub no_chunk_copy: bool,
     /// Overwrite OUT if it exists.
     #[arg(long)]
     pub force: bool,
@@ -55,6 +60,7 @@ pub(super) fn run(args: &CompensateArgs) -> anyhow::Result<()> {
         force: args.force,
         view: !args.no_view,
         compress: !args.no_compression,
+        copy_chunks: !args.no_chunk_copy,
     };
     // Ctrl-C or SIGTERM stops the run between messages; nothing is written then.
     let signal = vibro_service::StopSignal::install();
