@@ -291,10 +291,11 @@ fn offline_compensation_of_an_imported_rig_log_equals_the_services_with_the_rig(
     let rate_mismatches = &summary["estimator"]["rate_mismatches"];
     assert_eq!(rate_mismatches, 0, "{summary}");
     compare("rig log", &offline, &session, &summary, &summaries);
-    println!(
-        "FIGURES log compensate rig log: {} of the log's chunks copied",
-        summary["copied_chunks"]
-    );
+    // `log import` opens /truth, /vib, /accel as channels 1, 2, 3: the session opens
+    // its inputs in that order, and the log's chunks are copied as they are.
+    let copied = summary["copied_chunks"].as_u64().unwrap_or(0);
+    assert!(copied >= 1, "{summary}");
+    println!("FIGURES log compensate rig log: {copied} of the log's chunks copied");
 }
 
 #[test]

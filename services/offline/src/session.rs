@@ -106,13 +106,23 @@ impl SessionWriter {
             ..RecorderOptions::default()
         };
         let mut recorder = Recorder::create(path, recorder_options)?;
-        let mut channels = Vec::with_capacity(STREAMS.len());
-        for s in STREAMS {
-            channels.push(recorder.add_channel(&topic(s), s.kind())?);
+        // The inputs' channels opened in the order of the log's channel IDs, the
+        // outputs' after them: a log whose rig channels have the first IDs in another
+        // order (an imported rig log: /truth, /vib, /accel) has its records on the same
+        // IDs in the session, so that its chunks can be copied as they are (copy.rs).
+        let mut order: Vec<usize> = (0..STREAMS.len()).collect();
+        let log_ids = input_channel_ids(log);
+        order[..INPUTS].sort_by_key(|&at| (log_ids[at], at));
+        let mut opened: [Option<ChannelId>; STREAMS.len()] = Default::default();
+        for at in order {
+            let s = STREAMS[at];
+            opened[at] = Some(recorder.add_channel(&topic(s), s.kind())?);
         }
-        let channels: [ChannelId; STREAMS.len()] = channels
-            .try_into()
-            .map_err(|_| anyhow::anyhow!("channel count"))?;
+        let channels = opened.map(|c| c.ok_or_else(|| anyhow::anyhow!("a channel not opened")));
+        let channels: [ChannelId; STREAMS.len()] = match channels {
+            [Ok(a), Ok(b), Ok(c), Ok(d), Ok(e)] => [a, b, c, d, e],
+            _ => anyhow::bail!("a session channel was not opened"),
+        };
         let view = if options.view {
             let mut list = BTreeMap::new();
             for (t, schema) in vibro_view::topics(UNIT_NAMES) {
@@ -281,6 +291,18 @@ impl SessionWriter {
             copied_chunks: self.copier.as_ref().map_or(0, |c| c.copied_chunks),
         })
     }
+}
+
+/// The log's channel ID of each input stream (`u16::MAX`: none, or the log unreadable,
+/// which `run` reports).
+fn input_channel_ids(log: &Path) -> [u16; INPUTS] {
+    let reader = vibro_mcap::Reader::open(log).ok();
+    std::array::from_fn(|at| {
+        reader
+            .as_ref()
+            .and_then(|r| r.channel_id(&topic(STREAMS[at])))
+            .unwrap_or(u16::MAX)
+    })
 }
 
 /// Whether the log has a `/truth` channel (a reference the view waits for).

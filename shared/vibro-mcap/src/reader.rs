@@ -403,6 +403,15 @@ impl Reader {
             .collect()
     }
 
+    /// The ID of the first channel on `topic`, if the file has one.
+    pub fn channel_id(&self, topic: &str) -> Option<u16> {
+        self.summary
+            .channels
+            .values()
+            .find(|c| c.topic == topic)
+            .map(|c| c.id)
+    }
+
     /// The topic of channel `id`, if the file has it.
     pub fn channel_topic(&self, id: u16) -> Option<&str> {
         self.summary.channels.get(&id).map(|c| c.topic.as_str())
