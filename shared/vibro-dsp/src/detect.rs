@@ -398,18 +398,31 @@ fn estimate_floor(
 
 /// Batcher's odd-even merge sort of 16 elements: 63 compare-exchanges in a fixed
 /// order (branch-free: a median's blocks are random, so an insertion sort's branches
-/// mispredict).
-#[rustfmt::skip]
-const SORT16_NETWORK: [(usize, usize); 63] = [
-    (0, 1), (2, 3), (0, 2), (1, 3), (1, 2), (4, 5), (6, 7), (4, 6),
-    (5, 7), (5, 6), (0, 4), (2, 6), (2, 4), (1, 5), (3, 7), (3, 5),
-    (1, 2), (3, 4), (5, 6), (8, 9), (10, 11), (8, 10), (9, 11), (9, 10),
-    (12, 13), (14, 15), (12, 14), (13, 15), (13, 14), (8, 12), (10, 14), (10, 12),
-    (9, 13), (11, 15), (11, 13), (9, 10), (11, 12), (13, 14), (0, 8), (4, 12),
-    (4, 8), (2, 10), (6, 14), (6, 10), (2, 4), (6, 8), (10, 12), (1, 9),
-    (5, 13), (5, 9), (3, 11), (7, 15), (7, 11), (3, 5), (7, 9), (11, 13),
-    (1, 2), (3, 4), (5, 6), (7, 8), (9, 10), (11, 12), (13, 14),
-];
+/// mispredict). The pairs are handed to `$then!` after `$args`: the one list for the
+/// table below and for the lanes of `sort_blocks_avx2`, which need it written out.
+macro_rules! sort16_network {
+    ($then:ident ! ($($args:tt)*)) => {
+        $then!($($args)*
+            (0, 1), (2, 3), (0, 2), (1, 3), (1, 2), (4, 5), (6, 7), (4, 6),
+            (5, 7), (5, 6), (0, 4), (2, 6), (2, 4), (1, 5), (3, 7), (3, 5),
+            (1, 2), (3, 4), (5, 6), (8, 9), (10, 11), (8, 10), (9, 11), (9, 10),
+            (12, 13), (14, 15), (12, 14), (13, 15), (13, 14), (8, 12), (10, 14), (10, 12),
+            (9, 13), (11, 15), (11, 13), (9, 10), (11, 12), (13, 14), (0, 8), (4, 12),
+            (4, 8), (2, 10), (6, 14), (6, 10), (2, 4), (6, 8), (10, 12), (1, 9),
+            (5, 13), (5, 9), (3, 11), (7, 15), (7, 11), (3, 5), (7, 9), (11, 13),
+            (1, 2), (3, 4), (5, 6), (7, 8), (9, 10), (11, 12), (13, 14)
+        )
+    };
+}
+
+macro_rules! pair_table {
+    ($(($i:literal, $j:literal)),*) => {
+        [$(($i, $j)),*]
+    };
+}
+
+/// `sort16_network!` as a table.
+const SORT16_NETWORK: [(usize, usize); 63] = sort16_network!(pair_table!());
 
 /// Every whole hop block of `power` (>= +0, finite) sorted, as bits, into `sorted`
 /// (as many as it holds). With AVX2 four blocks go through the network at once, one
@@ -436,7 +449,7 @@ fn sort_blocks(power: &[f64], sorted: &mut [[u64; FLOOR_HOP_BINS]]) {
 unsafe fn sort_blocks_avx2(power: &[f64], sorted: &mut [[u64; FLOOR_HOP_BINS]]) {
     use std::arch::x86_64::*;
     macro_rules! network {
-        ($v:ident; $(($i:literal, $j:literal)),* $(,)?) => {
+        ($v:ident; $(($i:literal, $j:literal)),*) => {
             $(
                 let (x, y) = ($v[$i], $v[$j]);
                 $v[$i] = _mm256_min_pd(x, y);
@@ -454,17 +467,8 @@ unsafe fn sort_blocks_avx2(power: &[f64], sorted: &mut [[u64; FLOOR_HOP_BINS]]) 
                 p[i],
             )
         });
-        // SORT16_NETWORK, written out so that the lanes stay in registers.
-        network!(v;
-            (0, 1), (2, 3), (0, 2), (1, 3), (1, 2), (4, 5), (6, 7), (4, 6),
-            (5, 7), (5, 6), (0, 4), (2, 6), (2, 4), (1, 5), (3, 7), (3, 5),
-            (1, 2), (3, 4), (5, 6), (8, 9), (10, 11), (8, 10), (9, 11), (9, 10),
-            (12, 13), (14, 15), (12, 14), (13, 15), (13, 14), (8, 12), (10, 14), (10, 12),
-            (9, 13), (11, 15), (11, 13), (9, 10), (11, 12), (13, 14), (0, 8), (4, 12),
-            (4, 8), (2, 10), (6, 14), (6, 10), (2, 4), (6, 8), (10, 12), (1, 9),
-            (5, 13), (5, 9), (3, 11), (7, 15), (7, 11), (3, 5), (7, 9), (11, 13),
-            (1, 2), (3, 4), (5, 6), (7, 8), (9, 10), (11, 12), (13, 14),
-        );
+        // The network written out, so that the lanes stay in registers.
+        sort16_network!(network!(v;));
         let mut lanes = [0.0f64; 4];
         for (i, vi) in v.iter().enumerate() {
             _mm256_storeu_pd(lanes.as_mut_ptr(), *vi);
