@@ -1247,7 +1247,11 @@ mod tests {
 
     /// `/dev/full` fails every write with ENOSPC, as a full disk does. It is opened for
     /// writing only (no truncation, no replacement), so the device itself is untouched.
-    fn full_disk(writer_thread: bool) -> Recorder {
+    /// The recorder's three ways of writing: `mcap`'s writer on its own thread or on
+    /// the caller's, and this crate's (`splice`) on the caller's.
+    const MODES: [(bool, bool); 3] = [(true, false), (false, false), (false, true)];
+
+    fn full_disk((writer_thread, splice): (bool, bool)) -> Recorder {
         let path = PathBuf::from("/dev/full");
         let file = std::fs::OpenOptions::new()
             .write(true)
@@ -1257,6 +1261,7 @@ mod tests {
             chunk_size_bytes: 4096,
             flush_interval_s: 0.01,
             writer_thread,
+            splice,
             ..RecorderOptions::default()
         };
         Recorder::start(file, path, options).expect("the recorder starts")
@@ -1265,16 +1270,18 @@ mod tests {
     /// The operating system's reason for ENOSPC, as `io::Error` prints it.
     const ENOSPC: &str = "(os error 28)";
 
-    /// With the writer on its own thread and on the caller's alike.
+    /// With the writer on its own thread and on the caller's alike, and with this
+    /// crate's writer.
     #[test]
     fn a_full_disk_is_reported_with_its_cause_by_write_control_calls_and_finish() {
-        for writer_thread in [true, false] {
-            full_disk_reported(writer_thread);
+        for mode in MODES {
+            full_disk_reported(mode);
         }
     }
 
-    fn full_disk_reported(writer_thread: bool) {
-        let mut rec = full_disk(writer_thread);
+    fn full_disk_reported(mode: (bool, bool)) {
+        let writer_thread = mode.0;
+        let mut rec = full_disk(mode);
         // On the caller's thread the first write to the disk may be the channel's.
         let stopped = match rec.add_channel("accel", MessageKind::AccelBlock) {
             Ok(accel) => first_failed_write(&rec, &accel),
@@ -1335,10 +1342,11 @@ mod tests {
 
     #[test]
     fn finish_alone_reports_a_full_disk_with_its_cause() {
-        for writer_thread in [true, false] {
+        for mode in MODES {
+            let writer_thread = mode.0;
             // Nothing but the header and a channel: the first write to the disk is
             // finish's.
-            let mut rec = full_disk(writer_thread);
+            let mut rec = full_disk(mode);
             if let Err(e) = rec.add_channel("accel", MessageKind::AccelBlock) {
                 // On the caller's thread the channel may meet the full disk first.
                 assert!(!writer_thread && e.to_string().contains(ENOSPC), "{e}");
