@@ -176,3 +176,21 @@ pub fn screenshot(html: &Path, png: &Path) -> (Vec<u8>, usize) {
 pub fn near(px: &[u8], c: [u8; 3]) -> bool {
     (0..3).all(|i| (i32::from(px[i]) - i32::from(c[i])).abs() <= 30)
 }
+
+/// What the Python MCAP reader makes of `file`: `script` (Python, `sys.argv[1]` the
+/// file) run with `python3 -c`, its standard output read as JSON.
+pub fn python_mcap_json(script: &str, file: &Path) -> serde_json::Value {
+    let out = Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(file)
+        .output()
+        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
+    assert!(
+        out.status.success(),
+        "the Python mcap reader cannot read {}:\n{}",
+        file.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("JSON")
+}

@@ -5,7 +5,6 @@
 
 use crate::common::{bin, run_failing};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::{Duration, Instant};
 
 fn scratch(name: &str) -> PathBuf {
@@ -31,19 +30,7 @@ with open(sys.argv[1], "rb") as f:
 stats = summary.statistics.message_count if summary and summary.statistics else None
 print(json.dumps({"counted": counted, "summary": stats}))
 "#;
-    let out = Command::new("python3")
-        .arg("-c")
-        .arg(script)
-        .arg(file)
-        .output()
-        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
-    assert!(
-        out.status.success(),
-        "the Python mcap reader cannot read {}:\n{}",
-        file.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let v = crate::common::python_mcap_json(script, file);
     (
         v["counted"].as_u64().expect("counted"),
         v["summary"].as_u64(),

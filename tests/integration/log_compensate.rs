@@ -113,19 +113,7 @@ with open(sys.argv[1], "rb") as f:
         d[1].update(m.data)
 print(json.dumps({t: [n, h.hexdigest()] for t, (n, h) in out.items()}))
 "#;
-    let o = std::process::Command::new("python3")
-        .arg("-c")
-        .arg(script)
-        .arg(file)
-        .output()
-        .expect("python3 runs (pip install -r tests/python/requirements.txt)");
-    assert!(
-        o.status.success(),
-        "the Python mcap reader cannot read {}:\n{}",
-        file.display(),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    serde_json::from_slice(&o.stdout).expect("JSON")
+    crate::common::python_mcap_json(script, file)
 }
 
 /// The /estimate messages of a session, in order.

@@ -353,7 +353,8 @@ impl Copier {
     }
 }
 
-fn write_view(
+/// Writes a view message and counts it.
+pub(crate) fn write_view(
     sink: &mut Sink<'_>,
     channel: &ViewChannelId,
     log_time_ns: u64,

@@ -578,6 +578,17 @@ mod tests {
         out
     }
 
+    /// The chunks of `log` that hold messages, by its chunk index (`mcap`'s reader).
+    fn chunks_with_messages(log: &Path) -> u64 {
+        mcap::Summary::read(&std::fs::read(log).unwrap())
+            .unwrap()
+            .unwrap()
+            .chunk_indexes
+            .iter()
+            .filter(|c| !c.message_index_offsets.is_empty())
+            .count() as u64
+    }
+
     /// The records of each topic, in order.
     type Records = Vec<(String, u32, u64, u64, Vec<u8>)>;
     fn by_topic(records: &Records) -> BTreeMap<String, Records> {
@@ -611,13 +622,7 @@ mod tests {
         };
         let with_copies = run(&log, &copied, &OutputOptions::default());
         let without = run(&log, &plain, &plain_options);
-        let log_chunks = mcap::Summary::read(&std::fs::read(&log).unwrap())
-            .unwrap()
-            .unwrap()
-            .chunk_indexes
-            .iter()
-            .filter(|c| !c.message_index_offsets.is_empty())
-            .count() as u64;
+        let log_chunks = chunks_with_messages(&log);
         assert!(log_chunks >= 2, "{log_chunks}");
         assert_eq!(with_copies.copied_chunks, log_chunks);
         assert_eq!(without.copied_chunks, 0);
@@ -723,13 +728,7 @@ mod tests {
         };
         let (_, plain) = run("plain.mcap", false);
         let (copied, held) = run("held.mcap", true);
-        let with_messages = mcap::Summary::read(&std::fs::read(&log).unwrap())
-            .unwrap()
-            .unwrap()
-            .chunk_indexes
-            .iter()
-            .filter(|c| !c.message_index_offsets.is_empty())
-            .count() as u64;
+        let with_messages = chunks_with_messages(&log);
         assert!(with_messages > 10, "{with_messages}");
         assert_eq!(copied, with_messages);
         copy::HELD_LIMIT.with(|l| l.set(256 * 1024));

@@ -328,14 +328,7 @@ fn write_view(
         match copier.as_deref_mut() {
             Some(c) => c.view(sink, channel, m.log_time_ns, publish_ns, *seq, m.data)?,
             None => {
-                sink.recorder
-                    .write_view(channel, m.log_time_ns, publish_ns, *seq, m.data)?;
-                match sink.view_counts.get_mut(&m.topic) {
-                    Some(n) => *n += 1,
-                    None => {
-                        sink.view_counts.insert(m.topic, 1);
-                    }
-                }
+                crate::copy::write_view(sink, channel, m.log_time_ns, publish_ns, *seq, m.data)?
             }
         }
         *seq = seq.wrapping_add(1);

@@ -130,6 +130,8 @@ pub struct ChunkFacts {
     /// The chunk's message index records (MCAP opcode 0x07, one per channel in ID
     /// order), made from its records: the file's own are neither read nor trusted.
     pub message_indexes: Vec<u8>,
+    /// Where each channel's record starts in `message_indexes`.
+    pub message_index_offsets: BTreeMap<u16, u64>,
 }
 
 /// Iterates over the messages of a finished MCAP file in log-time order (ties in file
@@ -580,6 +582,7 @@ impl Reader {
             queued: 0,
             channel_counts: BTreeMap::new(),
             message_indexes: Vec::new(),
+            message_index_offsets: BTreeMap::new(),
         });
         let mut entries: BTreeMap<u16, Vec<(u64, u64)>> = BTreeMap::new();
         let mut messages = Vec::new();
@@ -622,7 +625,7 @@ impl Reader {
             }
             f.header_times_agree = (header.message_start_time, header.message_end_time)
                 == (f.message_start_ns, f.message_end_ns);
-            f.message_indexes = message_index_records(&entries);
+            (f.message_indexes, f.message_index_offsets) = message_index_records(&entries);
             if let Some(slot) = self
                 .facts
                 .as_mut()
@@ -709,10 +712,15 @@ impl Iterator for Reader {
 }
 
 /// MCAP message index records (opcode 0x07: channel ID, then the byte length and the
-/// `(log time, offset in the uncompressed chunk)` pairs), one per channel in ID order.
-fn message_index_records(entries: &BTreeMap<u16, Vec<(u64, u64)>>) -> Vec<u8> {
+/// `(log time, offset in the uncompressed chunk)` pairs), one per channel in ID order,
+/// and where each channel's record starts among them.
+fn message_index_records(
+    entries: &BTreeMap<u16, Vec<(u64, u64)>>,
+) -> (Vec<u8>, BTreeMap<u16, u64>) {
     let mut out = Vec::with_capacity(entries.values().map(|e| 15 + 16 * e.len()).sum());
+    let mut offsets = BTreeMap::new();
     for (channel_id, pairs) in entries {
+        offsets.insert(*channel_id, out.len() as u64);
         let array_bytes = 16 * pairs.len() as u64;
         out.push(op::MESSAGE_INDEX);
         out.extend_from_slice(&(2 + 4 + array_bytes).to_le_bytes());
@@ -723,7 +731,7 @@ fn message_index_records(entries: &BTreeMap<u16, Vec<(u64, u64)>>) -> Vec<u8> {
             out.extend_from_slice(&offset.to_le_bytes());
         }
     }
-    out
+    (out, offsets)
 }
 
 /// Reads the record of `length` bytes (opcode and length prefix included) at `offset`
@@ -926,6 +934,12 @@ mod tests {
             let end = start + index.chunk_length as usize;
             let mi_end = end + index.message_index_length as usize;
             assert_eq!(f.message_indexes, bytes[end..mi_end], "chunk {k}");
+            let offsets: BTreeMap<u16, u64> = index
+                .message_index_offsets
+                .iter()
+                .map(|(id, at)| (*id, at - end as u64))
+                .collect();
+            assert_eq!(f.message_index_offsets, offsets, "chunk {k}");
             assert_eq!(
                 (f.start, f.length),
                 (index.chunk_start_offset, index.chunk_length)

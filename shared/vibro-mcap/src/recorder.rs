@@ -1130,7 +1130,12 @@ impl Writer {
             message_end_time: facts.message_end_ns,
             chunk_start_offset: facts.start,
             chunk_length: facts.length,
-            message_index_offsets: message_index_offsets(facts),
+            // As if the records followed the chunk in the source file.
+            message_index_offsets: facts
+                .message_index_offsets
+                .iter()
+                .map(|(id, at)| (*id, facts.start + facts.length + at))
+                .collect(),
             message_index_length: facts.message_indexes.len() as u64,
             compression: facts.compression.clone(),
             compressed_size: facts.compressed_bytes,
@@ -1199,19 +1204,6 @@ impl Writer {
             bytes,
         })
     }
-}
-
-/// The file offsets of a chunk's message index records, in the source file: right
-/// after the chunk record, one per channel in ID order (as `ChunkFacts` makes them).
-fn message_index_offsets(facts: &crate::ChunkFacts) -> BTreeMap<u16, u64> {
-    let mut at = facts.start + facts.length;
-    let mut out = BTreeMap::new();
-    for (id, count) in &facts.channel_counts {
-        out.insert(*id, at);
-        // opcode, length, channel ID, array length, (log time, offset) pairs.
-        at += 1 + 8 + 2 + 4 + 16 * count;
-    }
-    out
 }
 
 /// An error of the `mcap` writer for `path`. Its I/O errors become [`Error::Io`], whose
