@@ -318,7 +318,7 @@ impl GridSpan {
 /// output interval a tone deviates from its mean by a variance that depends on where in
 /// its cycle the interval falls (least at the tone's peaks, where the reading `a(1)`
 /// carries most of it), so the effects' tone part, tabulated at the mean variance, is
-/// scaled per sample by [`tone_within_factor`]. Without it a quartic term's cross part
+/// scaled per sample by [`ToneWithin`]. Without it a quartic term's cross part
 /// `6 k4 E[s^2 w^2]` (`s` the resolved tone in `a(1)`, `w` its deviation inside the
 /// interval) is taken as `6 k4 E[s^2] E[w^2]`, twice the truth for a slow tone; a
 /// mount that triples a tone makes that hundreds of ug (docs/services.md).
@@ -345,7 +345,7 @@ struct UnitEffects {
 
 impl UnitEffects {
     /// The correction of a sample read at `a_g`, its tone's part times `tone_factor`
-    /// ([`tone_within_factor`] at the sample's phase; the same factor stage (19) takes,
+    /// ([`ToneWithin`] at the sample's phase; the same factor stage (19) takes,
     /// computed once per sample).
     fn at(&self, a_g: f64, tone_factor: f64) -> f64 {
         let full = self.full.at(a_g);
@@ -359,20 +359,44 @@ impl UnitEffects {
     }
 }
 
+/// [`ToneWithin`]'s factor at one phase.
+#[cfg(test)]
+fn tone_within_factor(theta: f64, omega_t: f64) -> f64 {
+    ToneWithin::new(omega_t).at(theta)
+}
+
 /// For a tone `sin(theta + w tau)` over an interval `tau` in `[-T/2, T/2]` (`theta` its
 /// phase at the middle, `omega_t = w T`): the variance of its deviation from the
 /// interval's mean, `1/2 - 1/2 cos(2 theta) sinc(w T) - sin^2(theta) sinc^2(w T / 2)`,
 /// over its mean over `theta`, `1/2 (1 - sinc^2(w T / 2))` (crate::interval's
 /// `within_fraction`). 1 where the mean vanishes.
-fn tone_within_factor(theta: f64, omega_t: f64) -> f64 {
-    let sinc = |x: f64| if x.abs() < 1e-9 { 1.0 } else { x.sin() / x };
-    let half = sinc(0.5 * omega_t);
-    let mean = 0.5 * (1.0 - half * half);
-    if mean.is_nan() || mean <= 1e-12 {
-        return 1.0;
+///
+/// The parts that do not depend on the phase are taken once per block: with
+/// `sin^2(theta) = (1 - cos(2 theta))/2` the factor is
+/// `1 - cos(2 theta) (sinc(w T) - s^2)/(1 - s^2)`, `s = sinc(w T / 2)`, one cosine per
+/// sample where it took four sines and cosines.
+#[derive(Debug, Clone, Copy)]
+struct ToneWithin {
+    /// `(sinc(w T) - s^2)/(1 - s^2)`; `None` where the mean vanishes (factor 1).
+    swing: Option<f64>,
+}
+
+impl ToneWithin {
+    fn new(omega_t: f64) -> Self {
+        let sinc = |x: f64| if x.abs() < 1e-9 { 1.0 } else { x.sin() / x };
+        let half = sinc(0.5 * omega_t);
+        let mean = 0.5 * (1.0 - half * half);
+        let swing =
+            (!mean.is_nan() && mean > 1e-12).then(|| 0.5 * (sinc(omega_t) - half * half) / mean);
+        Self { swing }
     }
-    let v = 0.5 - 0.5 * (2.0 * theta).cos() * sinc(omega_t) - theta.sin().powi(2) * half * half;
-    (v / mean).max(0.0)
+
+    fn at(&self, theta: f64) -> f64 {
+        match self.swing {
+            Some(swing) => (1.0 - (2.0 * theta).cos() * swing).max(0.0),
+            None => 1.0,
+        }
+    }
 }
 
 /// Phases a [`ToneMoments`] table holds over one period.
@@ -409,7 +433,10 @@ impl ToneMoments {
         }
         let mut x = [0.0; MOMENT_POINTS];
         let mut mu = [[0.0; 3]; MOMENT_PHASES + 1];
-        for (j, m) in mu.iter_mut().enumerate() {
+        // Half a period on, the tone is its negative: the odd moments change sign and
+        // the fourth stays (below). Only the first half and its end are summed.
+        let half = MOMENT_PHASES / 2;
+        for (j, m) in mu.iter_mut().enumerate().take(half + 1) {
             let theta = std::f64::consts::TAU * j as f64 / MOMENT_PHASES as f64;
             let (sin_theta, cos_theta) = theta.sin_cos();
             for ((x, s), c) in x.iter_mut().zip(&point_sin).zip(&point_cos) {
@@ -426,6 +453,10 @@ impl ToneMoments {
             for v in m.iter_mut() {
                 *v /= MOMENT_POINTS as f64;
             }
+        }
+        for j in half + 1..=MOMENT_PHASES {
+            let [m3, m4, m5] = mu[j - half];
+            mu[j] = [-m3, m4, -m5];
         }
         Self {
             omega_t,
@@ -450,7 +481,7 @@ impl ToneMoments {
 /// What stage (19) leaves of a single tone's part inside an output interval beyond
 /// its variance, g: the exact model takes the tone inside the interval as a whole
 /// sinusoid of the interval's mean variance (`amplitude_within_g`), scaled per sample
-/// by the variance at the sample's phase ([`tone_within_factor`], `factor`); a
+/// by the variance at the sample's phase ([`ToneWithin`], `factor`); a
 /// reading's passport polynomial around it (`reading_g`, MODEL.md (1): `k2..k5`)
 /// also feels the third, fourth and fifth moments of the tone's deviation inside the
 /// interval, which depend on the phase otherwise. The difference:
@@ -1095,6 +1126,11 @@ impl Compensation {
                 _ => self.tone_moments[i] = None,
             }
         }
+        // The within-interval factor's parts that hold for the whole block.
+        let within = det_tone.map(|t| match t {
+            Some((f_hz, ..)) => ToneWithin::new(2.0 * std::f64::consts::PI * f_hz * interval_s),
+            None => ToneWithin { swing: None },
+        });
         let tone_moments = &self.tone_moments;
         let passports = &self.model.triad.passports;
         let compensator = &mut self.compensator;
@@ -1142,7 +1178,7 @@ impl Compensation {
                         m.a4_g[k][i] = s.a2_g;
                     } else {
                         // A single tone's part inside the interval at the sample's
-                        // phase (`tone_within_factor`), for stage (19) and the effects'
+                        // phase ([`ToneWithin`]), for stage (19) and the effects'
                         // tone part alike.
                         let (tone_factor, higher_g) = match det_tone[i] {
                             Some((f_hz, phase_rad, amplitude_within_g, center_ns)) => {
@@ -1151,7 +1187,7 @@ impl Compensation {
                                     * 1e-9;
                                 let w = 2.0 * std::f64::consts::PI * f_hz;
                                 let theta = w * dt_s + phase_rad;
-                                let factor = tone_within_factor(theta, w * interval_s);
+                                let factor = within[i].at(theta);
                                 let higher = match &tone_moments[i] {
                                     Some(m) if m.share > 1e-6 => higher_moments_g(
                                         &passports[i].k,
