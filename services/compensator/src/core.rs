@@ -1103,10 +1103,14 @@ impl Compensation {
         // or the interval changes (about 0.3 ms: once per estimate at most).
         let interval_s = block.sample_period_ns as f64 * 1e-9;
         let exact = self.model.wire_mode() == CompensationMode::Exact;
+        // Per unit, the tone's within-interval factor's parts that hold for the whole
+        // block (`ToneWithin`), and its moments' table.
+        let mut tone_within = [None; 3];
         for (i, t) in det_tone.iter().enumerate() {
-            match t {
-                Some((f_hz, ..)) if exact => {
-                    let omega_t = std::f64::consts::TAU * f_hz * interval_s;
+            let omega_t = t.map(|(f_hz, ..)| std::f64::consts::TAU * f_hz * interval_s);
+            tone_within[i] = omega_t.map(ToneWithin::new);
+            match omega_t {
+                Some(omega_t) if exact => {
                     if self.tone_moments[i]
                         .as_ref()
                         .is_none_or(|m| m.omega_t != omega_t)
@@ -1126,11 +1130,6 @@ impl Compensation {
                 _ => self.tone_moments[i] = None,
             }
         }
-        // The within-interval factor's parts that hold for the whole block.
-        let within = det_tone.map(|t| match t {
-            Some((f_hz, ..)) => ToneWithin::new(2.0 * std::f64::consts::PI * f_hz * interval_s),
-            None => ToneWithin { swing: None },
-        });
         let tone_moments = &self.tone_moments;
         let passports = &self.model.triad.passports;
         let compensator = &mut self.compensator;
@@ -1180,14 +1179,17 @@ impl Compensation {
                         // A single tone's part inside the interval at the sample's
                         // phase ([`ToneWithin`]), for stage (19) and the effects'
                         // tone part alike.
-                        let (tone_factor, higher_g) = match det_tone[i] {
-                            Some((f_hz, phase_rad, amplitude_within_g, center_ns)) => {
+                        let (tone_factor, higher_g) = match (det_tone[i], tone_within[i]) {
+                            (
+                                Some((f_hz, phase_rad, amplitude_within_g, center_ns)),
+                                Some(within),
+                            ) => {
                                 let dt_s = (i128::from(mid_ns(block, k)) - i128::from(center_ns))
                                     as f64
                                     * 1e-9;
                                 let w = 2.0 * std::f64::consts::PI * f_hz;
                                 let theta = w * dt_s + phase_rad;
-                                let factor = within[i].at(theta);
+                                let factor = within.at(theta);
                                 let higher = match &tone_moments[i] {
                                     Some(m) if m.share > 1e-6 => higher_moments_g(
                                         &passports[i].k,
@@ -1201,7 +1203,7 @@ impl Compensation {
                                 };
                                 (factor, higher)
                             }
-                            None => (1.0, 0.0),
+                            _ => (1.0, 0.0),
                         };
                         // The extended model's effects at a(1), removed after (20)
                         // and carried in `rand` so that a4 = a3 - rand (first order:
