@@ -1,6 +1,12 @@
 //! Tone detection: a Hann-windowed FFT of the whole window, a local broadband floor,
 //! peaks over that floor, and Grandke's interpolation of each peak's frequency.
 //!
+//! The window is applied in the frequency domain: the FFT takes the plain samples (less
+//! their mean, invalid ones zeroed), and the periodic Hann `0.5 - 0.5 cos(2 pi n / N)`
+//! is its three-tap kernel there, `X_w[k] = 0.5 X[k] - 0.25 (X[k-1] + X[k+1])`
+//! (exact). The plain DFT is kept: it is the kurtosis' forward transform too
+//! ([`crate::kurtosis`]).
+//!
 //! Why Hann: its sidelobes fall 18 dB/octave, so a strong tone does not raise the
 //! floor far from it, while its main lobe (+-2 bins) keeps tones 2.5 bins apart
 //! resolvable. Amplitude accuracy does not come from the window: the least-squares fit
@@ -69,6 +75,9 @@ pub(crate) struct Detector {
     /// Over the valid samples of the current window.
     window_sum: f64,
     window_sq_sum: f64,
+    /// The DFT of the plain samples, less their mean, invalid ones zeroed.
+    plain: [Vec<Complex64>; 3],
+    /// The Hann-windowed DFT.
     spectrum: [Vec<Complex64>; 3],
     power: [Vec<f64>; 3],
     /// Mean periodogram power of the broadband floor, per bin.
@@ -101,6 +110,7 @@ impl Detector {
             sample_rate_hz,
             input: fft.make_input_vec(),
             scratch: fft.make_scratch_vec(),
+            plain: std::array::from_fn(|_| fft.make_output_vec()),
             spectrum: std::array::from_fn(|_| fft.make_output_vec()),
             fft,
             window,
@@ -144,20 +154,18 @@ impl Detector {
         for a in 0..3 {
             // Invalid samples are 0 in x: the mean over the valid ones is sum / valid.
             let mean = crate::sums::sum(&x[a][..n]) / valid;
-            for ((inp, v), w) in self.input.iter_mut().zip(&x[a][..n]).zip(&self.window) {
-                *inp = (v - mean) * w;
+            for (inp, v) in self.input.iter_mut().zip(&x[a][..n]) {
+                *inp = v - mean;
             }
             for &i in invalid {
                 self.input[i as usize] = 0.0;
             }
             self.fft.process_with_scratch(
                 &mut self.input,
-                &mut self.spectrum[a],
+                &mut self.plain[a],
                 &mut self.scratch,
             )?;
-            for (p, c) in self.power[a].iter_mut().zip(&self.spectrum[a]) {
-                *p = c.norm_sqr();
-            }
+            hann_in_frequency(&self.plain[a], n, &mut self.spectrum[a], &mut self.power[a]);
             sort_blocks(&self.power[a], &mut self.sorted_blocks);
             estimate_floor(
                 &self.power[a],
@@ -311,6 +319,12 @@ impl Detector {
         !(0..3).any(|a| passes[a] && own_axis[a])
     }
 
+    /// The DFT of `axis`' plain samples (less their mean, invalid ones zeroed) in the
+    /// last window: bins `0..=N/2`.
+    pub(crate) fn plain_spectrum(&self, axis: usize) -> &[Complex64] {
+        &self.plain[axis]
+    }
+
     /// Bin width of the window's DFT.
     pub(crate) fn resolution_hz(&self) -> f64 {
         self.sample_rate_hz / self.samples as f64
@@ -327,6 +341,48 @@ impl Detector {
         let t = b - i as f64;
         let p = floor[i] * (1.0 - t) + floor[j] * t;
         2.0 * p / (self.sample_rate_hz * self.window_sq_sum)
+    }
+}
+
+/// The periodic Hann window applied to the one-sided DFT `plain` of `n` real samples:
+/// `0.5 X[k] - 0.25 (X[k-1] + X[k+1])`, the bins beyond the ends being the conjugates
+/// of those inside (`X[-1] = X[1]*`, `X[N/2+1] = X[N/2-1]*`); and each bin's power.
+fn hann_in_frequency(plain: &[Complex64], n: usize, out: &mut [Complex64], power: &mut [f64]) {
+    let last = plain.len() - 1;
+    let at = |k: usize| plain[k];
+    let below = |k: usize| {
+        if k == 0 {
+            plain[1.min(last)].conj()
+        } else {
+            plain[k - 1]
+        }
+    };
+    let above = |k: usize| {
+        if k < last {
+            plain[k + 1]
+        } else if n % 2 == 0 {
+            // Even N: bin N/2 + 1 is the conjugate of N/2 - 1.
+            plain[last.saturating_sub(1)].conj()
+        } else {
+            // Odd N: bin (N + 1) / 2 is the conjugate of (N - 1) / 2.
+            plain[last].conj()
+        }
+    };
+    let ends = [
+        (0, 0.5 * at(0) - 0.25 * (below(0) + above(0))),
+        (last, 0.5 * at(last) - 0.25 * (below(last) + above(last))),
+    ];
+    if last > 1 {
+        let inner = out[1..last].iter_mut().zip(&mut power[1..last]);
+        for ((o, p), x) in inner.zip(plain.windows(3)) {
+            let c = 0.5 * x[1] - 0.25 * (x[0] + x[2]);
+            *o = c;
+            *p = c.norm_sqr();
+        }
+    }
+    for (k, c) in ends {
+        out[k] = c;
+        power[k] = c.norm_sqr();
     }
 }
 
@@ -383,16 +439,31 @@ fn estimate_floor(
             };
         *nf = f64::from_bits(median) / std::f64::consts::LN_2;
     }
-    for (k, f) in floor.iter_mut().enumerate() {
-        let i = (k / FLOOR_HOP_BINS).min(nodes - 1);
-        let j = (i + 1).min(nodes - 1);
-        let (ci, cj) = (i * FLOOR_HOP_BINS, (j * FLOOR_HOP_BINS).min(bins - 1));
-        let t = if cj > ci {
-            ((k - ci) as f64 / (cj - ci) as f64).min(1.0)
+    // Linear between the nodes, one hop at a time (one division per hop, not per bin);
+    // beyond the last node, its value.
+    for i in 0..nodes {
+        let ci = i * FLOOR_HOP_BINS;
+        if ci >= bins {
+            break;
+        }
+        let end = if i + 1 < nodes {
+            (ci + FLOOR_HOP_BINS).min(bins)
         } else {
-            0.0
+            bins
         };
-        *f = node_floor[i] * (1.0 - t) + node_floor[j] * t;
+        let j = (i + 1).min(nodes - 1);
+        let cj = (j * FLOOR_HOP_BINS).min(bins - 1);
+        let (fi, fj) = (node_floor[i], node_floor[j]);
+        let hop = &mut floor[ci..end];
+        if cj > ci {
+            let per_bin = 1.0 / (cj - ci) as f64;
+            for (d, f) in hop.iter_mut().enumerate() {
+                let t = (d as f64 * per_bin).min(1.0);
+                *f = fi * (1.0 - t) + fj * t;
+            }
+        } else {
+            hop.fill(fi);
+        }
     }
 }
 
@@ -518,6 +589,84 @@ fn rank_of_two_sorted(a: &[u64], b: &[u64], k: usize) -> u64 {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    /// The window applied in frequency against the Hann-windowed samples' FFT, for
+    /// even and odd lengths, with a tone near DC and one at the Nyquist end.
+    #[test]
+    fn hann_in_frequency_is_the_windowed_fft() {
+        for n in [2usize, 3, 16, 17, 1000, 1001, 25_600] {
+            let mut planner = RealFftPlanner::<f64>::new();
+            let fft = planner.plan_fft_forward(n);
+            let window = crate::welch::periodic_hann(n);
+            let mut state = 0x9e37_79b9_7f4a_7c15u64 ^ n as u64;
+            let x: Vec<f64> = (0..n)
+                .map(|k| {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    let t = k as f64;
+                    (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+                        + 3.0 * (0.31 * t).cos()
+                        + 2.0 * (3.1 * t + 0.4).sin()
+                })
+                .collect();
+            let mut plain_in = x.clone();
+            let mut plain = fft.make_output_vec();
+            fft.process(&mut plain_in, &mut plain).unwrap();
+            let mut windowed_in: Vec<f64> = x.iter().zip(&window).map(|(v, w)| v * w).collect();
+            let mut want = fft.make_output_vec();
+            fft.process(&mut windowed_in, &mut want).unwrap();
+            let mut got = fft.make_output_vec();
+            let mut power = vec![0.0; got.len()];
+            hann_in_frequency(&plain, n, &mut got, &mut power);
+            let scale = want.iter().map(|c| c.norm()).fold(0.0, f64::max);
+            for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+                assert!((g - w).norm() <= 1e-12 * scale, "n {n} bin {k}: {g} vs {w}");
+                assert_eq!(power[k], g.norm_sqr());
+            }
+        }
+    }
+
+    /// The floor between the medians is the straight line through them, bin by bin
+    /// (the interpolation written per bin, as it was), held beyond the last.
+    #[test]
+    fn floor_is_linear_between_its_medians() {
+        for bins in [1usize, 2, 17, 33, 100, 12_801] {
+            let mut state = 0x6a09_e667_f3bc_c908u64 ^ bins as u64;
+            let power: Vec<f64> = (0..bins)
+                .map(|_| {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    (state >> 11) as f64 / (1u64 << 53) as f64
+                })
+                .collect();
+            let mut sorted = vec![[0u64; FLOOR_HOP_BINS]; bins / FLOOR_HOP_BINS];
+            sort_blocks(&power, &mut sorted);
+            let mut floor = vec![f64::NAN; bins];
+            let mut scratch = vec![0u64; FLOOR_SPAN_BINS];
+            let nodes = floor_nodes(bins);
+            let mut node_floor = vec![0.0; nodes];
+            estimate_floor(&power, &sorted, &mut floor, &mut scratch, &mut node_floor);
+            for (k, f) in floor.iter().enumerate() {
+                let i = (k / FLOOR_HOP_BINS).min(nodes - 1);
+                let j = (i + 1).min(nodes - 1);
+                let (ci, cj) = (i * FLOOR_HOP_BINS, (j * FLOOR_HOP_BINS).min(bins - 1));
+                let t = if cj > ci {
+                    ((k - ci) as f64 / (cj - ci) as f64).min(1.0)
+                } else {
+                    0.0
+                };
+                let want = node_floor[i] * (1.0 - t) + node_floor[j] * t;
+                assert!(
+                    (f - want).abs() <= 1e-15 * want.abs(),
+                    "bins {bins} k {k}: {f} vs {want}"
+                );
+            }
+        }
+    }
+
     /// The sorting network against a sort, with ties and without.
     #[test]
     fn sort16_network_sorts() {
@@ -597,8 +746,6 @@ mod tests {
             }
         }
     }
-
-    use super::*;
 
     #[test]
     fn hann_kernel_has_the_known_scalloping_loss() {

@@ -3,7 +3,7 @@
 
 use crate::config::EstimatorConfig;
 use crate::detect::{Detected, Detector};
-use crate::kurtosis::Kurtosis;
+use crate::kurtosis::{Kurtosis, ToneTerm};
 use crate::output::{BandEstimate, Estimate, FixedList, ToneEstimate};
 use crate::response::Response;
 use crate::sinefit::{FitState, SineFit};
@@ -163,10 +163,20 @@ impl Estimator {
         let fs_hz = config.sample_rate_hz();
         let response = Response::new(raw.ac_corner_hz, &raw.response);
         let mut planner = RealFftPlanner::<f64>::new();
+        // Every band the Welch average is asked for: the broadband one and the PSD's.
+        let welch_bands: Vec<[f64; 2]> = std::iter::once(raw.broadband_band_hz)
+            .chain(raw.psd_bands_hz.iter().copied())
+            .collect();
         let work = Work {
             detector: Detector::new(n, fs_hz, &mut planner),
             fit: SineFit::new(n),
-            welch: Welch::new(config.segment_samples(), fs_hz, &response, &mut planner),
+            welch: Welch::new(
+                config.segment_samples(),
+                fs_hz,
+                &response,
+                &welch_bands,
+                &mut planner,
+            ),
             kurtosis: Kurtosis::new(n, fs_hz, raw.broadband_band_hz, &response, &mut planner),
             response,
             detected: FixedList::new(),
@@ -546,10 +556,33 @@ impl Work {
                 out.rms_g[a] = p.auto_g2[a].max(0.0).sqrt();
             }
         }
-        for a in 0..3 {
-            let (kurt, used) = self
-                .kurtosis
-                .run(a, &self.residual[a], &self.invalid_prefix)?;
+        let mut kurtosis = [(f64::NAN, 0); 3];
+        if self.invalid.is_empty() {
+            // The residual's band from the detector's plain DFT less the kept tones.
+            let mut tones = FixedList::<ToneTerm, MAX_TONES>::new();
+            for i in 0..self.fit_state.tones {
+                if self.keep[i] {
+                    tones.push(ToneTerm {
+                        omega: self.fit_state.omega[i],
+                        amp: std::array::from_fn(|a| {
+                            (
+                                self.fit_state.lin[a][1 + 2 * i],
+                                self.fit_state.lin[a][2 + 2 * i],
+                            )
+                        }),
+                    });
+                }
+            }
+            let plain = std::array::from_fn(|a| self.detector.plain_spectrum(a));
+            self.kurtosis.run_clean(plain, &tones, &mut kurtosis)?;
+        } else {
+            for (a, k) in kurtosis.iter_mut().enumerate() {
+                *k = self
+                    .kurtosis
+                    .run(a, &self.residual[a], &self.invalid_prefix)?;
+            }
+        }
+        for (a, &(kurt, used)) in kurtosis.iter().enumerate() {
             let rho4 =
                 self.welch
                     .rho4_sum(a, raw.broadband_band_hz[0], raw.broadband_band_hz[1])?;

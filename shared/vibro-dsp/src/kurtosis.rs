@@ -15,15 +15,67 @@
 //! Uncertainty: for a Gaussian process, `kurtosis - 3 ~ mean(He4(x/sigma))` and
 //! `cov(He4(X), He4(Y)) = 24 rho^4`, so `var = 24 sum_tau rho(tau)^4 / N` (Isserlis'
 //! theorem); `rho` comes from the Welch PSD of the band ([`crate::welch`]).
+//!
+//! A window without invalid samples takes a shorter road to the same moments:
+//! - **No forward FFT of the residual.** The residual is the window less the fitted
+//!   model (a constant and the kept tones). In the band (DC excluded) its DFT is the
+//!   window's own plain DFT, which the detector takes anyway ([`crate::detect`]), less
+//!   each tone's DFT in closed form. The DFT of `exp(i w (n - c))`, `c = (N - 1) / 2`,
+//!   at bin `k` is `(-1)^k exp(i pi k / N) sin(N x) / sin(x)` with
+//!   `x = w / 2 - pi k / N` (a geometric series). Away from the tone `sin(N x)` is
+//!   `(-1)^k sin(N w / 2)`, one value per tone, and `sin(x)` comes from a table of
+//!   `pi k / N`: a division per bin and tone. Within `NEAR_SIN` of a zero of `sin(x)`
+//!   the ratio is the fit's Dirichlet kernel `D(2 x)` ([`crate::sinefit`]), both sines
+//!   taken directly; there the shared `sin(N w / 2)`, whose argument is large, would
+//!   lose digits against a small `sin(x)`.
+//! - **A shorter inverse.** The band-limited signal `y` has no content above bin
+//!   `hi`, so `y^4` has none above `4 hi`. The mean of a trigonometric polynomial of
+//!   degree `D` over `M` equally spaced points is its constant term whenever `M > D`:
+//!   the moments over `M > 4 hi` points of `y` equal those over the window's `N`
+//!   (exactly, up to rounding). With the 20-2000 Hz band of a 1 s window that is an
+//!   inverse FFT of 8,100 points instead of 25,600. The uncertainty still counts the
+//!   window's `N` samples: they are what was measured.
+//!
+//! Windows with invalid samples keep the long road: their moments leave out the
+//! samples near a gap, which needs the signal at every sample.
 
 use crate::response::Response;
+use crate::sinefit::Dirichlet;
 use crate::Result;
 use realfft::num_complex::Complex64;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
+use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
+
+/// `|sin(x)|` below which a tone's closed-form DFT takes both sines directly.
+const NEAR_SIN: f64 = 1.0 / 64.0;
+
+/// A fitted tone as the residual removed it: `A_a cos(w (n - c)) + B_a sin(w (n - c))`.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct ToneTerm {
+    /// rad/sample.
+    pub(crate) omega: f64,
+    /// `(A_a, B_a)` per axis.
+    pub(crate) amp: [(f64, f64); 3],
+}
+
+/// The inverse FFT over `M > 4 hi` points (see the module doc).
+struct ShortInverse {
+    ifft: Arc<dyn ComplexToReal<f64>>,
+    spectrum: Vec<Complex64>,
+    output: Vec<f64>,
+    scratch: Vec<Complex64>,
+}
 
 pub(crate) struct Kurtosis {
     samples: usize,
+    short: Option<ShortInverse>,
+    dirichlet: Dirichlet,
+    /// `(cos, sin)(pi k / N)` over the band's bins.
+    half_turn: Vec<(f64, f64)>,
+    /// Per axis over the band's bins: the residual's DFT, then the tones' model.
+    band: [Vec<Complex64>; 3],
+    model: [Vec<Complex64>; 3],
     fft: Arc<dyn RealToComplex<f64>>,
     ifft: Arc<dyn ComplexToReal<f64>>,
     input: Vec<f64>,
@@ -58,8 +110,29 @@ impl Kurtosis {
                 .map(|k| response.inverse_gain(a, k as f64 * df))
                 .collect()
         });
+        let short = alias_free_points(hi, samples).map(|m| {
+            let ifft = planner.plan_fft_inverse(m);
+            ShortInverse {
+                spectrum: ifft.make_input_vec(),
+                output: ifft.make_output_vec(),
+                scratch: ifft.make_scratch_vec(),
+                ifft,
+            }
+        });
+        let half_turn = (lo..=hi)
+            .map(|k| {
+                let (s, c) = (PI * k as f64 / samples as f64).sin_cos();
+                (c, s)
+            })
+            .collect();
+        let width = hi - lo + 1;
         Self {
             samples,
+            short,
+            dirichlet: Dirichlet::new(samples),
+            half_turn,
+            band: std::array::from_fn(|_| vec![Complex64::new(0.0, 0.0); width]),
+            model: std::array::from_fn(|_| vec![Complex64::new(0.0, 0.0); width]),
             input: fft.make_input_vec(),
             spectrum: fft.make_output_vec(),
             output: ifft.make_output_vec(),
@@ -70,6 +143,99 @@ impl Kurtosis {
             bins: [lo, hi],
             inverse_gain,
             guard: (sample_rate_hz / band_hz[0]).ceil() as usize,
+        }
+    }
+
+    /// Kurtosis per axis of a window without invalid samples, from the window's plain
+    /// DFT per axis (`plain`, of the samples less any constant) and the kept tones the
+    /// residual removes; each with the number of samples it stands for (the window's).
+    /// Equal, up to rounding, to [`Self::run`] on the residual (see the module doc).
+    pub(crate) fn run_clean(
+        &mut self,
+        plain: [&[Complex64]; 3],
+        tones: &[ToneTerm],
+        out: &mut [(f64, usize); 3],
+    ) -> Result<()> {
+        let n = self.samples;
+        let [lo, hi] = self.bins;
+        self.tone_model(tones);
+        for a in 0..3 {
+            let band = &mut self.band[a];
+            for (j, b) in band.iter_mut().enumerate() {
+                let (c, s) = self.half_turn[j];
+                let m = self.model[a][j];
+                // exp(i pi k / N) times the tones' sum; (-1)^k is in the model.
+                let tone = Complex64::new(c * m.re - s * m.im, c * m.im + s * m.re);
+                *b = (plain[a][lo + j] - tone) * self.inverse_gain[a][j];
+            }
+            let kurtosis = match &mut self.short {
+                Some(short) => {
+                    short.spectrum.fill(Complex64::new(0.0, 0.0));
+                    short.spectrum[lo..=hi].copy_from_slice(band);
+                    short.ifft.process_with_scratch(
+                        &mut short.spectrum,
+                        &mut short.output,
+                        &mut short.scratch,
+                    )?;
+                    kurtosis_of(&short.output)
+                }
+                None => {
+                    self.spectrum.fill(Complex64::new(0.0, 0.0));
+                    self.spectrum[lo..=hi].copy_from_slice(band);
+                    self.ifft.process_with_scratch(
+                        &mut self.spectrum,
+                        &mut self.output,
+                        &mut self.iscratch,
+                    )?;
+                    kurtosis_of(&self.output[..n])
+                }
+            };
+            out[a] = (kurtosis, n);
+        }
+        Ok(())
+    }
+
+    /// `self.model[a][j]`: the DFT of the tones on axis `a` at band bin `lo + j`,
+    /// divided by `exp(i pi k / N)`.
+    fn tone_model(&mut self, tones: &[ToneTerm]) {
+        for m in &mut self.model {
+            m.fill(Complex64::new(0.0, 0.0));
+        }
+        let n = self.samples as f64;
+        let lo = self.bins[0];
+        let dirichlet = self.dirichlet;
+        // `(-1)^k D(2 x)` with both sines taken directly (Taylor's series at x ~ 0).
+        let near = |half: f64, k: usize| {
+            let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+            sign * dirichlet.value(2.0 * half - TAU * k as f64 / n)
+        };
+        for tone in tones {
+            let half = 0.5 * tone.omega;
+            let (sh, ch) = half.sin_cos();
+            // sin(N x) away from the zeros, times (-1)^k: the same for every bin.
+            let far_num = (n * half).sin();
+            let amp = tone.amp.map(|(ca, cb)| (0.5 * ca, 0.5 * cb));
+            for (j, &(c, s)) in self.half_turn.iter().enumerate() {
+                let k = lo + j;
+                // x = +-w/2 - pi k / N for the tone's two phasors.
+                let den_plus = sh * c - ch * s;
+                let den_minus = -sh * c - ch * s;
+                let plus = if den_plus.abs() >= NEAR_SIN {
+                    far_num / den_plus
+                } else {
+                    near(half, k)
+                };
+                let minus = if den_minus.abs() >= NEAR_SIN {
+                    -far_num / den_minus
+                } else {
+                    near(-half, k)
+                };
+                let (sum, diff) = (plus + minus, minus - plus);
+                for (m, &(ca2, cb2)) in self.model.iter_mut().zip(&amp) {
+                    m[j].re += ca2 * sum;
+                    m[j].im += cb2 * diff;
+                }
+            }
         }
     }
 
@@ -144,5 +310,150 @@ impl Kurtosis {
             return Ok((f64::NAN, count));
         }
         Ok((m4 / (m2 * m2), count))
+    }
+}
+
+/// The fewest points `M` (even and 5-smooth, for a fast FFT) with `M > 4 top`, if fewer
+/// than `samples`: over `M` equally spaced points, the mean of the fourth power of a
+/// signal with no content above bin `top` is its mean over any finer grid (see the
+/// module doc). Used here and for the Welch autocorrelation's `sum rho^4`.
+pub(crate) fn alias_free_points(top: usize, samples: usize) -> Option<usize> {
+    let smooth = |mut m: usize| {
+        for p in [2, 3, 5] {
+            while m % p == 0 {
+                m /= p;
+            }
+        }
+        m == 1
+    };
+    let mut m = 4 * top + 1;
+    while m < samples {
+        if m % 2 == 0 && smooth(m) {
+            return Some(m);
+        }
+        m += 1;
+    }
+    None
+}
+
+/// `m4 / m2^2` of `y` about its mean; NaN without power.
+fn kurtosis_of(y: &[f64]) -> f64 {
+    let count = y.len() as f64;
+    let mean = crate::sums::sum(y) / count;
+    let (m2, m4) = crate::sums::central_2_4(y, mean);
+    let (m2, m4) = (m2 / count, m4 / count);
+    if m2 <= 0.0 || !m2.is_finite() {
+        return f64::NAN;
+    }
+    m4 / (m2 * m2)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The short road (plain DFT less the tones in closed form, the shorter inverse)
+    /// against the long one (the residual taken sample by sample, FFT and inverse over
+    /// the window), with tones on a bin, half a bin off, a hair off, below the band,
+    /// at its top and near Nyquist; with the shorter inverse and without it.
+    #[test]
+    fn the_short_road_gives_the_residuals_kurtosis() {
+        let cases: [(usize, f64, [f64; 2]); 3] = [
+            (25_600, 25_600.0, [20.0, 2000.0]),
+            (4_999, 5_000.0, [20.0, 2000.0]),
+            (10_000, 12_345.0, [10.0, 600.0]),
+        ];
+        for (n, fs_hz, band_hz) in cases {
+            let response = Response::new(Some(5.0), &[]);
+            let mut planner = RealFftPlanner::<f64>::new();
+            let mut k = Kurtosis::new(n, fs_hz, band_hz, &response, &mut planner);
+            let short = k.short.as_ref().map(|s| s.output.len());
+            let df = fs_hz / n as f64;
+            let top = (band_hz[1] / df).floor();
+            assert_eq!(short.is_some(), n > 4 * top as usize + 1, "n {n}");
+            let tone_bins = [
+                vec![],
+                vec![200.0],
+                vec![200.5],
+                vec![200.0 + 1e-9, 8.3],
+                vec![top, top - 0.25, n as f64 / 2.0 - 0.3],
+                vec![3.0, 51.7, 120.0, 333.25],
+            ];
+            for (case, bins) in tone_bins.iter().enumerate() {
+                let tones: Vec<ToneTerm> = bins
+                    .iter()
+                    .enumerate()
+                    .map(|(i, b)| ToneTerm {
+                        omega: TAU * b / n as f64,
+                        amp: std::array::from_fn(|a| {
+                            (0.7 + 0.3 * (a + i) as f64, -0.4 + 0.5 * a as f64)
+                        }),
+                    })
+                    .collect();
+                let mut state = 0x2545_f491_4f6c_dd1du64 ^ (n * 31 + case) as u64;
+                let mut uniform = || {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+                };
+                let centre = (n as f64 - 1.0) / 2.0;
+                let mut residual: [Vec<f64>; 3] = std::array::from_fn(|_| vec![0.0; n]);
+                let mut plain: [Vec<Complex64>; 3] = std::array::from_fn(|_| Vec::new());
+                for a in 0..3 {
+                    // Non-Gaussian noise (a sum of two uniforms, cubed in part).
+                    let noise: Vec<f64> = (0..n)
+                        .map(|_| {
+                            let u = uniform() + uniform();
+                            u + 2.0 * u * u * u
+                        })
+                        .collect();
+                    let x: Vec<f64> = (0..n)
+                        .map(|s| {
+                            let t = s as f64 - centre;
+                            let tone: f64 = tones
+                                .iter()
+                                .map(|tn| {
+                                    let (ca, cb) = tn.amp[a];
+                                    ca * (tn.omega * t).cos() + cb * (tn.omega * t).sin()
+                                })
+                                .sum();
+                            0.25 + noise[s] + tone
+                        })
+                        .collect();
+                    residual[a] = (0..n).map(|s| noise[s]).collect();
+                    let mean = x.iter().sum::<f64>() / n as f64;
+                    let fft = planner.plan_fft_forward(n);
+                    let mut input: Vec<f64> = x.iter().map(|v| v - mean).collect();
+                    plain[a] = fft.make_output_vec();
+                    fft.process(&mut input, &mut plain[a]).unwrap();
+                }
+                let prefix = vec![0u32; n + 1];
+                let mut got = [(0.0, 0); 3];
+                let plain_ref = std::array::from_fn(|a| &plain[a][..]);
+                k.run_clean(plain_ref, &tones, &mut got).unwrap();
+                for (a, r) in residual.iter().enumerate() {
+                    let want = k.run(a, r, &prefix).unwrap();
+                    assert_eq!(got[a].1, n);
+                    assert!(
+                        (got[a].0 - want.0).abs() <= 1e-12 * want.0,
+                        "n {n} tones {bins:?} axis {a}: {} vs {}",
+                        got[a].0,
+                        want.0
+                    );
+                }
+            }
+        }
+    }
+
+    /// The shortest inverse is the first even 5-smooth length above `4 hi`, and none
+    /// when that is not below the window.
+    #[test]
+    fn alias_free_points_are_the_first_fast_length_above_four_times_the_band() {
+        assert_eq!(alias_free_points(2000, 25_600), Some(8_100));
+        assert_eq!(alias_free_points(2048, 25_600), Some(8_640));
+        assert_eq!(alias_free_points(1999, 5_000), None);
+        assert_eq!(alias_free_points(6_400, 25_600), None);
+        assert_eq!(alias_free_points(1, 100), Some(6));
     }
 }

@@ -60,6 +60,16 @@ impl Dirichlet {
         }
     }
 
+    /// `D` alone at `t` (rad/sample), for `|t| < 2 pi`.
+    pub(crate) fn value(&self, t: f64) -> f64 {
+        if (t * self.n).abs() < 0.05 {
+            let t2 = t * t;
+            return self.n - t2 * self.s2 / 2.0 + t2 * t2 * self.s4 / 24.0
+                - t2 * t2 * t2 * self.s6 / 720.0;
+        }
+        (self.n * t / 2.0).sin() / (t / 2.0).sin()
+    }
+
     /// `(D, D', D'')` at `t` (rad/sample), for `|t| < 2 pi`.
     pub(crate) fn eval(&self, t: f64) -> (f64, f64, f64) {
         if (t * self.n).abs() < 0.05 {

@@ -11,6 +11,13 @@
 //! `[lo, hi]` takes each bin with the fraction of that interval it covers, so the
 //! integrated width is exactly `hi - lo` whatever the grid.
 //!
+//! Only the bins that the bands asked for at construction touch are averaged and
+//! scaled (the estimator's bands end at 2 kHz: 501 of a 0.25 s segment's 3,201 bins).
+//!
+//! `sum rho^4` takes its inverse FFT over the fewest points `M > 4 top` (`top` the last
+//! bin averaged): the mean of `rho^4` over them is its mean over the segment's points
+//! (see [`crate::kurtosis`]), so the sum over the segment is `segment / M` times theirs.
+//!
 //! Uncertainty: for Gaussian data a Welch bin estimate has relative variance `1/K_eff`
 //! with `K_eff = K / (1 + 2 sum_j (1 - j/K) c_j^2)` and `c_j` the window's overlap
 //! correlation (Welch 1967, eq. 9; Hann at 50%: c_1 = 1/6, Harris 1978 Table 1);
@@ -60,6 +67,9 @@ pub(crate) struct Welch {
     bin_rho: [f64; CORRELATED_BINS],
     overlap_c2: Vec<f64>,
     segments: usize,
+    /// The bins averaged: those touching any of the bands given to `new`.
+    first_bin: usize,
+    end_bin: usize,
     ifft: Arc<dyn ComplexToReal<f64>>,
     acf_spectrum: Vec<Complex64>,
     acf: Vec<f64>,
@@ -67,15 +77,24 @@ pub(crate) struct Welch {
 }
 
 impl Welch {
+    /// Welch averaging over segments of `segment` samples, for the bands `bands_hz`
+    /// (the only ones [`Self::band_power`] and [`Self::rho4_sum`] may be asked for).
     pub(crate) fn new(
         segment: usize,
         sample_rate_hz: f64,
         response: &Response,
+        bands_hz: &[[f64; 2]],
         planner: &mut RealFftPlanner<f64>,
     ) -> Self {
         let fft = planner.plan_fft_forward(segment);
-        let ifft = planner.plan_fft_inverse(segment);
+        let df = sample_rate_hz / segment as f64;
         let bins = segment / 2 + 1;
+        let (first_bin, end_bin) = bands_hz
+            .iter()
+            .map(|&[lo, hi]| band_bins(df, bins - 1, lo, hi))
+            .fold((bins, 0), |(f, e), r| (f.min(*r.start()), e.max(*r.end())));
+        let acf_points = crate::kurtosis::alias_free_points(end_bin, segment).unwrap_or(segment);
+        let ifft = planner.plan_fft_inverse(acf_points);
         let window = periodic_hann(segment);
         let window_sq_sum: f64 = window.iter().map(|w| w * w).sum();
         let hop = segment - segment / 2;
@@ -98,13 +117,14 @@ impl Welch {
                 (c / window_sq_sum).powi(2)
             })
             .collect();
-        let df = sample_rate_hz / segment as f64;
         let inverse_gain = std::array::from_fn(|a| {
             (0..bins)
                 .map(|k| response.inverse_gain(a, k as f64 * df))
                 .collect()
         });
         Self {
+            first_bin,
+            end_bin,
             segment,
             hop,
             sample_rate_hz,
@@ -158,15 +178,20 @@ impl Welch {
                     &mut self.spectrum[a],
                     &mut self.scratch,
                 )?;
-                for (p, c) in self.auto[a].iter_mut().zip(&self.spectrum[a]) {
+                let bins = self.first_bin..=self.end_bin;
+                for (p, c) in self.auto[a][bins.clone()]
+                    .iter_mut()
+                    .zip(&self.spectrum[a][bins])
+                {
                     *p += c.norm_sqr();
                 }
             }
             for (p, &(i, j)) in PAIRS.iter().enumerate() {
-                for ((acc, xi), xj) in self.cross[p]
+                let bins = self.first_bin..=self.end_bin;
+                for ((acc, xi), xj) in self.cross[p][bins.clone()]
                     .iter_mut()
-                    .zip(&self.spectrum[i])
-                    .zip(&self.spectrum[j])
+                    .zip(&self.spectrum[i][bins.clone()])
+                    .zip(&self.spectrum[j][bins])
                 {
                     *acc += xi * xj.conj();
                 }
@@ -180,7 +205,7 @@ impl Welch {
         let base = 1.0 / (self.sample_rate_hz * self.window_sq_sum * self.segments as f64);
         let last = self.auto[0].len() - 1;
         let nyquist_is_a_bin = m % 2 == 0;
-        for k in 0..=last {
+        for k in self.first_bin..=self.end_bin {
             // One-sided: every bin but DC (and Nyquist, for an even segment) doubled.
             let one_sided = if k == 0 || (k == last && nyquist_is_a_bin) {
                 1.0
@@ -213,11 +238,12 @@ impl Welch {
 
     /// Bins that touch `[lo, hi]`.
     fn band_range(&self, lo_hz: f64, hi_hz: f64) -> std::ops::RangeInclusive<usize> {
-        let df = self.df_hz();
-        let last = self.auto[0].len() - 1;
-        let first = ((lo_hz / df - 0.5).floor().max(0.0) as usize).min(last);
-        let end = ((hi_hz / df + 0.5).ceil().max(0.0) as usize).min(last);
-        first..=end
+        let range = band_bins(self.df_hz(), self.auto[0].len() - 1, lo_hz, hi_hz);
+        debug_assert!(
+            range.is_empty() || (*range.start() >= self.first_bin && *range.end() <= self.end_bin),
+            "band [{lo_hz}, {hi_hz}] Hz was not given to Welch::new"
+        );
+        range
     }
 
     /// Integrated power in `[lo, hi]` with its variance (see the module docs).
@@ -274,11 +300,12 @@ impl Welch {
     pub(crate) fn rho4_sum(&mut self, axis: usize, lo_hz: f64, hi_hz: f64) -> Result<f64> {
         self.acf_spectrum.fill(Complex64::new(0.0, 0.0));
         let df = self.df_hz();
-        let last = self.acf_spectrum.len() - 1;
-        for (k, c) in self.acf_spectrum.iter_mut().enumerate() {
+        let last = self.auto[axis].len() - 1;
+        let range = self.band_range(lo_hz, hi_hz);
+        for k in range {
             let f = k as f64 * df;
             if f >= lo_hz && f <= hi_hz && k != 0 && !(k == last && self.segment % 2 == 0) {
-                *c = Complex64::new(self.auto[axis][k], 0.0);
+                self.acf_spectrum[k] = Complex64::new(self.auto[axis][k], 0.0);
             }
         }
         self.ifft.process_with_scratch(
@@ -290,7 +317,9 @@ impl Welch {
         if r0 <= 0.0 || !r0.is_finite() {
             return Ok(f64::NAN);
         }
-        Ok(self.acf.iter().map(|r| (r / r0).powi(4)).sum())
+        let points = self.acf.len();
+        let sum: f64 = self.acf.iter().map(|r| (r / r0).powi(4)).sum();
+        Ok(sum * (self.segment as f64 / points as f64))
     }
 
     /// Response-corrected one-sided PSD of `axis` after `run`.
@@ -298,6 +327,13 @@ impl Welch {
     pub(crate) fn psd(&self, axis: usize) -> &[f64] {
         &self.auto[axis]
     }
+}
+
+/// Bins (of width `df`, up to `last`) that touch `[lo, hi]`.
+fn band_bins(df: f64, last: usize, lo_hz: f64, hi_hz: f64) -> std::ops::RangeInclusive<usize> {
+    let first = ((lo_hz / df - 0.5).floor().max(0.0) as usize).min(last);
+    let end = ((hi_hz / df + 0.5).ceil().max(0.0) as usize).min(last);
+    first..=end
 }
 
 /// The periodic (DFT-even) Hann window of `samples` points: `0.5 - 0.5 cos(2 pi k / N)`.
@@ -316,7 +352,13 @@ mod tests {
     #[test]
     fn hann_overlap_and_bin_correlations_have_their_textbook_values() {
         let mut planner = RealFftPlanner::new();
-        let w = Welch::new(1024, 1024.0, &Response::new(None, &[]), &mut planner);
+        let w = Welch::new(
+            1024,
+            1024.0,
+            &Response::new(None, &[]),
+            &[[0.0, 512.0]],
+            &mut planner,
+        );
         assert!((w.bin_rho[0] - 1.0).abs() < 1e-12);
         assert!((w.bin_rho[1] - 4.0 / 9.0).abs() < 1e-12);
         assert!((w.bin_rho[2] - 1.0 / 36.0).abs() < 1e-12);
@@ -325,10 +367,69 @@ mod tests {
         assert!((w.overlap_c2[0] - 1.0 / 36.0).abs() < 1e-12);
     }
 
+    /// `sum rho^4` over the fewer alias-free points against the sum over every lag of
+    /// the segment, the autocorrelation summed from the PSD's cosines directly.
+    #[test]
+    fn rho4_sum_over_fewer_points_is_the_sum_over_every_lag() {
+        for (segment, fs, band) in [
+            (6400usize, 25_600.0, [20.0, 2000.0]),
+            (1000, 1000.0, [10.0, 60.0]),
+            (64, 1000.0, [10.0, 400.0]),
+        ] {
+            let n = 4 * segment;
+            let mut state = 0x3c6e_f372_fe94_f82bu64 ^ segment as u64;
+            let x: Vec<f64> = (0..n)
+                .map(|k| {
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5 + (0.05 * k as f64).sin()
+                })
+                .collect();
+            let prefix = vec![0; n + 1];
+            let mut planner = RealFftPlanner::new();
+            let mut w = Welch::new(
+                segment,
+                fs,
+                &Response::new(None, &[]),
+                &[band],
+                &mut planner,
+            );
+            let fewer = w.acf.len();
+            assert_eq!(fewer < segment, segment != 64, "{segment}: {fewer}");
+            w.run([&x, &x, &x], n, &prefix).unwrap();
+            let got = w.rho4_sum(0, band[0], band[1]).unwrap();
+            let df = fs / segment as f64;
+            let bins: Vec<usize> = (1..segment / 2)
+                .filter(|&k| k as f64 * df >= band[0] && k as f64 * df <= band[1])
+                .collect();
+            let r = |tau: usize| -> f64 {
+                bins.iter()
+                    .map(|&k| {
+                        let ph = 2.0 * PI * ((k * tau) % segment) as f64 / segment as f64;
+                        w.psd(0)[k] * ph.cos()
+                    })
+                    .sum()
+            };
+            let r0 = r(0);
+            let want: f64 = (0..segment).map(|tau| (r(tau) / r0).powi(4)).sum();
+            assert!(
+                (got - want).abs() < 1e-12 * want,
+                "{segment}: {got} vs {want}"
+            );
+        }
+    }
+
     #[test]
     fn band_weights_cover_exactly_the_band_width() {
         let mut planner = RealFftPlanner::new();
-        let w = Welch::new(100, 400.0, &Response::new(None, &[]), &mut planner);
+        let w = Welch::new(
+            100,
+            400.0,
+            &Response::new(None, &[]),
+            &[[21.0, 39.5]],
+            &mut planner,
+        );
         // df = 4 Hz; [21, 39.5] covers 18.5 Hz of bins.
         let width: f64 = w
             .band_range(21.0, 39.5)
@@ -347,7 +448,13 @@ mod tests {
         let zero = vec![0.0; n];
         let prefix = vec![0; n + 1];
         let mut planner = RealFftPlanner::new();
-        let mut w = Welch::new(500, fs, &Response::new(None, &[]), &mut planner);
+        let mut w = Welch::new(
+            500,
+            fs,
+            &Response::new(None, &[]),
+            &[[80.0, 120.0]],
+            &mut planner,
+        );
         assert_eq!(w.run([&x, &zero, &zero], n, &prefix).unwrap(), 15);
         let p = w.band_power(80.0, 120.0);
         // A sine of amplitude 2 has power 2 g^2.

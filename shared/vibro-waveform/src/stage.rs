@@ -827,24 +827,35 @@ fn ia_to_unit(axes: &TriadAxes) -> [[[f64; 3]; 3]; 3] {
 /// `x` with `j x = b` by Cramer's rule, or `None` if `j` is singular or not finite.
 /// Newton's Jacobian is diagonally dominant (`k1` about 1 against cross terms of about
 /// 1e-3), where Cramer's rule is as accurate as elimination.
+#[inline]
 fn solve_3x3(j: &[[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
-    let det3 = |c: [[f64; 3]; 3]| {
-        c[0][0] * (c[1][1] * c[2][2] - c[1][2] * c[2][1])
-            - c[0][1] * (c[1][0] * c[2][2] - c[1][2] * c[2][0])
-            + c[0][2] * (c[1][0] * c[2][1] - c[1][1] * c[2][0])
-    };
-    let det = det3(*j);
+    let det = det3(j);
     if det == 0.0 || !det.is_finite() {
         return None;
     }
-    let x = [0, 1, 2].map(|k| {
+    // Column k replaced by b, written out: `array::map` with a closure here was not
+    // inlined (a call per reading, 2 % of a flight's replay).
+    let with_column = |k: usize| {
         let mut c = *j;
-        for row in 0..3 {
-            c[row][k] = b[row];
-        }
-        det3(c) / det
-    });
-    x.iter().all(|v| v.is_finite()).then_some(x)
+        c[0][k] = b[0];
+        c[1][k] = b[1];
+        c[2][k] = b[2];
+        c
+    };
+    let x = [
+        det3(&with_column(0)) / det,
+        det3(&with_column(1)) / det,
+        det3(&with_column(2)) / det,
+    ];
+    (x[0].is_finite() && x[1].is_finite() && x[2].is_finite()).then_some(x)
+}
+
+/// The determinant of `c` by its first row's cofactors.
+#[inline(always)]
+fn det3(c: &[[f64; 3]; 3]) -> f64 {
+    c[0][0] * (c[1][1] * c[2][2] - c[1][2] * c[2][1])
+        - c[0][1] * (c[1][0] * c[2][2] - c[1][2] * c[2][0])
+        + c[0][2] * (c[1][0] * c[2][1] - c[1][1] * c[2][0])
 }
 
 /// Newton's weighted terms at each grid point, `w FP(a + d)` and `w dFP/da3(a + d)`,
