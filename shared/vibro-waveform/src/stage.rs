@@ -45,17 +45,23 @@ const MAX_WARM_UP_READINGS: i128 = 256;
 const RING_S: f64 = 4.0;
 const MAX_RING: usize = 1 << 19;
 /// Newton's iterations at most; it stops when no mean moves by more than
-/// [`NEWTON_TOLERANCE_G`]. The three units' means are stepped together with the 3 x 3
-/// Jacobian (their coupling through `m1`, `m2`, `m31`, `m32` is linear in the other
-/// units' means, so it is in the Jacobian), and each step converges quadratically. The
-/// first step is what the vibration error changed since the previous reading (the
-/// guess is that reading's correction), the second its square times FP's curvature,
-/// and the third sees that nothing moves: three iterations per reading on the 600 s
-/// Cyclone-4 flight (2.999 on average, `StageCounters::newton_iterations`). Stepping
-/// the units one after the other (Gauss-Seidel) shrank the coupling's part by only its
-/// size, about 1e-3, per iteration: four.
+/// [`NEWTON_TOLERANCE_G`], or when a bound on the error the last step left is below it
+/// ([`newton_error_bound_g`]). The three units' means are stepped together with the
+/// 3 x 3 Jacobian (their coupling through `m1`, `m2`, `m31`, `m32` is linear in the
+/// other units' means, so it is in the Jacobian), and each step converges
+/// quadratically. The first step is what the vibration error changed since the
+/// previous reading (the guess is that reading's correction; 1e-4..1e-2 g on the 600 s
+/// Cyclone-4 flight), the second its square times FP's curvature (1e-10..1e-5 g), after
+/// which the bound is far below the tolerance: two iterations per reading (2.000 on
+/// average, `StageCounters::newton_iterations`). Without the bound a third step was
+/// needed to see that nothing moves (1e-16..1e-15 g); stepping the units one after the
+/// other (Gauss-Seidel) shrank the coupling's part by only its size, about 1e-3, per
+/// iteration: four.
 const NEWTON_ITERATIONS: usize = 8;
 const NEWTON_TOLERANCE_G: f64 = 1e-12;
+/// Newton's error bound is tried after steps below this (g): with the AL-15's `k2` the
+/// bound after a 1e-6 g step is about 1e-16 g, after 1e-4 g about 1e-12 g.
+const BOUND_TRIED_BELOW_G: f64 = 1e-6;
 /// Blocks the stream already holds, in a row, before the producer is taken to have
 /// started again (the continuity rule's resync after 3, `vibro_msgs::continuity`).
 const REPEATS_BEFORE_RESTART: u32 = 3;
@@ -745,8 +751,10 @@ impl WaveformStage {
             let body = self.axes.body_from_ia(&m3);
             let mut residual = [0.0; 3];
             let mut jacobian = [[0.0; 3]; 3];
+            let mut ia_g = [0.0; 3];
             for u in 0..3 {
                 let a = self.axes.units[u].to_unit(&body);
+                ia_g[u] = a[2];
                 let p = &self.passports[u];
                 // The weighted terms point by point (independent: they vectorise),
                 // then summed in point order: the same sums as one loop, bit for bit.
@@ -787,8 +795,20 @@ impl WaveformStage {
                 step_max = step_max.max(step[u].abs());
             }
             // A NaN step (no finite solution) is not convergence: `NaN <= x` is false.
-            if step_max
-                <= NEWTON_TOLERANCE_G * (1.0 + m3.iter().fold(0.0f64, |a, x| a.max(x.abs())))
+            let tolerance_g =
+                NEWTON_TOLERANCE_G * (1.0 + m3.iter().fold(0.0f64, |a, x| a.max(x.abs())));
+            // The bound is tried only once the step is small: before, it could not pass
+            // with any sizeable nonlinearity, and trying it costs a pass over the points.
+            if step_max <= tolerance_g
+                || (step_max <= BOUND_TRIED_BELOW_G
+                    && newton_error_bound_g(
+                        &self.passports,
+                        &self.ia_to_unit,
+                        [0, 1, 2].map(|u| &self.dev_axes[u][2][..=m]),
+                        &jacobian,
+                        &step,
+                        ia_g,
+                    ) <= tolerance_g)
             {
                 converged = true;
                 break;
@@ -803,6 +823,107 @@ impl WaveformStage {
         }
         m3
     }
+}
+
+/// A bound on how far the IA means are from FP's root after the Newton step `step`
+/// taken with `jacobian` from the means whose units' IA accelerations were `ia_g`,
+/// the points' IA deviations being `dev_ia` per unit; infinite when none can be
+/// given.
+///
+/// The step zeroes the linearised residual, so what is left is the residual's
+/// second-order remainder along the step. Each unit's `[OA, PA, IA]` moved by
+/// `delta = ia_to_unit * step`, the same at every point. FP's second derivatives
+/// are `d2/da3^2 = 2 k2 + 6 k3 a3 + 12 k4 a3^2 + 20 k5 a3^3`, `d2/da3 da1 = m31`,
+/// `d2/da3 da2 = m32`, and zero otherwise; with `R` the largest `|a3|` on the
+/// segment, the remainder at a point is at most
+/// `0.5 (H3 d3^2 + 2 |m31| d1 d3 + 2 |m32| d2 d3)`, `H3 = 2|k2| + 6|k3| R +
+/// 12|k4| R^2 + 20|k5| R^3`. The asymmetry's `|a3|` has no second derivative: it
+/// adds nothing if no point's `a3` crosses zero during the step (every `|a3| >
+/// d3`), and otherwise no bound is given. The grid's weights are positive and sum
+/// to 1, so the weighted residual keeps the pointwise bound. The means' error is
+/// then at most `|J^-1|_inf` times the largest unit's remainder, doubled for the
+/// Jacobian's change along the step (of relative size `H3 d3`, far below 1 here).
+fn newton_error_bound_g(
+    passports: &[Passport; 3],
+    ia_to_unit: &[[[f64; 3]; 3]; 3],
+    dev_ia: [&[f64]; 3],
+    jacobian: &[[f64; 3]; 3],
+    step: &[f64; 3],
+    ia_g: [f64; 3],
+) -> f64 {
+    let Some(inverse_norm) = inverse_norm_inf(jacobian) else {
+        return f64::INFINITY;
+    };
+    let mut remainder_g: f64 = 0.0;
+    for u in 0..3 {
+        let map = &ia_to_unit[u];
+        let delta = [0, 1, 2]
+            .map(|i| (map[i][0] * step[0] + map[i][1] * step[1] + map[i][2] * step[2]).abs());
+        let (nearest, farthest) = abs_range(ia_g[u], dev_ia[u]);
+        let clear_of_kink = delta[2].is_finite() && nearest > delta[2];
+        if !clear_of_kink {
+            // A point's IA may cross zero (the asymmetry's kink).
+            return f64::INFINITY;
+        }
+        let r = farthest + delta[2];
+        let k = &passports[u].k;
+        let h3 = 2.0 * k[2].abs()
+            + r * (6.0 * k[3].abs() + r * (12.0 * k[4].abs() + r * 20.0 * k[5].abs()));
+        let p = &passports[u];
+        let unit_g = 0.5
+            * (h3 * delta[2] * delta[2]
+                + 2.0 * p.m31_per_g.abs() * delta[0] * delta[2]
+                + 2.0 * p.m32_per_g.abs() * delta[1] * delta[2]);
+        remainder_g = remainder_g.max(unit_g);
+    }
+    2.0 * inverse_norm * remainder_g
+}
+
+/// The smallest and largest `|ia + d|` over `dev`, in four lanes (independent chains of
+/// compare-and-select: `minpd`/`maxpd`); NaNs are passed over.
+#[inline]
+fn abs_range(ia: f64, dev: &[f64]) -> (f64, f64) {
+    const LANES: usize = 4;
+    let (mut lo, mut hi) = ([f64::INFINITY; LANES], [0.0f64; LANES]);
+    let chunks = dev.chunks_exact(LANES);
+    let tail = chunks.remainder();
+    for c in chunks {
+        for l in 0..LANES {
+            let x = (ia + c[l]).abs();
+            lo[l] = if x < lo[l] { x } else { lo[l] };
+            hi[l] = if x > hi[l] { x } else { hi[l] };
+        }
+    }
+    for (l, d) in tail.iter().enumerate() {
+        let x = (ia + d).abs();
+        lo[l] = if x < lo[l] { x } else { lo[l] };
+        hi[l] = if x > hi[l] { x } else { hi[l] };
+    }
+    (
+        lo.iter().fold(f64::INFINITY, |a, &b| a.min(b)),
+        hi.iter().fold(0.0f64, |a, &b| a.max(b)),
+    )
+}
+
+/// `|j^-1|_inf` (the largest absolute row sum of the inverse), by the adjugate; `None`
+/// if `j` is singular or not finite.
+fn inverse_norm_inf(j: &[[f64; 3]; 3]) -> Option<f64> {
+    let det = det3(j);
+    if det == 0.0 || !det.is_finite() {
+        return None;
+    }
+    // inverse[r][c] = cofactor[c][r] / det, cofactor[c][r] from the rows other than c
+    // and the columns other than r.
+    let minor = |c: usize, r: usize| {
+        let (c0, c1) = ((c + 1) % 3, (c + 2) % 3);
+        let (r0, r1) = ((r + 1) % 3, (r + 2) % 3);
+        j[c0][r0] * j[c1][r1] - j[c0][r1] * j[c1][r0]
+    };
+    let norm = (0..3)
+        .map(|r| (0..3).map(|c| minor(c, r).abs()).sum::<f64>())
+        .fold(0.0f64, f64::max)
+        / det.abs();
+    norm.is_finite().then_some(norm)
 }
 
 /// `d a_i / d m3[v]` for each unit (`[u][i][v]`): its `[OA, PA, IA]` from the units'
@@ -934,7 +1055,174 @@ pub fn gregory_weights(m: usize) -> Vec<f64> {
 
 #[cfg(test)]
 mod tests {
-    use super::solve_3x3;
+    use super::{gregory_weights, inverse_norm_inf, newton_error_bound_g, solve_3x3};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use vibro_physics::fp;
+    use vibro_physics::passport::Passport;
+
+    /// The AL-15 with its nonlinearity (`k2..k5`), cross terms (`m31`, `m32`) and
+    /// asymmetry (`d1A`) scaled by `gains`.
+    fn scaled_passport(scale: f64, [nonlinear, cross, asymmetry]: [f64; 3]) -> Passport {
+        let mut spec = vibro_config::resolve_passport("AL-15")
+            .expect("shipped")
+            .to_spec();
+        spec.lambda.clear();
+        spec.k2_ppm_per_g *= nonlinear * scale;
+        spec.k3_ppm_per_g2 *= nonlinear * scale;
+        spec.k4_ppm_per_g3 *= nonlinear * scale;
+        spec.k5_ppm_per_g4 *= nonlinear * scale;
+        spec.m31_ppm_per_g = 300.0 * cross * scale;
+        spec.m32_ppm_per_g = -200.0 * cross * scale;
+        spec.d1a_ppm = 500.0 * asymmetry * scale;
+        Passport::try_from_spec(&spec).expect("valid")
+    }
+
+    /// Newton's stopping bound against the true error. The residual is written out
+    /// here (Gregory's weighted mean of FP over 33 points of random deviations, each
+    /// unit's `[OA, PA, IA]` a linear map of the three IA means) and solved from a
+    /// guess 0.03 g off, with the exact Jacobian; the root is the means the readings
+    /// were made from. At every step with a finite bound the error left is within it.
+    /// Each of the bound's terms is made to dominate in turn (each would fail the test
+    /// if left out): the nonlinearity raised 60-fold; the IA x OA and IA x PA terms
+    /// with OA and PA moving with the means (cross terms of 0.3 in the map); the
+    /// asymmetry with a point put within the step of IA's zero, where the bound must
+    /// be infinite. Without a kink in reach, the bound falls below the stage's
+    /// tolerance within three steps.
+    #[test]
+    fn newton_error_bound_holds_the_true_error() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let points = 33;
+        let weights = gregory_weights(points - 1);
+        let mut finite_bounds = 0;
+        let mut infinite_bounds = 0;
+        // (nonlinear, cross, asymmetry) gains, map cross terms, point near the kink.
+        let kinds: [([f64; 3], f64, bool); 3] = [
+            ([60.0, 0.0, 0.0], 1e-2, false),
+            ([0.0, 25.0, 0.0], 0.3, false),
+            ([1.0, 0.0, 100.0], 1e-2, true),
+        ];
+        for case in 0..60 {
+            let (gains, cross_map, near_kink) = kinds[case % 3];
+            let passports = [0.7, 1.0, 1.3].map(|s| scaled_passport(s, gains));
+            let map: [[[f64; 3]; 3]; 3] = std::array::from_fn(|u| {
+                std::array::from_fn(|i| {
+                    std::array::from_fn(|v| {
+                        let own = if i == 2 && v == u { 1.0 } else { 0.0 };
+                        own + cross_map * (rng.random::<f64>() - 0.5)
+                    })
+                })
+            });
+            let truth = [2.5, -3.0, 3.5].map(|c| c + rng.random::<f64>() - 0.5);
+            let unit = |u: usize, m: &[f64; 3]| -> [f64; 3] {
+                std::array::from_fn(|i| (0..3).map(|v| map[u][i][v] * m[v]).sum())
+            };
+            let guess = [truth[0] + 0.03, truth[1] - 0.02, truth[2] + 0.01];
+            let dev: [Vec<[f64; 3]>; 3] = std::array::from_fn(|u| {
+                let mut d: Vec<[f64; 3]> = (0..points)
+                    .map(|_| std::array::from_fn(|_| 3.0 * (rng.random::<f64>() - 0.5)))
+                    .collect();
+                // Deviations from the weighted mean, as the stage's.
+                for i in 0..3 {
+                    let mean: f64 = d.iter().zip(&weights).map(|(x, w)| w * x[i]).sum();
+                    d.iter_mut().for_each(|x| x[i] -= mean);
+                }
+                if near_kink {
+                    // Point 5's IA 1 mg from zero at the guess, 10 mg at the root.
+                    let ia_guess = unit(u, &guess)[2];
+                    d[5][2] = -ia_guess + 1e-3 * (1.0 + 9.0 * rng.random::<f64>());
+                }
+                d
+            });
+            let mean_fp = |u: usize, m: &[f64; 3]| -> f64 {
+                let a = unit(u, m);
+                dev[u]
+                    .iter()
+                    .zip(&weights)
+                    .map(|(d, w)| {
+                        w * fp::output_g(&passports[u], a[0] + d[0], a[1] + d[1], a[2] + d[2])
+                    })
+                    .sum()
+            };
+            let readings: [f64; 3] = std::array::from_fn(|u| mean_fp(u, &truth));
+            let dev_ia: [Vec<f64>; 3] =
+                std::array::from_fn(|u| dev[u].iter().map(|d| d[2]).collect());
+            let mut m = guess;
+            let mut settled = false;
+            for step_no in 0..6 {
+                let residual: [f64; 3] = std::array::from_fn(|u| mean_fp(u, &m) - readings[u]);
+                let jacobian: [[f64; 3]; 3] = std::array::from_fn(|u| {
+                    let a = unit(u, &m);
+                    let mut grad = [0.0; 3];
+                    for (d, w) in dev[u].iter().zip(&weights) {
+                        let g =
+                            fp::gradient_g(&passports[u], a[0] + d[0], a[1] + d[1], a[2] + d[2]);
+                        for i in 0..3 {
+                            grad[i] += w * g[i];
+                        }
+                    }
+                    std::array::from_fn(|v| (0..3).map(|i| grad[i] * map[u][i][v]).sum())
+                });
+                let ia_g = [0, 1, 2].map(|u| unit(u, &m)[2]);
+                let step = solve_3x3(&jacobian, residual).expect("regular");
+                for u in 0..3 {
+                    m[u] -= step[u];
+                }
+                let bound = newton_error_bound_g(
+                    &passports,
+                    &map,
+                    [0, 1, 2].map(|u| &dev_ia[u][..]),
+                    &jacobian,
+                    &step,
+                    ia_g,
+                );
+                let error = (0..3).map(|u| (m[u] - truth[u]).abs()).fold(0.0, f64::max);
+                if bound.is_finite() {
+                    finite_bounds += 1;
+                    assert!(
+                        error <= bound + 1e-14,
+                        "case {case} step {step_no}: error {error:e} g over its bound {bound:e} g"
+                    );
+                    settled |= bound <= super::NEWTON_TOLERANCE_G && step_no < 3;
+                } else {
+                    infinite_bounds += 1;
+                    // Only a point within the step of IA's zero makes it infinite.
+                    let in_reach = (0..3).any(|u| {
+                        let d3: f64 = (0..3).map(|v| map[u][2][v] * step[v]).sum::<f64>().abs();
+                        dev_ia[u].iter().any(|d| (ia_g[u] + d).abs() <= d3)
+                    });
+                    assert!(in_reach, "case {case} step {step_no}: no bound");
+                }
+            }
+            if !near_kink {
+                assert!(
+                    settled,
+                    "case {case}: the bound never fell below the tolerance"
+                );
+            }
+        }
+        assert!(
+            finite_bounds > 200 && infinite_bounds >= 20,
+            "{finite_bounds} {infinite_bounds}"
+        );
+    }
+
+    /// `|J^-1|_inf` against the inverse taken column by column with Cramer's rule.
+    #[test]
+    fn inverse_norm_is_the_largest_row_sum_of_the_inverse() {
+        let j = [[2.0, -1.0, 0.5], [1.0, 3.0, -2.0], [0.25, 4.0, 1.0]];
+        let columns = [0, 1, 2].map(|c| {
+            let mut e = [0.0; 3];
+            e[c] = 1.0;
+            solve_3x3(&j, e).expect("regular")
+        });
+        let want = (0..3)
+            .map(|r| (0..3).map(|c| columns[c][r].abs()).sum::<f64>())
+            .fold(0.0, f64::max);
+        let got = inverse_norm_inf(&j).expect("regular");
+        assert!((got - want).abs() < 1e-14 * want, "{got} vs {want}");
+        assert!(inverse_norm_inf(&[[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 1.0, 1.0]]).is_none());
+    }
 
     /// Cramer's rule against a system with a known solution (a diagonally dominant
     /// Jacobian as Newton's, and a general one), and singular or non-finite systems
