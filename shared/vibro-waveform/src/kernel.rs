@@ -272,7 +272,11 @@ impl WeightsCache {
         let n = self.entries.len();
         // The offsets cycle: the slot after the last hit is the likely one.
         for step in 0..n {
-            let i = (self.last + step) % n;
+            // `(last + step) % n` without a division (`last < n`, `step < n`).
+            let mut i = self.last + step;
+            if i >= n {
+                i -= n;
+            }
             if self.entries[i].frac_bits == bits {
                 self.last = i;
                 return i;

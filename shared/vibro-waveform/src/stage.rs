@@ -181,6 +181,9 @@ pub struct WaveformStage {
     /// `ia_to_unit[u][i][v] = d a_i / d m3[v]`: unit `u`'s `[OA, PA, IA]` from the
     /// units' IA means (constant: the triad's axes).
     ia_to_unit: [[[f64; 3]; 3]; 3],
+    /// The same map as a pick: unit `u`'s axis `i` is `sign * sensors[v]` for
+    /// `sensor_pick[u][i] = (v, sign)` (the triad's axes are a signed permutation).
+    sensor_pick: [[(usize, f64); 3]; 3],
     /// The last reading's point `m` is this reading's point 0 (the grid continues).
     carry: bool,
     carry_effects: bool,
@@ -233,6 +236,7 @@ impl WaveformStage {
             weights: Vec::new(),
             weight_sum: 0.0,
             ia_to_unit: ia_to_unit(&axes),
+            sensor_pick: sensor_pick(&ia_to_unit(&axes)),
             carry: false,
             carry_effects: false,
             input: Vec::new(),
@@ -374,10 +378,15 @@ impl WaveformStage {
             s.period_ns = (i128::from(t0_ns) - s.t0_ns) as f64 / (first_index - s.index0) as f64;
         }
         let mask = self.ring.len() as u64 - 1;
+        // The filter's state in a local for the block: kept in registers rather than
+        // stored and loaded back through `self` on every sample (the ring's stores
+        // could otherwise alias it): the recurrence's chain was twice as long.
+        let mut chain = *inv;
         for (k, v) in samples_v.iter().enumerate() {
             let idx = first_index.wrapping_add(k as u64);
-            self.ring[(idx & mask) as usize] = inv.undo(*v);
+            self.ring[(idx & mask) as usize] = chain.undo(*v);
         }
+        *inv = chain;
         s.hi = first_index.wrapping_add(count);
         s.lo = s.lo.max(s.hi.saturating_sub(self.ring.len() as u64));
         s.next_seq = seq.wrapping_add(1);
@@ -646,10 +655,15 @@ impl WaveformStage {
             };
             j += 1;
         }
-        for (j, sensors) in self.sensors[..=m].iter().enumerate().skip(first_point) {
-            let body = self.axes.body_from_ia(sensors);
-            for u in 0..3 {
-                self.vib[u][j] = self.axes.units[u].to_unit(&body);
+        // Each unit's [OA, PA, IA] from the sensors: `to_unit(body_from_ia(..))` as a
+        // signed pick (the same numbers: a sign times a sample).
+        for u in 0..3 {
+            let [(v0, s0), (v1, s1), (v2, s2)] = self.sensor_pick[u];
+            let points = self.vib[u][first_point..=m]
+                .iter_mut()
+                .zip(&self.sensors[first_point..=m]);
+            for (out, sensors) in points {
+                *out = [s0 * sensors[v0], s1 * sensors[v1], s2 * sensors[v2]];
             }
         }
         for u in 0..3 {
@@ -943,6 +957,19 @@ fn ia_to_unit(axes: &TriadAxes) -> [[[f64; 3]; 3]; 3] {
         }
     }
     map
+}
+
+/// [`ia_to_unit`] as a signed pick per unit and axis: the one sensor with a nonzero
+/// entry, and that entry (+-1). The triad's IAs cover x, y and z
+/// ([`TriadAxes`] checks it), so every row has exactly one.
+fn sensor_pick(map: &[[[f64; 3]; 3]; 3]) -> [[(usize, f64); 3]; 3] {
+    map.map(|unit| {
+        unit.map(|row| {
+            (0..3)
+                .find(|&v| row[v] != 0.0)
+                .map_or((0, 0.0), |v| (v, row[v]))
+        })
+    })
 }
 
 /// `x` with `j x = b` by Cramer's rule, or `None` if `j` is singular or not finite.
