@@ -141,42 +141,7 @@ impl Detector {
         threshold: f64,
         out: &mut FixedList<Detected, MAX_TONES>,
     ) -> Result<()> {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2, the only feature this copy is compiled for.
-            return unsafe { self.run_avx2(x, invalid, tone_bins, max_tones, threshold, out) };
-        }
-        self.run_portable(x, invalid, tone_bins, max_tones, threshold, out)
-    }
-
-    /// [`Self::run`] compiled for AVX2 (its per-bin loops four wide instead of two):
-    /// the same IEEE operations (no FMA), so the same numbers bit for bit.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn run_avx2(
-        &mut self,
-        x: [&[f64]; 3],
-        invalid: &[u32],
-        tone_bins: [usize; 2],
-        max_tones: usize,
-        threshold: f64,
-        out: &mut FixedList<Detected, MAX_TONES>,
-    ) -> Result<()> {
-        self.run_portable(x, invalid, tone_bins, max_tones, threshold, out)
-    }
-
-    #[inline(always)]
-    fn run_portable(
-        &mut self,
-        x: [&[f64]; 3],
-        invalid: &[u32],
-        tone_bins: [usize; 2],
-        max_tones: usize,
-        threshold: f64,
-        out: &mut FixedList<Detected, MAX_TONES>,
-    ) -> Result<()> {
         out.clear();
-        let n = self.samples;
         self.window_sum = self.window_sum_all;
         self.window_sq_sum = self.window_sq_sum_all;
         for &i in invalid {
@@ -184,31 +149,7 @@ impl Detector {
             self.window_sum -= w;
             self.window_sq_sum -= w * w;
         }
-        let valid = (n - invalid.len()) as f64;
-        for a in 0..3 {
-            // Invalid samples are 0 in x: the mean over the valid ones is sum / valid.
-            let mean = crate::sums::sum(&x[a][..n]) / valid;
-            for (inp, v) in self.input.iter_mut().zip(&x[a][..n]) {
-                *inp = v - mean;
-            }
-            for &i in invalid {
-                self.input[i as usize] = 0.0;
-            }
-            self.fft.process_with_scratch(
-                &mut self.input,
-                &mut self.plain[a],
-                &mut self.scratch,
-            )?;
-            hann_in_frequency(&self.plain[a], n, &mut self.spectrum[a], &mut self.power[a]);
-            sort_blocks(&self.power[a], &mut self.sorted_blocks);
-            estimate_floor(
-                &self.power[a],
-                &self.sorted_blocks,
-                &mut self.floor[a],
-                &mut self.median_scratch,
-                &mut self.node_floor,
-            );
-        }
+        self.spectra(x, invalid)?;
         if max_tones == 0 || tone_bins[0] > tone_bins[1] || self.window_sum <= 0.0 {
             return Ok(());
         }
@@ -234,10 +175,75 @@ impl Detector {
         Ok(())
     }
 
+    /// Per axis: the plain DFT, the Hann-windowed one, its powers and its floor. Its
+    /// per-bin loops run in an AVX2 copy where the CPU has it (four wide instead of
+    /// two): the same IEEE operations (no FMA), so the same numbers bit for bit.
+    fn spectra(&mut self, x: [&[f64]; 3], invalid: &[u32]) -> Result<()> {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, the only feature this copy is compiled for.
+            return unsafe { self.spectra_avx2(x, invalid) };
+        }
+        self.spectra_portable(x, invalid)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn spectra_avx2(&mut self, x: [&[f64]; 3], invalid: &[u32]) -> Result<()> {
+        self.spectra_portable(x, invalid)
+    }
+
+    #[inline(always)]
+    fn spectra_portable(&mut self, x: [&[f64]; 3], invalid: &[u32]) -> Result<()> {
+        let n = self.samples;
+        let valid = (n - invalid.len()) as f64;
+        for a in 0..3 {
+            // Invalid samples are 0 in x: the mean over the valid ones is sum / valid.
+            let mean = crate::sums::sum(&x[a][..n]) / valid;
+            for (inp, v) in self.input.iter_mut().zip(&x[a][..n]) {
+                *inp = v - mean;
+            }
+            for &i in invalid {
+                self.input[i as usize] = 0.0;
+            }
+            self.fft.process_with_scratch(
+                &mut self.input,
+                &mut self.plain[a],
+                &mut self.scratch,
+            )?;
+            hann_in_frequency(&self.plain[a], n, &mut self.spectrum[a], &mut self.power[a]);
+            sort_blocks(&self.power[a], &mut self.sorted_blocks);
+            estimate_floor(
+                &self.power[a],
+                &self.sorted_blocks,
+                &mut self.floor[a],
+                &mut self.median_scratch,
+                &mut self.node_floor,
+            );
+        }
+        Ok(())
+    }
+
     /// Local maxima of the summed power-to-floor ratio that could pass the threshold,
     /// strongest first, in `self.candidates`; returns how many.
-    #[inline(always)]
     fn collect_candidates(&mut self, tone_bins: [usize; 2], threshold: f64) -> usize {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2, the only feature this copy is compiled for.
+            return unsafe { self.collect_candidates_avx2(tone_bins, threshold) };
+        }
+        self.collect_candidates_portable(tone_bins, threshold)
+    }
+
+    /// [`Self::collect_candidates`] compiled for AVX2, as [`Self::spectra`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn collect_candidates_avx2(&mut self, tone_bins: [usize; 2], threshold: f64) -> usize {
+        self.collect_candidates_portable(tone_bins, threshold)
+    }
+
+    #[inline(always)]
+    fn collect_candidates_portable(&mut self, tone_bins: [usize; 2], threshold: f64) -> usize {
         let last_bin = self.samples / 2;
         let (lo, hi) = (tone_bins[0].max(1), tone_bins[1].min(last_bin - 1));
         if lo > hi {
