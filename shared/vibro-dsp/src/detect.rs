@@ -642,6 +642,7 @@ fn rank_of_two_sorted(a: &[u64], b: &[u64], k: usize) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_rng::{next, uniform};
 
     /// The window applied in frequency against the Hann-windowed samples' FFT, for
     /// even and odd lengths, with a tone near DC and one at the Nyquist end.
@@ -654,13 +655,8 @@ mod tests {
             let mut state = 0x9e37_79b9_7f4a_7c15u64 ^ n as u64;
             let x: Vec<f64> = (0..n)
                 .map(|k| {
-                    state ^= state << 13;
-                    state ^= state >> 7;
-                    state ^= state << 17;
                     let t = k as f64;
-                    (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-                        + 3.0 * (0.31 * t).cos()
-                        + 2.0 * (3.1 * t + 0.4).sin()
+                    uniform(&mut state) - 0.5 + 3.0 * (0.31 * t).cos() + 2.0 * (3.1 * t + 0.4).sin()
                 })
                 .collect();
             let mut plain_in = x.clone();
@@ -686,14 +682,7 @@ mod tests {
     fn floor_is_linear_between_its_medians() {
         for bins in [1usize, 2, 17, 33, 100, 12_801] {
             let mut state = 0x6a09_e667_f3bc_c908u64 ^ bins as u64;
-            let power: Vec<f64> = (0..bins)
-                .map(|_| {
-                    state ^= state << 13;
-                    state ^= state >> 7;
-                    state ^= state << 17;
-                    (state >> 11) as f64 / (1u64 << 53) as f64
-                })
-                .collect();
+            let power: Vec<f64> = (0..bins).map(|_| uniform(&mut state)).collect();
             let mut sorted = vec![[0u64; FLOOR_HOP_BINS]; bins / FLOOR_HOP_BINS];
             sort_blocks(&power, &mut sorted);
             let mut floor = vec![f64::NAN; bins];
@@ -725,12 +714,8 @@ mod tests {
         let mut state = 0x2545_f491_4f6c_dd1du64;
         for trial in 0..5000 {
             let distinct = if trial % 2 == 0 { 3 } else { u64::MAX };
-            let powers: [f64; 16] = std::array::from_fn(|_| {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                (state % distinct) as f64 * 0.37
-            });
+            let powers: [f64; 16] =
+                std::array::from_fn(|_| (next(&mut state) % distinct) as f64 * 0.37);
             let mut want: Vec<u64> = powers.iter().map(|p| p.to_bits()).collect();
             want.sort_unstable();
             assert_eq!(super::sorted_bits(&powers).to_vec(), want);
@@ -749,12 +734,7 @@ mod tests {
         {
             let distinct = if trial % 2 == 0 { 4 } else { u64::MAX };
             let power: Vec<f64> = (0..bins)
-                .map(|_| {
-                    state ^= state << 13;
-                    state ^= state >> 7;
-                    state ^= state << 17;
-                    (state % distinct) as f64 * 0.37
-                })
+                .map(|_| (next(&mut state) % distinct) as f64 * 0.37)
                 .collect();
             let mut sorted = vec![[0u64; FLOOR_HOP_BINS]; bins / FLOOR_HOP_BINS];
             super::sort_blocks(&power, &mut sorted);
@@ -774,12 +754,7 @@ mod tests {
     #[test]
     fn rank_of_two_sorted_matches_a_sort() {
         let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut next = || next(&mut state);
         for trial in 0..2000 {
             let distinct = if trial % 2 == 0 { 4 } else { u64::MAX };
             let (na, nb) = (1 + (next() % 20) as usize, 1 + (next() % 20) as usize);

@@ -3,7 +3,7 @@
 
 use crate::config::EstimatorConfig;
 use crate::detect::{Detected, Detector};
-use crate::kurtosis::{Kurtosis, ToneTerm};
+use crate::kurtosis::Kurtosis;
 use crate::output::{BandEstimate, Estimate, FixedList, ToneEstimate};
 use crate::response::Response;
 use crate::sinefit::{FitState, SineFit};
@@ -516,11 +516,9 @@ impl Work {
         let resolution_hz = fs_hz / n as f64;
         for (i, keep) in self.keep.iter_mut().enumerate().take(self.fit_state.tones) {
             let bin = self.fit_state.omega[i] * n as f64 / TAU;
+            let amp = self.fit_state.amplitudes(i);
             *keep = (0..3).any(|a| {
-                let (ca, cb) = (
-                    self.fit_state.lin[a][1 + 2 * i],
-                    self.fit_state.lin[a][2 + 2 * i],
-                );
+                let (ca, cb) = amp[a];
                 let floor = self.detector.floor_psd_at_bin(a, bin);
                 0.5 * (ca * ca + cb * cb) / (floor * resolution_hz) >= threshold
             });
@@ -559,22 +557,9 @@ impl Work {
         let mut kurtosis = [(f64::NAN, 0); 3];
         if self.invalid.is_empty() {
             // The residual's band from the detector's plain DFT less the kept tones.
-            let mut tones = FixedList::<ToneTerm, MAX_TONES>::new();
-            for i in 0..self.fit_state.tones {
-                if self.keep[i] {
-                    tones.push(ToneTerm {
-                        omega: self.fit_state.omega[i],
-                        amp: std::array::from_fn(|a| {
-                            (
-                                self.fit_state.lin[a][1 + 2 * i],
-                                self.fit_state.lin[a][2 + 2 * i],
-                            )
-                        }),
-                    });
-                }
-            }
             let plain = std::array::from_fn(|a| self.detector.plain_spectrum(a));
-            self.kurtosis.run_clean(plain, &tones, &mut kurtosis)?;
+            self.kurtosis
+                .run_clean(plain, &self.fit_state, &self.keep, &mut kurtosis)?;
         } else {
             for (a, k) in kurtosis.iter_mut().enumerate() {
                 *k = self
@@ -610,8 +595,9 @@ impl Work {
             // Fisher information of the frequency adds over the axes (Kay 1993, ex.
             // 3.14: var(f) = 12 S / ((2 pi)^2 A^2 T^3) per axis, S the one-sided floor PSD).
             let mut info = 0.0;
+            let amp = s.amplitudes(i);
             for a in 0..3 {
-                let (ca, cb) = (s.lin[a][1 + 2 * i], s.lin[a][2 + 2 * i]);
+                let (ca, cb) = amp[a];
                 let amp = ca.hypot(cb);
                 // A cos + B sin = R sin(w n + phi) with A = R sin phi, B = R cos phi.
                 let phase = ca.atan2(cb);

@@ -40,7 +40,7 @@
 //! samples near a gap, which needs the signal at every sample.
 
 use crate::response::Response;
-use crate::sinefit::Dirichlet;
+use crate::sinefit::{Dirichlet, FitState};
 use crate::Result;
 use realfft::num_complex::Complex64;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
@@ -50,17 +50,9 @@ use std::sync::Arc;
 /// `|sin(x)|` below which a tone's closed-form DFT takes both sines directly.
 const NEAR_SIN: f64 = 1.0 / 64.0;
 
-/// A fitted tone as the residual removed it: `A_a cos(w (n - c)) + B_a sin(w (n - c))`.
-#[derive(Debug, Clone, Copy, Default)]
-pub(crate) struct ToneTerm {
-    /// rad/sample.
-    pub(crate) omega: f64,
-    /// `(A_a, B_a)` per axis.
-    pub(crate) amp: [(f64, f64); 3],
-}
-
-/// The inverse FFT over `M > 4 hi` points (see the module doc).
-struct ShortInverse {
+/// The clean road's inverse FFT: over the fewest `M > 4 hi` points (see the module
+/// doc), or over the window's when that is not fewer.
+struct BandInverse {
     ifft: Arc<dyn ComplexToReal<f64>>,
     spectrum: Vec<Complex64>,
     output: Vec<f64>,
@@ -69,7 +61,7 @@ struct ShortInverse {
 
 pub(crate) struct Kurtosis {
     samples: usize,
-    short: Option<ShortInverse>,
+    band_inverse: BandInverse,
     dirichlet: Dirichlet,
     /// `(cos, sin)(pi k / N)` over the band's bins.
     half_turn: Vec<(f64, f64)>,
@@ -110,15 +102,16 @@ impl Kurtosis {
                 .map(|k| response.inverse_gain(a, k as f64 * df))
                 .collect()
         });
-        let short = alias_free_points(hi, samples).map(|m| {
-            let ifft = planner.plan_fft_inverse(m);
-            ShortInverse {
+        let band_inverse = {
+            let points = alias_free_points(hi, samples).unwrap_or(samples);
+            let ifft = planner.plan_fft_inverse(points);
+            BandInverse {
                 spectrum: ifft.make_input_vec(),
                 output: ifft.make_output_vec(),
                 scratch: ifft.make_scratch_vec(),
                 ifft,
             }
-        });
+        };
         let half_turn = (lo..=hi)
             .map(|k| {
                 let (s, c) = (PI * k as f64 / samples as f64).sin_cos();
@@ -128,7 +121,7 @@ impl Kurtosis {
         let width = hi - lo + 1;
         Self {
             samples,
-            short,
+            band_inverse,
             dirichlet: Dirichlet::new(samples),
             half_turn,
             band: std::array::from_fn(|_| vec![Complex64::new(0.0, 0.0); width]),
@@ -147,18 +140,20 @@ impl Kurtosis {
     }
 
     /// Kurtosis per axis of a window without invalid samples, from the window's plain
-    /// DFT per axis (`plain`, of the samples less any constant) and the kept tones the
-    /// residual removes; each with the number of samples it stands for (the window's).
-    /// Equal, up to rounding, to [`Self::run`] on the residual (see the module doc).
+    /// DFT per axis (`plain`, of the samples less any constant) and the fitted tones
+    /// the residual removes (`fit`'s, those `keep` marks); each with the number of
+    /// samples it stands for (the window's). Equal, up to rounding, to [`Self::run`] on
+    /// the residual (see the module doc).
     pub(crate) fn run_clean(
         &mut self,
         plain: [&[Complex64]; 3],
-        tones: &[ToneTerm],
+        fit: &FitState,
+        keep: &[bool],
         out: &mut [(f64, usize); 3],
     ) -> Result<()> {
         let n = self.samples;
         let [lo, hi] = self.bins;
-        self.tone_model(tones);
+        self.tone_model(fit, keep);
         for a in 0..3 {
             let band = &mut self.band[a];
             for (j, b) in band.iter_mut().enumerate() {
@@ -168,36 +163,22 @@ impl Kurtosis {
                 let tone = Complex64::new(c * m.re - s * m.im, c * m.im + s * m.re);
                 *b = (plain[a][lo + j] - tone) * self.inverse_gain[a][j];
             }
-            let kurtosis = match &mut self.short {
-                Some(short) => {
-                    short.spectrum.fill(Complex64::new(0.0, 0.0));
-                    short.spectrum[lo..=hi].copy_from_slice(band);
-                    short.ifft.process_with_scratch(
-                        &mut short.spectrum,
-                        &mut short.output,
-                        &mut short.scratch,
-                    )?;
-                    kurtosis_of(&short.output)
-                }
-                None => {
-                    self.spectrum.fill(Complex64::new(0.0, 0.0));
-                    self.spectrum[lo..=hi].copy_from_slice(band);
-                    self.ifft.process_with_scratch(
-                        &mut self.spectrum,
-                        &mut self.output,
-                        &mut self.iscratch,
-                    )?;
-                    kurtosis_of(&self.output[..n])
-                }
-            };
-            out[a] = (kurtosis, n);
+            let inverse = &mut self.band_inverse;
+            inverse.spectrum.fill(Complex64::new(0.0, 0.0));
+            inverse.spectrum[lo..=hi].copy_from_slice(band);
+            inverse.ifft.process_with_scratch(
+                &mut inverse.spectrum,
+                &mut inverse.output,
+                &mut inverse.scratch,
+            )?;
+            out[a] = (kurtosis_of(&inverse.output), n);
         }
         Ok(())
     }
 
-    /// `self.model[a][j]`: the DFT of the tones on axis `a` at band bin `lo + j`,
+    /// `self.model[a][j]`: the DFT of the kept tones on axis `a` at band bin `lo + j`,
     /// divided by `exp(i pi k / N)`.
-    fn tone_model(&mut self, tones: &[ToneTerm]) {
+    fn tone_model(&mut self, fit: &FitState, keep: &[bool]) {
         for m in &mut self.model {
             m.fill(Complex64::new(0.0, 0.0));
         }
@@ -209,12 +190,13 @@ impl Kurtosis {
             let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
             sign * dirichlet.value(2.0 * half - TAU * k as f64 / n)
         };
-        for tone in tones {
-            let half = 0.5 * tone.omega;
+        let kept = (0..fit.tones).filter(|&i| keep.get(i).copied().unwrap_or(false));
+        for i in kept {
+            let half = 0.5 * fit.omega[i];
             let (sh, ch) = half.sin_cos();
             // sin(N x) away from the zeros, times (-1)^k: the same for every bin.
             let far_num = (n * half).sin();
-            let amp = tone.amp.map(|(ca, cb)| (0.5 * ca, 0.5 * cb));
+            let amp = fit.amplitudes(i).map(|(ca, cb)| (0.5 * ca, 0.5 * cb));
             for (j, &(c, s)) in self.half_turn.iter().enumerate() {
                 let k = lo + j;
                 // x = +-w/2 - pi k / N for the tone's two phasors.
@@ -270,39 +252,31 @@ impl Kurtosis {
         self.ifft
             .process_with_scratch(&mut self.spectrum, &mut self.output, &mut self.iscratch)?;
 
-        let any_invalid = invalid_prefix[n] > 0;
+        if invalid_prefix[n] == 0 {
+            return Ok((kurtosis_of(&self.output[..n]), n));
+        }
         let g = self.guard;
-        let usable = |k: usize| {
-            !any_invalid
-                || invalid_prefix[(k + g + 1).min(n)] == invalid_prefix[k.saturating_sub(g)]
-        };
+        let usable =
+            |k: usize| invalid_prefix[(k + g + 1).min(n)] == invalid_prefix[k.saturating_sub(g)];
         let (mut count, mut sum) = (0usize, 0.0);
-        if any_invalid {
-            for (k, y) in self.output.iter().enumerate() {
-                if usable(k) {
-                    count += 1;
-                    sum += y;
-                }
+        for (k, y) in self.output.iter().enumerate() {
+            if usable(k) {
+                count += 1;
+                sum += y;
             }
-        } else {
-            (count, sum) = (n, crate::sums::sum(&self.output[..n]));
         }
         if count < n / 4 || count == 0 {
             return Ok((f64::NAN, count));
         }
         let mean = sum / count as f64;
         let (mut m2, mut m4) = (0.0, 0.0);
-        if any_invalid {
-            for (k, y) in self.output.iter().enumerate() {
-                if usable(k) {
-                    let d = y - mean;
-                    let d2 = d * d;
-                    m2 += d2;
-                    m4 += d2 * d2;
-                }
+        for (k, y) in self.output.iter().enumerate() {
+            if usable(k) {
+                let d = y - mean;
+                let d2 = d * d;
+                m2 += d2;
+                m4 += d2 * d2;
             }
-        } else {
-            (m2, m4) = crate::sums::central_2_4(&self.output[..n], mean);
         }
         m2 /= count as f64;
         m4 /= count as f64;
@@ -367,10 +341,10 @@ mod tests {
             let response = Response::new(Some(5.0), &[]);
             let mut planner = RealFftPlanner::<f64>::new();
             let mut k = Kurtosis::new(n, fs_hz, band_hz, &response, &mut planner);
-            let short = k.short.as_ref().map(|s| s.output.len());
+            let short = k.band_inverse.output.len() < n;
             let df = fs_hz / n as f64;
             let top = (band_hz[1] / df).floor();
-            assert_eq!(short.is_some(), n > 4 * top as usize + 1, "n {n}");
+            assert_eq!(short, n > 4 * top as usize + 1, "n {n}");
             let tone_bins = [
                 vec![],
                 vec![200.0],
@@ -380,23 +354,26 @@ mod tests {
                 vec![3.0, 51.7, 120.0, 333.25],
             ];
             for (case, bins) in tone_bins.iter().enumerate() {
-                let tones: Vec<ToneTerm> = bins
-                    .iter()
-                    .enumerate()
-                    .map(|(i, b)| ToneTerm {
-                        omega: TAU * b / n as f64,
-                        amp: std::array::from_fn(|a| {
-                            (0.7 + 0.3 * (a + i) as f64, -0.4 + 0.5 * a as f64)
-                        }),
-                    })
-                    .collect();
-                let mut state = 0x2545_f491_4f6c_dd1du64 ^ (n * 31 + case) as u64;
-                let mut uniform = || {
-                    state ^= state << 13;
-                    state ^= state >> 7;
-                    state ^= state << 17;
-                    (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+                // Every other slot a tone the residual keeps, the rest dropped.
+                let mut fit = FitState {
+                    tones: 2 * bins.len(),
+                    ..FitState::default()
                 };
+                let mut keep = vec![false; fit.tones];
+                for (i, b) in bins.iter().enumerate() {
+                    let slot = 2 * i + 1;
+                    keep[slot] = true;
+                    fit.omega[slot] = TAU * b / n as f64;
+                    fit.omega[slot - 1] = TAU * (b + 37.0) / n as f64;
+                    for a in 0..3 {
+                        fit.lin[a][1 + 2 * slot] = 0.7 + 0.3 * (a + i) as f64;
+                        fit.lin[a][2 + 2 * slot] = -0.4 + 0.5 * a as f64;
+                        fit.lin[a][1 + 2 * (slot - 1)] = 5.0;
+                    }
+                }
+                let kept: Vec<usize> = (0..fit.tones).filter(|&i| keep[i]).collect();
+                let mut state = 0x2545_f491_4f6c_dd1du64 ^ (n * 31 + case) as u64;
+                let mut uniform = || crate::test_rng::uniform(&mut state) - 0.5;
                 let centre = (n as f64 - 1.0) / 2.0;
                 let mut residual: [Vec<f64>; 3] = std::array::from_fn(|_| vec![0.0; n]);
                 let mut plain: [Vec<Complex64>; 3] = std::array::from_fn(|_| Vec::new());
@@ -411,11 +388,12 @@ mod tests {
                     let x: Vec<f64> = (0..n)
                         .map(|s| {
                             let t = s as f64 - centre;
-                            let tone: f64 = tones
+                            let tone: f64 = kept
                                 .iter()
-                                .map(|tn| {
-                                    let (ca, cb) = tn.amp[a];
-                                    ca * (tn.omega * t).cos() + cb * (tn.omega * t).sin()
+                                .map(|&i| {
+                                    let (ca, cb) = fit.amplitudes(i)[a];
+                                    let w = fit.omega[i];
+                                    ca * (w * t).cos() + cb * (w * t).sin()
                                 })
                                 .sum();
                             0.25 + noise[s] + tone
@@ -431,7 +409,7 @@ mod tests {
                 let prefix = vec![0u32; n + 1];
                 let mut got = [(0.0, 0); 3];
                 let plain_ref = std::array::from_fn(|a| &plain[a][..]);
-                k.run_clean(plain_ref, &tones, &mut got).unwrap();
+                k.run_clean(plain_ref, &fit, &keep, &mut got).unwrap();
                 for (a, r) in residual.iter().enumerate() {
                     let want = k.run(a, r, &prefix).unwrap();
                     assert_eq!(got[a].1, n);

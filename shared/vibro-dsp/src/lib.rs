@@ -80,6 +80,23 @@ mod sums;
 pub mod text;
 mod welch;
 
+/// The unit tests' deterministic random numbers (xorshift64).
+#[cfg(test)]
+pub(crate) mod test_rng {
+    /// The next state of `state` (Marsaglia's xorshift64: 13, 7, 17).
+    pub(crate) fn next(state: &mut u64) -> u64 {
+        *state ^= *state << 13;
+        *state ^= *state >> 7;
+        *state ^= *state << 17;
+        *state
+    }
+
+    /// Uniform in `[0, 1)` from the next state's top 53 bits.
+    pub(crate) fn uniform(state: &mut u64) -> f64 {
+        (next(state) >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
 pub use config::parse_band_hz;
 pub use config::{
     EstimatorConfig, EstimatorConfigRaw, ResponsePoint, DEFAULT_BROADBAND_BAND_HZ,

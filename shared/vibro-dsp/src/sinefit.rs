@@ -107,6 +107,14 @@ pub(crate) struct FitState {
     pub(crate) lin: [[f64; L_MAX]; 3],
 }
 
+impl FitState {
+    /// Tone `i`'s `(A, B)` per axis (`A cos + B sin`).
+    #[inline]
+    pub(crate) fn amplitudes(&self, i: usize) -> [(f64, f64); 3] {
+        std::array::from_fn(|a| (self.lin[a][1 + 2 * i], self.lin[a][2 + 2 * i]))
+    }
+}
+
 impl Default for FitState {
     fn default() -> Self {
         Self {
@@ -451,8 +459,7 @@ impl SineFit {
             if !keep.get(i).copied().unwrap_or(false) {
                 continue;
             }
-            let amp: [(f64, f64); 3] =
-                std::array::from_fn(|a| (state.lin[a][1 + 2 * i], state.lin[a][2 + 2 * i]));
+            let amp = state.amplitudes(i);
             let [o0, o1, o2] = out;
             let outs = [
                 &mut o0[..n_samples],

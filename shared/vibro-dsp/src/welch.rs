@@ -379,12 +379,7 @@ mod tests {
             let n = 4 * segment;
             let mut state = 0x3c6e_f372_fe94_f82bu64 ^ segment as u64;
             let x: Vec<f64> = (0..n)
-                .map(|k| {
-                    state ^= state << 13;
-                    state ^= state >> 7;
-                    state ^= state << 17;
-                    (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5 + (0.05 * k as f64).sin()
-                })
+                .map(|k| crate::test_rng::uniform(&mut state) - 0.5 + (0.05 * k as f64).sin())
                 .collect();
             let prefix = vec![0; n + 1];
             let mut planner = RealFftPlanner::new();

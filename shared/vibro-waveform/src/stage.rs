@@ -147,7 +147,6 @@ struct Grid {
 /// The waveform stage of one triad (crate docs).
 pub struct WaveformStage {
     chain: SensorChain,
-    axes: TriadAxes,
     passports: [Passport; 3],
     effects: [Vec<Box<dyn Effect>>; 3],
     has_effects: [bool; 3],
@@ -179,7 +178,7 @@ pub struct WaveformStage {
     /// Their sum (1 to rounding), in point order.
     weight_sum: f64,
     /// `ia_to_unit[u][i][v] = d a_i / d m3[v]`: unit `u`'s `[OA, PA, IA]` from the
-    /// units' IA means (constant: the triad's axes).
+    /// units' IA means (constant: the triad's axes, which it and `sensor_pick` hold).
     ia_to_unit: [[[f64; 3]; 3]; 3],
     /// The same map as a pick: unit `u`'s axis `i` is `sign * sensors[v]` for
     /// `sensor_pick[u][i] = (v, sign)` (the triad's axes are a signed permutation).
@@ -212,9 +211,9 @@ impl WaveformStage {
             return Err(WaveformError::Chain(text.join("; ")));
         }
         let has_effects = [0, 1, 2].map(|u| !effects[u].is_empty());
+        let map = ia_to_unit(&axes);
         Ok(Self {
             chain,
-            axes,
             passports,
             effects,
             has_effects,
@@ -235,8 +234,8 @@ impl WaveformStage {
             eff: [Vec::new(), Vec::new(), Vec::new()],
             weights: Vec::new(),
             weight_sum: 0.0,
-            ia_to_unit: ia_to_unit(&axes),
-            sensor_pick: sensor_pick(&ia_to_unit(&axes)),
+            ia_to_unit: map,
+            sensor_pick: sensor_pick(&map),
             carry: false,
             carry_effects: false,
             input: Vec::new(),
@@ -494,9 +493,8 @@ impl WaveformStage {
             let end = first + k as i128 * p;
             *o = self.solve(end, period_ns, m, *r);
             if let Some(v) = ve_g.as_deref_mut().and_then(|v| v.get_mut(k)) {
-                let body = self.axes.body_from_ia(o);
                 *v = [0, 1, 2].map(|u| {
-                    let a = self.axes.units[u].to_unit(&body);
+                    let a = pick(&self.sensor_pick[u], o);
                     r[u] - fp::output_g(&self.passports[u], a[0], a[1], a[2])
                 });
             }
@@ -655,15 +653,14 @@ impl WaveformStage {
             };
             j += 1;
         }
-        // Each unit's [OA, PA, IA] from the sensors: `to_unit(body_from_ia(..))` as a
-        // signed pick (the same numbers: a sign times a sample).
+        // Each unit's [OA, PA, IA] from the sensors.
         for u in 0..3 {
-            let [(v0, s0), (v1, s1), (v2, s2)] = self.sensor_pick[u];
+            let unit_pick = self.sensor_pick[u];
             let points = self.vib[u][first_point..=m]
                 .iter_mut()
                 .zip(&self.sensors[first_point..=m]);
             for (out, sensors) in points {
-                *out = [s0 * sensors[v0], s1 * sensors[v1], s2 * sensors[v2]];
+                *out = pick(&unit_pick, sensors);
             }
         }
         for u in 0..3 {
@@ -711,7 +708,6 @@ impl WaveformStage {
     /// Newton solves FP); returns its weighted mean per unit.
     fn output_effects(&mut self, end_ns: i128, period_ns: u64, m: usize, m3: [f64; 3]) -> [f64; 3] {
         let mut e_mean = [0.0; 3];
-        let body = self.axes.body_from_ia(&m3);
         let first_point = if self.carry_effects { 1 } else { 0 };
         for u in 0..3 {
             if !self.has_effects[u] {
@@ -720,7 +716,7 @@ impl WaveformStage {
             if first_point == 1 {
                 self.eff[u][0] = self.eff[u][m];
             }
-            let a = self.axes.units[u].to_unit(&body);
+            let a = pick(&self.sensor_pick[u], &m3);
             let p = &self.passports[u];
             for j in first_point..=m {
                 let d = self.dev[u][j];
@@ -762,12 +758,11 @@ impl WaveformStage {
         let mut converged = false;
         for _ in 0..NEWTON_ITERATIONS {
             self.counters.newton_iterations += 1;
-            let body = self.axes.body_from_ia(&m3);
             let mut residual = [0.0; 3];
             let mut jacobian = [[0.0; 3]; 3];
             let mut ia_g = [0.0; 3];
             for u in 0..3 {
-                let a = self.axes.units[u].to_unit(&body);
+                let a = pick(&self.sensor_pick[u], &m3);
                 ia_g[u] = a[2];
                 let p = &self.passports[u];
                 // The weighted terms point by point (independent: they vectorise),
@@ -970,6 +965,15 @@ fn sensor_pick(map: &[[[f64; 3]; 3]; 3]) -> [[(usize, f64); 3]; 3] {
                 .map_or((0, 0.0), |v| (v, row[v]))
         })
     })
+}
+
+/// A unit's `[OA, PA, IA]` from the three units' IA values `ia` (sensor samples or IA
+/// means) by its [`sensor_pick`]: `to_unit(body_from_ia(ia))` to the bit (a sign
+/// times a value; the two signs' product is exact).
+#[inline(always)]
+fn pick(unit_pick: &[(usize, f64); 3], ia: &[f64; 3]) -> [f64; 3] {
+    let [(v0, s0), (v1, s1), (v2, s2)] = *unit_pick;
+    [s0 * ia[v0], s1 * ia[v1], s2 * ia[v2]]
 }
 
 /// `x` with `j x = b` by Cramer's rule, or `None` if `j` is singular or not finite.
